@@ -1,0 +1,118 @@
+"""Every error hub-envs raises on purpose.
+
+One hierarchy, rooted at :class:`HubEnvsError`, so callers can catch all of them at once, and one
+class for each way things fail, so they can catch exactly one. Every message names the repo,
+revision, file or field involved and ends with what to do next.
+
+Example:
+    >>> from hub_envs.errors import HubEnvsError, UntrustedCodeError
+    >>> issubclass(UntrustedCodeError, HubEnvsError)
+    True
+"""
+
+from __future__ import annotations
+
+
+class HubEnvsError(Exception):
+    """Base class of every error hub-envs raises on purpose."""
+
+
+# --- finding things ---------------------------------------------------------------------------
+
+
+class EnvRepoNotFoundError(HubEnvsError, LookupError):
+    """The repo id does not exist on the Hub (or is private and no token grants access)."""
+
+
+class RevisionNotFoundError(HubEnvsError, LookupError):
+    """The repo exists but the branch, tag or commit sha does not."""
+
+
+class OfflineNotCachedError(HubEnvsError, LookupError):
+    """Offline mode (HF_HUB_OFFLINE=1) was asked for, but the revision is not in the local cache."""
+
+
+# --- the repo format --------------------------------------------------------------------------
+
+
+class InvalidRepoFormatError(HubEnvsError, ValueError):
+    """A file of the env repo (or local env folder) is missing, unreadable or malformed."""
+
+
+class ManifestError(InvalidRepoFormatError):
+    """The manifest (hub_env.json) is missing, is not valid JSON, or a field is wrong."""
+
+
+class EnvFolderError(InvalidRepoFormatError):
+    """A local env folder (what push_env publishes) is not in the documented shape."""
+
+
+class IntegrityError(HubEnvsError):
+    """A downloaded file differs from the sha256 the manifest records, or is missing or unlisted."""
+
+
+# --- running code -----------------------------------------------------------------------------
+
+
+class UntrustedCodeError(HubEnvsError, PermissionError):
+    """The repo's code would run, but nobody consented for this exact repo@sha."""
+
+
+class MissingRequirementsError(HubEnvsError, ImportError):
+    """Packages the repo requires are missing or at incompatible versions. Nothing is installed."""
+
+
+class EnvCodeError(HubEnvsError, RuntimeError):
+    """The repo's code failed: it raised on import, in reset or step, or broke the env contract."""
+
+
+class RegistrationConflictError(HubEnvsError, ValueError):
+    """The gym id or draccus choice name is already taken by something else."""
+
+
+# --- checks -----------------------------------------------------------------------------------
+
+
+class CheckError(HubEnvsError):
+    """A check on the env failed (base class of the specific check failures)."""
+
+
+class EnvCheckError(CheckError):
+    """gymnasium's env checker refused the env."""
+
+
+class FeatureMismatchError(CheckError):
+    """Declared features, live rollouts and the dataset disagree. ``.table`` lists every disagreement."""
+
+    def __init__(self, message: str, mismatches: list | None = None, table: str = ""):
+        super().__init__(message)
+        self.mismatches = list(mismatches or [])
+        self.table = table
+
+
+class DeterminismError(CheckError):
+    """The same seed did not give the same rollout."""
+
+
+class FingerprintMismatchError(CheckError):
+    """The golden-rollout fingerprint recomputed on load differs from the published one."""
+
+
+class DatasetError(HubEnvsError):
+    """The bundled LeRobot dataset is missing, malformed, or cannot be written."""
+
+
+class ReproductionError(HubEnvsError):
+    """A replay or benchmark reproduction could not be run (not: it ran and diverged)."""
+
+
+class ConfigError(HubEnvsError, ValueError):
+    """A configuration value (CLI flag, EnvConfig field, setting) is invalid."""
+
+
+class ProcessorError(InvalidRepoFormatError):
+    """An env processor declared in the manifest is malformed or cannot be built."""
+
+
+class HubError(HubEnvsError):
+    """The Hub (or the loopback server) refused or failed a request that is not covered above."""
