@@ -1,1 +1,47 @@
-"""hub-envs."""
+"""hub-envs: share simulation environments on the Hugging Face Hub and reproduce results from them.
+
+    >>> from hub_envs import load_env, push_env                                   # doctest: +SKIP
+    >>> push_env("envs/pendulum", "user/pendulum-lerobot")                         # doctest: +SKIP
+    >>> loaded = load_env("user/pendulum-lerobot@<sha>", trust_remote_code=True)   # doctest: +SKIP
+    >>> env = loaded.make()                                                        # doctest: +SKIP
+
+The public API is re-exported here and imported lazily, so ``hub-envs serve`` starts without
+importing lerobot or torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+__version__ = "0.1.0"
+
+_EXPORTS = {
+    "load_env": "hub_envs.load",
+    "LoadedEnv": "hub_envs.load",
+    "LoadReport": "hub_envs.load",
+    "push_env": "hub_envs.push",
+    "PushResult": "hub_envs.push",
+    "trust": "hub_envs.trust",
+    "untrust": "hub_envs.trust",
+    "is_trusted": "hub_envs.trust",
+    "Manifest": "hub_envs.repo_format",
+    "reproduce": "hub_envs.reproduce",
+    "env_from_dataset": "hub_envs.reproduce",
+}
+
+__all__ = sorted(_EXPORTS) + ["errors", "__version__"]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401
+    from hub_envs.push import PushResult, push_env  # noqa: F401
+    from hub_envs.repo_format import Manifest  # noqa: F401
+    from hub_envs.trust import is_trusted, trust, untrust  # noqa: F401
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    if name == "errors":
+        return importlib.import_module("hub_envs.errors")
+    raise AttributeError(f"module 'hub_envs' has no attribute {name!r}")

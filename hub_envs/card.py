@@ -1,0 +1,105 @@
+"""The env card (README.md), rendered from ``cards/env_card.md.j2`` with huggingface_hub's ModelCard.
+
+The YAML header is a :class:`huggingface_hub.ModelCardData`: tags, ``library_name``, and the
+random-policy benchmark as model-index evaluation results, so the Hub shows it as metadata.
+
+Example:
+    >>> from hub_envs.card import template_path
+    >>> template_path().name
+    'env_card.md.j2'
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+from huggingface_hub import EvalResult, ModelCard, ModelCardData
+
+from hub_envs.errors import InvalidRepoFormatError
+
+TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"]
+
+
+def template_path(name: str = "env_card.md.j2") -> Path:
+    path = Path(__file__).resolve().parent.parent / "cards" / name
+    if not path.is_file():
+        raise InvalidRepoFormatError(f"Card template {path} is missing. Reinstall hub-envs from its source tree (pip install -e .).")
+    return path
+
+
+def env_documentation(env_class: type) -> str:
+    """The env module's docstring (reward, termination, success), else the class docstring."""
+    module = inspect.getmodule(env_class)
+    doc = inspect.getdoc(module) if module is not None else None
+    return doc or inspect.getdoc(env_class) or "(The env's module has no docstring.)"
+
+
+def success_description(doc: str) -> str:
+    for line in doc.splitlines():
+        if "success" in line.lower():
+            return line.strip().lstrip("-* ")
+    return "see the environment description below"
+
+
+def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str) -> str:
+    """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet)."""
+    from lerobot.configs.types import FeatureType  # noqa: F401  (features were encoded by draccus)
+
+    config = manifest["config"]
+    dataset = manifest["dataset"]
+    ds_features = dataset.get("features", {})
+    features = []
+    for name, feat in config.get("features", {}).items():
+        key = config.get("features_map", {}).get(name, name)
+        features.append({
+            "name": name, "type": feat["type"], "shape": tuple(feat["shape"]), "key": key,
+            "dtype": ds_features.get(key, {}).get("dtype", "-"),
+        })
+    benchmarks = list(manifest.get("benchmarks", []))
+    eval_results = [
+        EvalResult(
+            task_type="reinforcement-learning", task_name="reinforcement-learning",
+            dataset_type=repo_id, dataset_name=manifest["name"],
+            metric_type=metric, metric_name=f"{metric} ({b['policy']['type']} policy)", metric_value=float(value),
+            verified=False,
+        )
+        for b in benchmarks for metric, value in b["metrics"].items()
+    ]
+    card_data = ModelCardData(
+        library_name="hub-envs",
+        tags=TAGS + [manifest["name"]],
+        model_name=repo_id,
+        eval_results=eval_results or None,
+        license="apache-2.0",
+    )
+    doc = env_documentation(env_class)
+    seeds = dataset.get("seeds", [])
+    seeds_text = f"{seeds[0]}…{seeds[-1]} ({len(seeds)})" if len(seeds) > 3 else ", ".join(map(str, seeds))
+    card = ModelCard.from_template(
+        card_data,
+        template_path=str(template_path()),
+        title=f"{manifest['name']} — a hub-envs environment",
+        description=manifest.get("description") or f"A gymnasium environment in LeRobot's format, shared with hub-envs.",
+        gif_path="media/rollout.gif",
+        gif_caption="Random-action rollouts",
+        repo_id=repo_id,
+        content_tag=content_tag,
+        content_digest=manifest["content_digest"],
+        task=config.get("task"),
+        fps=config.get("fps"),
+        episode_length=config.get("episode_length"),
+        requirements_text=", ".join(f"`{r}`" for r in manifest.get("requirements", [])) or "none beyond hub-envs",
+        features=features,
+        observation_space=str(env.observation_space),
+        action_space=str(env.action_space),
+        success_text=success_description(doc),
+        env_doc=doc,
+        dataset=dataset,
+        seeds_text=seeds_text,
+        benchmarks=benchmarks,
+        fingerprint_digest=manifest.get("fingerprint", {}).get("digest", "-"),
+        versions=manifest.get("versions", {}),
+    )
+    return str(card)

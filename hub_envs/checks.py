@@ -1,0 +1,104 @@
+"""Checks that need the env's code to run: gymnasium's env checker, determinism, golden fingerprint.
+
+The three-way feature check lives in :mod:`hub_envs.features`; these are the others push_env runs
+before publishing and load_env re-runs after downloading.
+
+* :func:`run_env_checker` — gymnasium's ``check_env`` (spaces, reset/step API, seeding, render).
+* :func:`check_determinism` — two fresh envs, same seed, same actions: bit-identical rollouts.
+* :func:`golden_fingerprint` — a sha256 of the first K steps of seeded random-action rollouts
+  (observations, rewards, terminations), recorded at push and recomputed at load to catch drift
+  across gymnasium / numpy / simulator upgrades.
+
+Example:
+    >>> from hub_envs.checks import golden_fingerprint                          # doctest: +SKIP
+    >>> golden_fingerprint(lambda: loaded.make(), seeds=[0, 1], steps=32)       # doctest: +SKIP
+    {'algorithm': 'sha256', 'seeds': [0, 1], 'steps': 32, 'digest': '…', 'episodes': ['…', '…']}
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from typing import Any, Callable
+
+import numpy as np
+
+from hub_envs.errors import DeterminismError, EnvCheckError, EnvCodeError, FingerprintMismatchError
+from hub_envs.rollout import EpisodeRollout, run_episodes
+
+
+def run_env_checker(env, *, where: str) -> list[str]:
+    """Run gymnasium's ``check_env`` on the unwrapped env; return its warnings, raise on failure."""
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            check_env(env.unwrapped, skip_render_check=False)
+        except (AssertionError, TypeError, ValueError, NotImplementedError) as e:
+            raise EnvCheckError(
+                f"{where}: gymnasium's check_env refused the env: {e}\n"
+                f"Run `from gymnasium.utils.env_checker import check_env; check_env(env)` on it and fix what it reports."
+            ) from e
+        except Exception as e:
+            raise EnvCodeError(f"{where}: the env raised {type(e).__name__} inside gymnasium's check_env: {e}") from e
+    return sorted({str(w.message) for w in caught})
+
+
+def _episode_digest(ep: EpisodeRollout) -> str:
+    h = hashlib.sha256()
+    for key in sorted(ep.observations):
+        arr = np.ascontiguousarray(ep.observations[key])
+        h.update(key.encode() + str(arr.dtype).encode() + str(arr.shape).encode())
+        h.update(arr.tobytes())
+    for arr in (ep.actions, ep.rewards, ep.terminated, ep.truncated):
+        arr = np.ascontiguousarray(arr)
+        h.update(str(arr.dtype).encode() + str(arr.shape).encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def _first_difference(a: EpisodeRollout, b: EpisodeRollout) -> str:
+    pairs = [(f"observation {k!r}", a.observations[k], b.observations.get(k)) for k in sorted(a.observations)]
+    pairs += [("reward", a.rewards, b.rewards), ("terminated", a.terminated, b.terminated), ("truncated", a.truncated, b.truncated)]
+    for name, x, y in pairs:
+        if y is None or x.shape != y.shape:
+            return f"{name}: shapes {getattr(x, 'shape', None)} vs {getattr(y, 'shape', None)}"
+        diff = np.nonzero(np.any((x != y).reshape(len(x), -1), axis=1))[0] if len(x) else []
+        if len(diff):
+            i = int(diff[0])
+            delta = np.max(np.abs(x[i].astype(np.float64) - y[i].astype(np.float64)))
+            return f"{name} at step {i} (max abs difference {delta:.3g})"
+    return "lengths differ"
+
+
+def check_determinism(make_env: Callable[[], Any], *, seed: int, steps: int, where: str) -> None:
+    """Two fresh envs, reset with ``seed``, the same seeded random actions: the rollouts must be identical."""
+    first = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
+    second = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
+    if _episode_digest(first) != _episode_digest(second):
+        raise DeterminismError(
+            f"{where}: two rollouts with seed {seed} differ: {_first_difference(first, second)}.\n"
+            f"Seed every source of randomness from reset(seed=...) (use self.np_random), and avoid global state."
+        )
+
+
+def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: int) -> dict[str, Any]:
+    """Hash the first ``steps`` steps of seeded random-action rollouts, one digest per seed plus one overall."""
+    episodes = run_episodes(make_env, list(seeds), max_steps=steps, progress=False)
+    digests = [_episode_digest(ep) for ep in episodes]
+    overall = hashlib.sha256("".join(digests).encode()).hexdigest()
+    return {"algorithm": "sha256", "seeds": list(seeds), "steps": steps, "digest": overall, "episodes": digests}
+
+
+def verify_fingerprint(make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str, versions_note: str = "") -> dict[str, Any]:
+    """Recompute a recorded fingerprint; raise :class:`FingerprintMismatchError` naming the drifting seeds."""
+    fresh = golden_fingerprint(make_env, seeds=list(recorded["seeds"]), steps=int(recorded["steps"]))
+    if fresh["digest"] != recorded["digest"]:
+        drifted = [s for s, a, b in zip(recorded["seeds"], recorded["episodes"], fresh["episodes"]) if a != b]
+        raise FingerprintMismatchError(
+            f"{where}: the golden-rollout fingerprint drifted: the first {recorded['steps']} steps of seeds {drifted} "
+            f"no longer match what was published.{versions_note}\n"
+            f"Run `hub-envs reproduce` for the step-by-step divergence, or pass fingerprint='warn' to load anyway."
+        )
+    return fresh

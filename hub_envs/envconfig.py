@@ -1,0 +1,75 @@
+"""What hub-envs expects of an env's LeRobot ``EnvConfig`` subclass, and its serialized values.
+
+An env's config is a ``@dataclass`` subclass of ``lerobot.envs.configs.EnvConfig`` (not registered
+by its own module: hub-envs registers it) with an ``episode_length`` field and a ``gym_kwargs``
+property giving the env constructor's keyword arguments.
+
+Example:
+    >>> from lerobot.envs.configs import PushtEnv
+    >>> from hub_envs.envconfig import encode_config
+    >>> encode_config(PushtEnv())["features"]["agent_pos"]
+    {'type': 'STATE', 'shape': [2]}
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any
+
+import draccus
+from lerobot.envs.configs import EnvConfig
+
+from hub_envs.errors import ConfigError, EnvCodeError, InvalidRepoFormatError
+
+
+def validate_config_class(config_class: Any, *, where: str) -> None:
+    if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
+        raise InvalidRepoFormatError(
+            f"{where}: the config entry point is {config_class!r}, not a subclass of lerobot.envs.configs.EnvConfig. "
+            f"Point [tool.hub-envs] config at a @dataclass subclass of EnvConfig."
+        )
+    if not dataclasses.is_dataclass(config_class):
+        raise InvalidRepoFormatError(f"{where}: {config_class.__qualname__} is not a @dataclass. Decorate it with @dataclass.")
+    names = {f.name for f in dataclasses.fields(config_class)}
+    if "episode_length" not in names:
+        raise InvalidRepoFormatError(
+            f"{where}: {config_class.__qualname__} has no 'episode_length' field. Add `episode_length: int = 200` "
+            f"(hub-envs uses it as max_episode_steps)."
+        )
+
+
+def instantiate_config(config_class: type, *, where: str, **overrides) -> EnvConfig:
+    """Build the config (its defaults, plus ``overrides``); errors from its ``__post_init__`` become ConfigError."""
+    try:
+        cfg = config_class(**overrides)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"{where}: {config_class.__qualname__}({overrides or ''}) is invalid: {e}") from e
+    except Exception as e:
+        raise EnvCodeError(f"{where}: {config_class.__qualname__}() raised {type(e).__name__}: {e}") from e
+    try:
+        gym_kwargs = cfg.gym_kwargs
+    except Exception as e:
+        raise EnvCodeError(f"{where}: {config_class.__qualname__}.gym_kwargs raised {type(e).__name__}: {e}") from e
+    if not isinstance(gym_kwargs, dict):
+        raise InvalidRepoFormatError(f"{where}: {config_class.__qualname__}.gym_kwargs must return a dict, got {type(gym_kwargs).__name__}.")
+    if "max_episode_steps" in gym_kwargs:
+        raise InvalidRepoFormatError(
+            f"{where}: {config_class.__qualname__}.gym_kwargs contains 'max_episode_steps'; hub-envs sets it from "
+            f"episode_length. Remove it from gym_kwargs."
+        )
+    return cfg
+
+
+def encode_config(cfg: EnvConfig) -> dict[str, Any]:
+    """The config's field values as JSON-ready data (draccus encoding), plus its ``gym_kwargs``."""
+    out = {f.name: draccus.encode(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+    out["gym_kwargs"] = draccus.encode(cfg.gym_kwargs)
+    # round-trip through JSON so tuples/lists compare equal to what a manifest holds
+    return json.loads(json.dumps(out, sort_keys=True))
+
+
+def config_differences(recorded: dict[str, Any], actual: dict[str, Any]) -> list[str]:
+    keys = sorted(set(recorded) | set(actual))
+    return [f"{k}: manifest {recorded.get(k, '<absent>')!r} vs code {actual.get(k, '<absent>')!r}"
+            for k in keys if recorded.get(k) != actual.get(k)]

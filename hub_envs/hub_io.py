@@ -1,0 +1,247 @@
+"""Hub I/O: resolve a revision to a commit sha, fetch a snapshot, publish a folder as one commit.
+
+The only module that talks to the Hub. It uses the unmodified ``huggingface_hub`` client and its
+cache, reads ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HUB_OFFLINE`` as the client does, and turns the
+client's errors into hub-envs' own (:mod:`hub_envs.errors`) with a next step in the message.
+
+Example:
+    >>> from hub_envs.hub_io import parse_repo_ref
+    >>> parse_repo_ref("user/pendulum-lerobot@v1")
+    ('user/pendulum-lerobot', 'v1')
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import requests
+from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, snapshot_download
+from huggingface_hub.errors import (
+    EntryNotFoundError,
+    HfHubHTTPError,
+    HFValidationError,
+    LocalEntryNotFoundError,
+    OfflineModeIsEnabled,
+    RepositoryNotFoundError,
+)
+from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
+from huggingface_hub.utils import validate_repo_id
+
+from hub_envs.errors import (
+    ConfigError,
+    EnvRepoNotFoundError,
+    HubError,
+    OfflineNotCachedError,
+    RevisionNotFoundError,
+)
+from hub_envs.repo_format import MANIFEST_FILE, is_commit_sha
+
+REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A repo at one commit, on local disk."""
+
+    repo_id: str
+    requested: str | None  # what the caller asked for (branch, tag, sha or None for main)
+    sha: str  # the resolved 40-hex commit id
+    path: Path
+    from_cache: bool  # True when no network request was made
+
+    @property
+    def pinned(self) -> bool:
+        return self.requested == self.sha
+
+
+def parse_repo_ref(ref: str) -> tuple[str, str | None]:
+    """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``."""
+    if not isinstance(ref, str) or not ref:
+        raise ConfigError(f"Repo id {ref!r} is not valid: use 'user/name', optionally '@revision'.")
+    repo_id, _, revision = ref.partition("@")
+    try:
+        validate_repo_id(repo_id)
+    except HFValidationError as e:
+        raise ConfigError(f"Repo id {repo_id!r} is not valid ({e}). Use 'user/name', optionally '@revision'.") from None
+    if "/" not in repo_id:
+        raise ConfigError(f"Repo id {repo_id!r} needs a namespace: 'user/{repo_id}'.")
+    if "@" in ref and not revision:
+        raise ConfigError(f"{ref!r} ends with '@' but names no revision. Write 'user/name@<sha, tag or branch>'.")
+    return repo_id, revision or None
+
+
+def offline() -> bool:
+    return bool(constants.HF_HUB_OFFLINE)
+
+
+def endpoint() -> str:
+    return constants.ENDPOINT
+
+
+def api(token: str | None = None) -> HfApi:
+    """A fresh client at the current endpoint (never the one captured when huggingface_hub was imported)."""
+    return HfApi(endpoint=constants.ENDPOINT, token=token)
+
+
+def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) -> Path:
+    cache = Path(cache_dir or constants.HF_HUB_CACHE)
+    return cache / f"models--{repo_id.replace('/', '--')}" / "snapshots" / sha
+
+
+@contextlib.contextmanager
+def translate_hub_errors(repo_id: str, revision: str | None):
+    """Turn huggingface_hub / requests errors into hub-envs errors that say what to do next."""
+    where = f"{repo_id}@{revision}" if revision else repo_id
+    try:
+        yield
+    except HfRevisionNotFoundError as e:
+        raise RevisionNotFoundError(
+            f"{repo_id} has no revision {revision!r} at {constants.ENDPOINT}. List its branches and tags with "
+            f"`HfApi().list_repo_refs({repo_id!r})` or pin a commit sha from its history."
+        ) from e
+    except RepositoryNotFoundError as e:
+        raise EnvRepoNotFoundError(
+            f"Env repo {repo_id!r} was not found at {constants.ENDPOINT}. Check the id; if it is private, set HF_TOKEN; "
+            f"if it lives on another Hub, set HF_ENDPOINT."
+        ) from e
+    except EntryNotFoundError as e:
+        raise HubError(f"{where}: a file is missing on the Hub ({e}). Re-publish the env with push_env.") from e
+    except (LocalEntryNotFoundError, OfflineModeIsEnabled) as e:
+        raise OfflineNotCachedError(
+            f"{where} is not in the local cache and the Hub cannot be used (offline mode or unreachable {constants.ENDPOINT}). "
+            f"Load it once online (unset HF_HUB_OFFLINE), or pin a sha that is already cached."
+        ) from e
+    except HfHubHTTPError as e:
+        status = getattr(e.response, "status_code", "?")
+        if status == 401:
+            raise HubError(f"{where}: the Hub at {constants.ENDPOINT} refused the token (401). Set HF_TOKEN to a token with access.") from e
+        raise HubError(f"{where}: the Hub at {constants.ENDPOINT} answered {status}: {e}. Retry, or check the server.") from e
+    except (requests.ConnectionError, requests.Timeout) as e:
+        raise HubError(
+            f"{where}: cannot reach the Hub at {constants.ENDPOINT} ({type(e).__name__}). Check HF_ENDPOINT and the network, "
+            f"or set HF_HUB_OFFLINE=1 to use the cache."
+        ) from e
+
+
+def resolve_snapshot(
+    repo_id: str,
+    revision: str | None = None,
+    *,
+    token: str | None = None,
+    cache_dir: str | Path | None = None,
+    force_download: bool = False,
+) -> Snapshot:
+    """Resolve ``revision`` (default: main) to a commit sha and make sure its files are on disk.
+
+    A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
+    fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
+    """
+    if revision is not None and not is_commit_sha(revision) and len(revision) == 40 and all(c in "0123456789abcdefABCDEF" for c in revision):
+        revision = revision.lower()
+    if is_commit_sha(revision) and not force_download:
+        cached = _cache_snapshot_dir(repo_id, revision, cache_dir)
+        if (cached / MANIFEST_FILE).is_file():
+            return Snapshot(repo_id, revision, revision, cached, from_cache=True)
+    with translate_hub_errors(repo_id, revision):
+        if offline():
+            path = snapshot_download(repo_id, revision=revision, repo_type=REPO_TYPE, cache_dir=cache_dir, local_files_only=True)
+            return Snapshot(repo_id, revision, Path(path).name, Path(path), from_cache=True)
+        info = api(token).repo_info(repo_id, revision=revision, repo_type=REPO_TYPE)
+        sha = info.sha
+        path = snapshot_download(
+            repo_id, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download,
+        )
+    return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
+
+
+def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None) -> str | None:
+    """The commit sha ``branch`` points at, or None if the repo does not exist yet."""
+    try:
+        with translate_hub_errors(repo_id, branch):
+            return api(token).repo_info(repo_id, revision=branch, repo_type=REPO_TYPE).sha
+    except EnvRepoNotFoundError:
+        return None
+
+
+def read_remote_text(repo_id: str, path: str, *, revision: str, token: str | None = None) -> str | None:
+    """The text of one file at ``revision``, or None if it does not exist there."""
+    from huggingface_hub import hf_hub_download
+
+    try:
+        with translate_hub_errors(repo_id, revision):
+            local = hf_hub_download(repo_id, path, revision=revision, repo_type=REPO_TYPE, token=token)
+    except HubError as e:
+        if isinstance(e.__cause__, EntryNotFoundError):
+            return None
+        raise
+    return Path(local).read_text(encoding="utf-8")
+
+
+def publish_folder(
+    folder: Path,
+    repo_id: str,
+    *,
+    parent_commit: str | None,
+    remote_files: list[str],
+    message: str,
+    description: str = "",
+    private: bool = False,
+    token: str | None = None,
+) -> str:
+    """Make the repo's content exactly ``folder`` in ONE commit on main; return the new commit sha.
+
+    ``parent_commit`` guards against a concurrent push: if main moved since it was read, the Hub
+    refuses the commit and nothing is written.
+    """
+    folder = Path(folder)
+    local = sorted(str(p.relative_to(folder).as_posix()) for p in folder.rglob("*") if p.is_file())
+    ops: list = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=str(folder / p)) for p in local]
+    ops += [CommitOperationDelete(path_in_repo=p) for p in sorted(set(remote_files) - set(local)) if p != ".gitattributes"]
+    client = api(token)
+    with translate_hub_errors(repo_id, "main"):
+        client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
+        info = client.create_commit(
+            repo_id,
+            operations=ops,
+            commit_message=message,
+            commit_description=description,
+            repo_type=REPO_TYPE,
+            parent_commit=parent_commit,
+        )
+    return info.oid
+
+
+def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, exist_ok: bool = True) -> None:
+    client = api(token)
+    with translate_hub_errors(repo_id, sha):
+        try:
+            client.create_tag(repo_id, tag=name, revision=sha, tag_message=message, repo_type=REPO_TYPE)
+        except HfHubHTTPError as e:
+            if getattr(e.response, "status_code", None) != 409:
+                raise
+            # the tag exists: fine if it already names this commit
+            refs = client.list_repo_refs(repo_id, repo_type=REPO_TYPE)
+            current = next((t.target_commit for t in refs.tags if t.name == name), None)
+            if current != sha and not exist_ok:
+                raise
+            if current != sha:
+                raise HubError(
+                    f"Tag {name!r} of {repo_id} already names commit {current}, not {sha}. Choose another --tag, "
+                    f"or delete the old one with HfApi().delete_tag({repo_id!r}, tag={name!r})."
+                ) from e
+
+
+def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None) -> list[str]:
+    if sha is None:
+        return []
+    with translate_hub_errors(repo_id, sha):
+        return api(token).list_repo_files(repo_id, revision=sha, repo_type=REPO_TYPE)
+
+
+def hf_token() -> str | None:
+    from huggingface_hub import get_token
+
+    return os.environ.get("HF_TOKEN") or get_token()

@@ -1,0 +1,373 @@
+"""``load_env``: an env repo id in, a registered, checked, ready-to-make environment out.
+
+Stages, in order (each can stop the load with its own error, and a failure after registration
+started leaves gymnasium's registry and draccus' choices exactly as they were):
+
+1. resolve the revision to a commit sha and fetch the snapshot (cached shas need no network);
+2. verify every file against the manifest's sha256 (tampered, missing or unlisted code is refused);
+3. trust gate: no code runs without ``trust_remote_code=True`` or a trust-list entry for repo@sha;
+4. requirements preflight (nothing is installed for you);
+5. import the code under a module name unique to repo+sha, register with gymnasium and draccus;
+6. checks: the three-way feature check and the golden-rollout fingerprint.
+
+Example:
+    >>> import gymnasium as gym
+    >>> from hub_envs import load_env
+    >>> env = load_env("user/pendulum-lerobot@<sha>", trust_remote_code=True)   # doctest: +SKIP
+    >>> obs, info = gym.make(env.gym_id).reset(seed=0)                          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import gymnasium as gym
+
+from hub_envs import hub_io, registration, trust
+from hub_envs.checks import verify_fingerprint
+from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
+from hub_envs.errors import (
+    ConfigError,
+    FingerprintMismatchError,
+    HubEnvsError,
+    IntegrityError,
+    InvalidRepoFormatError,
+    UntrustedCodeError,
+)
+from hub_envs.features import FeatureReport, check_features
+from hub_envs.importing import forget_env_folder, import_env_folder, module_key, resolve_entry_point
+from hub_envs.provenance import describe_differences, package_versions, version_differences
+from hub_envs.repo_format import (
+    DATASET_DIR,
+    EnvFolder,
+    Manifest,
+    content_digest,
+    hash_files,
+    is_code_file,
+)
+from hub_envs.requirements import check_requirements
+
+FingerprintPolicy = Literal["error", "warn", "off"]
+
+
+class UnpinnedRevisionWarning(UserWarning):
+    """load_env was given a branch or tag: the result is pinned to the sha it resolved to, but the call is not."""
+
+
+@dataclass
+class LoadReport:
+    """What load_env checked, and how long each stage took (seconds)."""
+
+    integrity: str = "not checked"
+    trust: str = "not needed"
+    requirements: list[str] = field(default_factory=list)
+    features: FeatureReport | None = None
+    fingerprint: str = "not checked"
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "integrity": self.integrity,
+            "trust": self.trust,
+            "requirements": self.requirements,
+            "features": self.features.to_dict() if self.features else None,
+            "fingerprint": self.fingerprint,
+            "timings": self.timings,
+        }
+
+
+class LoadedEnv:
+    """An env loaded from the Hub (or a local folder): registered, checked, and ready to make.
+
+    Attributes:
+        repo_id: ``user/name`` (``local/<folder>`` for a local folder).
+        revision: the resolved 40-hex commit sha (``local-<digest>`` for a local folder).
+        gym_id: the id registered with gymnasium (``gym.make(loaded.gym_id)``), unique per revision.
+        env_type: the draccus choice name (``--env.type=<env_type>``), unique per revision.
+        config: an instance of the repo's EnvConfig subclass, with its published defaults.
+        manifest: the parsed ``hub_env.json``.
+        path: the local snapshot folder.
+        report: the :class:`LoadReport`.
+    """
+
+    def __init__(self, *, repo_id, revision, requested_revision, path, manifest, env_class, config_class, config,
+                 registration_, report, local_folder=None):
+        self.repo_id: str = repo_id
+        self.revision: str = revision
+        self.requested_revision: str | None = requested_revision
+        self.path: Path = Path(path)
+        self.manifest: Manifest = manifest
+        self.env_class = env_class
+        self.config_class = config_class
+        self.config = config
+        self._registration: registration.Registration = registration_
+        self.report: LoadReport = report
+        self.local_folder: Path | None = local_folder
+
+    # -- names --
+    @property
+    def gym_id(self) -> str:
+        return self._registration.gym_id
+
+    @property
+    def env_type(self) -> str:
+        return self._registration.env_type
+
+    @property
+    def is_local(self) -> bool:
+        return self.local_folder is not None
+
+    @property
+    def dataset_root(self) -> Path | None:
+        root = self.path / DATASET_DIR
+        return root if (root / "meta" / "info.json").is_file() else None
+
+    def load_line(self) -> str:
+        if self.is_local:
+            return f'load_env("{self.local_folder}")'
+        return f'load_env("{self.repo_id}@{self.revision}", trust_remote_code=True)'
+
+    # -- making envs --
+    def make(self, cfg=None, **kwargs) -> gym.Env:
+        """``gym.make`` this env; ``cfg`` (an instance of :attr:`config_class`) overrides the defaults."""
+        if cfg is not None:
+            kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
+        return gym.make(self.gym_id, **kwargs)
+
+    def make_vec(self, n_envs: int = 1, use_async: bool = False, cfg=None, **kwargs) -> gym.vector.VectorEnv:
+        """A vector env of ``n_envs`` copies (async: one process each, forked so the registration carries over)."""
+        if n_envs < 1:
+            raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+        fns = [lambda: self.make(cfg, **kwargs) for _ in range(n_envs)]
+        if use_async:
+            return gym.vector.AsyncVectorEnv(fns, context="fork")
+        return gym.vector.SyncVectorEnv(fns)
+
+    def open_dataset(self, **kwargs):
+        """The bundled random-action dataset as a ``LeRobotDataset`` (read from the snapshot, no download)."""
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        if self.dataset_root is None:
+            raise InvalidRepoFormatError(f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env).")
+        return LeRobotDataset(self.repo_id, root=self.dataset_root, **kwargs)
+
+    def unregister(self) -> None:
+        """Remove this env's gym id and draccus choice (the imported modules stay cached)."""
+        registration.unregister(self._registration)
+
+    def __repr__(self) -> str:
+        return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r})"
+
+
+# --- stages -----------------------------------------------------------------------------------
+
+
+def _local_manifest(folder: EnvFolder) -> Manifest:
+    """The manifest a local folder would be published with (minus the generated parts)."""
+    files = hash_files(folder.root, list(folder.files))
+    slug = folder.root.name
+    return Manifest(
+        name=folder.name,
+        version=folder.version,
+        description=folder.description,
+        env_entry_point=folder.env_entry_point,
+        config_entry_point=folder.config_entry_point,
+        gym_id=f"local/{slug}",
+        env_type=f"local/{slug}",
+        requirements=folder.requirements,
+        files=files,
+        content_digest=content_digest(files),
+    )
+
+
+def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_remote_code: bool) -> str:
+    if trust_remote_code:
+        return "trust_remote_code=True"
+    if trust.is_trusted(repo_id, sha):
+        return f"trust list ({trust.trust_file()})"
+    code = sorted(p for p in manifest.files if is_code_file(p))
+    previous = trust.trusted_revisions(repo_id)
+    changed = ""
+    if previous:
+        prev_manifest = path.parent / previous[-1]
+        if (prev_manifest / "hub_env.json").is_file():
+            try:
+                old = Manifest.read(prev_manifest).files
+                diff = sorted(p for p in set(old) | set(manifest.files) if is_code_file(p) and old.get(p) != manifest.files.get(p))
+                changed = f"\nYou trusted {previous[-1][:12]} before; code changed since then in: {', '.join(diff) or 'nothing'}."
+            except HubEnvsError:
+                pass
+        else:
+            changed = f"\nYou trusted {repo_id}@{previous[-1][:12]} before, not this commit."
+    raise UntrustedCodeError(
+        f"{repo_id}@{sha} contains Python code that would run on this machine ({', '.join(code)}); nothing was imported.{changed}\n"
+        f"Read it in {path}, then either pass trust_remote_code=True:\n"
+        f'  load_env("{repo_id}@{sha}", trust_remote_code=True)\n'
+        f"or trust this exact commit once (remembered, keyed by sha):\n"
+        f"  hub-envs trust {repo_id}@{sha}"
+    )
+
+
+def _resolve_local(path: Path) -> tuple[str, str, Path, Manifest, EnvFolder | None]:
+    if (path / "hub_env.json").is_file():  # a published repo checked out locally
+        manifest = Manifest.read(path)
+        return manifest.repo_id or f"local/{path.name}", f"local-{manifest.content_digest[:12]}", path, manifest, None
+    folder = EnvFolder.read(path)
+    manifest = _local_manifest(folder)
+    return f"local/{path.name}", f"local-{manifest.content_digest[:12]}", path, manifest, folder
+
+
+def load_env(
+    repo_id: str,
+    *,
+    revision: str | None = None,
+    trust_remote_code: bool = False,
+    check: bool = True,
+    fingerprint: FingerprintPolicy = "error",
+    check_steps: int = 8,
+    token: str | None = None,
+    cache_dir: str | Path | None = None,
+) -> LoadedEnv:
+    """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
+
+    Args:
+        repo_id: a Hub repo id, optionally ``@revision``, or the path of a local env folder.
+        revision: a branch, tag or 40-hex commit sha (overrides ``@rev``). Pin a sha for reproducibility.
+        trust_remote_code: consent to import and run the repo's code for this call. Without it, the
+            repo@sha must be in the trust list (``hub-envs trust user/name@sha``). Local folders are yours.
+        check: run the three-way feature check and the fingerprint check after registering.
+        fingerprint: what a drifted golden-rollout fingerprint does: ``"error"``, ``"warn"`` or ``"off"``.
+        check_steps: random-action steps of the feature check.
+        token, cache_dir: passed to huggingface_hub.
+
+    Returns:
+        A :class:`LoadedEnv`.
+
+    Raises:
+        hub_envs.errors.HubEnvsError: a subclass naming what failed and what to do next.
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    report = LoadReport()
+    local_folder = None
+    path_candidate = Path(repo_id).expanduser()
+    if path_candidate.is_dir():
+        repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
+        local_folder = path
+        requested = None
+        if folder is None:
+            manifest.verify_files(path, where=str(path))
+            report.integrity = f"{len(manifest.files)} files match the manifest"
+        else:
+            report.integrity = "local folder (hashed, not verified)"
+        report.trust = "local folder"
+    else:
+        repo, at_rev = hub_io.parse_repo_ref(repo_id)
+        requested = revision or at_rev
+        snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir)
+        timings["fetch"] = time.perf_counter() - t0
+        t = time.perf_counter()
+        where = f"{repo}@{snap.sha}"
+        try:
+            manifest = Manifest.read(snap.path, where=f"{where}: hub_env.json")
+            manifest.verify_files(snap.path, where=where)
+        except (IntegrityError, InvalidRepoFormatError):
+            if not snap.from_cache or hub_io.offline():
+                raise
+            # a cached snapshot may be damaged locally: fetch it again once, then judge
+            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True)
+            manifest = Manifest.read(snap.path, where=f"{where}: hub_env.json")
+            manifest.verify_files(snap.path, where=where)
+        timings["verify"] = time.perf_counter() - t
+        report.integrity = f"{len(manifest.files)} files match the manifest"
+        sha, path = snap.sha, snap.path
+        if not snap.pinned:
+            warnings.warn(
+                f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
+                f'load_env("{repo}@{sha}")', UnpinnedRevisionWarning, stacklevel=2,
+            )
+        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code)
+    where = f"{repo}@{sha}"
+
+    t = time.perf_counter()
+    check_requirements(manifest.requirements, repo=where)
+    report.requirements = list(manifest.requirements)
+    timings["requirements"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    key = module_key(repo, sha)
+    owner = f"{repo}@{sha}"
+    try:
+        with registration.registry_transaction():
+            package = import_env_folder(path, key)
+            env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
+            config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
+            validate_config_class(config_class, where=where)
+            config = instantiate_config(config_class, where=where)
+            if manifest.config:
+                diffs = config_differences(manifest.config, encode_config(config))
+                if diffs:
+                    raise InvalidRepoFormatError(
+                        f"{where}: the manifest's config values differ from the code's defaults:\n  " + "\n  ".join(diffs) +
+                        "\nRe-publish with push_env so the manifest matches the code."
+                    )
+            qualifier = sha[:12] if not sha.startswith("local-") else sha
+            reg = registration.register(
+                gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}",
+                env_type=f"{manifest.env_type}@{qualifier}",
+                owner=owner,
+                entry_point=env_class,
+                config_class=config_class,
+                max_episode_steps=int(config.episode_length),
+                kwargs=config.gym_kwargs,
+                disable_env_checker=bool(getattr(config, "disable_env_checker", True)),
+            )
+            timings["import_register"] = time.perf_counter() - t
+            loaded = LoadedEnv(
+                repo_id=repo, revision=sha, requested_revision=requested, path=path, manifest=manifest,
+                env_class=env_class, config_class=config_class, config=config, registration_=reg,
+                report=report, local_folder=local_folder,
+            )
+            if check:
+                t = time.perf_counter()
+                _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps)
+                timings["checks"] = time.perf_counter() - t
+    except BaseException:
+        forget_env_folder(key)
+        raise
+    timings["total"] = time.perf_counter() - t0
+    report.timings = timings
+    return loaded
+
+
+def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int) -> None:
+    where = f"{loaded.repo_id}@{loaded.revision}"
+    dataset_features = None
+    if loaded.dataset_root is not None:
+        info = json.loads((loaded.dataset_root / "meta" / "info.json").read_text())
+        dataset_features = info.get("features", {})
+    env = loaded.make()
+    try:
+        report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)))
+    finally:
+        env.close()
+    loaded.report.features = report
+    report.raise_if_mismatch(where)
+    recorded = loaded.manifest.fingerprint
+    if fingerprint == "off" or not recorded:
+        loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
+        return
+    note = describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
+    try:
+        verify_fingerprint(loaded.make, recorded, where=where, versions_note=note)
+        loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
+    except FingerprintMismatchError as e:
+        if fingerprint == "error":
+            raise
+        loaded.report.fingerprint = f"DRIFTED: {e}"
+        warnings.warn(str(e), stacklevel=3)

@@ -1,0 +1,291 @@
+"""``push_env``: validate a local env folder, build its dataset and card, publish it in one commit.
+
+1. load the folder through the same code path ``load_env`` uses;
+2. refuse to publish if a check fails: gymnasium's ``check_env``, the three-way feature check,
+   determinism (same seed, same first K steps);
+3. generate the random-action dataset (seeded, in parallel across processes, progress bar);
+4. record the golden-rollout fingerprint and the random-policy benchmark, write the manifest,
+   render the card and a GIF;
+5. publish everything as ONE commit (identical content makes no new commit), tag it;
+6. print the commit sha and the pinned load line.
+
+Example:
+    >>> from hub_envs import push_env
+    >>> result = push_env("envs/pendulum", "user/pendulum-lerobot", episodes=10)   # doctest: +SKIP
+    >>> result.load_line                                                            # doctest: +SKIP
+    'load_env("user/pendulum-lerobot@3f2a…", trust_remote_code=True)'
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub_envs import hub_io
+from hub_envs.card import render_card
+from hub_envs.checks import check_determinism, golden_fingerprint, run_env_checker
+from hub_envs.dataset import dataset_features_from_config, rollout_to_frames, write_lerobot_dataset, EpisodeFrames
+from hub_envs.envconfig import encode_config
+from hub_envs.errors import ConfigError, EnvFolderError
+from hub_envs.features import check_features
+from hub_envs.load import LoadedEnv, load_env
+from hub_envs.media import write_rollout_gif
+from hub_envs.provenance import package_versions
+from hub_envs.repo_format import (
+    CARD_FILE,
+    DATASET_DIR,
+    ENV_ENTRY_FILE,
+    GIF_FILE,
+    MANIFEST_FILE,
+    Manifest,
+    content_digest,
+    content_tag,
+    hash_files,
+    list_files,
+)
+from hub_envs.rollout import run_episodes
+
+ENTRY_TEMPLATE = Path(__file__).resolve().parent / "templates" / "env_entry.py"
+
+
+@dataclass
+class PushResult:
+    """What push_env did."""
+
+    repo_id: str
+    sha: str
+    created_commit: bool
+    content_tag: str
+    manifest: Manifest
+    timings: dict[str, float] = field(default_factory=dict)
+    tags: list[str] = field(default_factory=list)
+
+    @property
+    def load_line(self) -> str:
+        return f'load_env("{self.repo_id}@{self.sha}", trust_remote_code=True)'
+
+    def summary(self) -> str:
+        verb = "Published" if self.created_commit else "Unchanged; already published"
+        return (f"{verb} {self.repo_id} at commit {self.sha} (tags: {', '.join(self.tags)}).\n"
+                f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}")
+
+
+def _default_workers() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+def _random_benchmark(returns: list[float], successes: list[bool], seeds: list[int]) -> dict[str, Any]:
+    return {
+        "name": "random-policy",
+        "policy": {"type": "random", "seed_source": "episode reset seed (action_space.seed(seed))"},
+        "episodes": len(returns),
+        "seeds": list(seeds),
+        "metrics": {"mean_return": float(np.mean(returns)), "success_rate": float(np.mean(successes))},
+        "per_episode": {"return": [float(r) for r in returns], "success": [bool(s) for s in successes]},
+        "tolerance": {"mean_return": 1e-6, "success_rate": 0.0},
+    }
+
+
+def env_meta(loaded: LoadedEnv, repo_id: str, code_digest: str) -> dict[str, Any]:
+    """robomimic-style env_meta stored in the dataset: enough to rebuild exactly the env the data came from.
+
+    The dataset is part of the commit it describes, so it cannot name that commit's sha; it names the
+    repo and the digest of the env's code instead, and ``env_from_dataset`` finds the commit.
+    """
+    return {
+        "env_repo_id": repo_id,
+        "code_digest": code_digest,
+        "env_entry_point": loaded.manifest.env_entry_point,
+        "config_entry_point": loaded.manifest.config_entry_point,
+        "env_kwargs": encode_config(loaded.config)["gym_kwargs"],
+        "config": encode_config(loaded.config),
+    }
+
+
+def build_repo(
+    loaded: LoadedEnv,
+    staging: Path,
+    *,
+    repo_id: str,
+    episodes: int,
+    seed: int,
+    workers: int,
+    determinism_steps: int = 32,
+    fingerprint_seeds: int = 3,
+    progress: bool = True,
+) -> Manifest:
+    """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``."""
+    where = f"{loaded.local_folder} (for {repo_id})"
+    cfg = loaded.config
+    timings: dict[str, float] = {}
+
+    t = time.perf_counter()
+    raw = loaded.env_class(**cfg.gym_kwargs)
+    try:
+        run_env_checker(raw, where=where)
+    finally:
+        raw.close()
+    env = loaded.make()
+    try:
+        check_features(cfg, env, None, seed=seed).raise_if_mismatch(where)
+    finally:
+        env.close()
+    check_determinism(loaded.make, seed=seed, steps=min(determinism_steps, int(cfg.episode_length)), where=where)
+    timings["checks"] = time.perf_counter() - t
+
+    # -- code --
+    for rel in list_files(loaded.local_folder):
+        dest = staging / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(loaded.local_folder / rel, dest)
+    (staging / ENV_ENTRY_FILE).write_text(ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8")
+    code_digest = content_digest(hash_files(staging, list_files(staging)))
+
+    # -- dataset --
+    t = time.perf_counter()
+    seeds = [seed + i for i in range(episodes)]
+    features = dataset_features_from_config(cfg)
+    returns: list[float] = []
+    successes: list[bool] = []
+
+    def frames():
+        for rollout in run_episodes(loaded.make, seeds, max_steps=int(cfg.episode_length), workers=workers,
+                                    progress=progress, desc=f"Generating {episodes} episodes"):
+            returns.append(float(np.sum(rollout.rewards)))
+            successes.append(bool(np.any(rollout.is_success)))
+            yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
+
+    summary = write_lerobot_dataset(
+        staging / DATASET_DIR, repo_id=repo_id, fps=int(cfg.fps), features=features, episodes=frames(),
+        task=str(cfg.task), extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
+        progress=progress,
+    )
+    timings["dataset"] = time.perf_counter() - t
+
+    env = loaded.make()
+    try:
+        import json
+
+        info = json.loads((staging / DATASET_DIR / "meta" / "info.json").read_text())
+        check_features(cfg, env, info["features"], seed=seed).raise_if_mismatch(where)
+        # -- fingerprint, GIF --
+        fp = golden_fingerprint(loaded.make, seeds=seeds[:fingerprint_seeds], steps=min(32, int(cfg.episode_length)))
+        write_rollout_gif(loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length)))
+        manifest_dict: dict[str, Any] = {
+            "format_version": 1,
+            "repo_id": repo_id,
+            "name": loaded.manifest.name,
+            "version": loaded.manifest.version,
+            "description": loaded.manifest.description,
+            "env_entry_point": loaded.manifest.env_entry_point,
+            "config_entry_point": loaded.manifest.config_entry_point,
+            "gym_id": repo_id,
+            "env_type": repo_id,
+            "requirements": list(loaded.manifest.requirements),
+            "config": encode_config(cfg),
+            "dataset": {
+                "path": DATASET_DIR,
+                "fingerprint": summary.fingerprint,
+                "episodes": summary.episodes,
+                "frames": summary.frames,
+                "fps": summary.fps,
+                "seeds": list(summary.seeds),
+                "return_mean": summary.return_mean,
+                "return_std": summary.return_std,
+                "return_min": summary.return_min,
+                "return_max": summary.return_max,
+                "success_rate": summary.success_rate,
+                "features": features,
+            },
+            "fingerprint": fp,
+            "code_digest": code_digest,
+            "seeds": {"dataset": seeds, "check": seed, "fingerprint": fp["seeds"]},
+            "versions": package_versions(loaded.manifest.requirements),
+            "benchmarks": [_random_benchmark(returns, successes, seeds)],
+            "processors": [],
+        }
+        files = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE)))
+        manifest_dict["content_digest"] = content_digest(files)
+        (staging / CARD_FILE).write_text(
+            render_card(repo_id=repo_id, manifest=manifest_dict, env_class=loaded.env_class, env=env,
+                        content_tag=content_tag(manifest_dict["content_digest"])),
+            encoding="utf-8",
+        )
+    finally:
+        env.close()
+    manifest_dict["files"] = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE,)))
+    manifest = Manifest.from_dict(manifest_dict)
+    (staging / MANIFEST_FILE).write_text(manifest.to_json(), encoding="utf-8")
+    return manifest
+
+
+def push_env(
+    env_dir: str | Path,
+    repo_id: str,
+    *,
+    episodes: int = 10,
+    seed: int = 0,
+    private: bool = False,
+    tag: str | None = None,
+    token: str | None = None,
+    workers: int | None = None,
+    commit_message: str | None = None,
+    progress: bool = True,
+) -> PushResult:
+    """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
+
+    Pushing content identical to the repo's current main makes no new commit (the result says so).
+    """
+    if episodes < 1:
+        raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
+    repo_id, rev = hub_io.parse_repo_ref(repo_id)
+    if rev is not None:
+        raise ConfigError(f"push_env publishes to main; drop '@{rev}' from {repo_id}@{rev} (use --tag to name the commit).")
+    env_dir = Path(env_dir)
+    if not env_dir.is_dir():
+        raise EnvFolderError(f"Env folder {env_dir} does not exist. Pass --env_dir=PATH to the folder with pyproject.toml.")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    loaded = load_env(str(env_dir), check=False)
+    try:
+        with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp:
+            staging = Path(tmp) / "repo"
+            staging.mkdir()
+            manifest = build_repo(loaded, staging, repo_id=repo_id, episodes=episodes, seed=seed,
+                                  workers=workers or _default_workers(), progress=progress)
+            timings["build"] = time.perf_counter() - t0
+            t = time.perf_counter()
+            head = hub_io.remote_head(repo_id, token=token)
+            remote_manifest = None
+            if head is not None:
+                text = hub_io.read_remote_text(repo_id, MANIFEST_FILE, revision=head, token=token)
+                if text is not None:
+                    try:
+                        remote_manifest = Manifest.from_json(text)
+                    except Exception:
+                        remote_manifest = None
+            if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json():
+                sha, created = head, False
+            else:
+                message = commit_message or f"push_env: {manifest.name} {manifest.version} ({manifest.dataset['episodes']} episodes, seed {seed})"
+                sha = hub_io.publish_folder(
+                    staging, repo_id, parent_commit=head, remote_files=hub_io.list_remote_files(repo_id, head, token=token),
+                    message=message, description=f"content digest {manifest.content_digest}", private=private, token=token,
+                )
+                created = True
+            tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
+            for name in tags:
+                hub_io.tag(repo_id, sha, name, message=f"hub-envs content {manifest.content_digest}", token=token)
+            timings["publish"] = time.perf_counter() - t
+    finally:
+        loaded.unregister()
+    timings["total"] = time.perf_counter() - t0
+    return PushResult(repo_id=repo_id, sha=sha, created_commit=created, content_tag=tags[0], manifest=manifest,
+                      timings=timings, tags=tags)

@@ -1,0 +1,132 @@
+"""Register a loaded env with gymnasium and its config with draccus, all or nothing.
+
+Two registries, one transaction: :func:`registry_transaction` remembers both and, if anything in
+its block raises, puts both back exactly as they were. hub-envs owns the names it registers
+(``_OWNED``), so loading the same ``repo@sha`` twice is a no-op, and a name held by anything else
+is a :class:`RegistrationConflictError`, never an overwrite.
+
+Example:
+    >>> import gymnasium as gym
+    >>> from hub_envs.registration import registry_transaction
+    >>> before = set(gym.registry)
+    >>> with registry_transaction():
+    ...     pass
+    >>> set(gym.registry) == before
+    True
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import gymnasium as gym
+from lerobot.envs.configs import EnvConfig
+
+from hub_envs.errors import RegistrationConflictError
+
+#: name -> owner key ("repo@sha") for every gym id and draccus choice hub-envs registered.
+_OWNED_GYM: dict[str, str] = {}
+_OWNED_CHOICES: dict[str, str] = {}
+
+
+@dataclass(frozen=True)
+class Registration:
+    """What one load registered: the gym id, the draccus choice name, and who owns them."""
+
+    gym_id: str
+    env_type: str
+    owner: str
+
+
+def _choices() -> dict[str, Any]:
+    return EnvConfig._choice_registry
+
+
+@contextlib.contextmanager
+def registry_transaction():
+    """On an exception inside the block, restore gymnasium's registry and draccus' EnvConfig choices."""
+    gym_before = dict(gym.registry)
+    choices_before = dict(_choices())
+    owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES))
+    try:
+        yield
+    except BaseException:
+        gym.registry.clear()
+        gym.registry.update(gym_before)
+        _choices().clear()
+        _choices().update(choices_before)
+        _OWNED_GYM.clear()
+        _OWNED_GYM.update(owned_before[0])
+        _OWNED_CHOICES.clear()
+        _OWNED_CHOICES.update(owned_before[1])
+        raise
+
+
+def snapshot_registries() -> tuple[frozenset, dict]:
+    """A comparable picture of both registries (for tests and the reliability suite)."""
+    return frozenset(gym.registry.items()), dict(_choices())
+
+
+def register(
+    *,
+    gym_id: str,
+    env_type: str,
+    owner: str,
+    entry_point: Callable[..., gym.Env],
+    config_class: type,
+    max_episode_steps: int | None,
+    kwargs: dict[str, Any],
+    disable_env_checker: bool = True,
+) -> Registration:
+    """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner."""
+    if gym_id in gym.registry and _OWNED_GYM.get(gym_id) != owner:
+        holder = _OWNED_GYM.get(gym_id) or gym.registry[gym_id].entry_point
+        raise RegistrationConflictError(
+            f"gym id {gym_id!r} is already registered by {holder!r}, not by {owner}. "
+            f"Unregister it first (hub_envs.unregister / del gymnasium.registry[{gym_id!r}]) or load in a fresh process."
+        )
+    existing = _choices().get(env_type)
+    if existing is not None and _OWNED_CHOICES.get(env_type) != owner:
+        raise RegistrationConflictError(
+            f"draccus choice {env_type!r} is already registered for {existing!r}, not by {owner}. "
+            f"Pick another name or load in a fresh process."
+        )
+    if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
+        raise RegistrationConflictError(f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice.")
+    # A config class registered under another name by its own module would make `cfg.type` ambiguous.
+    other_names = [n for n, c in _choices().items() if c is config_class and n != env_type]
+    for name in other_names:
+        if _OWNED_CHOICES.get(name) is None:
+            raise RegistrationConflictError(
+                f"{config_class.__qualname__} registered itself as the choice {name!r}. Remove its "
+                f"@EnvConfig.register_subclass decorator: hub-envs registers it as {env_type!r}."
+            )
+    if gym_id not in gym.registry:
+        gym.register(
+            id=gym_id,
+            entry_point=entry_point,
+            max_episode_steps=max_episode_steps,
+            kwargs=dict(kwargs),
+            disable_env_checker=disable_env_checker,
+        )
+        _OWNED_GYM[gym_id] = owner
+    if env_type not in _choices():
+        EnvConfig.register_subclass(env_type)(config_class)
+        _OWNED_CHOICES[env_type] = owner
+    return Registration(gym_id=gym_id, env_type=env_type, owner=owner)
+
+
+def unregister(registration: Registration) -> None:
+    """Remove what :func:`register` added (only if hub-envs still owns it)."""
+    if _OWNED_GYM.get(registration.gym_id) == registration.owner:
+        gym.registry.pop(registration.gym_id, None)
+        del _OWNED_GYM[registration.gym_id]
+    if _OWNED_CHOICES.get(registration.env_type) == registration.owner:
+        _choices().pop(registration.env_type, None)
+        del _OWNED_CHOICES[registration.env_type]
+
+
+def owner_of_choice(env_type: str) -> str | None:
+    return _OWNED_CHOICES.get(env_type)

@@ -1,0 +1,340 @@
+"""The env repo format: which files an env repo holds, the manifest, and file hashing.
+
+An env is published as ONE model-type Hub repo (model type, so LeRobot's own EnvHub loader finds it):
+
+=====================  ===========================================================  ====================
+file                   what it holds                                                who writes it
+=====================  ===========================================================  ====================
+``pyproject.toml``     name, version, ``dependencies``; ``[tool.hub-envs]`` with    you (the env author)
+                       ``env = "module:EnvClass"``, ``config = "module:Config"``
+``*.py``, assets       the gymnasium env and its LeRobot ``EnvConfig`` subclass;    you
+                       files import each other relatively (``from .x import y``)
+``env.py``             LeRobot EnvHub entry point ``make_env(n_envs, use_async_      push_env
+                       envs, cfg)``; fetches the rest of its snapshot if needed
+``hub_env.json``       the manifest: format version, entry points, gym id, draccus  push_env
+                       choice name, requirements, config values, sha256 of every
+                       file, dataset fingerprint, seeds, golden-rollout
+                       fingerprint, benchmark results, package versions
+``dataset/``           the random-action dataset in LeRobot v3 format (meta/,       push_env
+                       data/), each episode's reset seed recorded
+``media/rollout.gif``  a few random-action rollouts, rendered                      push_env
+``README.md``          the env card, rendered from ``cards/`` templates            push_env
+=====================  ===========================================================  ====================
+
+A *local env folder* (what an author writes) is the first two rows only.
+
+Example:
+    >>> from hub_envs.repo_format import Manifest, MANIFEST_FILE
+    >>> MANIFEST_FILE
+    'hub_env.json'
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import tomllib
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
+
+FORMAT_VERSION = 1
+MANIFEST_FILE = "hub_env.json"
+CARD_FILE = "README.md"
+ENV_ENTRY_FILE = "env.py"
+PROJECT_FILE = "pyproject.toml"
+DATASET_DIR = "dataset"
+MEDIA_DIR = "media"
+GIF_FILE = f"{MEDIA_DIR}/rollout.gif"
+
+#: Files push_env generates; an env folder must not contain them (they would be overwritten).
+GENERATED = (MANIFEST_FILE, CARD_FILE, ENV_ENTRY_FILE, DATASET_DIR, MEDIA_DIR)
+#: Files the Hub itself may add to a repo; never part of the env.
+HUB_FILES = (".gitattributes",)
+#: Left out of an env folder when publishing.
+IGNORED_PARTS = ("__pycache__", ".git", ".ipynb_checkpoints", ".pytest_cache", ".venv")
+IGNORED_SUFFIXES = (".pyc", ".pyo")
+
+_SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
+_SHA1_RE = re.compile(r"^[0-9a-f]{40}$")
+
+
+def is_commit_sha(revision: str | None) -> bool:
+    """True for a full 40-hex commit id (the only revision that pins content)."""
+    return bool(revision) and bool(_SHA1_RE.match(revision))
+
+
+def is_code_file(path: str) -> bool:
+    return path.endswith(".py")
+
+
+# --- paths and hashing ------------------------------------------------------------------------
+
+
+def safe_relpath(path: str, *, where: str) -> str:
+    """Return ``path`` as a normalized POSIX path inside a repo, or raise if it could escape it."""
+    if not isinstance(path, str) or not path or "\x00" in path or "\\" in path:
+        raise ManifestError(f"{where}: {path!r} is not a valid repo path. Use forward-slash paths relative to the repo root.")
+    p = PurePosixPath(path)
+    if p.is_absolute() or any(part in ("..", "") for part in p.parts) or path.startswith("./") or path != str(p):
+        raise ManifestError(
+            f"{where}: path {path!r} is absolute or escapes the repo. Only plain relative paths such as "
+            f"'physics.py' or 'assets/robot.urdf' are allowed."
+        )
+    return path
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _ignored(rel: PurePosixPath) -> bool:
+    return any(part in IGNORED_PARTS for part in rel.parts) or rel.name.endswith(IGNORED_SUFFIXES)
+
+
+def list_files(root: Path, *, skip: tuple[str, ...] = ()) -> list[str]:
+    """Relative POSIX paths of the files under ``root`` (sorted), leaving out caches and ``skip``."""
+    root = Path(root)
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if d not in IGNORED_PARTS)
+        for name in filenames:
+            rel = PurePosixPath(Path(dirpath, name).relative_to(root).as_posix())
+            if _ignored(rel) or str(rel) in skip or str(rel) in HUB_FILES:
+                continue
+            out.append(str(rel))
+    return sorted(out)
+
+
+def hash_files(root: Path, paths: list[str]) -> dict[str, str]:
+    return {p: sha256_file(Path(root, p)) for p in sorted(paths)}
+
+
+def content_digest(files: dict[str, str]) -> str:
+    """One sha256 over (path, sha256) pairs: the identity of a repo's content, card and manifest excluded.
+
+    The card names this digest (a commit cannot name its own sha), so it cannot be part of it.
+    """
+    h = hashlib.sha256()
+    for path in sorted(files):
+        if path in (CARD_FILE, MANIFEST_FILE):
+            continue
+        h.update(f"{path}\x00{files[path]}\n".encode())
+    return h.hexdigest()
+
+
+def content_tag(digest: str) -> str:
+    """The tag push_env puts on every commit it makes: content-addressed, so a card can pin it."""
+    return f"sha256-{digest[:16]}"
+
+
+# --- the manifest -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """What ``hub_env.json`` holds. Frozen: load, check, never mutate.
+
+    Everything in it can be read without trusting the repo's code.
+    """
+
+    name: str
+    env_entry_point: str
+    config_entry_point: str
+    gym_id: str
+    env_type: str
+    files: dict[str, str]
+    content_digest: str
+    format_version: int = FORMAT_VERSION
+    repo_id: str | None = None
+    version: str = "0.0.0"
+    description: str = ""
+    code_digest: str = ""  # digest of the code files alone (what the dataset's env_meta names)
+    requirements: tuple[str, ...] = ()
+    config: dict[str, Any] = field(default_factory=dict)
+    dataset: dict[str, Any] = field(default_factory=dict)
+    fingerprint: dict[str, Any] = field(default_factory=dict)
+    seeds: dict[str, Any] = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=dict)
+    benchmarks: tuple[dict[str, Any], ...] = ()
+    processors: tuple[dict[str, Any], ...] = ()
+
+    # -- (de)serialization --
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["requirements"] = list(self.requirements)
+        d["benchmarks"] = list(self.benchmarks)
+        d["processors"] = list(self.processors)
+        return d
+
+    def to_json(self) -> str:
+        """Canonical JSON: sorted keys, fixed indentation, so identical content gives identical bytes."""
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+    @classmethod
+    def from_dict(cls, data: Any, *, where: str = MANIFEST_FILE) -> Manifest:
+        if not isinstance(data, dict):
+            raise ManifestError(f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env.")
+        version = data.get("format_version")
+        if version != FORMAT_VERSION:
+            hint = "upgrade hub-envs" if isinstance(version, int) and version > FORMAT_VERSION else "re-publish it with push_env"
+            raise ManifestError(f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); {hint}.")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ManifestError(f"{where}: unknown field(s) {unknown}. Fix the manifest or upgrade hub-envs.")
+        required = ("name", "env_entry_point", "config_entry_point", "gym_id", "env_type", "files", "content_digest")
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise ManifestError(f"{where}: missing field(s) {missing}. Re-publish with push_env, which writes them all.")
+        for key in ("name", "env_entry_point", "config_entry_point", "gym_id", "env_type", "content_digest", "version", "description", "code_digest"):
+            if key in data and not isinstance(data[key], str):
+                raise ManifestError(f"{where}: field {key!r} must be a string, got {type(data[key]).__name__}.")
+        for key in ("config", "dataset", "fingerprint", "seeds", "versions"):
+            if key in data and not isinstance(data[key], dict):
+                raise ManifestError(f"{where}: field {key!r} must be an object, got {type(data[key]).__name__}.")
+        files = data["files"]
+        if not isinstance(files, dict) or not files:
+            raise ManifestError(f"{where}: field 'files' must map each repo path to its sha256.")
+        for path, digest in files.items():
+            safe_relpath(path, where=f"{where} files")
+            if not isinstance(digest, str) or not _SHA256_RE.match(digest):
+                raise ManifestError(f"{where}: files[{path!r}] = {digest!r} is not a sha256 hex digest.")
+        if not _SHA256_RE.match(data["content_digest"]):
+            raise ManifestError(f"{where}: content_digest {data['content_digest']!r} is not a sha256 hex digest.")
+        reqs = data.get("requirements", [])
+        if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
+            raise ManifestError(f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'.")
+        for key in ("benchmarks", "processors"):
+            val = data.get(key, [])
+            if not isinstance(val, list) or not all(isinstance(v, dict) for v in val):
+                raise ManifestError(f"{where}: {key!r} must be a list of objects.")
+        kwargs = dict(data)
+        kwargs["requirements"] = tuple(reqs)
+        kwargs["benchmarks"] = tuple(data.get("benchmarks", []))
+        kwargs["processors"] = tuple(data.get("processors", []))
+        return cls(**kwargs)
+
+    @classmethod
+    def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise ManifestError(f"{where} is not valid JSON ({e}). Re-publish with push_env.") from None
+        return cls.from_dict(data, where=where)
+
+    @classmethod
+    def read(cls, folder: Path, *, where: str | None = None) -> Manifest:
+        path = Path(folder, MANIFEST_FILE)
+        where = where or str(path)
+        if not path.is_file():
+            raise ManifestError(f"{where} is missing: this is not an env repo published by push_env. Publish it with `push_env --env_dir=...`.")
+        try:
+            return cls.from_json(path.read_text(encoding="utf-8"), where=where)
+        except UnicodeDecodeError:
+            raise ManifestError(f"{where} is not UTF-8 text. Re-publish with push_env.") from None
+
+    # -- checks that need no code --
+
+    def verify_files(self, folder: Path, *, where: str) -> None:
+        """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code."""
+        folder = Path(folder)
+        problems = []
+        for path, expected in sorted(self.files.items()):
+            local = folder / path
+            if not local.is_file():
+                problems.append(f"  missing   {path}")
+            elif sha256_file(local) != expected:
+                problems.append(f"  tampered  {path} (sha256 differs from the manifest)")
+        present = set(list_files(folder, skip=(MANIFEST_FILE,)))
+        for path in sorted(present - set(self.files)):
+            if is_code_file(path):
+                problems.append(f"  unlisted  {path} (code not covered by the manifest)")
+        if problems:
+            raise IntegrityError(
+                f"{where}: {len(problems)} file(s) do not match the manifest:\n" + "\n".join(problems) +
+                "\nDo not run this code. If you publish this repo, re-publish with push_env; otherwise ask its author."
+            )
+        if content_digest(self.files) != self.content_digest:
+            raise IntegrityError(f"{where}: the manifest's content_digest does not match its file list. Re-publish with push_env.")
+
+
+# --- a local env folder (what an author writes) -----------------------------------------------
+
+
+@dataclass(frozen=True)
+class EnvFolder:
+    """A local env folder, read from its ``pyproject.toml`` without running any of its code."""
+
+    root: Path
+    name: str
+    version: str
+    description: str
+    requirements: tuple[str, ...]
+    env_entry_point: str
+    config_entry_point: str
+    files: tuple[str, ...]
+
+    @classmethod
+    def read(cls, root: str | Path) -> EnvFolder:
+        root = Path(root).resolve()
+        if not root.is_dir():
+            raise EnvFolderError(f"Env folder {root} does not exist. Pass the folder holding pyproject.toml and the env's code.")
+        project_path = root / PROJECT_FILE
+        if not project_path.is_file():
+            raise EnvFolderError(
+                f"{project_path} is missing. An env folder needs a pyproject.toml with\n"
+                f'  [project] name = "my-env", dependencies = [...]\n'
+                f'  [tool.hub-envs] env = "my_env:MyEnv", config = "my_env:MyEnvConfig"'
+            )
+        try:
+            data = tomllib.loads(project_path.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+            raise EnvFolderError(f"{project_path} is not valid TOML ({e}). Fix the syntax.") from None
+        project = data.get("project", {})
+        tool = data.get("tool", {}).get("hub-envs")
+        if not isinstance(tool, dict):
+            raise EnvFolderError(f"{project_path}: no [tool.hub-envs] table. Add env = \"module:EnvClass\" and config = \"module:ConfigClass\".")
+        for key in ("env", "config"):
+            if not isinstance(tool.get(key), str):
+                raise EnvFolderError(f"{project_path}: [tool.hub-envs] {key} is missing or not a string, e.g. {key} = \"my_env:My{'Env' if key == 'env' else 'EnvConfig'}\".")
+        name = project.get("name")
+        if not isinstance(name, str) or not name:
+            raise EnvFolderError(f"{project_path}: [project] name is missing. Add name = \"my-env\".")
+        deps = project.get("dependencies", [])
+        if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
+            raise EnvFolderError(f"{project_path}: [project] dependencies must be a list of requirement strings.")
+        from packaging.requirements import InvalidRequirement, Requirement
+
+        for dep in deps:
+            try:
+                Requirement(dep)
+            except InvalidRequirement as e:
+                raise EnvFolderError(f"{project_path}: dependency {dep!r} is not a valid requirement ({e}).") from None
+        files = list_files(root)
+        clash = sorted({f.split("/")[0] for f in files} & set(GENERATED))
+        if clash:
+            raise EnvFolderError(
+                f"{root}: {clash} are generated by push_env and must not be in an env folder. Remove or rename them."
+            )
+        if not any(is_code_file(f) for f in files):
+            raise EnvFolderError(f"{root} has no .py file. Put the env and its config in a module next to pyproject.toml.")
+        return cls(
+            root=root,
+            name=name,
+            version=str(project.get("version", "0.0.0")),
+            description=str(project.get("description", "")),
+            requirements=tuple(deps),
+            env_entry_point=tool["env"],
+            config_entry_point=tool["config"],
+            files=tuple(files),
+        )
