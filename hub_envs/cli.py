@@ -3,10 +3,17 @@
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
     hub-envs serve --root=./hub-data --port=8000 [--token=T]
+    push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1]
+    hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true]
+    hub-envs trust user/pendulum-lerobot@<sha>
+    hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true
+
+Every hub-envs error is printed as one message (what failed, what to do next) with exit code 1.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +31,32 @@ class ServeArgs:
     token: str | None = None
 
 
+@dataclass
+class PushArgs:
+    """Validate a local env folder, generate its dataset and card, publish it in one commit."""
+
+    env_dir: Path | None = None
+    repo_id: str | None = None
+    episodes: int = 10
+    seed: int = 0
+    private: bool = False
+    tag: str | None = None
+    workers: int = 0  # 0: as many as useful on this machine
+    commit_message: str | None = None
+
+
+@dataclass
+class LoadArgs:
+    """Load an env repo, run its checks, and print what was loaded (the three-way table)."""
+
+    repo_id: str | None = None
+    revision: str | None = None
+    trust_remote_code: bool = False
+    check: bool = True
+    fingerprint: str = "error"
+    json: bool = False
+
+
 def serve(args: ServeArgs) -> int:
     from hub_envs.server import run
 
@@ -31,21 +64,123 @@ def serve(args: ServeArgs) -> int:
     return 0
 
 
+def push(args: PushArgs) -> int:
+    from hub_envs.errors import ConfigError
+    from hub_envs.push import push_env
+
+    if args.env_dir is None or args.repo_id is None:
+        raise ConfigError("push_env needs --env_dir=PATH and --repo_id=user/name.")
+    result = push_env(args.env_dir, args.repo_id, episodes=args.episodes, seed=args.seed, private=args.private,
+                      tag=args.tag, workers=args.workers or None, commit_message=args.commit_message)
+    print(result.summary())
+    return 0
+
+
+def load(args: LoadArgs) -> int:
+    from hub_envs.errors import ConfigError
+    from hub_envs.load import load_env
+
+    if args.repo_id is None:
+        raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
+    loaded = load_env(args.repo_id, revision=args.revision, trust_remote_code=args.trust_remote_code,
+                      check=args.check, fingerprint=args.fingerprint)
+    if args.json:
+        print(json.dumps({"repo_id": loaded.repo_id, "revision": loaded.revision, "gym_id": loaded.gym_id,
+                          "env_type": loaded.env_type, "path": str(loaded.path), "report": loaded.report.to_dict()}, indent=2))
+        return 0
+    print(f"Loaded {loaded.repo_id} at {loaded.revision}")
+    print(f"  gym id:      {loaded.gym_id}")
+    print(f"  --env.type:  {loaded.env_type}")
+    print(f"  snapshot:    {loaded.path}")
+    print(f"  integrity:   {loaded.report.integrity}")
+    print(f"  trust:       {loaded.report.trust}")
+    print(f"  fingerprint: {loaded.report.fingerprint}")
+    if loaded.report.features is not None:
+        print("  three-way feature check (declared / live / dataset):")
+        print("    " + loaded.report.features.table().replace("\n", "\n    "))
+    return 0
+
+
+def _trust_cmd(argv: list[str], *, remove: bool) -> int:
+    from hub_envs import hub_io, trust
+    from hub_envs.errors import ConfigError
+
+    refs = [a for a in argv if not a.startswith("-")]
+    if len(refs) != 1:
+        raise ConfigError(f"usage: hub-envs {'untrust' if remove else 'trust'} user/name@<40-hex sha>")
+    repo_id, sha = hub_io.parse_repo_ref(refs[0])
+    if remove:
+        n = trust.untrust(repo_id, sha)
+        print(f"Removed {n} trust entr{'y' if n == 1 else 'ies'} for {repo_id}.")
+        return 0
+    trust.trust(repo_id, sha or "")
+    print(f"Trusted {repo_id}@{sha}: load_env will run its code at this commit (and no other) without asking.")
+    return 0
+
+
 COMMANDS = {
     "serve": (ServeArgs, serve),
+    "push": (PushArgs, push),
+    "load": (LoadArgs, load),
 }
+RAW_COMMANDS = {
+    "trust": lambda argv: _trust_cmd(argv, remove=False),
+    "untrust": lambda argv: _trust_cmd(argv, remove=True),
+}
+
+
+def _extra_commands() -> dict:
+    """Commands whose modules are optional at import time (reproduce, LeRobot integration)."""
+    extra = {}
+    try:
+        from hub_envs.reproduce import CLI_COMMANDS as reproduce_commands
+
+        extra.update(reproduce_commands)
+    except ImportError:
+        pass
+    try:
+        from hub_envs.lerobot_bridge import CLI_COMMANDS as lerobot_commands
+
+        extra.update(lerobot_commands)
+    except ImportError:
+        pass
+    return extra
+
+
+def _usage(commands) -> str:
+    names = ", ".join(list(commands) + list(RAW_COMMANDS))
+    return f"usage: hub-envs {{{names}}} [--flag=value ...]\nRun `hub-envs <command> --help` for the flags of one command."
+
+
+def run_command(name: str, argv: list[str]) -> int:
+    from hub_envs.errors import HubEnvsError
+
+    commands = {**COMMANDS, **(_extra_commands() if name not in COMMANDS and name not in RAW_COMMANDS else {})}
+    try:
+        if name in RAW_COMMANDS:
+            return int(RAW_COMMANDS[name](argv) or 0)
+        if name not in commands:
+            print(_usage(commands), file=sys.stderr)
+            return 2
+        args_cls, func = commands[name]
+        args = draccus.parse(config_class=args_cls, args=argv)
+        return int(func(args) or 0)
+    except HubEnvsError as e:
+        print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in {"-h", "--help"} or argv[0] not in COMMANDS:
-        names = ", ".join(COMMANDS)
-        print(f"usage: hub-envs {{{names}}} [--flag=value ...]\n"
-              f"Run `hub-envs <command> --help` for the flags of one command.", file=sys.stderr)
-        return 0 if argv and argv[0] in {"-h", "--help"} else 2
-    args_cls, func = COMMANDS[argv[0]]
-    args = draccus.parse(config_class=args_cls, args=argv[1:])
-    return int(func(args) or 0)
+    if not argv or argv[0] in {"-h", "--help"}:
+        print(_usage({**COMMANDS, **_extra_commands()}), file=sys.stderr)
+        return 0 if argv else 2
+    return run_command(argv[0], argv[1:])
+
+
+def push_env_main(argv: list[str] | None = None) -> int:
+    """The ``push_env`` console script: ``push_env --env_dir=... --repo_id=...``."""
+    return run_command("push", list(sys.argv[1:] if argv is None else argv))
 
 
 if __name__ == "__main__":
