@@ -1,0 +1,74 @@
+"""A loopback server speaking the Hugging Face Hub HTTP protocol.
+
+The unmodified ``huggingface_hub`` client creates repos, commits, tags, lists and downloads
+against it: point ``HF_ENDPOINT`` at it. It is the default hub of the demo, the fixture of the
+tests (see :mod:`hub_envs.testing`), and a real hub for air-gapped labs. Repos live on disk under
+``root`` (see :mod:`hub_envs.server.storage`); a restarted server serves the same repos. Run one
+server process per root.
+
+Example:
+    Start it (blocking)::
+
+        $ hub-envs serve --root=./hub-data --port=8000
+
+    then, in another shell::
+
+        $ HF_ENDPOINT=http://127.0.0.1:8000 python -c "
+        from huggingface_hub import HfApi
+        api = HfApi()
+        api.create_repo('alice/pendulum', exist_ok=True)
+        api.upload_file(path_or_fileobj=b'hello', path_in_repo='hello.txt', repo_id='alice/pendulum')
+        print(api.list_repo_files('alice/pendulum'))"
+        ['.gitattributes', 'hello.txt']
+
+    With ``--token=T``, writes (and reads of private repos) need ``HF_TOKEN=T`` on the client.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import sys
+
+from hub_envs.server.app import create_app
+
+__all__ = ["create_app", "run"]
+
+
+def run(root: str | os.PathLike, host: str = "127.0.0.1", port: int = 8000, token: str | None = None) -> None:
+    """Serve the repos under ``root`` on ``http://host:port`` until interrupted (SIGINT/SIGTERM).
+
+    ``port=0`` picks a free port. Once listening, one line goes to stderr::
+
+        hub-envs server: serving /abs/root at http://127.0.0.1:8000 (writes open to anyone)
+
+    Access logs are off; errors are logged to stderr.
+
+    Args:
+        root: the store folder (created if missing). One server process per root.
+        host: interface to bind; the default serves this machine only.
+        port: TCP port; 0 picks a free one (read it from the line above).
+        token: if set, writes and reads of private repos need ``Authorization: Bearer <token>``
+            (clients: ``HF_TOKEN=<token>``).
+    """
+    import uvicorn
+
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    app = create_app(root, token=token)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((host, port))
+    sock.listen(2048)
+    sock.set_inheritable(True)
+    bound_port = sock.getsockname()[1]
+    shown_host = f"[{host}]" if family == socket.AF_INET6 else host
+    access = "writes need the token" if token else "writes open to anyone"
+    print(
+        f"hub-envs server: serving {app.state.hub.store.root} at http://{shown_host}:{bound_port} ({access})",
+        file=sys.stderr,
+        flush=True,
+    )
+    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
+    uvicorn.Server(config).run(sockets=[sock])

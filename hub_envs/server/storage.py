@@ -1,0 +1,793 @@
+"""The on-disk store behind the loopback Hub server: repos, blobs, commits and refs. No HTTP here.
+
+A store is one folder (``root``) holding every repo the server serves::
+
+    root/
+      FORMAT                                 "hub-envs-store 1"
+      tmp/                                   scratch space; emptied when a store opens
+      trash/                                 deleted repos on their way out; emptied when a store opens
+      repos/<type>s/<namespace>/<name>/      one folder per repo (lower-cased: repo ids are case-insensitive)
+        repo.json                            id (original casing), type, private, createdAt, author, sdk
+        refs.json                            {"branches": {name: sha}, "tags": {name: {"target": sha, ...}}}
+        commits/<sha[:2]>/<sha>.json         immutable commit objects
+        blobs/<sha256[:2]>/<sha256>          immutable file contents, addressed by their sha256
+
+Identifiers are git's: a file's ``oid`` is its git blob sha1 (what the Hub sends as ``ETag`` and as
+the tree ``oid``), folders have git tree sha1s, and a commit id is the sha1 of a git commit object
+(tree, parent, author, committer, message), so ids are 40-hex like the Hub's.
+
+Durability and concurrency:
+
+* Every file is written to ``tmp/``, fsynced, then moved into place with :func:`os.replace`.
+* A commit writes its blobs, then its commit object, and moves the branch in ``refs.json`` last;
+  a crash at any point leaves the branch at its previous commit (unreferenced blobs are harmless).
+* Read-modify-write of ``refs.json`` (commits, branches, tags) holds a per-repo lock; readers never
+  lock, they see the old or the new ``refs.json``.
+* One server process per root: the locks are in-process (threads), not across processes.
+
+Example:
+    >>> import tempfile
+    >>> from hub_envs.server.storage import AddFile, HubStore
+    >>> store = HubStore(tempfile.mkdtemp())
+    >>> repo = store.create_repo("model", "alice/pendulum", author="alice")
+    >>> entry = repo.write_blob(b"print('hi')\\n")
+    >>> commit = repo.commit("main", [AddFile("env.py", entry)], title="Add env", author="alice")
+    >>> sorted(repo.resolve("main").files)
+    ['.gitattributes', 'env.py']
+    >>> repo.resolve(commit.id).id == commit.id
+    True
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import threading
+import uuid
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Iterator, Mapping, Sequence, Union
+
+FORMAT = "hub-envs-store 1"
+REPO_TYPES = ("model", "dataset", "space")
+DEFAULT_BRANCH = "main"
+_HEX40 = re.compile(r"^[0-9a-f]{40}$")
+_NAME_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9._-]{0,95})$")
+_RESERVED_NAMESPACES = {"api", "models", "datasets", "spaces", "resolve", "tree", "blob"}
+_MAX_PATH_LEN = 1024
+
+# What the Hub commits as ".gitattributes" when it creates a repo (abridged to the common patterns).
+DEFAULT_GITATTRIBUTES = "".join(
+    f"{pattern} filter=lfs diff=lfs merge=lfs -text\n"
+    for pattern in (
+        "*.7z", "*.arrow", "*.bin", "*.bz2", "*.ckpt", "*.ftz", "*.gz", "*.h5", "*.joblib", "*.lfs.*",
+        "*.lz4", "*.mds", "*.mlmodel", "*.model", "*.msgpack", "*.npy", "*.npz", "*.onnx", "*.ot",
+        "*.parquet", "*.pb", "*.pickle", "*.pkl", "*.pt", "*.pth", "*.rar", "*.safetensors",
+        "saved_model/**/*", "*.tar.*", "*.tar", "*.tflite", "*.tgz", "*.wasm", "*.xz", "*.zip",
+        "*.zst", "*tfevents*", "*.mp3", "*.wav", "*.png", "*.jpg", "*.jpeg", "*.webp", "*.mp4",
+    )
+).encode()
+
+
+# --- errors -----------------------------------------------------------------------------------
+
+
+class StoreError(Exception):
+    """Base class of every error the store raises on purpose."""
+
+
+class InvalidNameError(StoreError, ValueError):
+    """A repo id, repo type, branch or tag name is malformed."""
+
+
+class InvalidPathError(StoreError, ValueError):
+    """A path in a repo is malformed or tries to escape the repo (``..``, absolute, ``\\``, NUL...)."""
+
+
+class RepoNotFoundError(StoreError, LookupError):
+    """No repo with this type and id."""
+
+
+class RepoExistsError(StoreError):
+    """A repo with this type and id already exists."""
+
+
+class RevisionNotFoundError(StoreError, LookupError):
+    """No branch, tag or commit with this name in the repo."""
+
+
+class EntryNotFoundError(StoreError, LookupError):
+    """No file or folder at this path in this revision."""
+
+
+class RefExistsError(StoreError):
+    """The branch or tag already exists."""
+
+
+class ParentMismatchError(StoreError):
+    """The branch moved since the commit the caller based its change on (``parent_commit``)."""
+
+
+class InvalidOperationError(StoreError, ValueError):
+    """A commit operation or ref change that cannot be applied (file/folder clash, deleting main...)."""
+
+
+# --- identifiers ------------------------------------------------------------------------------
+
+
+def git_blob_oid(data: bytes) -> str:
+    """The git blob sha1 of ``data``: what the Hub uses as ETag and ``oid`` for a regular file."""
+    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+
+
+def format_date(dt: datetime) -> str:
+    """``2024-05-01T12:00:00.123Z``: the only date format huggingface_hub's ``parse_datetime`` expects."""
+    dt = dt.astimezone(timezone.utc)
+    return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 1000:03d}Z"
+
+
+def now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def validate_repo_type(repo_type: str) -> str:
+    if repo_type not in REPO_TYPES:
+        raise InvalidNameError(f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
+    return repo_type
+
+
+def validate_repo_id(repo_id: str) -> tuple[str, str]:
+    """Split ``namespace/name`` and check both parts; raise :class:`InvalidNameError` otherwise."""
+    parts = repo_id.split("/")
+    if len(parts) != 2:
+        raise InvalidNameError(
+            f"Invalid repo id {repo_id!r}: expected 'namespace/name' (this server has no namespace-less repos)."
+        )
+    for part in parts:
+        if not _NAME_RE.match(part) or "--" in part or ".." in part or part.endswith(".git"):
+            raise InvalidNameError(
+                f"Invalid repo id {repo_id!r}: each part must be 1-96 characters among letters, digits, '-', '_' "
+                "and '.', start with a letter or digit, and contain neither '--' nor '..' nor end with '.git'."
+            )
+    if parts[0].lower() in _RESERVED_NAMESPACES:
+        raise InvalidNameError(f"Invalid repo id {repo_id!r}: namespace {parts[0]!r} is reserved.")
+    return parts[0], parts[1]
+
+
+def validate_path(path: str) -> str:
+    """Check a path inside a repo (``a/b.txt``); raise :class:`InvalidPathError` if it could escape.
+
+    Refused: empty, absolute, backslashes, NUL and control characters, empty / ``.`` / ``..``
+    segments, a ``.git`` segment, and over-long paths.
+    """
+    if not isinstance(path, str) or not path:
+        raise InvalidPathError("Invalid path: empty.")
+    if len(path) > _MAX_PATH_LEN:
+        raise InvalidPathError(f"Invalid path: longer than {_MAX_PATH_LEN} characters.")
+    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in path):
+        raise InvalidPathError(f"Invalid path {path!r}: contains a control character (NUL, newline...).")
+    if "\\" in path:
+        raise InvalidPathError(f"Invalid path {path!r}: backslashes are not allowed; use '/'.")
+    if path.startswith("/"):
+        raise InvalidPathError(f"Invalid path {path!r}: must be relative to the repo root.")
+    for segment in path.split("/"):
+        if segment in ("", ".", ".."):
+            raise InvalidPathError(f"Invalid path {path!r}: empty, '.' and '..' segments are not allowed.")
+        if segment == ".git":
+            raise InvalidPathError(f"Invalid path {path!r}: '.git' is reserved.")
+    return path
+
+
+def validate_ref_name(name: str, kind: str = "branch") -> str:
+    """Check a branch or tag name with git's rules (``git check-ref-format``), simplified."""
+    bad = (
+        not name
+        or len(name) > 255
+        or name.startswith(("/", "-", "."))
+        or name.endswith(("/", ".", ".lock"))
+        or ".." in name
+        or "//" in name
+        or "@{" in name
+        or name == "@"
+        or any(ord(c) < 0x21 or ord(c) == 0x7F or c in "~^:?*[\\" for c in name)
+        or any(seg.startswith(".") for seg in name.split("/"))
+    )
+    if bad:
+        raise InvalidNameError(f"Invalid {kind} name {name!r}: it must be a valid git ref name.")
+    if _HEX40.match(name.lower()):
+        raise InvalidNameError(f"Invalid {kind} name {name!r}: a 40-hex name would shadow commit ids.")
+    return name
+
+
+# --- data -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FileEntry:
+    """A file in a commit's tree: its git blob ``oid`` (sha1), ``sha256`` (the blob's address) and ``size``."""
+
+    oid: str
+    sha256: str
+    size: int
+
+
+@dataclass(frozen=True)
+class Commit:
+    """An immutable commit: the whole tree (path -> :class:`FileEntry`), parents, message, author, date."""
+
+    id: str
+    tree_oid: str
+    parents: tuple[str, ...]
+    title: str
+    message: str
+    author: str
+    date: str
+    files: Mapping[str, FileEntry]
+
+    def to_json(self) -> bytes:
+        return json.dumps(
+            {
+                "id": self.id,
+                "tree": self.tree_oid,
+                "parents": list(self.parents),
+                "title": self.title,
+                "message": self.message,
+                "author": self.author,
+                "date": self.date,
+                "files": {p: [e.oid, e.sha256, e.size] for p, e in sorted(self.files.items())},
+            },
+            separators=(",", ":"),
+        ).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes) -> "Commit":
+        d = json.loads(data)
+        return cls(
+            id=d["id"],
+            tree_oid=d["tree"],
+            parents=tuple(d["parents"]),
+            title=d["title"],
+            message=d["message"],
+            author=d["author"],
+            date=d["date"],
+            files={p: FileEntry(*v) for p, v in d["files"].items()},
+        )
+
+
+@dataclass
+class RepoMeta:
+    """What ``repo.json`` holds."""
+
+    repo_type: str
+    repo_id: str
+    private: bool
+    created_at: str
+    author: str
+    sdk: str | None = None
+
+    def to_json(self) -> bytes:
+        return json.dumps(
+            {
+                "type": self.repo_type,
+                "id": self.repo_id,
+                "private": self.private,
+                "createdAt": self.created_at,
+                "author": self.author,
+                "sdk": self.sdk,
+            },
+            indent=1,
+        ).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes) -> "RepoMeta":
+        d = json.loads(data)
+        return cls(d["type"], d["id"], bool(d["private"]), d["createdAt"], d["author"], d.get("sdk"))
+
+
+@dataclass
+class Refs:
+    """Branches (name -> sha) and tags (name -> sha, with an optional message)."""
+
+    branches: dict[str, str] = field(default_factory=dict)
+    tags: dict[str, str] = field(default_factory=dict)
+    tag_messages: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> bytes:
+        tags = {name: {"target": sha, "message": self.tag_messages.get(name)} for name, sha in self.tags.items()}
+        return json.dumps({"branches": self.branches, "tags": tags}, indent=1, sort_keys=True).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes) -> "Refs":
+        d = json.loads(data)
+        tags = {name: t["target"] for name, t in d.get("tags", {}).items()}
+        messages = {name: t["message"] for name, t in d.get("tags", {}).items() if t.get("message")}
+        return cls(dict(d.get("branches", {})), tags, messages)
+
+
+# Commit operations, applied in order by Repo.commit.
+@dataclass(frozen=True)
+class AddFile:
+    """Add or replace the file at ``path`` with a blob already written by :meth:`Repo.write_blob`."""
+
+    path: str
+    entry: FileEntry
+
+
+@dataclass(frozen=True)
+class DeleteFile:
+    """Delete the file at ``path``; :class:`EntryNotFoundError` if there is none."""
+
+    path: str
+
+
+@dataclass(frozen=True)
+class DeleteFolder:
+    """Delete every file under ``path/``; :class:`EntryNotFoundError` if there is none."""
+
+    path: str
+
+
+Operation = Union[AddFile, DeleteFile, DeleteFolder]
+
+
+# --- git object hashing -----------------------------------------------------------------------
+
+
+def _tree_oids(files: Mapping[str, FileEntry]) -> dict[str, str]:
+    """The git tree sha1 of every folder of ``files`` ("" is the root)."""
+    children: dict[str, dict[str, tuple[str, str]]] = {"": {}}  # folder -> name -> (mode, oid or "")
+    for path, entry in files.items():
+        parts = path.split("/")
+        for depth in range(len(parts) - 1):
+            folder = "/".join(parts[:depth])
+            sub = "/".join(parts[: depth + 1])
+            children.setdefault(folder, {})[parts[depth]] = ("40000", "")
+            children.setdefault(sub, {})
+        children.setdefault("/".join(parts[:-1]), {})[parts[-1]] = ("100644", entry.oid)
+    oids: dict[str, str] = {}
+    for folder in sorted(children, key=lambda f: f.count("/") + (1 if f else 0), reverse=True):
+        entries = []
+        for name, (mode, oid) in children[folder].items():
+            if mode == "40000":
+                oid = oids[f"{folder}/{name}" if folder else name]
+            entries.append((name + "/" if mode == "40000" else name, name, mode, oid))
+        body = b"".join(
+            mode.encode() + b" " + name.encode() + b"\0" + bytes.fromhex(oid)
+            for _, name, mode, oid in sorted(entries)
+        )
+        oids[folder] = hashlib.sha1(b"tree %d\0" % len(body) + body).hexdigest()
+    return oids
+
+
+def _commit_oid(tree: str, parents: Sequence[str], author: str, when: datetime, title: str, message: str) -> str:
+    ident = f"{author} <{author}@users.noreply.hub-envs> {int(when.timestamp())} +0000"
+    text = f"tree {tree}\n" + "".join(f"parent {p}\n" for p in parents)
+    text += f"author {ident}\ncommitter {ident}\n\n{title}\n"
+    if message:
+        text += f"\n{message}\n"
+    body = text.encode()
+    return hashlib.sha1(b"commit %d\0" % len(body) + body).hexdigest()
+
+
+# --- the store --------------------------------------------------------------------------------
+
+
+class HubStore:
+    """All repos under one ``root`` folder. Thread-safe; one process per root.
+
+    Args:
+        root: the folder; created if missing.
+        fsync: fsync every file before moving it into place (durable across power loss, slower).
+    """
+
+    def __init__(self, root: str | os.PathLike, *, fsync: bool = True):
+        self.root = Path(root).resolve()
+        self.fsync = fsync
+        self.root.mkdir(parents=True, exist_ok=True)
+        fmt = self.root / "FORMAT"
+        if fmt.exists():
+            found = fmt.read_text().strip()
+            if found != FORMAT:
+                raise StoreError(f"{self.root} holds {found!r}, not {FORMAT!r}: pass another --root.")
+        elif any(p.name not in ("tmp", "trash", "repos") for p in self.root.iterdir()):
+            raise StoreError(
+                f"{self.root} is not empty and is not a hub-envs store (no FORMAT file): pass an empty folder."
+            )
+        for scratch in ("tmp", "trash"):
+            shutil.rmtree(self.root / scratch, ignore_errors=True)
+            (self.root / scratch).mkdir()
+        (self.root / "repos").mkdir(exist_ok=True)
+        if not fmt.exists():
+            self.write_atomic(fmt, (FORMAT + "\n").encode())
+        self._locks: dict[tuple[str, str], threading.Lock] = {}
+        self._locks_guard = threading.Lock()
+        self._create_lock = threading.Lock()
+        self._commit_cache: OrderedDict[tuple[str, str], Commit] = OrderedDict()
+        self._cache_guard = threading.Lock()
+
+    # -- helpers --
+
+    def write_atomic(self, path: Path, data: bytes) -> None:
+        """Write ``data`` to ``path`` so readers see the old or the new content, never a mix."""
+        tmp = self.root / "tmp" / f"{uuid.uuid4().hex}.tmp"
+        with open(tmp, "wb") as f:
+            f.write(data)
+            if self.fsync:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def _key(self, repo_type: str, repo_id: str) -> tuple[str, str]:
+        validate_repo_type(repo_type)
+        validate_repo_id(repo_id)
+        return repo_type, repo_id.lower()
+
+    def _repo_dir(self, key: tuple[str, str]) -> Path:
+        return self.root / "repos" / f"{key[0]}s" / key[1]
+
+    def lock(self, key: tuple[str, str]) -> threading.Lock:
+        with self._locks_guard:
+            return self._locks.setdefault(key, threading.Lock())
+
+    def cached_commit(self, key: tuple[str, str], sha: str, load) -> Commit:
+        with self._cache_guard:
+            commit = self._commit_cache.get((key[1], sha))
+            if commit is not None:
+                self._commit_cache.move_to_end((key[1], sha))
+                return commit
+        commit = load()
+        with self._cache_guard:
+            self._commit_cache[(key[1], sha)] = commit
+            while len(self._commit_cache) > 512:
+                self._commit_cache.popitem(last=False)
+        return commit
+
+    def _forget(self, key: tuple[str, str]) -> None:
+        with self._cache_guard:
+            for k in [k for k in self._commit_cache if k[0] == key[1]]:
+                del self._commit_cache[k]
+
+    # -- repos --
+
+    def open(self, repo_type: str, repo_id: str) -> "Repo":
+        """The repo ``repo_id`` of type ``repo_type``; :class:`RepoNotFoundError` if it does not exist."""
+        key = self._key(repo_type, repo_id)
+        path = self._repo_dir(key)
+        try:
+            meta = RepoMeta.from_json((path / "repo.json").read_bytes())
+        except FileNotFoundError:
+            raise RepoNotFoundError(f"Repository {repo_type} {repo_id!r} not found.") from None
+        return Repo(self, key, path, meta)
+
+    def create_repo(
+        self, repo_type: str, repo_id: str, *, author: str, private: bool = False, sdk: str | None = None
+    ) -> "Repo":
+        """Create a repo with one commit ("initial commit", adding ``.gitattributes``) on ``main``.
+
+        Raises :class:`RepoExistsError` if it exists (under any casing), :class:`InvalidNameError`
+        if the type or id is malformed.
+        """
+        key = self._key(repo_type, repo_id)
+        final = self._repo_dir(key)
+        staging = self.root / "tmp" / f"repo-{uuid.uuid4().hex}"
+        with self._create_lock:
+            if final.exists():
+                raise RepoExistsError(f"You already created this {repo_type} repo: {repo_id}.")
+            when = now()
+            meta = RepoMeta(repo_type, repo_id, bool(private), format_date(when), author, sdk)
+            for sub in ("commits", "blobs"):
+                (staging / sub).mkdir(parents=True)
+            self.write_atomic(staging / "repo.json", meta.to_json())
+            repo = Repo(self, key, staging, meta)
+            entry = repo.write_blob(DEFAULT_GITATTRIBUTES)
+            commit = repo._new_commit({".gitattributes": entry}, (), "initial commit", "", author, when)
+            repo._write_commit(commit)
+            self.write_atomic(staging / "refs.json", Refs(branches={DEFAULT_BRANCH: commit.id}).to_json())
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.rename(staging, final)
+        self._forget(key)
+        return self.open(repo_type, repo_id)
+
+    def delete_repo(self, repo_type: str, repo_id: str) -> None:
+        """Delete a repo and everything in it; :class:`RepoNotFoundError` if it does not exist."""
+        key = self._key(repo_type, repo_id)
+        path = self._repo_dir(key)
+        with self._create_lock, self.lock(key):
+            if not (path / "repo.json").exists():
+                raise RepoNotFoundError(f"Repository {repo_type} {repo_id!r} not found.")
+            trash = self.root / "trash" / uuid.uuid4().hex
+            os.rename(path, trash)
+        self._forget(key)
+        shutil.rmtree(trash, ignore_errors=True)
+
+    def list_repos(self, repo_type: str) -> list[RepoMeta]:
+        """Every repo of ``repo_type``, sorted by id."""
+        base = self.root / "repos" / f"{validate_repo_type(repo_type)}s"
+        metas = []
+        for meta_path in base.glob("*/*/repo.json"):
+            try:
+                metas.append(RepoMeta.from_json(meta_path.read_bytes()))
+            except (OSError, ValueError, KeyError):
+                continue
+        return sorted(metas, key=lambda m: m.repo_id.lower())
+
+
+class Repo:
+    """One repo of a :class:`HubStore`. Get it with :meth:`HubStore.open` or :meth:`HubStore.create_repo`."""
+
+    def __init__(self, store: HubStore, key: tuple[str, str], path: Path, meta: RepoMeta):
+        self.store = store
+        self.key = key
+        self.path = path
+        self.meta = meta
+
+    @property
+    def repo_id(self) -> str:
+        return self.meta.repo_id
+
+    @property
+    def repo_type(self) -> str:
+        return self.meta.repo_type
+
+    def set_private(self, private: bool) -> None:
+        with self.store.lock(self.key):
+            meta = RepoMeta.from_json((self.path / "repo.json").read_bytes())
+            meta.private = bool(private)
+            self.store.write_atomic(self.path / "repo.json", meta.to_json())
+            self.meta = meta
+
+    # -- blobs --
+
+    def _blob_path(self, sha256: str) -> Path:
+        return self.path / "blobs" / sha256[:2] / sha256
+
+    def write_blob(self, data: bytes) -> FileEntry:
+        """Store ``data`` (once: blobs are content-addressed) and return its :class:`FileEntry`."""
+        sha256 = hashlib.sha256(data).hexdigest()
+        path = self._blob_path(sha256)
+        if not path.exists():
+            path.parent.mkdir(exist_ok=True)
+            self.store.write_atomic(path, data)
+        return FileEntry(oid=git_blob_oid(data), sha256=sha256, size=len(data))
+
+    def has_blob(self, sha256: str) -> bool:
+        return bool(re.fullmatch(r"[0-9a-f]{64}", sha256)) and self._blob_path(sha256).is_file()
+
+    def blob_entry(self, sha256: str) -> FileEntry:
+        """The :class:`FileEntry` of a blob already in the repo, by its sha256."""
+        data = self._blob_path(sha256).read_bytes()
+        return FileEntry(oid=git_blob_oid(data), sha256=sha256, size=len(data))
+
+    def open_blob(self, entry: FileEntry):
+        """A binary file object on the content of ``entry``."""
+        return open(self._blob_path(entry.sha256), "rb")
+
+    def read_blob(self, entry: FileEntry) -> bytes:
+        return self._blob_path(entry.sha256).read_bytes()
+
+    # -- commits --
+
+    def _commit_path(self, sha: str) -> Path:
+        return self.path / "commits" / sha[:2] / f"{sha}.json"
+
+    def load_commit(self, sha: str) -> Commit:
+        """The commit ``sha`` (40 hex); :class:`RevisionNotFoundError` if the repo has no such commit."""
+        sha = sha.lower()
+        if not _HEX40.match(sha):
+            raise RevisionNotFoundError(f"Invalid rev id: {sha}")
+
+        def load() -> Commit:
+            try:
+                return Commit.from_json(self._commit_path(sha).read_bytes())
+            except FileNotFoundError:
+                raise RevisionNotFoundError(f"Invalid rev id: {sha}") from None
+
+        return self.store.cached_commit(self.key, sha, load)
+
+    def _write_commit(self, commit: Commit) -> None:
+        path = self._commit_path(commit.id)
+        if not path.exists():
+            path.parent.mkdir(exist_ok=True)
+            self.store.write_atomic(path, commit.to_json())
+
+    def _new_commit(
+        self,
+        files: Mapping[str, FileEntry],
+        parents: tuple[str, ...],
+        title: str,
+        message: str,
+        author: str,
+        when: datetime,
+    ) -> Commit:
+        tree = _tree_oids(files)[""]
+        sha = _commit_oid(tree, parents, author, when, title, message)
+        return Commit(sha, tree, parents, title, message, author, format_date(when), dict(files))
+
+    def folder_oids(self, commit: Commit) -> dict[str, str]:
+        """The git tree sha1 of every folder of ``commit`` ("" is the root)."""
+        return _tree_oids(commit.files)
+
+    # -- refs --
+
+    def refs(self) -> Refs:
+        return Refs.from_json((self.path / "refs.json").read_bytes())
+
+    def _write_refs(self, refs: Refs) -> None:
+        self.store.write_atomic(self.path / "refs.json", refs.to_json())
+
+    def resolve(self, revision: str) -> Commit:
+        """The commit a branch, tag (``main``, ``refs/heads/main``, ``v1``, ``refs/tags/v1``) or 40-hex sha names."""
+        refs = self.refs()
+        name = revision
+        if name.startswith("refs/heads/"):
+            sha = refs.branches.get(name[len("refs/heads/") :])
+        elif name.startswith("refs/tags/"):
+            sha = refs.tags.get(name[len("refs/tags/") :])
+        else:
+            sha = refs.branches.get(name) or refs.tags.get(name)
+            if sha is None and _HEX40.match(name.lower()):
+                sha = name.lower()
+        if sha is None:
+            raise RevisionNotFoundError(f"Invalid rev id: {revision}")
+        return self.load_commit(sha)
+
+    def create_branch(self, branch: str, start: str | None = None) -> Commit:
+        """Create ``branch`` at revision ``start`` (default: ``main``)."""
+        validate_ref_name(branch, "branch")
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if branch in refs.branches:
+                raise RefExistsError(f"Reference already exists: refs/heads/{branch}")
+            commit = self.resolve(start or DEFAULT_BRANCH)
+            refs.branches[branch] = commit.id
+            self._write_refs(refs)
+            return commit
+
+    def delete_branch(self, branch: str) -> None:
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if branch not in refs.branches:
+                raise RevisionNotFoundError(f"Invalid rev id: {branch}")
+            if branch == DEFAULT_BRANCH:
+                raise InvalidOperationError(f"Cannot delete the default branch {DEFAULT_BRANCH!r}.")
+            del refs.branches[branch]
+            self._write_refs(refs)
+
+    def create_tag(self, tag: str, revision: str, message: str | None = None) -> Commit:
+        """Tag the commit ``revision`` names; :class:`RefExistsError` if the tag exists."""
+        validate_ref_name(tag, "tag")
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if tag in refs.tags:
+                raise RefExistsError(f"Tag already exists: refs/tags/{tag}")
+            commit = self.resolve(revision)
+            refs.tags[tag] = commit.id
+            if message:
+                refs.tag_messages[tag] = message
+            self._write_refs(refs)
+            return commit
+
+    def delete_tag(self, tag: str) -> None:
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if tag not in refs.tags:
+                raise RevisionNotFoundError(f"Invalid rev id: {tag}")
+            del refs.tags[tag]
+            refs.tag_messages.pop(tag, None)
+            self._write_refs(refs)
+
+    # -- history --
+
+    def head(self, branch: str = DEFAULT_BRANCH) -> Commit:
+        return self.resolve(branch)
+
+    def history(self, commit: Commit) -> Iterator[Commit]:
+        """``commit`` and its first-parent ancestors, newest first."""
+        current: Commit | None = commit
+        while current is not None:
+            yield current
+            current = self.load_commit(current.parents[0]) if current.parents else None
+
+    def last_commits(self, commit: Commit, paths: Sequence[str]) -> dict[str, Commit]:
+        """For each path (file or folder) of ``commit``, the newest commit in its history that changed it."""
+        remaining = set(paths)
+        found: dict[str, Commit] = {}
+        for current in self.history(commit):
+            if not remaining:
+                break
+            parent_files = self.load_commit(current.parents[0]).files if current.parents else {}
+            changed = {
+                p for p in set(current.files) | set(parent_files) if current.files.get(p) != parent_files.get(p)
+            }
+            touched = set(changed)
+            for p in changed:
+                parts = p.split("/")
+                touched.update("/".join(parts[:i]) for i in range(1, len(parts)))
+            for p in list(remaining):
+                if p in touched or p == "":
+                    found[p] = current
+                    remaining.discard(p)
+        return found
+
+    # -- committing --
+
+    def commit(
+        self,
+        branch: str,
+        operations: Sequence[Operation],
+        *,
+        title: str,
+        message: str = "",
+        author: str,
+        parent: str | None = None,
+    ) -> Commit:
+        """Apply ``operations`` on top of ``branch`` and move the branch to the new commit.
+
+        Args:
+            branch: must be an existing branch (tags and shas cannot move).
+            operations: :class:`AddFile` (its blob already written), :class:`DeleteFile`, :class:`DeleteFolder`.
+            parent: if given (5 to 40 hex), the branch must still point at this commit, else
+                :class:`ParentMismatchError` — the optimistic-concurrency check of ``parent_commit``.
+
+        An empty ``operations`` makes an empty commit, as git (and the Hub's commit endpoint) does.
+        """
+        if not title:
+            raise InvalidOperationError("The commit title (summary) cannot be empty.")
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if branch not in refs.branches:
+                if branch in refs.tags or _HEX40.match(branch.lower()):
+                    raise InvalidOperationError(f"Cannot commit to {branch!r}: commits go to a branch.")
+                raise RevisionNotFoundError(f"Invalid rev id: {branch}")
+            head_sha = refs.branches[branch]
+            if parent is not None and not head_sha.startswith(parent.lower()):
+                raise ParentMismatchError(
+                    "The branch was updated since you opened this page. Please refresh and try again."
+                )
+            head = self.load_commit(head_sha)
+            files = dict(head.files)
+            for op in operations:
+                validate_path(op.path)
+                if isinstance(op, AddFile):
+                    files[op.path] = op.entry
+                elif isinstance(op, DeleteFile):
+                    if files.pop(op.path, None) is None:
+                        raise EntryNotFoundError(
+                            f"Cannot delete {op.path}: A file with this name doesn't exist on {branch!r}."
+                        )
+                elif isinstance(op, DeleteFolder):
+                    prefix = op.path.rstrip("/") + "/"
+                    doomed = [p for p in files if p.startswith(prefix)]
+                    if not doomed:
+                        raise EntryNotFoundError(
+                            f"Cannot delete folder {op.path}: no file under it on {branch!r}."
+                        )
+                    for p in doomed:
+                        del files[p]
+                else:  # pragma: no cover - programming error
+                    raise TypeError(f"Unknown operation {op!r}")
+            clash = _file_folder_clash(files)
+            if clash:
+                raise InvalidOperationError(clash)
+            commit = self._new_commit(files, (head_sha,), title, message, author, now())
+            self._write_commit(commit)
+            refs.branches[branch] = commit.id  # the ref moves last: a crash before this changes nothing
+            self._write_refs(refs)
+            return commit
+
+
+def _file_folder_clash(files: Mapping[str, FileEntry]) -> str | None:
+    """A message if some path is both a file and a folder (``a`` and ``a/b``), else None."""
+    for path in files:
+        parts = path.split("/")
+        for i in range(1, len(parts)):
+            prefix = "/".join(parts[:i])
+            if prefix in files:
+                return f"Cannot have both a file {prefix!r} and a file {path!r} under a folder of the same name."
+    return None
+
