@@ -1,0 +1,63 @@
+"""Shared pytest fixtures.
+
+The ``hub`` fixtures come first: a real loopback Hub server (a subprocess) per test, with the
+client environment pointed at it. Other fixtures are added below this block by others.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+from huggingface_hub import HfApi
+
+from hub_envs.testing import HubServer, hub_environment
+
+TEST_TOKEN = "hf_hub_envs_test_token"
+
+
+@dataclass
+class Hub:
+    """What the ``hub`` fixtures yield: a running server and a client environment pointed at it."""
+
+    server: HubServer
+    endpoint: str
+    token: str | None
+    root: Path
+    hf_home: Path
+    api: HfApi
+
+
+def _start_hub(tmp_path: Path, token: str | None, page_size: int | None = None) -> Iterator[Hub]:
+    server = HubServer(tmp_path / "hub-data", token=token, page_size=page_size)
+    try:
+        hf_home = tmp_path / "hf_home"
+        with hub_environment(server.endpoint, hf_home, token=token):
+            yield Hub(
+                server=server,
+                endpoint=server.endpoint,
+                token=token,
+                root=server.root,
+                hf_home=hf_home,
+                api=HfApi(endpoint=server.endpoint, token=token),
+            )
+    finally:
+        server.stop()
+        server.remove_log()
+
+
+@pytest.fixture
+def hub(tmp_path: Path) -> Iterator[Hub]:
+    """A loopback Hub server open to writes (no token), ``HF_ENDPOINT``/``HF_HOME`` pointed at it."""
+    yield from _start_hub(tmp_path, token=None)
+
+
+@pytest.fixture
+def hub_with_token(tmp_path: Path) -> Iterator[Hub]:
+    """Like ``hub``, but the server was started with ``--token``; ``HF_TOKEN`` holds that token."""
+    yield from _start_hub(tmp_path, token=TEST_TOKEN)
+
+
+# --- other fixtures below ----------------------------------------------------------------------
