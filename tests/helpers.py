@@ -1,0 +1,48 @@
+"""Helpers for tests: copy env folders with edits, and re-publish a repo with hand-made changes.
+
+``republish`` plays a careless (or malicious) publisher: it edits files of a published repo and
+fixes up the manifest's hashes so integrity passes, the way only a hand-made repo could.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Callable
+
+from huggingface_hub import HfApi, snapshot_download
+
+from hub_envs.repo_format import MANIFEST_FILE, content_digest, hash_files, list_files
+
+FIXTURES = Path(__file__).parent / "fixtures"
+TINY = FIXTURES / "tiny_env"
+
+
+def copy_env(tmp_path: Path, src: Path = TINY, name: str | None = None, edits: dict[str, Callable[[str], str]] | None = None) -> Path:
+    """A copy of an env folder, each ``edits[file](text)`` applied."""
+    dest = tmp_path / (name or src.name)
+    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("__pycache__"))
+    for rel, edit in (edits or {}).items():
+        p = dest / rel
+        p.write_text(edit(p.read_text()))
+    return dest
+
+
+def republish(api: HfApi, repo_id: str, edit: Callable[[Path], None], *, fix_hashes: bool = True, message: str = "hand edit") -> str:
+    """Download main, apply ``edit(folder)``, (re)compute the manifest's hashes, upload as one commit."""
+    src = Path(snapshot_download(repo_id, endpoint=api.endpoint, token=api.token))
+    work = Path(str(src) + "-edit")
+    if work.exists():
+        shutil.rmtree(work)
+    shutil.copytree(src, work, symlinks=False)
+    edit(work)
+    if fix_hashes:
+        manifest = json.loads((work / MANIFEST_FILE).read_text())
+        files = hash_files(work, list_files(work, skip=(MANIFEST_FILE,)))
+        manifest["files"] = files
+        manifest["content_digest"] = content_digest(files)
+        (work / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    info = api.upload_folder(repo_id=repo_id, folder_path=str(work), commit_message=message, delete_patterns=["*"])
+    shutil.rmtree(work)
+    return info.oid

@@ -1,0 +1,247 @@
+"""The env repo round trip: push_env a folder, load_env it back by repo id, as a user would.
+
+Real parts only: the loopback Hub server over HTTP, the unmodified huggingface_hub client,
+gymnasium's registry, draccus parsing, LeRobotDataset.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+import draccus
+import gymnasium as gym
+import numpy as np
+import pytest
+from lerobot.envs.configs import EnvConfig
+
+from hub_envs import errors, load_env, push_env, trust
+from hub_envs.registration import snapshot_registries
+from hub_envs.testing import hub_environment
+from tests.helpers import copy_env, republish, TINY
+
+
+@dataclass
+class LeRobotStyleConfig:
+    """The shape of lerobot's own pipeline configs: an ``env: EnvConfig`` choice field."""
+
+    env: EnvConfig
+    seed: int = 1000
+
+
+def _push(path, repo_id, **kw):
+    kw.setdefault("episodes", 3)
+    kw.setdefault("progress", False)
+    return push_env(path, repo_id, **kw)
+
+
+def test_push_then_load_by_repo_id_from_a_clean_cache(hub, tmp_path):
+    result = _push(TINY, "alice/tiny", episodes=4, seed=7)
+    assert result.created_commit and len(result.sha) == 40
+    assert result.load_line == f'load_env("alice/tiny@{result.sha}", trust_remote_code=True)'
+
+    with hub_environment(hub.endpoint, tmp_path / "fresh_home", token=hub.token):
+        loaded = load_env(f"alice/tiny@{result.sha}", trust_remote_code=True)
+        assert loaded.revision == result.sha
+        assert str(tmp_path / "fresh_home") in str(loaded.path)
+
+        env = gym.make(loaded.gym_id)
+        obs, info = env.reset(seed=3)
+        assert obs["agent_pos"].shape == (2,) and isinstance(info["is_success"], bool)
+        for _ in range(5):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert env.spec.max_episode_steps == loaded.config.episode_length == 30
+
+        cfg = draccus.parse(LeRobotStyleConfig, args=[f"--env.type={loaded.env_type}", "--env.episode_length=12", "--seed=3"])
+        assert type(cfg.env) is loaded.config_class and cfg.env.episode_length == 12
+        assert EnvConfig.get_choice_class(loaded.env_type) is loaded.config_class
+        assert cfg.env.type == loaded.env_type
+        short = loaded.make(cfg.env)
+        assert short.spec.max_episode_steps == 12
+
+        dataset = loaded.open_dataset()
+        assert dataset.num_episodes == 4 and dataset.num_frames == 4 * 30
+        assert set(dataset.features) >= {"observation.state", "action", "next.reward"}
+        first = dataset[0]
+        assert tuple(first["observation.state"].shape) == (2,)
+        info_json = json.loads((loaded.dataset_root / "meta" / "info.json").read_text())
+        assert info_json["hub_envs"]["seeds"] == [7, 8, 9, 10]
+        assert loaded.manifest.dataset["seeds"] == [7, 8, 9, 10]
+        assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
+        # the dataset's first observation is what reset(seed=7) gives
+        env0 = loaded.make()
+        obs0, _ = env0.reset(seed=7)
+        np.testing.assert_array_equal(first["observation.state"].numpy(), obs0["agent_pos"])
+
+
+def test_pushing_unchanged_content_twice_makes_one_commit(hub):
+    first = _push(TINY, "alice/tiny-twice")
+    second = _push(TINY, "alice/tiny-twice")
+    assert not second.created_commit and second.sha == first.sha
+    commits = hub.api.list_repo_commits("alice/tiny-twice")
+    assert [c.commit_id for c in commits if c.commit_id == first.sha] == [first.sha]
+    assert commits[0].commit_id == first.sha
+    third = _push(TINY, "alice/tiny-twice", episodes=4)  # different content: a new commit
+    assert third.created_commit and third.sha != first.sha
+
+
+def test_one_commit_holds_everything_and_is_tagged(hub):
+    result = _push(TINY, "alice/tiny-files", tag="v1")
+    files = set(hub.api.list_repo_files("alice/tiny-files", revision=result.sha))
+    assert {"env.py", "hub_env.json", "README.md", "tiny.py", "dynamics.py", "pyproject.toml",
+            "media/rollout.gif", "dataset/meta/info.json"} <= files
+    refs = hub.api.list_repo_refs("alice/tiny-files")
+    assert {t.name: t.target_commit for t in refs.tags} == {result.content_tag: result.sha, "v1": result.sha}
+    card = hub.api.model_info("alice/tiny-files", revision=result.sha).card_data
+    assert "hub-envs" in card.tags and card.library_name == "hub-envs"
+
+
+def test_two_revisions_of_one_repo_coexist(hub, tmp_path):
+    v1 = _push(TINY, "alice/tiny-revs")
+    faster = copy_env(tmp_path, edits={"dynamics.py": lambda s: s.replace("GAIN = 1.0", "GAIN = 3.0")})
+    v2 = _push(faster, "alice/tiny-revs")
+    assert v1.sha != v2.sha
+    a = load_env("alice/tiny-revs", revision=v1.sha, trust_remote_code=True)
+    b = load_env(f"alice/tiny-revs@{v2.sha}", trust_remote_code=True)
+    assert a.gym_id != b.gym_id and a.env_type != b.env_type
+    assert a.env_class is not b.env_class
+    trajectories = []
+    for loaded in (a, b):
+        env = gym.make(loaded.gym_id)
+        env.reset(seed=0)
+        obs, *_ = env.step(np.ones(1, dtype=np.float32))
+        trajectories.append(obs["agent_pos"][1])
+    assert trajectories[1] == pytest.approx(3 * trajectories[0])
+
+
+def test_a_branch_loads_with_a_warning_that_shows_the_pin(hub):
+    result = _push(TINY, "alice/tiny-branch")
+    with pytest.warns(UserWarning, match=f"alice/tiny-branch@{result.sha}"):
+        loaded = load_env("alice/tiny-branch", trust_remote_code=True)
+    assert loaded.revision == result.sha
+
+
+def test_offline_load_from_cache(hub, monkeypatch):
+    result = _push(TINY, "alice/tiny-offline")
+    load_env(f"alice/tiny-offline@{result.sha}", trust_remote_code=True).unregister()
+    hub.server.stop()  # no server at all: only the cache can answer
+    with hub_environment(hub.endpoint, hub.hf_home, token=hub.token, offline=True):
+        loaded = load_env(f"alice/tiny-offline@{result.sha}", trust_remote_code=True)
+        assert loaded.revision == result.sha
+        gym.make(loaded.gym_id).reset(seed=0)
+        with pytest.raises(errors.OfflineNotCachedError, match="alice/tiny-offline@main"):
+            load_env("alice/tiny-offline@main", trust_remote_code=True)
+
+
+MARKER_CODE = (
+    "import os, pathlib\n"
+    "pathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('imported')\n"
+)
+
+
+def test_untrusted_load_imports_and_registers_nothing_and_tofu_is_keyed_by_sha(hub, tmp_path, monkeypatch):
+    marker = tmp_path / "marker"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
+    folder = copy_env(tmp_path, edits={"tiny.py": lambda s: MARKER_CODE + s})
+    first = _push(folder, "mallory/tiny")
+    marker.unlink()
+    before = snapshot_registries()
+
+    with pytest.raises(errors.UntrustedCodeError) as e:
+        load_env(f"mallory/tiny@{first.sha}")
+    assert f"hub-envs trust mallory/tiny@{first.sha}" in str(e.value)
+    assert "trust_remote_code=True" in str(e.value)
+    assert not marker.exists()
+    assert snapshot_registries() == before
+    assert not any(name.startswith("hub_envs_code.mallory") for name in list(__import__("sys").modules))
+
+    trust.trust("mallory/tiny", first.sha)
+    loaded = load_env(f"mallory/tiny@{first.sha}")
+    assert marker.exists() and loaded.report.trust.startswith("trust list")
+    loaded.unregister()
+
+    second = _push(copy_env(tmp_path, src=folder, name="v2", edits={"dynamics.py": lambda s: s.replace("DT = 0.05", "DT = 0.1")}), "mallory/tiny")
+    with pytest.raises(errors.UntrustedCodeError, match="dynamics.py"):
+        load_env(f"mallory/tiny@{second.sha}")
+
+
+def test_a_tampered_file_is_refused(hub):
+    result = _push(TINY, "alice/tiny-tamper")
+    evil = "import os\nos.environ['PWNED'] = '1'\n" + (TINY / "dynamics.py").read_text()
+    tampered = hub.api.upload_file(path_or_fileobj=evil.encode(), path_in_repo="dynamics.py", repo_id="alice/tiny-tamper").oid
+    assert tampered != result.sha
+    with pytest.raises(errors.IntegrityError, match="tampered  dynamics.py"):
+        load_env(f"alice/tiny-tamper@{tampered}", trust_remote_code=True)
+    assert "PWNED" not in os.environ
+    extra = hub.api.upload_file(path_or_fileobj=b"print('hi')\n", path_in_repo="extra.py", repo_id="alice/tiny-tamper").oid
+    with pytest.raises(errors.IntegrityError, match="unlisted  extra.py"):
+        load_env(f"alice/tiny-tamper@{extra}", trust_remote_code=True)
+
+
+def test_a_missing_requirement_is_reported_with_the_pip_line(hub):
+    _push(TINY, "alice/tiny-reqs")
+
+    def require_more(folder):
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["requirements"] += ["hub-envs-no-such-package>=1.0", "numpy<1"]
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub.api, "alice/tiny-reqs", require_more)
+    before = snapshot_registries()
+    with pytest.raises(errors.MissingRequirementsError) as e:
+        load_env(f"alice/tiny-reqs@{sha}", trust_remote_code=True)
+    assert "pip install 'hub-envs-no-such-package>=1.0' 'numpy<1'" in str(e.value)
+    assert snapshot_registries() == before
+
+
+def test_push_refuses_declared_shapes_that_disagree_with_rollouts(hub, tmp_path):
+    folder = copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace('shape=(2,))', 'shape=(3,))')})
+    before = snapshot_registries()
+    with pytest.raises(errors.FeatureMismatchError) as e:
+        _push(folder, "alice/tiny-badshape")
+    assert "live shape (2,) != declared (3,)" in e.value.table
+    assert snapshot_registries() == before
+    with pytest.raises(errors.EnvRepoNotFoundError):
+        load_env("alice/tiny-badshape", trust_remote_code=True)
+
+
+def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hub):
+    _push(TINY, "alice/tiny-lies")
+
+    def lie_in_code_and_dataset(folder):
+        code = (folder / "tiny.py").read_text().replace('shape=(2,))', 'shape=(3,))').replace('shape=(1,))', 'shape=(2,))')
+        (folder / "tiny.py").write_text(code)
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["config"]["features"]["agent_pos"]["shape"] = [3]
+        manifest["config"]["features"]["action"]["shape"] = [2]
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub.api, "alice/tiny-lies", lie_in_code_and_dataset)
+    before = snapshot_registries()
+    with pytest.raises(errors.FeatureMismatchError) as e:
+        load_env(f"alice/tiny-lies@{sha}", trust_remote_code=True)
+    table = e.value.table
+    assert "live shape (2,) != declared (3,)" in table and "dataset shape (2,) != declared (3,)" in table
+    assert "action_space shape (1,) != declared (2,)" in table  # every disagreement, not just the first
+    assert len(e.value.mismatches) == 2
+    assert snapshot_registries() == before
+
+    def lie_in_dataset(folder):
+        info = json.loads((folder / "dataset/meta/info.json").read_text())
+        info["features"]["observation.state"]["shape"] = [5]
+        (folder / "dataset/meta/info.json").write_text(json.dumps(info))
+
+    _push(TINY, "alice/tiny-lies2")
+    sha = republish(hub.api, "alice/tiny-lies2", lie_in_dataset)
+    with pytest.raises(errors.FeatureMismatchError, match=r"dataset shape \(5,\) != declared \(2,\)"):
+        load_env(f"alice/tiny-lies2@{sha}", trust_remote_code=True)
+    assert snapshot_registries() == before
+
+
+def test_missing_repo_and_revision_are_typed_errors(hub):
+    with pytest.raises(errors.EnvRepoNotFoundError, match="nobody/nothing"):
+        load_env("nobody/nothing", trust_remote_code=True)
+    _push(TINY, "alice/tiny-rev")
+    with pytest.raises(errors.RevisionNotFoundError, match="no revision 'v9'"):
+        load_env("alice/tiny-rev@v9", trust_remote_code=True)
