@@ -50,7 +50,7 @@ from hub_envs.repo_format import (
     hash_files,
     list_files,
 )
-from hub_envs.rollout import run_episodes
+from hub_envs.rollout import iter_episodes
 
 ENTRY_TEMPLATE = Path(__file__).resolve().parent / "templates" / "env_entry.py"
 
@@ -156,7 +156,7 @@ def build_repo(
     successes: list[bool] = []
 
     def frames():
-        for rollout in run_episodes(loaded.make, seeds, max_steps=int(cfg.episode_length), workers=workers,
+        for rollout in iter_episodes(loaded.make, seeds, max_steps=int(cfg.episode_length), workers=workers,
                                     progress=progress, desc=f"Generating {episodes} episodes"):
             returns.append(float(np.sum(rollout.rewards)))
             successes.append(bool(np.any(rollout.is_success)))
