@@ -1,0 +1,577 @@
+"""Run seeded episodes of an env and record everything that happened: the episode engine.
+
+One concept: an *episode* is fully determined by ``(make_env, seed, policy, max_steps)``. Episode
+``i`` resets with ``seed=seeds[i]``, seeds ``env.action_space`` with the same seed, and steps until
+the env says ``terminated`` or ``truncated`` or ``max_steps`` steps were taken. The default policy
+samples ``env.action_space`` (so it is seeded too); a policy may also be a callable
+``(obs, step_index) -> action`` or recorded actions to replay. Because nothing else goes in, the
+rollouts are identical whatever the number of worker processes. Dataset generation
+(:mod:`hub_envs.dataset`) and replay/reproduction share this engine.
+
+What is recorded at step ``t`` (arrays of length ``T`` = episode length):
+
+* ``observations[key][t]``: the observation *before* action ``t`` (the reset observation at t=0).
+  Nested dict observations are flattened with ``/`` (``{"pixels": {"top": ...}}`` → ``"pixels/top"``),
+  the convention of LeRobot's ``EnvConfig.features``; a non-dict observation is stored under
+  ``"observation"``. The observation after the last action is not recorded (LeRobot's convention).
+* ``actions[t]``, ``rewards[t]``, ``terminated[t]``, ``truncated[t]`` and ``is_success[t]``
+  (``info["is_success"]``) from ``env.step(actions[t])``. When the episode is cut by ``max_steps``
+  and the env did not end it, ``truncated[-1]`` is set (a time-limit truncation).
+* ``states[t]``: ``env.get_state()`` before action ``t``, when ``record_states=True`` and the env
+  (or a wrapper) has ``get_state``; otherwise ``None``.
+
+Workers: ``workers > 1`` runs episodes in a process pool, one env per worker process reused across
+episodes (each episode resets with its seed). On Linux the pool forks, so ``make_env`` and
+``policy`` are inherited by the workers and **need not be picklable** (lambdas and closures work);
+elsewhere (spawn) they must be picklable. Results come back in episode order. A policy callable
+must not keep state across episodes, or the results depend on which worker ran which episode.
+
+Errors: an env that raises in ``make_env``, ``reset`` or ``step``, or returns a NaN/inf observation
+or reward, raises :class:`hub_envs.errors.EnvCodeError` naming the episode, seed, step and key.
+
+Example:
+    >>> import gymnasium as gym
+    >>> from hub_envs.rollout import run_episodes
+    >>> eps = run_episodes(lambda: gym.make("Pendulum-v1"), seeds=[0, 1], max_steps=50, progress=False)
+    >>> [e.length for e in eps], sorted(eps[0].observations), eps[0].actions.shape
+    ([50, 50], ['observation'], (50, 1))
+    >>> again = run_episodes(lambda: gym.make("Pendulum-v1"), seeds=[0, 1], max_steps=50,
+    ...                      workers=2, progress=False)
+    >>> again == eps
+    True
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import multiprocessing
+import sys
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hub_envs.errors import ConfigError, EnvCodeError
+
+__all__ = ["EpisodeRollout", "run_episodes", "iter_episodes", "flatten_observation"]
+
+OBSERVATION_KEY = "observation"  # key of a non-dict observation
+_BUFFER_BYTES = 16 * 2**20  # preallocate up to this many bytes per recorded key, grow beyond
+
+
+@dataclass(eq=False)
+class EpisodeRollout:
+    """Everything recorded in one episode. Arrays share their first axis: the step index."""
+
+    index: int
+    seed: int
+    observations: dict[str, np.ndarray]
+    actions: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    is_success: np.ndarray
+    states: np.ndarray | None = None
+
+    @property
+    def length(self) -> int:
+        """Number of steps (frames) in the episode."""
+        return int(self.actions.shape[0])
+
+    @property
+    def episode_return(self) -> float:
+        """Sum of the rewards."""
+        return float(np.sum(self.rewards, dtype=np.float64))
+
+    @property
+    def success(self) -> bool:
+        """True if ``info["is_success"]`` was true at any step (LeRobot's eval convention)."""
+        return bool(np.any(self.is_success))
+
+    def _arrays(self) -> list[tuple[str, np.ndarray | None]]:
+        obs = [(f"observations/{k}", self.observations[k]) for k in sorted(self.observations)]
+        return obs + [
+            ("actions", self.actions),
+            ("rewards", self.rewards),
+            ("terminated", self.terminated),
+            ("truncated", self.truncated),
+            ("is_success", self.is_success),
+            ("states", self.states),
+        ]
+
+    def digest(self) -> str:
+        """sha256 over index, seed and every array (name, dtype, shape, bytes): equal iff identical."""
+        h = hashlib.sha256(f"{self.index}\0{self.seed}\0".encode())
+        for name, arr in self._arrays():
+            if arr is None:
+                h.update(f"{name}\0None\0".encode())
+                continue
+            arr = np.ascontiguousarray(arr)
+            h.update(f"{name}\0{arr.dtype.str}\0{arr.shape}\0".encode())
+            h.update(arr.tobytes())
+        return h.hexdigest()
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, EpisodeRollout):
+            return NotImplemented
+        if (self.index, self.seed, sorted(self.observations)) != (other.index, other.seed, sorted(other.observations)):
+            return False
+        for (_, a), (_, b) in zip(self._arrays(), other._arrays(), strict=True):
+            if (a is None) != (b is None):
+                return False
+            if a is not None and (a.dtype != b.dtype or a.shape != b.shape or not np.array_equal(a, b, equal_nan=True)):
+                return False
+        return True
+
+    __hash__ = None  # mutable arrays inside
+
+
+# --- observations -----------------------------------------------------------------------------
+
+
+def _layout(obs: Any, prefix: tuple[str, ...] = ()) -> list[tuple[str, tuple[str, ...]]]:
+    """(flat key, path) for every leaf of a (nested) dict observation."""
+    if isinstance(obs, Mapping):
+        out = []
+        for k, v in obs.items():
+            out.extend(_layout(v, (*prefix, str(k))))
+        return out
+    if not prefix:
+        return [(OBSERVATION_KEY, ())]
+    return [("/".join(prefix), prefix)]
+
+
+def flatten_observation(obs: Any) -> dict[str, Any]:
+    """Flatten a (nested) dict observation to ``{"a/b": leaf}``; a non-dict one to ``{"observation": obs}``.
+
+    >>> flatten_observation({"agent_pos": 1, "pixels": {"top": 2}})
+    {'agent_pos': 1, 'pixels/top': 2}
+    """
+    return {key: _get(obs, path) for key, path in _layout(obs)}
+
+
+def _get(obs: Any, path: tuple[str, ...]) -> Any:
+    for p in path:
+        obs = obs[p]
+    return obs
+
+
+class _Buffer:
+    """A growable (capacity, *shape) array written row by row (copies, so env-side reuse is safe)."""
+
+    __slots__ = ("data", "n")
+
+    def __init__(self, first: Any, max_steps: int):
+        first = np.asarray(first)
+        per_row = max(first.nbytes, 1)
+        cap = max_steps if per_row * max_steps <= _BUFFER_BYTES else max(1, min(max_steps, _BUFFER_BYTES // per_row, 64))
+        self.data = np.empty((cap, *first.shape), dtype=first.dtype)
+        self.n = 0
+
+    def append(self, value: Any) -> None:
+        if self.n == self.data.shape[0]:
+            grown = np.empty((self.data.shape[0] * 2, *self.data.shape[1:]), dtype=self.data.dtype)
+            grown[: self.n] = self.data
+            self.data = grown
+        self.data[self.n] = value
+        self.n += 1
+
+    def array(self) -> np.ndarray:
+        return self.data if self.n == self.data.shape[0] else self.data[: self.n].copy()
+
+
+# --- one episode ------------------------------------------------------------------------------
+
+
+def _where(exc: BaseException) -> str:
+    """' (raised at file.py:42 in step)' for the innermost frame of exc's traceback."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return ""
+    f = frames[-1]
+    return f" (raised at {f.filename}:{f.lineno} in {f.name})"
+
+
+def _exc_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}{_where(exc)}"
+
+
+def _resolve_get_state(env: Any) -> Callable[[], Any] | None:
+    getter = getattr(env, "get_wrapper_attr", None)
+    if getter is not None:
+        try:
+            return getter("get_state")
+        except AttributeError:
+            return None
+    return getattr(env, "get_state", None)
+
+
+class _Runner:
+    """Holds one env (created on first use) and runs episodes on it."""
+
+    def __init__(self, make_env: Callable[[], Any], max_steps: int, policy: Any, record_states: bool, n_episodes: int):
+        self.make_env = make_env
+        self.max_steps = max_steps
+        self.record_states = record_states
+        self.n_episodes = n_episodes
+        self.policy_fn: Callable[[Any, int], Any] | None = None
+        self.shared_actions: np.ndarray | None = None
+        self.episode_actions: list[np.ndarray] | None = None
+        if policy is None:
+            pass
+        elif callable(policy):
+            self.policy_fn = policy
+        elif isinstance(policy, np.ndarray):
+            self.shared_actions = policy
+        elif isinstance(policy, (list, tuple)) and policy and all(isinstance(p, np.ndarray) for p in policy):
+            self.episode_actions = list(policy)  # disambiguated against the action space on first use
+        else:
+            try:
+                self.shared_actions = np.asarray(policy)
+            except Exception as exc:  # noqa: BLE001
+                raise ConfigError(
+                    f"policy must be None, a callable (obs, step_index) -> action, an action array (T, *A) "
+                    f"or a list with one action array per episode; got {type(policy).__name__}."
+                ) from exc
+        self.env: Any = None
+        self.get_state: Callable[[], Any] | None = None
+
+    def _ensure_env(self) -> Any:
+        if self.env is None:
+            try:
+                self.env = self.make_env()
+            except Exception as exc:
+                raise EnvCodeError(
+                    f"make_env() raised {_exc_text(exc)}. Fix the env constructor; nothing was recorded."
+                ) from exc
+            if not hasattr(self.env, "reset") or not hasattr(self.env, "step") or not hasattr(self.env, "action_space"):
+                raise EnvCodeError(
+                    f"make_env() returned {type(self.env).__name__}, which is not a gymnasium env "
+                    "(it needs reset, step and action_space). Return a gymnasium.Env from make_env."
+                )
+            self.get_state = _resolve_get_state(self.env) if self.record_states else None
+        return self.env
+
+    def close(self) -> None:
+        if self.env is not None:
+            try:
+                self.env.close()
+            except Exception:  # noqa: BLE001  - closing must not mask results or the original error
+                pass
+            self.env = None
+
+    def _actions_for(self, index: int, action_ndim: int) -> np.ndarray | None:
+        if self.episode_actions is not None:
+            per_episode = all(a.ndim == action_ndim + 1 for a in self.episode_actions)
+            if per_episode:
+                if len(self.episode_actions) != self.n_episodes:
+                    raise ConfigError(
+                        f"policy has {len(self.episode_actions)} action arrays but there are {self.n_episodes} "
+                        "seeds. Pass one (T, *action_shape) array per episode, in seed order."
+                    )
+                return self.episode_actions[index]
+            self.shared_actions = np.stack(self.episode_actions)
+            self.episode_actions = None
+        return self.shared_actions
+
+    def run(self, index: int, seed: int) -> EpisodeRollout:
+        env = self._ensure_env()
+        where = f"episode {index} (seed {seed})"
+        try:
+            obs, _info = env.reset(seed=seed)
+        except Exception as exc:
+            raise EnvCodeError(f"{where}: env.reset(seed={seed}) raised {_exc_text(exc)}. Fix the env's reset.") from exc
+        space = env.action_space
+        space.seed(seed)
+        action_shape = getattr(space, "shape", None) or ()
+        fixed = self._actions_for(index, len(action_shape))
+        max_steps = self.max_steps if fixed is None else min(self.max_steps, len(fixed))
+        if max_steps < 1:
+            raise ConfigError(f"{where}: no actions to replay (the action array for this episode is empty).")
+
+        layout = _layout(obs)
+        # how to fetch each leaf: None = the whole obs, str = obs[key], tuple = nested path
+        flat_keys = [(k, None if not p else p[0] if len(p) == 1 else p) for k, p in layout]
+        try:
+            obs_bufs = {k: _Buffer(_get(obs, p), max_steps) for k, p in layout}
+        except Exception as exc:
+            raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {_exc_text(exc)}.") from exc
+        get_state = self.get_state
+        state_buf: _Buffer | None = None
+        act_buf: _Buffer | None = None
+        rewards: list[float] = []
+        terms: list[bool] = []
+        truncs: list[bool] = []
+        succ: list[bool] = []
+        policy_fn = self.policy_fn
+        sample = space.sample
+        step = env.step
+        for t in range(max_steps):
+            # record the observation before action t
+            try:
+                for k, p in flat_keys:
+                    if p is None:
+                        obs_bufs[k].append(obs)
+                    elif type(p) is str:
+                        obs_bufs[k].append(obs[p])
+                    else:
+                        obs_bufs[k].append(_get(obs, p))
+            except Exception as exc:
+                what = "reset" if t == 0 else f"step {t - 1}"
+                raise EnvCodeError(
+                    f"{where}: the observation returned by {what} does not match the reset observation's "
+                    f"keys/shapes/dtypes: {_exc_text(exc)}. Keep the observation layout fixed."
+                ) from exc
+            if get_state is not None:
+                try:
+                    state = get_state()
+                except Exception as exc:
+                    raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {_exc_text(exc)}.") from exc
+                if state_buf is None:
+                    state_buf = _Buffer(state, max_steps)
+                state_buf.append(state)
+
+            if fixed is not None:
+                action = fixed[t]
+            elif policy_fn is not None:
+                action = policy_fn(obs, t)
+            else:
+                action = sample()
+            try:
+                obs, reward, terminated, truncated, info = step(action)
+            except Exception as exc:
+                raise EnvCodeError(f"{where}, step {t}: env.step(action) raised {_exc_text(exc)}. Fix the env's step.") from exc
+            if act_buf is None:
+                act_buf = _Buffer(action, max_steps)
+            act_buf.append(action)
+            rewards.append(reward)
+            terms.append(bool(terminated))
+            truncs.append(bool(truncated))
+            succ.append(bool(info.get("is_success", False)) if info else False)
+            if terminated or truncated:
+                break
+        if not terms[-1] and not truncs[-1]:
+            truncs[-1] = True  # cut by max_steps: a time-limit truncation
+
+        observations = {k: b.array() for k, b in obs_bufs.items()}
+        try:
+            reward_arr = np.asarray(rewards, dtype=np.float64)
+        except Exception as exc:
+            raise EnvCodeError(f"{where}: env.step returned a reward that is not a number: {_exc_text(exc)}.") from exc
+        _check_finite(where, observations, reward_arr)
+        return EpisodeRollout(
+            index=index,
+            seed=seed,
+            observations=observations,
+            actions=act_buf.array(),
+            rewards=reward_arr,
+            terminated=np.asarray(terms, dtype=bool),
+            truncated=np.asarray(truncs, dtype=bool),
+            is_success=np.asarray(succ, dtype=bool),
+            states=state_buf.array() if state_buf is not None else None,
+        )
+
+
+def _first_bad_step(arr: np.ndarray) -> int | None:
+    if arr.dtype.kind not in "fc":
+        return None
+    flat = arr.reshape(arr.shape[0], -1)
+    ok = np.isfinite(flat).all(axis=1)
+    if ok.all():
+        return None
+    return int(np.flatnonzero(~ok)[0])
+
+
+def _check_finite(where: str, observations: dict[str, np.ndarray], rewards: np.ndarray) -> None:
+    for key, arr in observations.items():
+        bad = _first_bad_step(arr)
+        if bad is not None:
+            src = "env.reset" if bad == 0 else f"env.step at step {bad - 1}"
+            raise EnvCodeError(
+                f"{where}: observation '{key}' contains NaN or inf at step {bad} (returned by {src}). "
+                "Fix the env so observations stay finite (clip, or terminate the episode)."
+            )
+    bad = _first_bad_step(rewards)
+    if bad is not None:
+        raise EnvCodeError(f"{where}: the reward of step {bad} is NaN or inf. Fix the env's reward computation.")
+
+
+# --- many episodes, maybe in worker processes ---------------------------------------------------
+
+_FORK_STATES: dict[int, tuple] = {}  # token -> runner args, inherited by forked workers
+_TOKENS = itertools.count()
+_WORKER: _Runner | None = None
+
+
+def _worker_init(token: int | None, args: tuple | None) -> None:
+    global _WORKER
+    if args is None:
+        args = _FORK_STATES[token]
+    _WORKER = _Runner(*args)
+    try:  # close the env when the worker exits (atexit does not run in pool workers)
+        from multiprocessing.util import Finalize
+
+        Finalize(_WORKER, _WORKER.close, exitpriority=10)
+    except Exception:  # noqa: BLE001
+        pass
+
+
+def _worker_run(index: int, seed: int) -> EpisodeRollout:
+    assert _WORKER is not None
+    return _WORKER.run(index, seed)
+
+
+def _check_seeds(seeds: Sequence[int]) -> list[int]:
+    out = []
+    for i, s in enumerate(seeds):
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+            raise ConfigError(f"seeds[{i}] = {s!r}: seeds must be non-negative integers (gymnasium's reset(seed=...)).")
+        out.append(int(s))
+    return out
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from huggingface_hub.utils import tqdm  # respects HF_HUB_DISABLE_PROGRESS_BARS, like hub downloads
+
+    return tqdm(total=total, desc=desc, unit="ep", disable=not enabled, leave=False)
+
+
+def iter_episodes(
+    make_env: Callable[[], Any],
+    seeds: Sequence[int],
+    *,
+    max_steps: int,
+    policy: Any = None,
+    record_states: bool = False,
+    workers: int = 1,
+    progress: bool = True,
+    desc: str = "rollouts",
+) -> Iterator[EpisodeRollout]:
+    """Like :func:`run_episodes`, but yields rollouts one by one in episode order (bounded memory).
+
+    With ``workers > 1`` at most ``2 * workers`` finished episodes wait in memory for the consumer.
+    Closing the iterator early stops the workers.
+    """
+    seeds = _check_seeds(seeds)
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
+    if not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ConfigError(f"workers={workers!r}: pass a positive integer.")
+    args = (make_env, int(max_steps), policy, bool(record_states), len(seeds))
+    workers = min(int(workers), max(1, len(seeds)))
+    bar = _progress(len(seeds), desc, progress)
+    try:
+        if workers == 1:
+            runner = _Runner(*args)
+            try:
+                for i, seed in enumerate(seeds):
+                    rollout = runner.run(i, seed)
+                    bar.update(1)
+                    yield rollout
+            finally:
+                runner.close()
+        else:
+            yield from _iter_pool(args, seeds, workers, bar)
+    finally:
+        bar.close()
+
+
+def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[EpisodeRollout]:
+    if sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context("fork")
+        token = next(_TOKENS)
+        _FORK_STATES[token] = args
+        initargs: tuple = (token, None)
+    else:  # spawn: make_env and policy must be picklable
+        ctx = multiprocessing.get_context("spawn")
+        token = None
+        initargs = (None, args)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=initargs)
+    finished = False
+    pending: deque = deque()
+    try:
+        todo = iter(enumerate(seeds))
+        window = 2 * workers
+        for i, seed in itertools.islice(todo, window):
+            pending.append((i, seed, pool.submit(_worker_run, i, seed)))
+        while pending:
+            i, seed, fut = pending.popleft()
+            try:
+                rollout = fut.result()
+            except BrokenProcessPool as exc:
+                raise EnvCodeError(
+                    f"A worker process died while running episode {i} (seed {seed}) or one near it: the env "
+                    "probably crashed the interpreter (segfault, os._exit or out of memory). "
+                    "Run with workers=1 to see the failure in this process."
+                ) from exc
+            nxt = next(todo, None)
+            if nxt is not None:
+                pending.append((nxt[0], nxt[1], pool.submit(_worker_run, *nxt)))
+            bar.update(1)
+            yield rollout
+        finished = True
+    finally:
+        if finished:
+            pool.shutdown(wait=True)
+        else:
+            for *_, fut in pending:
+                fut.cancel()
+            pool.shutdown(wait=False, cancel_futures=True)
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                if proc.is_alive():
+                    proc.terminate()
+        if token is not None:
+            _FORK_STATES.pop(token, None)
+
+
+def run_episodes(
+    make_env: Callable[[], Any],
+    seeds: Sequence[int],
+    *,
+    max_steps: int,
+    policy: Any = None,
+    record_states: bool = False,
+    workers: int = 1,
+    progress: bool = True,
+    desc: str = "rollouts",
+) -> list[EpisodeRollout]:
+    """Run one episode per seed and return the rollouts in seed order.
+
+    Args:
+        make_env: zero-argument callable returning a gymnasium env. Called once per worker; the env
+            is reused across that worker's episodes. With ``workers > 1`` on Linux the pool forks,
+            so it need not be picklable.
+        seeds: one non-negative int per episode; episode ``i`` runs ``env.reset(seed=seeds[i])`` and
+            ``env.action_space.seed(seeds[i])``.
+        max_steps: at most this many steps per episode (the env may end it earlier).
+        policy: ``None`` (seeded uniform random actions from ``env.action_space.sample()``), a
+            callable ``(obs, step_index) -> action`` (``obs`` as the env returns it), an action array
+            ``(T, *A)`` applied to every episode, or a list with one ``(T_i, *A)`` array per episode
+            (replay). Replayed episodes last at most as many steps as there are actions.
+        record_states: also record ``env.get_state()`` before each action (when the env has it).
+        workers: number of processes. Results are identical for any value.
+        progress: show a progress bar (hidden by ``HF_HUB_DISABLE_PROGRESS_BARS=1`` too).
+        desc: label of the progress bar.
+
+    Raises:
+        EnvCodeError: the env raised in make_env/reset/step, or produced NaN/inf observations or rewards.
+        ConfigError: invalid seeds, max_steps, workers or policy.
+    """
+    return list(
+        iter_episodes(
+            make_env,
+            seeds,
+            max_steps=max_steps,
+            policy=policy,
+            record_states=record_states,
+            workers=workers,
+            progress=progress,
+            desc=desc,
+        )
+    )
