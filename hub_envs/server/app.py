@@ -88,12 +88,15 @@ _INVALID_CREDENTIALS = "Invalid credentials in Authorization header"
 class HTTPError(Exception):
     """An error answered as-is: status, message, and the Hub's ``X-Error-Code`` when it has one."""
 
-    def __init__(self, status: int, message: str, code: str | None = None, headers: dict | None = None):
+    def __init__(
+        self, status: int, message: str, code: str | None = None, headers: dict | None = None, extra: dict | None = None
+    ):
         super().__init__(message)
         self.status = status
         self.message = message
         self.code = code
         self.headers = headers or {}
+        self.extra = extra or {}  # more fields of the JSON body
 
 
 @dataclass
@@ -133,7 +136,7 @@ def _error_response(err: HTTPError) -> Response:
     headers = {"X-Error-Message": _header_safe(err.message), **err.headers}
     if err.code:
         headers["X-Error-Code"] = err.code
-    return _json({"error": err.message}, status=err.status, headers=headers)
+    return _json({"error": err.message, **err.extra}, status=err.status, headers=headers)
 
 
 class HubApp:
@@ -289,6 +292,8 @@ class HubApp:
 
     async def _call(self, ctx: Ctx, handlers: dict[str, Callable], body: bool = False) -> Response:
         handler = handlers.get(ctx.method)
+        if handler is None and ctx.method == "HEAD":
+            handler = handlers.get("GET")  # HEAD is GET without the body (uvicorn drops it)
         if handler is None:
             allowed = ", ".join(sorted(handlers))
             raise HTTPError(405, f"Method {ctx.method} not allowed here (allowed: {allowed}).", headers={"Allow": allowed})
@@ -413,7 +418,11 @@ class HubApp:
                 repo_type, repo_id, author=user, private=bool(data.get("private", False)), sdk=sdk
             )
         except RepoExistsError:
-            raise HTTPError(409, f"You already created this {repo_type} repo: {repo_id}") from None
+            # the Hub sends the url along, and `create_repo(exist_ok=True)` returns it
+            existing = self.store.open(repo_type, repo_id)
+            raise HTTPError(
+                409, f"You already created this {repo_type} repo", extra={"url": self._repo_url(ctx, existing)}
+            ) from None
         return _json({"url": self._repo_url(ctx, repo), "name": repo.repo_id, "id": repo.repo_id})
 
     def delete_repo(self, ctx: Ctx) -> Response:

@@ -1,0 +1,583 @@
+"""The loopback Hub server, driven only through the unmodified ``huggingface_hub`` client
+(``HfApi``, ``snapshot_download``, ``hf_hub_download``, ``HfFileSystem``) — plus a few raw HTTP
+requests where the client itself would refuse to send what an attacker would.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import http.client
+import json
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import requests
+from huggingface_hub import (
+    CommitOperationAdd,
+    CommitOperationCopy,
+    CommitOperationDelete,
+    HfApi,
+    HfFileSystem,
+    hf_hub_download,
+    snapshot_download,
+)
+from huggingface_hub.errors import (
+    BadRequestError,
+    EntryNotFoundError,
+    HfHubHTTPError,
+    RepositoryNotFoundError,
+    RevisionNotFoundError,
+)
+
+from hub_envs.testing import HubServer, hub_environment
+
+REPO_TYPES = ["model", "dataset"]
+
+
+def _add(path: str, data: bytes) -> CommitOperationAdd:
+    return CommitOperationAdd(path_in_repo=path, path_or_fileobj=data)
+
+
+def _commit(api: HfApi, repo_id: str, files: dict[str, bytes], repo_type: str = "model", **kw) -> str:
+    ops = [_add(p, d) for p, d in files.items()]
+    return api.create_commit(repo_id, ops, commit_message=kw.pop("message", "update"), repo_type=repo_type, **kw).oid
+
+
+@pytest.fixture
+def small_pages(tmp_path):
+    """A server whose tree and commit lists come 3 items per page."""
+    with HubServer(tmp_path / "hub-data", page_size=3) as server, hub_environment(server.endpoint, tmp_path / "home"):
+        yield HfApi(endpoint=server.endpoint)
+
+
+# --- repos --------------------------------------------------------------------------------------
+
+
+def test_create_repo_of_each_type_with_exist_ok_and_conflict(hub):
+    api = hub.api
+    url = api.create_repo("alice/env")
+    assert url.repo_id == "alice/env" and url.repo_type == "model" and url.endpoint == hub.endpoint
+    assert api.create_repo("alice/data", repo_type="dataset").repo_type == "dataset"
+    assert api.create_repo("alice/demo", repo_type="space", space_sdk="static").repo_type == "space"
+
+    with pytest.raises(HfHubHTTPError) as exc:
+        api.create_repo("alice/env")
+    assert exc.value.response.status_code == 409
+    assert api.create_repo("alice/env", exist_ok=True).repo_id == "alice/env"
+    # same name, other type: a different repo
+    assert api.create_repo("alice/env", repo_type="dataset").repo_type == "dataset"
+
+    # a new repo has the Hub's initial commit with .gitattributes on main
+    info = api.model_info("alice/env")
+    assert len(info.sha) == 40 and [s.rfilename for s in info.siblings] == [".gitattributes"]
+    commits = api.list_repo_commits("alice/env")
+    assert [c.title for c in commits] == ["initial commit"] and commits[0].commit_id == info.sha
+    assert api.space_info("alice/demo").sha
+    # no namespace: the caller's own
+    assert api.create_repo("solo").repo_id == f"{api.whoami(token='any')['name']}/solo"
+
+
+def test_repo_ids_are_case_insensitive_like_the_hub(hub):
+    hub.api.create_repo("Alice/MyEnv")
+    _commit(hub.api, "alice/myenv", {"a.txt": b"a"})
+    assert hub.api.model_info("ALICE/myenv").id == "Alice/MyEnv"
+    assert Path(hf_hub_download("alice/MYENV", "a.txt")).read_bytes() == b"a"
+
+
+def test_private_flag_is_kept_reported_and_updatable(hub):
+    hub.api.create_repo("alice/secret", private=True)
+    hub.api.create_repo("alice/open")
+    assert hub.api.model_info("alice/secret").private is True
+    assert hub.api.model_info("alice/open").private is False
+    hub.api.update_repo_settings("alice/secret", private=False)
+    assert hub.api.model_info("alice/secret").private is False
+    assert {m.id for m in hub.api.list_models(author="alice")} == {"alice/secret", "alice/open"}
+
+
+def test_delete_repo(hub):
+    hub.api.create_repo("alice/gone", repo_type="dataset")
+    hub.api.delete_repo("alice/gone", repo_type="dataset")
+    with pytest.raises(RepositoryNotFoundError):
+        hub.api.dataset_info("alice/gone")
+    with pytest.raises(RepositoryNotFoundError):
+        hub.api.delete_repo("alice/gone", repo_type="dataset")
+    hub.api.delete_repo("alice/gone", repo_type="dataset", missing_ok=True)
+    hub.api.create_repo("alice/gone", repo_type="dataset")  # the name is free again
+    assert hub.api.list_repo_files("alice/gone", repo_type="dataset") == [".gitattributes"]
+
+
+def test_whoami(hub, hub_with_token):
+    assert hub.api.whoami(token="whatever")["name"] == "local"
+    assert hub_with_token.api.whoami()["name"] == "local"
+    with pytest.raises(requests.HTTPError):
+        HfApi(endpoint=hub_with_token.endpoint, token="wrong").whoami()
+
+
+# --- uploads and downloads ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_upload_folder_then_snapshot_and_file_downloads(hub, tmp_path, repo_type):
+    folder = tmp_path / "env"
+    files = {"env.py": b"print('hi')\n", "assets/mesh.obj": b"v 0 0 0\n" * 100, "assets/deep/x.bin": bytes(range(256))}
+    for rel, data in files.items():
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_bytes(data)
+    hub.api.create_repo("alice/env", repo_type=repo_type)
+    info = hub.api.upload_folder(folder_path=folder, repo_id="alice/env", repo_type=repo_type, commit_message="Add env")
+    assert len(info.oid) == 40
+
+    assert sorted(hub.api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+    snapshot = Path(snapshot_download("alice/env", repo_type=repo_type))
+    assert snapshot.name == info.oid and str(hub.hf_home) in str(snapshot)
+    for rel, data in files.items():
+        assert (snapshot / rel).read_bytes() == data
+        assert Path(hf_hub_download("alice/env", rel, repo_type=repo_type)).read_bytes() == data
+
+    repo = hub.api.repo_info("alice/env", repo_type=repo_type, files_metadata=True)
+    assert repo.sha == info.oid
+    siblings = {s.rfilename: s for s in repo.siblings}
+    for rel, data in files.items():  # blob ids are git blob sha1s, as on the Hub
+        assert siblings[rel].size == len(data)
+        assert siblings[rel].blob_id == hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+    assert hub.api.file_exists("alice/env", "assets/deep/x.bin", repo_type=repo_type)
+    assert not hub.api.file_exists("alice/env", "assets/nope.bin", repo_type=repo_type)
+    assert repo.last_modified == hub.api.list_repo_commits("alice/env", repo_type=repo_type)[0].created_at
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_pinned_sha_and_tag_still_serve_old_content_after_a_new_commit(hub, repo_type):
+    api = hub.api
+    api.create_repo("alice/env", repo_type=repo_type)
+    old = _commit(api, "alice/env", {"v.txt": b"one", "keep.txt": b"k"}, repo_type)
+    api.create_tag("alice/env", tag="v1", revision=old, repo_type=repo_type, tag_message="first")
+    new = _commit(api, "alice/env", {"v.txt": b"two"}, repo_type)
+    assert old != new
+
+    for rev in (old, "v1"):
+        assert Path(hf_hub_download("alice/env", "v.txt", revision=rev, repo_type=repo_type)).read_bytes() == b"one"
+        snap = Path(snapshot_download("alice/env", revision=rev, repo_type=repo_type))
+        assert snap.name == old and (snap / "v.txt").read_bytes() == b"one"
+    assert Path(hf_hub_download("alice/env", "v.txt", repo_type=repo_type)).read_bytes() == b"two"
+    assert api.repo_info("alice/env", revision="v1", repo_type=repo_type).sha == old
+    fs = HfFileSystem()
+    prefix = "datasets/" if repo_type == "dataset" else ""
+    assert fs.read_bytes(f"{prefix}alice/env@{old}/v.txt") == b"one"
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_branches_and_tags(hub, repo_type):
+    api = hub.api
+    api.create_repo("alice/env", repo_type=repo_type)
+    base = _commit(api, "alice/env", {"a.txt": b"a"}, repo_type)
+    api.create_branch("alice/env", branch="dev", repo_type=repo_type)
+    on_dev = _commit(api, "alice/env", {"b.txt": b"b"}, repo_type, revision="dev")
+    api.create_tag("alice/env", tag="v1.0", revision="dev", repo_type=repo_type)
+
+    refs = api.list_repo_refs("alice/env", repo_type=repo_type)
+    assert {b.name: b.target_commit for b in refs.branches} == {"main": base, "dev": on_dev}
+    assert {t.name: t.target_commit for t in refs.tags} == {"v1.0": on_dev}
+    assert refs.branches[0].ref.startswith("refs/heads/") and refs.tags[0].ref == "refs/tags/v1.0"
+    assert "b.txt" not in api.list_repo_files("alice/env", repo_type=repo_type)
+    assert "b.txt" in api.list_repo_files("alice/env", revision="v1.0", repo_type=repo_type)
+    assert api.revision_exists("alice/env", "dev", repo_type=repo_type)
+
+    with pytest.raises(HfHubHTTPError) as exc:
+        api.create_tag("alice/env", tag="v1.0", repo_type=repo_type)
+    assert exc.value.response.status_code == 409
+    api.create_tag("alice/env", tag="v1.0", repo_type=repo_type, exist_ok=True)
+    with pytest.raises(HfHubHTTPError) as exc:
+        api.create_branch("alice/env", branch="dev", repo_type=repo_type)
+    assert exc.value.response.status_code == 409
+    api.create_branch("alice/env", branch="dev", repo_type=repo_type, exist_ok=True)
+    api.create_branch("alice/env", branch="from-sha", revision=base, repo_type=repo_type)
+    assert api.repo_info("alice/env", revision="from-sha", repo_type=repo_type).sha == base
+
+    api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
+    api.delete_branch("alice/env", branch="dev", repo_type=repo_type)
+    assert not api.revision_exists("alice/env", "dev", repo_type=repo_type)
+    assert not api.revision_exists("alice/env", "v1.0", repo_type=repo_type)
+    with pytest.raises(RevisionNotFoundError):
+        api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
+    # the commit outlives its branch: pinned downloads keep working
+    assert Path(hf_hub_download("alice/env", "b.txt", revision=on_dev, repo_type=repo_type)).read_bytes() == b"b"
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(hub, repo_type):
+    api = hub.api
+    with pytest.raises(RepositoryNotFoundError):
+        api.repo_info("alice/nope", repo_type=repo_type)
+    with pytest.raises(RepositoryNotFoundError):
+        hf_hub_download("alice/nope", "x.txt", repo_type=repo_type)
+    with pytest.raises(RepositoryNotFoundError):
+        snapshot_download("alice/nope", repo_type=repo_type)
+    with pytest.raises(RepositoryNotFoundError):
+        _commit(api, "alice/nope", {"x": b"x"}, repo_type)
+    assert not api.repo_exists("alice/nope", repo_type=repo_type)
+
+    api.create_repo("alice/env", repo_type=repo_type)
+    with pytest.raises(RevisionNotFoundError):
+        api.repo_info("alice/env", revision="no-such-branch", repo_type=repo_type)
+    with pytest.raises(RevisionNotFoundError):
+        hf_hub_download("alice/env", ".gitattributes", revision="no-such-branch", repo_type=repo_type)
+    with pytest.raises(RevisionNotFoundError):
+        snapshot_download("alice/env", revision="0" * 40, repo_type=repo_type)
+    with pytest.raises(RevisionNotFoundError):
+        api.list_repo_commits("alice/env", revision="nope", repo_type=repo_type)
+    with pytest.raises(EntryNotFoundError):
+        hf_hub_download("alice/env", "missing.txt", repo_type=repo_type)
+    with pytest.raises(EntryNotFoundError):
+        list(api.list_repo_tree("alice/env", path_in_repo="missing", repo_type=repo_type))
+    assert not api.file_exists("alice/env", "missing.txt", repo_type=repo_type)
+    assert not api.revision_exists("alice/env", "nope", repo_type=repo_type)
+    with pytest.raises(FileNotFoundError):
+        HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}alice/env/missing.txt")
+
+
+def test_deletions_copies_and_upload_folder_delete_patterns(hub, tmp_path):
+    api = hub.api
+    api.create_repo("alice/env")
+    _commit(api, "alice/env", {"a.txt": b"a", "logs/1.log": b"1", "logs/2.log": b"2", "keep/k.txt": b"k", "old.tmp": b"t"})
+    api.delete_file("a.txt", "alice/env")
+    api.delete_folder("logs", "alice/env")
+    api.create_commit(
+        "alice/env",
+        [CommitOperationCopy(src_path_in_repo="keep/k.txt", path_in_repo="copied/k.txt")],
+        commit_message="copy",
+    )
+    assert sorted(api.list_repo_files("alice/env")) == [".gitattributes", "copied/k.txt", "keep/k.txt", "old.tmp"]
+    with pytest.raises(EntryNotFoundError):
+        api.delete_file("a.txt", "alice/env")
+    with pytest.raises(EntryNotFoundError):
+        api.delete_folder("logs", "alice/env")
+
+    folder = tmp_path / "up"
+    (folder / "new").mkdir(parents=True)
+    (folder / "new" / "n.txt").write_bytes(b"n")
+    api.upload_folder(folder_path=folder, repo_id="alice/env", delete_patterns=["*.tmp", "keep/*"])
+    assert sorted(api.list_repo_files("alice/env")) == [".gitattributes", "copied/k.txt", "new/n.txt"]
+
+    # a file and a folder cannot share a name
+    with pytest.raises(BadRequestError):
+        _commit(api, "alice/env", {"new/n.txt/inner": b"x"})
+
+
+def test_identical_content_makes_no_commit_like_the_hub(hub):
+    # huggingface_hub compares the preupload `oid` with the local sha1 and skips no-op commits.
+    api = hub.api
+    api.create_repo("alice/env")
+    head = _commit(api, "alice/env", {"a.txt": b"same", "b.txt": b"b"})
+    again = _commit(api, "alice/env", {"a.txt": b"same"})
+    empty = api.create_commit("alice/env", [], commit_message="nothing").oid
+    assert again == empty == head
+    assert len(api.list_repo_commits("alice/env")) == 2
+    assert _commit(api, "alice/env", {"a.txt": b"changed", "b.txt": b"b"}) != head  # partial change: commits
+    assert len(api.list_repo_commits("alice/env")) == 3
+
+
+def test_readme_metadata_is_validated_and_reported_as_card_data(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    _commit(api, "alice/env", {"README.md": b"---\nlicense: mit\ntags:\n- robotics\n---\n# Env\n"})
+    info = api.model_info("alice/env")
+    assert info.card_data["license"] == "mit" and info.tags == ["robotics"]
+    with pytest.raises(ValueError, match="Invalid metadata in README.md"):
+        _commit(api, "alice/env", {"README.md": b"---\ntags: [unclosed\n---\n"})
+    with pytest.warns(UserWarning, match="empty or missing yaml metadata"):
+        _commit(api, "alice/env", {"README.md": b"# no metadata\n"})
+
+
+# --- concurrency and crashes --------------------------------------------------------------------
+
+
+def test_stale_parent_commit_is_refused_with_412(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    parent = api.model_info("alice/env").sha
+    _commit(api, "alice/env", {"a.txt": b"a"})
+    with pytest.raises(HfHubHTTPError) as exc:
+        _commit(api, "alice/env", {"b.txt": b"b"}, parent_commit=parent)
+    assert exc.value.response.status_code == 412
+    assert "The branch was updated since you opened this page" in str(exc.value)
+    head = api.model_info("alice/env").sha
+    assert _commit(api, "alice/env", {"b.txt": b"b"}, parent_commit=head) != head
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_racing_commits_on_the_same_parent_leave_one_winner(hub, repo_type):
+    api = hub.api
+    api.create_repo("alice/env", repo_type=repo_type)
+    parent = api.repo_info("alice/env", repo_type=repo_type).sha
+    n = 8
+    barrier = threading.Barrier(n)
+    results: dict[int, object] = {}
+
+    def worker(i: int) -> None:
+        barrier.wait()
+        try:
+            results[i] = _commit(api, "alice/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
+        except HfHubHTTPError as err:
+            results[i] = err
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+
+    winners = {i: r for i, r in results.items() if isinstance(r, str)}
+    losers = [r for r in results.values() if not isinstance(r, str)]
+    assert len(winners) == 1 and len(losers) == n - 1
+    assert all(err.response.status_code == 412 for err in losers)
+    (i, sha), = winners.items()
+    commits = api.list_repo_commits("alice/env", repo_type=repo_type)
+    assert [c.commit_id for c in commits] == [sha, parent]
+    assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
+    snap = Path(snapshot_download("alice/env", repo_type=repo_type))
+    assert (snap / f"f{i}.txt").read_bytes() == b"x" * (1000 + i)
+
+
+def test_concurrent_commits_without_parent_all_land(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    n = 8
+    barrier = threading.Barrier(n)
+    errors: list[Exception] = []
+
+    def worker(i: int) -> None:
+        barrier.wait()
+        try:
+            _commit(api, "alice/env", {f"f{i}.txt": str(i).encode()}, message=f"add {i}")
+        except Exception as err:  # pragma: no cover - reported below
+            errors.append(err)
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    assert len(api.list_repo_files("alice/env")) == n + 1
+    assert len(api.list_repo_commits("alice/env")) == n + 1  # linear history, nothing lost
+
+
+def test_restarted_server_serves_the_same_repos(hub, tmp_path):
+    api = hub.api
+    api.create_repo("alice/env", private=True)
+    api.create_repo("alice/data", repo_type="dataset")
+    sha = _commit(api, "alice/env", {"a.txt": b"persisted"})
+    _commit(api, "alice/data", {"d.csv": b"1,2\n"}, "dataset")
+    api.create_tag("alice/env", tag="v1")
+
+    hub.server.restart()
+    assert hub.server.endpoint == hub.endpoint  # same port
+    with hub_environment(hub.endpoint, tmp_path / "fresh_cache"):
+        assert Path(hf_hub_download("alice/env", "a.txt", revision="v1")).read_bytes() == b"persisted"
+        assert Path(hf_hub_download("alice/data", "d.csv", repo_type="dataset")).read_bytes() == b"1,2\n"
+    assert api.model_info("alice/env").sha == sha and api.model_info("alice/env").private is True
+    assert _commit(api, "alice/env", {"b.txt": b"b"}) != sha  # and takes new commits
+
+
+def test_server_killed_during_a_large_commit_keeps_the_repo_consistent(hub, tmp_path):
+    api = hub.api
+    api.create_repo("alice/env")
+    before = _commit(api, "alice/env", {"small.txt": b"s"})
+    big = bytes(range(256)) * (80 * 1024)  # 20 MiB, ~27 MiB of base64 on the wire
+    outcome: list[object] = []
+
+    def upload() -> None:
+        try:
+            outcome.append(_commit(api, "alice/env", {"big.bin": big, "small.txt": b"t"}))
+        except Exception as err:
+            outcome.append(err)
+
+    thread = threading.Thread(target=upload)
+    thread.start()
+    time.sleep(0.15)
+    hub.server.kill()
+    thread.join()
+    hub.server.start()
+
+    head = api.model_info("alice/env").sha
+    files = {p: Path(hf_hub_download("alice/env", p, revision=head)).read_bytes() for p in api.list_repo_files("alice/env")}
+    if head == before:  # the crash won: nothing of the new commit is visible
+        assert files == {".gitattributes": files[".gitattributes"], "small.txt": b"s"}
+    else:  # the commit finished before the crash: all of it is visible
+        assert files["big.bin"] == big and files["small.txt"] == b"t"
+    assert _commit(api, "alice/env", {"after.txt": b"a"}, parent_commit=head)
+
+
+# --- listing and paging -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_list_repo_commits_newest_first_across_pages(small_pages, repo_type):
+    api = small_pages
+    api.create_repo("alice/env", repo_type=repo_type)
+    shas = [_commit(api, "alice/env", {"n.txt": str(i).encode()}, repo_type, message=f"step {i}") for i in range(7)]
+    commits = api.list_repo_commits("alice/env", repo_type=repo_type)  # 8 commits, 3 per page
+    assert [c.commit_id for c in commits[:7]] == shas[::-1]
+    assert [c.title for c in commits] == [f"step {i}" for i in range(6, -1, -1)] + ["initial commit"]
+    assert all(a.created_at >= b.created_at for a, b in zip(commits, commits[1:]))
+    assert commits[0].authors == ["local"]
+    formatted = api.list_repo_commits("alice/env", repo_type=repo_type, formatted=True)
+    assert formatted[0].formatted_title == "step 6"
+
+
+@pytest.mark.parametrize("repo_type", REPO_TYPES)
+def test_tree_is_paged_recursive_and_expandable(small_pages, repo_type):
+    api = small_pages
+    api.create_repo("alice/env", repo_type=repo_type)
+    files = {f"top{i}.txt": b"t" for i in range(4)} | {f"d/sub{i}.txt": b"s" for i in range(4)} | {"d/e/deep.txt": b"x"}
+    first = _commit(api, "alice/env", files, repo_type, message="many files")
+    last = _commit(api, "alice/env", {"d/e/deep.txt": b"changed"}, repo_type, message="touch deep")
+
+    everything = list(api.list_repo_tree("alice/env", recursive=True, repo_type=repo_type))
+    assert sorted(e.path for e in everything) == sorted([".gitattributes", *files, "d", "d/e"])
+    assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+    top = {e.path: type(e).__name__ for e in api.list_repo_tree("alice/env", repo_type=repo_type)}
+    assert top == {".gitattributes": "RepoFile", "d": "RepoFolder", **{f"top{i}.txt": "RepoFile" for i in range(4)}}
+    assert {e.path for e in api.list_repo_tree("alice/env", "d", repo_type=repo_type)} == {
+        "d/e", *(f"d/sub{i}.txt" for i in range(4))
+    }
+    expanded = {e.path: e for e in api.list_repo_tree("alice/env", "d", expand=True, repo_type=repo_type)}
+    assert expanded["d/sub0.txt"].last_commit.oid == first
+    assert expanded["d/e"].last_commit.oid == last and expanded["d/e"].last_commit.title == "touch deep"
+
+
+def test_get_paths_info(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    sha = _commit(api, "alice/env", {"a.txt": b"abc", "d/b.txt": b"b"})
+    infos = {i.path: i for i in api.get_paths_info("alice/env", ["a.txt", "d", "missing"], expand=True)}
+    assert set(infos) == {"a.txt", "d"}
+    assert infos["a.txt"].size == 3 and infos["a.txt"].last_commit.oid == sha
+    assert len(infos["d"].tree_id) == 40
+
+
+def test_hf_file_system_ls_info_glob_and_partial_reads(hub):
+    api = hub.api
+    api.create_repo("alice/data", repo_type="dataset")
+    payload = bytes(i % 251 for i in range(200_000))
+    _commit(api, "alice/data", {"data/big.bin": payload, "data/x.csv": b"a,b\n", "README.md": b"---\nx: 1\n---\n"}, "dataset")
+    fs = HfFileSystem()
+    assert set(fs.ls("datasets/alice/data/data", detail=False)) == {"datasets/alice/data/data/big.bin", "datasets/alice/data/data/x.csv"}
+    assert fs.info("datasets/alice/data/data/big.bin")["size"] == len(payload)
+    assert fs.glob("datasets/alice/data/**/*.csv") == ["datasets/alice/data/data/x.csv"]
+    # small blocks: each read below is a Range request; a server ignoring Range would return wrong bytes
+    with fs.open("datasets/alice/data/data/big.bin", block_size=1024) as f:
+        f.seek(123_456)
+        assert f.read(100) == payload[123_456:123_556]
+        f.seek(-10, 2)
+        assert f.read() == payload[-10:]
+    assert fs.cat_file("datasets/alice/data/data/big.bin", start=10, end=20) == payload[10:20]
+
+
+# --- access control -----------------------------------------------------------------------------
+
+
+def test_server_with_token_refuses_writes_without_it(hub_with_token):
+    hub = hub_with_token
+    anonymous = HfApi(endpoint=hub.endpoint, token=False)
+    with pytest.raises(HfHubHTTPError) as exc:
+        anonymous.create_repo("alice/env")
+    assert exc.value.response.status_code == 401 and "HF_TOKEN" in str(exc.value)
+
+    hub.api.create_repo("alice/env")  # HF_TOKEN is set by the fixture
+    sha = _commit(hub.api, "alice/env", {"a.txt": b"a"})
+    for write in (
+        lambda: _commit(anonymous, "alice/env", {"b.txt": b"b"}),
+        lambda: anonymous.create_tag("alice/env", tag="v1"),
+        lambda: anonymous.create_branch("alice/env", branch="dev"),
+        lambda: anonymous.delete_repo("alice/env"),
+        lambda: anonymous.update_repo_settings("alice/env", private=True),
+    ):
+        with pytest.raises(HfHubHTTPError) as exc:
+            write()
+        assert exc.value.response.status_code == 401
+    # public reads stay open
+    assert anonymous.model_info("alice/env").sha == sha
+    assert Path(hf_hub_download("alice/env", "a.txt", token=False)).read_bytes() == b"a"
+    with pytest.raises(HfHubHTTPError) as exc:
+        HfApi(endpoint=hub.endpoint, token="wrong").create_repo("alice/other")
+    assert exc.value.response.status_code == 401
+
+
+def test_private_repos_need_the_token_for_reads_too(hub_with_token, tmp_path):
+    hub = hub_with_token
+    hub.api.create_repo("alice/secret", private=True)
+    _commit(hub.api, "alice/secret", {"s.txt": b"s"})
+    anonymous = HfApi(endpoint=hub.endpoint, token=False)
+    with pytest.raises(RepositoryNotFoundError):
+        anonymous.model_info("alice/secret")
+    with pytest.raises(RepositoryNotFoundError):
+        anonymous.list_repo_files("alice/secret")
+    with hub_environment(hub.endpoint, tmp_path / "anon_home", token=None):
+        with pytest.raises(RepositoryNotFoundError):
+            hf_hub_download("alice/secret", "s.txt")
+        assert "alice/secret" not in {m.id for m in HfApi(endpoint=hub.endpoint).list_models()}
+    assert Path(hf_hub_download("alice/secret", "s.txt")).read_bytes() == b"s"
+
+
+# --- paths that escape the repo -----------------------------------------------------------------
+
+
+def _raw_commit(endpoint: str, repo_id: str, path: str) -> requests.Response:
+    lines = [
+        {"key": "header", "value": {"summary": "evil", "description": ""}},
+        {"key": "file", "value": {"path": path, "content": base64.b64encode(b"pwned").decode(), "encoding": "base64"}},
+    ]
+    body = b"".join(json.dumps(line).encode() + b"\n" for line in lines)
+    return requests.post(
+        f"{endpoint}/api/models/{repo_id}/commit/main", data=body, headers={"Content-Type": "application/x-ndjson"}
+    )
+
+
+def _files_under(folder: Path) -> set[Path]:
+    return {p for p in folder.rglob("*") if p.is_file()}
+
+
+def test_paths_escaping_the_repo_are_refused(hub, tmp_path):
+    api = hub.api
+    api.create_repo("alice/env")
+    head = _commit(api, "alice/env", {"ok.txt": b"ok"})
+    before = _files_under(tmp_path) - _files_under(hub.hf_home)
+
+    with pytest.raises(ValueError):  # the client refuses the obvious one itself
+        _commit(api, "alice/env", {"../x": b"x"})
+    for path in ("a/../../evil.txt", "a\\..\\evil.txt", "sub/./evil.txt"):  # the client lets these through
+        with pytest.raises(BadRequestError):
+            _commit(api, "alice/env", {path: b"pwned"})
+    for path in ("../evil.txt", "/etc/evil.txt", "a/../../../evil.txt", "a//evil", "a\x00b", ".git/config", ".."):
+        response = _raw_commit(hub.endpoint, "alice/env", path)
+        assert response.status_code == 400, (path, response.text)
+
+    for url_path in (
+        "/alice/env/resolve/main/%2e%2e/%2e%2e/%2e%2e/FORMAT",
+        "/alice/env/resolve/main/..%2F..%2F..%2FFORMAT",
+        "/alice/env/resolve/main/%2E%2E%5C%2E%2E%5Crepo.json",
+        "/alice/env/resolve/main/ok.txt%00.png",
+        "/alice/env/resolve/main/%2Fetc%2Fpasswd",
+        "/api/models/alice/env/tree/main/..%2F..",
+    ):
+        for method in ("GET", "HEAD"):
+            response = requests.request(method, hub.endpoint + url_path)
+            assert response.status_code == 400, (method, url_path, response.status_code)
+            assert b"hub-envs-store" not in response.content and b"root:" not in response.content
+    # literal dot segments, which `requests` would normalize away before sending
+    host, port = hub.endpoint.removeprefix("http://").split(":")
+    conn = http.client.HTTPConnection(host, int(port), timeout=10)
+    conn.request("GET", "/alice/env/resolve/main/../../../FORMAT")
+    response = conn.getresponse()
+    assert response.status == 400 and b"hub-envs-store" not in response.read()
+    conn.close()
+
+    assert api.model_info("alice/env").sha == head  # nothing was committed
+    assert api.list_repo_files("alice/env") == [".gitattributes", "ok.txt"]
+    after = _files_under(tmp_path) - _files_under(hub.hf_home)
+    assert not any("evil" in p.name for p in after)
+    assert {p for p in after - before if "hub-data" not in p.parts} == set()  # nothing written outside the store
