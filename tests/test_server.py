@@ -238,6 +238,26 @@ def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(hub, repo_
         HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}alice/env/missing.txt")
 
 
+def test_unusual_file_and_branch_names_round_trip(hub):
+    # the client percent-encodes file paths (keeping "/") and revisions (encoding "/")
+    api = hub.api
+    api.create_repo("alice/env", repo_type="dataset")
+    names = {"dir with space/ünï cødé #1 %.txt": b"u", "a+b=c&d?.json": b"{}", "x/y/z/deep.txt": b"d"}
+    api.create_branch("alice/env", branch="feature/x", repo_type="dataset")
+    sha = _commit(api, "alice/env", names, "dataset", revision="feature/x")
+    for rev in ("feature/x", sha):
+        for name, data in names.items():
+            assert Path(hf_hub_download("alice/env", name, revision=rev, repo_type="dataset")).read_bytes() == data
+    snap = Path(snapshot_download("alice/env", revision="feature/x", repo_type="dataset"))
+    assert (snap / "dir with space" / "ünï cødé #1 %.txt").read_bytes() == b"u"
+    tree = {e.path for e in api.list_repo_tree("alice/env", "dir with space", revision="feature/x", repo_type="dataset")}
+    assert tree == {"dir with space/ünï cødé #1 %.txt"}
+    assert api.list_repo_commits("alice/env", revision="feature/x", repo_type="dataset")[0].commit_id == sha
+    assert api.list_repo_files("alice/env", repo_type="dataset") == [".gitattributes"]  # main untouched
+    api.delete_branch("alice/env", branch="feature/x", repo_type="dataset")
+    assert not api.revision_exists("alice/env", "feature/x", repo_type="dataset")
+
+
 def test_deletions_copies_and_upload_folder_delete_patterns(hub, tmp_path):
     api = hub.api
     api.create_repo("alice/env")
@@ -382,33 +402,65 @@ def test_restarted_server_serves_the_same_repos(hub, tmp_path):
     assert _commit(api, "alice/env", {"b.txt": b"b"}) != sha  # and takes new commits
 
 
-def test_server_killed_during_a_large_commit_keeps_the_repo_consistent(hub, tmp_path):
+def test_server_killed_mid_commit_leaves_the_repo_at_its_previous_commit(hub):
     api = hub.api
     api.create_repo("alice/env")
     before = _commit(api, "alice/env", {"small.txt": b"s"})
-    big = bytes(range(256)) * (80 * 1024)  # 20 MiB, ~27 MiB of base64 on the wire
-    outcome: list[object] = []
+    big = bytes(range(256)) * 4096  # 1 MiB
+    big_sha256 = hashlib.sha256(big).hexdigest()
+    release = threading.Event()
 
-    def upload() -> None:
-        try:
-            outcome.append(_commit(api, "alice/env", {"big.bin": big, "small.txt": b"t"}))
-        except Exception as err:
-            outcome.append(err)
+    def body():  # a commit whose upload stalls after its first file, as a slow client's would
+        yield json.dumps({"key": "header", "value": {"summary": "interrupted"}}).encode() + b"\n"
+        line = {"key": "file", "value": {"path": "big.bin", "content": base64.b64encode(big).decode(), "encoding": "base64"}}
+        yield json.dumps(line).encode() + b"\n"
+        release.wait(10)
+        yield b'{"key": "deletedFile", "value": {"path": "small.txt"}}\n'
 
-    thread = threading.Thread(target=upload)
+    url = f"{hub.endpoint}/api/models/alice/env/commit/main"
+    thread = threading.Thread(target=lambda: _swallow(requests.post, url, data=body()))
     thread.start()
-    time.sleep(0.15)
+    deadline = time.monotonic() + 10
+    while not list(hub.root.rglob(big_sha256)) and time.monotonic() < deadline:  # the first blob is on disk
+        time.sleep(0.01)
+    assert list(hub.root.rglob(big_sha256)), "the server never stored the first file of the commit"
+    hub.server.kill()  # SIGKILL mid-commit
+    release.set()
+    thread.join()
+
+    hub.server.start()
+    assert api.model_info("alice/env").sha == before
+    assert [c.commit_id for c in api.list_repo_commits("alice/env")][0] == before
+    assert sorted(api.list_repo_files("alice/env")) == [".gitattributes", "small.txt"]
+    assert Path(hf_hub_download("alice/env", "small.txt")).read_bytes() == b"s"
+    assert _commit(api, "alice/env", {"big.bin": big}, parent_commit=before) != before  # and the repo takes commits
+
+
+def test_server_killed_around_a_client_commit_keeps_the_repo_consistent(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    before = _commit(api, "alice/env", {"small.txt": b"s"})
+    big = bytes(range(256)) * (40 * 1024)  # 10 MiB
+    thread = threading.Thread(target=lambda: _swallow(_commit, api, "alice/env", {"big.bin": big, "small.txt": b"t"}))
+    thread.start()
+    time.sleep(0.1)
     hub.server.kill()
     thread.join()
     hub.server.start()
 
     head = api.model_info("alice/env").sha
     files = {p: Path(hf_hub_download("alice/env", p, revision=head)).read_bytes() for p in api.list_repo_files("alice/env")}
-    if head == before:  # the crash won: nothing of the new commit is visible
-        assert files == {".gitattributes": files[".gitattributes"], "small.txt": b"s"}
-    else:  # the commit finished before the crash: all of it is visible
+    if head == before:  # killed before the branch moved: none of the new commit is visible
+        assert set(files) == {".gitattributes", "small.txt"} and files["small.txt"] == b"s"
+    else:  # the commit completed first: all of it is visible
         assert files["big.bin"] == big and files["small.txt"] == b"t"
-    assert _commit(api, "alice/env", {"after.txt": b"a"}, parent_commit=head)
+
+
+def _swallow(fn, *args, **kwargs):
+    try:
+        return fn(*args, **kwargs)
+    except Exception as err:  # the connection dies with the server: expected
+        return err
 
 
 # --- listing and paging -------------------------------------------------------------------------
@@ -444,6 +496,10 @@ def test_tree_is_paged_recursive_and_expandable(small_pages, repo_type):
     assert {e.path for e in api.list_repo_tree("alice/env", "d", repo_type=repo_type)} == {
         "d/e", *(f"d/sub{i}.txt" for i in range(4))
     }
+    api.create_branch("alice/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
+    in_d = {e.path for e in api.list_repo_tree("alice/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
+    assert in_d == {"d/e", "d/e/deep.txt", *(f"d/sub{i}.txt" for i in range(4))}
+    assert len(api.list_repo_commits("alice/env", revision="feature/x", repo_type=repo_type)) == 3
     expanded = {e.path: e for e in api.list_repo_tree("alice/env", "d", expand=True, repo_type=repo_type)}
     assert expanded["d/sub0.txt"].last_commit.oid == first
     assert expanded["d/e"].last_commit.oid == last and expanded["d/e"].last_commit.title == "touch deep"

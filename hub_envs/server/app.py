@@ -40,7 +40,7 @@ import os
 import re
 from dataclasses import dataclass
 from typing import Any, Callable
-from urllib.parse import parse_qs, quote, unquote
+from urllib.parse import parse_qs, quote, unquote, urlencode
 
 import yaml
 from starlette.applications import Starlette
@@ -352,7 +352,10 @@ class HubApp:
         headers = {}
         if start + limit < len(items):
             nxt = start + limit if param != "p" else (start + limit) // limit
-            headers["Link"] = f'<{ctx.request.url.include_query_params(**{param: nxt})}>; rel="next"'
+            # from the raw path: a decoded one would turn "feature%2Fx" into two segments
+            raw_path = (ctx.request.scope.get("raw_path") or ctx.request.url.path.encode()).decode("latin-1")
+            query = [(k, v) for k, v in ctx.request.query_params.multi_items() if k != param] + [(param, str(nxt))]
+            headers["Link"] = f'<{ctx.base_url}{raw_path}?{urlencode(query)}>; rel="next"'
         return page, headers
 
     @staticmethod
