@@ -9,6 +9,7 @@ import base64
 import hashlib
 import http.client
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -24,15 +25,17 @@ from huggingface_hub import (
     hf_hub_download,
     snapshot_download,
 )
+from huggingface_hub import constants
 from huggingface_hub.errors import (
     BadRequestError,
     EntryNotFoundError,
     HfHubHTTPError,
+    LocalEntryNotFoundError,
     RepositoryNotFoundError,
     RevisionNotFoundError,
 )
 
-from hub_envs.testing import HubServer, hub_environment
+from hub_envs.testing import HubServer, HubServerError, hub_environment
 
 REPO_TYPES = ["model", "dataset"]
 
@@ -637,3 +640,37 @@ def test_paths_escaping_the_repo_are_refused(hub, tmp_path):
     after = _files_under(tmp_path) - _files_under(hub.hf_home)
     assert not any("evil" in p.name for p in after)
     assert {p for p in after - before if "hub-data" not in p.parts} == set()  # nothing written outside the store
+
+
+# --- the test helpers themselves ----------------------------------------------------------------
+
+
+def test_hub_environment_switches_servers_and_caches_then_restores_everything(hub, tmp_path):
+    hub.api.create_repo("alice/env")
+    _commit(hub.api, "alice/env", {"a.txt": b"from the first server"})
+    outer = (constants.ENDPOINT, constants.HF_HUB_CACHE, constants.HF_HUB_OFFLINE, os.environ.get("HF_ENDPOINT"))
+    with HubServer(tmp_path / "second-data") as second:
+        with hub_environment(second.endpoint, tmp_path / "second_home"):
+            HfApi().create_repo("alice/env")  # the default endpoint is the second server now
+            _commit(HfApi(), "alice/env", {"a.txt": b"from the second server"})
+            path = Path(hf_hub_download("alice/env", "a.txt"))
+            assert path.read_bytes() == b"from the second server"
+            assert str(tmp_path / "second_home") in str(path)
+        assert (constants.ENDPOINT, constants.HF_HUB_CACHE, constants.HF_HUB_OFFLINE, os.environ.get("HF_ENDPOINT")) == outer
+    assert Path(hf_hub_download("alice/env", "a.txt")).read_bytes() == b"from the first server"
+
+    # offline: what is cached still resolves, nothing else does
+    with hub_environment(hub.endpoint, hub.hf_home, offline=True):
+        assert Path(hf_hub_download("alice/env", "a.txt")).read_bytes() == b"from the first server"
+        with pytest.raises(LocalEntryNotFoundError):
+            hf_hub_download("alice/env", ".gitattributes")
+    assert constants.HF_HUB_OFFLINE is False
+
+
+def test_hub_server_reports_why_it_could_not_start(tmp_path):
+    not_a_store = tmp_path / "home"
+    not_a_store.mkdir()
+    (not_a_store / "precious.txt").write_text("keep me")
+    with pytest.raises(HubServerError, match="not a hub-envs store"):
+        HubServer(not_a_store, startup_timeout=20)
+    assert (not_a_store / "precious.txt").read_text() == "keep me"

@@ -54,14 +54,26 @@ def run(root: str | os.PathLike, host: str = "127.0.0.1", port: int = 8000, toke
     """
     import uvicorn
 
+    from hub_envs.server.storage import StoreError
+
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
-    app = create_app(root, token=token)
+    try:
+        app = create_app(root, token=token)
+    except StoreError as err:
+        raise SystemExit(f"hub-envs serve: {err}") from None
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY on accepted sockets only if proto says TCP,
     # and without it Nagle + delayed ACKs add ~40 ms to every keep-alive request.
     sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind((host, port))
+    try:
+        sock.bind((host, port))
+    except OSError as err:
+        sock.close()
+        raise SystemExit(
+            f"hub-envs serve: cannot listen on {host}:{port} ({err.strerror}). "
+            "Pass another --port, or --port=0 to pick a free one."
+        ) from None
     sock.listen(2048)
     sock.set_inheritable(True)
     bound_port = sock.getsockname()[1]

@@ -20,11 +20,20 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
 * Paths that could escape a repo (``..``, absolute, ``\\``, NUL, percent-encoded variants) get 400.
 
 Example:
-    >>> from starlette.testclient import TestClient          # doctest: +SKIP
-    >>> from hub_envs.server import create_app               # doctest: +SKIP
-    >>> client = TestClient(create_app("/tmp/hub-data"))     # doctest: +SKIP
-    >>> client.post("/api/repos/create", json={"name": "pendulum", "organization": "alice"}).json()["url"]  # doctest: +SKIP
+    >>> import tempfile
+    >>> from starlette.testclient import TestClient
+    >>> from hub_envs.server import create_app
+    >>> client = TestClient(create_app(tempfile.mkdtemp()))
+    >>> client.post("/api/repos/create", json={"name": "pendulum", "organization": "alice"}).json()["url"]
     'http://testserver/alice/pendulum'
+    >>> r = client.head("/alice/pendulum/resolve/main/.gitattributes")
+    >>> r.status_code, len(r.headers["X-Repo-Commit"]), r.headers["Accept-Ranges"]
+    (200, 40, 'bytes')
+    >>> r = client.get("/alice/pendulum/resolve/main/nope.txt")
+    >>> r.status_code, r.headers["X-Error-Code"]
+    (404, 'EntryNotFound')
+    >>> client.get("/alice/pendulum/resolve/main/%2e%2e/%2e%2e/FORMAT").status_code
+    400
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from __future__ import annotations
 import base64
 import binascii
 import hashlib
+import hmac
 import html
 import json
 import logging
@@ -188,7 +198,7 @@ class HubApp:
         header = request.headers.get("authorization")
         if not header:
             return None
-        if header.strip() != f"Bearer {self.token}":
+        if not hmac.compare_digest(header.strip().encode(), f"Bearer {self.token}".encode()):
             raise HTTPError(401, _INVALID_CREDENTIALS)
         return self.user
 
