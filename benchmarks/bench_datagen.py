@@ -1,0 +1,227 @@
+"""Dataset generation speed: raw env stepping vs hub-envs' pipeline vs LeRobot's add_frame path.
+
+Same env, same seeds, same episodes for all three, on two variants of gymnasium's Pendulum:
+
+* ``state``: dict observation ``{"agent_pos": (3,)}``
+* ``image``: plus ``{"pixels": (64, 64, 3) uint8}``, a small frame drawn with numpy
+
+Measured (frames/s, median over ``repeats``):
+
+* ``raw``: reset(seed) + action_space.seed + step(action_space.sample()) until done; nothing kept.
+* ``hub_envs_w1`` / ``hub_envs_w2``: ``iter_episodes`` (1 or 2 worker processes) →
+  ``EpisodeFrames.from_rollout`` → ``write_lerobot_dataset`` into a temp folder.
+* ``lerobot``: the same rollouts fed frame by frame to ``LeRobotDataset.create(use_videos=False)``
+  → ``add_frame`` → ``save_episode`` → ``finalize``.
+
+Ratios: ``datagen_vs_lerobot = hub_envs / lerobot`` and ``datagen_vs_raw = hub_envs / raw``, where
+``hub_envs`` is the faster of w1/w2 (the pipeline as one would run it on this machine); the w1
+ratios are reported too.
+
+Run: ``python benchmarks/bench_datagen.py [--repeats 3] [--profile]``; ``run()`` returns the dict.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.envs.classic_control.pendulum import PendulumEnv
+
+from hub_envs.dataset import EpisodeFrames, write_lerobot_dataset
+from hub_envs.rollout import iter_episodes
+
+FPS = 30
+TASK = "Swing the pendulum up."
+MAX_STEPS = 200
+
+
+class DictPendulum(gym.Env):
+    """gymnasium's Pendulum with a dict observation, optionally with a rendered 64x64 frame."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, image: bool = False, size: int = 64, max_episode_steps: int = MAX_STEPS):
+        self.inner = PendulumEnv()
+        self.image, self.size, self.max_episode_steps = image, size, max_episode_steps
+        spaces = {"agent_pos": self.inner.observation_space}
+        if image:
+            spaces["pixels"] = gym.spaces.Box(0, 255, (size, size, 3), np.uint8)
+        self.observation_space = gym.spaces.Dict(spaces)
+        self.action_space = self.inner.action_space
+        self.t = 0
+
+    def _obs(self, o: np.ndarray) -> dict:
+        obs = {"agent_pos": o}
+        if self.image:
+            s, th = self.size, float(self.inner.state[0])
+            img = np.full((s, s, 3), 40, dtype=np.uint8)
+            cx, cy = int(s / 2 + 0.35 * s * np.sin(th)), int(s / 2 - 0.35 * s * np.cos(th))
+            img[max(cy - 3, 0) : cy + 3, max(cx - 3, 0) : cx + 3] = (230, 80, 30)
+            img[s // 2 - 1 : s // 2 + 1, s // 2 - 1 : s // 2 + 1] = 255
+            obs["pixels"] = img
+        return obs
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        o, info = self.inner.reset(seed=seed)
+        self.t = 0
+        return self._obs(o), info
+
+    def step(self, action):
+        o, r, terminated, truncated, info = self.inner.step(action)
+        self.t += 1
+        return self._obs(o), r, terminated, truncated or self.t >= self.max_episode_steps, info
+
+
+def features_for(image: bool) -> tuple[dict, dict]:
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [3], "names": ["cos_theta", "sin_theta", "theta_dot"]},
+        "action": {"dtype": "float32", "shape": [1], "names": ["torque"]},
+        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
+        "next.done": {"dtype": "bool", "shape": [1], "names": None},
+        "next.success": {"dtype": "bool", "shape": [1], "names": None},
+    }
+    features_map = {"agent_pos": "observation.state", "action": "action"}
+    if image:
+        features["observation.image"] = {"dtype": "image", "shape": [64, 64, 3], "names": ["height", "width", "channels"]}
+        features_map["pixels"] = "observation.image"
+    return features, features_map
+
+
+def bench_raw(image: bool, seeds: list[int]) -> float:
+    env = DictPendulum(image)
+    n = 0
+    t0 = time.perf_counter()
+    for seed in seeds:
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        for _ in range(MAX_STEPS):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            n += 1
+            if terminated or truncated:
+                break
+    return n / (time.perf_counter() - t0)
+
+
+def bench_hub_envs(image: bool, seeds: list[int], workers: int, out: Path) -> float:
+    features, features_map = features_for(image)
+    t0 = time.perf_counter()
+    rollouts = iter_episodes(lambda: DictPendulum(image), seeds, max_steps=MAX_STEPS, workers=workers, progress=False)
+    summary = write_lerobot_dataset(
+        out,
+        repo_id="bench/pendulum",
+        fps=FPS,
+        features=features,
+        episodes=(EpisodeFrames.from_rollout(r, features_map) for r in rollouts),
+        task=TASK,
+        progress=False,
+    )
+    return summary.frames / (time.perf_counter() - t0)
+
+
+def bench_lerobot(image: bool, seeds: list[int], out: Path) -> float:
+    from hub_envs.dataset import rollout_to_frames
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    features, features_map = features_for(image)
+    features = {k: {**ft, "shape": tuple(ft["shape"])} for k, ft in features.items()}  # LeRobot wants tuples
+    t0 = time.perf_counter()
+    ds = LeRobotDataset.create("bench/pendulum-lerobot", fps=FPS, features=features, root=out, use_videos=False)
+    n = 0
+    for r in iter_episodes(lambda: DictPendulum(image), seeds, max_steps=MAX_STEPS, progress=False):
+        frames = rollout_to_frames(r, features_map)
+        frames["next.reward"] = frames["next.reward"].reshape(-1, 1)
+        frames["next.done"] = frames["next.done"].reshape(-1, 1)
+        frames["next.success"] = frames["next.success"].reshape(-1, 1)
+        for t in range(r.length):
+            ds.add_frame({**{k: v[t] for k, v in frames.items()}, "task": TASK})
+        ds.save_episode()
+        n += r.length
+    ds.finalize()
+    return n / (time.perf_counter() - t0)
+
+
+def profile_hub_envs(image: bool, seeds: list[int], top: int = 25) -> None:
+    import cProfile
+    import pstats
+
+    with tempfile.TemporaryDirectory() as tmp:
+        prof = cProfile.Profile()
+        prof.enable()
+        bench_hub_envs(image, seeds, 1, Path(tmp) / "ds")
+        prof.disable()
+    print(f"\n--- cProfile, hub-envs pipeline, workers=1, {'image' if image else 'state'} variant (by tottime) ---")
+    pstats.Stats(prof).sort_stats("tottime").print_stats(top)
+
+
+def run(repeats: int = 3, episodes: dict[str, int] | None = None, verbose: bool = True) -> dict:
+    """Benchmark both variants; return frames/s and ratios (``datagen_vs_lerobot``, ``datagen_vs_raw``)."""
+    episodes = episodes or {"state": 30, "image": 15}
+    results: dict = {"cpu_count": os.cpu_count(), "repeats": repeats, "max_steps": MAX_STEPS}
+    tmp = Path(tempfile.mkdtemp(prefix="bench-datagen-"))
+    try:
+        for variant, n_eps in episodes.items():
+            image = variant == "image"
+            seeds = list(range(n_eps))
+            bench_hub_envs(image, seeds[:2], 1, tmp / "warmup")  # imports, caches
+            shutil.rmtree(tmp / "warmup", ignore_errors=True)
+            runs: dict[str, list[float]] = {"raw": [], "hub_envs_w1": [], "hub_envs_w2": [], "lerobot": []}
+            for rep in range(repeats):
+                runs["raw"].append(bench_raw(image, seeds))
+                for w in (1, 2):
+                    out = tmp / f"{variant}-w{w}-{rep}"
+                    runs[f"hub_envs_w{w}"].append(bench_hub_envs(image, seeds, w, out))
+                    shutil.rmtree(out, ignore_errors=True)
+                out = tmp / f"{variant}-lerobot-{rep}"
+                runs["lerobot"].append(bench_lerobot(image, seeds, out))
+                shutil.rmtree(out, ignore_errors=True)
+            med = {k: statistics.median(v) for k, v in runs.items()}
+            best = max(med["hub_envs_w1"], med["hub_envs_w2"])
+            results[variant] = {
+                "episodes": n_eps,
+                "frames_per_s": {k: round(v, 1) for k, v in med.items()},
+                "datagen_vs_lerobot": round(best / med["lerobot"], 3),
+                "datagen_vs_raw": round(best / med["raw"], 3),
+                "datagen_w1_vs_lerobot": round(med["hub_envs_w1"] / med["lerobot"], 3),
+                "datagen_w1_vs_raw": round(med["hub_envs_w1"] / med["raw"], 3),
+            }
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    results["datagen_vs_lerobot"] = min(results[v]["datagen_vs_lerobot"] for v in episodes)
+    results["datagen_vs_raw"] = min(results[v]["datagen_vs_raw"] for v in episodes)
+    if verbose:
+        print_table(results, list(episodes))
+    return results
+
+
+def print_table(results: dict, variants: list[str]) -> None:
+    cols = ["raw", "hub_envs_w1", "hub_envs_w2", "lerobot"]
+    print(f"\nDataset generation, frames/s (median of {results['repeats']}, {results['cpu_count']} CPUs)")
+    print(f"{'variant':8} " + " ".join(f"{c:>12}" for c in cols) + f" {'vs_lerobot':>11} {'vs_raw':>8}")
+    for v in variants:
+        r = results[v]
+        fps = r["frames_per_s"]
+        print(f"{v:8} " + " ".join(f"{fps[c]:>12.0f}" for c in cols) + f" {r['datagen_vs_lerobot']:>11.2f} {r['datagen_vs_raw']:>8.2f}")
+    print(f"datagen_vs_lerobot = {results['datagen_vs_lerobot']:.2f} (goal >= 3), datagen_vs_raw = {results['datagen_vs_raw']:.2f} (goal >= 0.33)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--profile", action="store_true", help="also print a cProfile of the hub-envs pipeline")
+    args = parser.parse_args()
+    run(repeats=args.repeats)
+    if args.profile:
+        profile_hub_envs(False, list(range(30)))
+        profile_hub_envs(True, list(range(15)))
+
+
+if __name__ == "__main__":
+    main()
