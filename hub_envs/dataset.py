@@ -737,7 +737,7 @@ class _Writer:
         self.meta_file_bytes += table.nbytes
         self.meta_rows = []
 
-    def finish(self, *, repo_id: str, robot_type: str | None, extra_info: Mapping | None) -> None:
+    def finish(self, *, robot_type: str | None, extra_info: Mapping | None) -> None:
         import pandas as pd
 
         self._close_data_file()
@@ -889,7 +889,7 @@ def write_lerobot_dataset(
                 bar.update(1)
         if writer.n_episodes == 0:
             raise DatasetError(f"No episodes were given for {root}; a LeRobot dataset needs at least one.")
-        writer.finish(repo_id=repo_id, robot_type=robot_type, extra_info=extra_info)
+        writer.finish(robot_type=robot_type, extra_info=extra_info)
         fingerprint = dataset_fingerprint(tmp)
         _move_into_place(tmp, root, overwrite)
     except BaseException as exc:
@@ -1021,7 +1021,8 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
         raise DatasetError(f"Episode {episode_index} is not in {root} ({info.get('total_episodes')} episodes).")
     m = meta[0]
     path = root / info.get("data_path", DATA_PATH).format(chunk_index=m["data/chunk_index"], file_index=m["data/file_index"])
-    wanted = [k for k in features if features[k]["dtype"] != "video" and (keys is None or k in set(keys))]
+    selected = None if keys is None else set(keys)
+    wanted = [k for k in features if features[k]["dtype"] != "video" and (selected is None or k in selected)]
     columns = wanted if "episode_index" in wanted else [*wanted, "episode_index"]
     try:
         table = pq.read_table(path, columns=columns, filters=[("episode_index", "=", int(episode_index))])

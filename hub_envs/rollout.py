@@ -458,13 +458,16 @@ def iter_episodes(
     With ``workers > 1`` at most ``2 * workers`` finished episodes wait in memory for the consumer.
     Closing the iterator early stops the workers.
     """
-    seeds = _check_seeds(seeds)
-    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+    seeds = _check_seeds(seeds)  # validate now, not on the first next()
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
-    if not isinstance(workers, (int, np.integer)) or workers < 1:
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ConfigError(f"workers={workers!r}: pass a positive integer.")
     args = (make_env, int(max_steps), policy, bool(record_states), len(seeds))
-    workers = min(int(workers), max(1, len(seeds)))
+    return _iter(args, seeds, min(int(workers), max(1, len(seeds))), progress, desc)
+
+
+def _iter(args: tuple, seeds: list[int], workers: int, progress: bool, desc: str) -> Iterator[EpisodeRollout]:
     bar = _progress(len(seeds), desc, progress)
     try:
         if workers == 1:
