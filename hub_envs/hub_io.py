@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,13 +108,13 @@ def translate_hub_errors(repo_id: str, revision: str | None):
             f"Env repo {repo_id!r} was not found at {constants.ENDPOINT}. Check the id; if it is private, set HF_TOKEN; "
             f"if it lives on another Hub, set HF_ENDPOINT."
         ) from e
-    except EntryNotFoundError as e:
-        raise HubError(f"{where}: a file is missing on the Hub ({e}). Re-publish the env with push_env.") from e
     except (LocalEntryNotFoundError, OfflineModeIsEnabled) as e:
         raise OfflineNotCachedError(
             f"{where} is not in the local cache and the Hub cannot be used (offline mode or unreachable {constants.ENDPOINT}). "
             f"Load it once online (unset HF_HUB_OFFLINE), or pin a sha that is already cached."
         ) from e
+    except EntryNotFoundError as e:
+        raise HubError(f"{where}: a file is missing on the Hub ({e}). Re-publish the env with push_env.") from e
     except HfHubHTTPError as e:
         status = getattr(e.response, "status_code", "?")
         if status == 401:
@@ -201,7 +202,9 @@ def publish_folder(
     ops: list = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=str(folder / p)) for p in local]
     ops += [CommitOperationDelete(path_in_repo=p) for p in sorted(set(remote_files) - set(local)) if p != ".gitattributes"]
     client = api(token)
-    with translate_hub_errors(repo_id, "main"):
+    with translate_hub_errors(repo_id, "main"), warnings.catch_warnings():
+        # the dataset's parquet files belong in this model-type repo (LeRobot's EnvHub reads model repos)
+        warnings.filterwarnings("ignore", message=".*commit a data file.*")
         client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
         info = client.create_commit(
             repo_id,

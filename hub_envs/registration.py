@@ -64,9 +64,9 @@ def registry_transaction():
         raise
 
 
-def snapshot_registries() -> tuple[frozenset, dict]:
-    """A comparable picture of both registries (for tests and the reliability suite)."""
-    return frozenset(gym.registry.items()), dict(_choices())
+def snapshot_registries() -> tuple[dict, dict]:
+    """A comparable picture of both registries (for tests and the reliability suite): name -> object id."""
+    return {k: id(v) for k, v in gym.registry.items()}, {k: id(v) for k, v in _choices().items()}
 
 
 def register(

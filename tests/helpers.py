@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -43,6 +44,8 @@ def republish(api: HfApi, repo_id: str, edit: Callable[[Path], None], *, fix_has
         manifest["files"] = files
         manifest["content_digest"] = content_digest(files)
         (work / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
-    info = api.upload_folder(repo_id=repo_id, folder_path=str(work), commit_message=message, delete_patterns=["*"])
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*commit a data file.*")
+        info = api.upload_folder(repo_id=repo_id, folder_path=str(work), commit_message=message, delete_patterns=["*"])
     shutil.rmtree(work)
     return info.oid

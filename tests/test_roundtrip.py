@@ -19,7 +19,7 @@ from lerobot.envs.configs import EnvConfig
 from hub_envs import errors, load_env, push_env, trust
 from hub_envs.registration import snapshot_registries
 from hub_envs.testing import hub_environment
-from tests.helpers import copy_env, republish, TINY
+from helpers import copy_env, republish, TINY
 
 
 @dataclass
