@@ -30,10 +30,11 @@ class Hub:
     api: HfApi
 
 
-def _start_hub(tmp_path: Path, token: str | None, page_size: int | None = None) -> Iterator[Hub]:
-    server = HubServer(tmp_path / "hub-data", token=token, page_size=page_size)
+def _start_hub(tmp_path: Path, token: str | None, suffix: str = "") -> Iterator[Hub]:
+    # distinct folders per variant: a test may use both `hub` and `hub_with_token`
+    server = HubServer(tmp_path / f"hub-data{suffix}", token=token)
     try:
-        hf_home = tmp_path / "hf_home"
+        hf_home = tmp_path / f"hf_home{suffix}"
         with hub_environment(server.endpoint, hf_home, token=token):
             yield Hub(
                 server=server,
@@ -57,7 +58,7 @@ def hub(tmp_path: Path) -> Iterator[Hub]:
 @pytest.fixture
 def hub_with_token(tmp_path: Path) -> Iterator[Hub]:
     """Like ``hub``, but the server was started with ``--token``; ``HF_TOKEN`` holds that token."""
-    yield from _start_hub(tmp_path, token=TEST_TOKEN)
+    yield from _start_hub(tmp_path, token=TEST_TOKEN, suffix="-token")
 
 
 # --- other fixtures below ----------------------------------------------------------------------

@@ -122,123 +122,123 @@ def test_whoami(hub, hub_with_token):
 # --- uploads and downloads ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_upload_folder_then_snapshot_and_file_downloads(hub, tmp_path, repo_type):
-    folder = tmp_path / "env"
-    files = {"env.py": b"print('hi')\n", "assets/mesh.obj": b"v 0 0 0\n" * 100, "assets/deep/x.bin": bytes(range(256))}
-    for rel, data in files.items():
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        (folder / rel).write_bytes(data)
-    hub.api.create_repo("alice/env", repo_type=repo_type)
-    info = hub.api.upload_folder(folder_path=folder, repo_id="alice/env", repo_type=repo_type, commit_message="Add env")
-    assert len(info.oid) == 40
+def test_upload_folder_then_snapshot_and_file_downloads(hub, tmp_path):
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        folder = tmp_path / "env"
+        files = {"env.py": b"print('hi')\n", "assets/mesh.obj": b"v 0 0 0\n" * 100, "assets/deep/x.bin": bytes(range(256))}
+        for rel, data in files.items():
+            (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+            (folder / rel).write_bytes(data)
+        hub.api.create_repo("alice/env", repo_type=repo_type)
+        info = hub.api.upload_folder(folder_path=folder, repo_id="alice/env", repo_type=repo_type, commit_message="Add env")
+        assert len(info.oid) == 40
 
-    assert sorted(hub.api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
-    snapshot = Path(snapshot_download("alice/env", repo_type=repo_type))
-    assert snapshot.name == info.oid and str(hub.hf_home) in str(snapshot)
-    for rel, data in files.items():
-        assert (snapshot / rel).read_bytes() == data
-        assert Path(hf_hub_download("alice/env", rel, repo_type=repo_type)).read_bytes() == data
+        assert sorted(hub.api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+        snapshot = Path(snapshot_download("alice/env", repo_type=repo_type))
+        assert snapshot.name == info.oid and str(hub.hf_home) in str(snapshot)
+        for rel, data in files.items():
+            assert (snapshot / rel).read_bytes() == data
+            assert Path(hf_hub_download("alice/env", rel, repo_type=repo_type)).read_bytes() == data
 
-    repo = hub.api.repo_info("alice/env", repo_type=repo_type, files_metadata=True)
-    assert repo.sha == info.oid
-    siblings = {s.rfilename: s for s in repo.siblings}
-    for rel, data in files.items():  # blob ids are git blob sha1s, as on the Hub
-        assert siblings[rel].size == len(data)
-        assert siblings[rel].blob_id == hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
-    assert hub.api.file_exists("alice/env", "assets/deep/x.bin", repo_type=repo_type)
-    assert not hub.api.file_exists("alice/env", "assets/nope.bin", repo_type=repo_type)
-    assert repo.last_modified == hub.api.list_repo_commits("alice/env", repo_type=repo_type)[0].created_at
+        repo = hub.api.repo_info("alice/env", repo_type=repo_type, files_metadata=True)
+        assert repo.sha == info.oid
+        siblings = {s.rfilename: s for s in repo.siblings}
+        for rel, data in files.items():  # blob ids are git blob sha1s, as on the Hub
+            assert siblings[rel].size == len(data)
+            assert siblings[rel].blob_id == hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+        assert hub.api.file_exists("alice/env", "assets/deep/x.bin", repo_type=repo_type)
+        assert not hub.api.file_exists("alice/env", "assets/nope.bin", repo_type=repo_type)
+        assert repo.last_modified == hub.api.list_repo_commits("alice/env", repo_type=repo_type)[0].created_at
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_pinned_sha_and_tag_still_serve_old_content_after_a_new_commit(hub, repo_type):
+def test_pinned_sha_and_tag_still_serve_old_content_after_a_new_commit(hub):
     api = hub.api
-    api.create_repo("alice/env", repo_type=repo_type)
-    old = _commit(api, "alice/env", {"v.txt": b"one", "keep.txt": b"k"}, repo_type)
-    api.create_tag("alice/env", tag="v1", revision=old, repo_type=repo_type, tag_message="first")
-    new = _commit(api, "alice/env", {"v.txt": b"two"}, repo_type)
-    assert old != new
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        api.create_repo("alice/env", repo_type=repo_type)
+        old = _commit(api, "alice/env", {"v.txt": b"one", "keep.txt": b"k"}, repo_type)
+        api.create_tag("alice/env", tag="v1", revision=old, repo_type=repo_type, tag_message="first")
+        new = _commit(api, "alice/env", {"v.txt": b"two"}, repo_type)
+        assert old != new
 
-    for rev in (old, "v1"):
-        assert Path(hf_hub_download("alice/env", "v.txt", revision=rev, repo_type=repo_type)).read_bytes() == b"one"
-        snap = Path(snapshot_download("alice/env", revision=rev, repo_type=repo_type))
-        assert snap.name == old and (snap / "v.txt").read_bytes() == b"one"
-    assert Path(hf_hub_download("alice/env", "v.txt", repo_type=repo_type)).read_bytes() == b"two"
-    assert api.repo_info("alice/env", revision="v1", repo_type=repo_type).sha == old
-    fs = HfFileSystem()
-    prefix = "datasets/" if repo_type == "dataset" else ""
-    assert fs.read_bytes(f"{prefix}alice/env@{old}/v.txt") == b"one"
+        for rev in (old, "v1"):
+            assert Path(hf_hub_download("alice/env", "v.txt", revision=rev, repo_type=repo_type)).read_bytes() == b"one"
+            snap = Path(snapshot_download("alice/env", revision=rev, repo_type=repo_type))
+            assert snap.name == old and (snap / "v.txt").read_bytes() == b"one"
+        assert Path(hf_hub_download("alice/env", "v.txt", repo_type=repo_type)).read_bytes() == b"two"
+        assert api.repo_info("alice/env", revision="v1", repo_type=repo_type).sha == old
+        fs = HfFileSystem()
+        prefix = "datasets/" if repo_type == "dataset" else ""
+        assert fs.read_bytes(f"{prefix}alice/env@{old}/v.txt") == b"one"
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_branches_and_tags(hub, repo_type):
+def test_branches_and_tags(hub):
     api = hub.api
-    api.create_repo("alice/env", repo_type=repo_type)
-    base = _commit(api, "alice/env", {"a.txt": b"a"}, repo_type)
-    api.create_branch("alice/env", branch="dev", repo_type=repo_type)
-    on_dev = _commit(api, "alice/env", {"b.txt": b"b"}, repo_type, revision="dev")
-    api.create_tag("alice/env", tag="v1.0", revision="dev", repo_type=repo_type)
-
-    refs = api.list_repo_refs("alice/env", repo_type=repo_type)
-    assert {b.name: b.target_commit for b in refs.branches} == {"main": base, "dev": on_dev}
-    assert {t.name: t.target_commit for t in refs.tags} == {"v1.0": on_dev}
-    assert refs.branches[0].ref.startswith("refs/heads/") and refs.tags[0].ref == "refs/tags/v1.0"
-    assert "b.txt" not in api.list_repo_files("alice/env", repo_type=repo_type)
-    assert "b.txt" in api.list_repo_files("alice/env", revision="v1.0", repo_type=repo_type)
-    assert api.revision_exists("alice/env", "dev", repo_type=repo_type)
-
-    with pytest.raises(HfHubHTTPError) as exc:
-        api.create_tag("alice/env", tag="v1.0", repo_type=repo_type)
-    assert exc.value.response.status_code == 409
-    api.create_tag("alice/env", tag="v1.0", repo_type=repo_type, exist_ok=True)
-    with pytest.raises(HfHubHTTPError) as exc:
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        api.create_repo("alice/env", repo_type=repo_type)
+        base = _commit(api, "alice/env", {"a.txt": b"a"}, repo_type)
         api.create_branch("alice/env", branch="dev", repo_type=repo_type)
-    assert exc.value.response.status_code == 409
-    api.create_branch("alice/env", branch="dev", repo_type=repo_type, exist_ok=True)
-    api.create_branch("alice/env", branch="from-sha", revision=base, repo_type=repo_type)
-    assert api.repo_info("alice/env", revision="from-sha", repo_type=repo_type).sha == base
+        on_dev = _commit(api, "alice/env", {"b.txt": b"b"}, repo_type, revision="dev")
+        api.create_tag("alice/env", tag="v1.0", revision="dev", repo_type=repo_type)
 
-    api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
-    api.delete_branch("alice/env", branch="dev", repo_type=repo_type)
-    assert not api.revision_exists("alice/env", "dev", repo_type=repo_type)
-    assert not api.revision_exists("alice/env", "v1.0", repo_type=repo_type)
-    with pytest.raises(RevisionNotFoundError):
+        refs = api.list_repo_refs("alice/env", repo_type=repo_type)
+        assert {b.name: b.target_commit for b in refs.branches} == {"main": base, "dev": on_dev}
+        assert {t.name: t.target_commit for t in refs.tags} == {"v1.0": on_dev}
+        assert refs.branches[0].ref.startswith("refs/heads/") and refs.tags[0].ref == "refs/tags/v1.0"
+        assert "b.txt" not in api.list_repo_files("alice/env", repo_type=repo_type)
+        assert "b.txt" in api.list_repo_files("alice/env", revision="v1.0", repo_type=repo_type)
+        assert api.revision_exists("alice/env", "dev", repo_type=repo_type)
+
+        with pytest.raises(HfHubHTTPError) as exc:
+            api.create_tag("alice/env", tag="v1.0", repo_type=repo_type)
+        assert exc.value.response.status_code == 409
+        api.create_tag("alice/env", tag="v1.0", repo_type=repo_type, exist_ok=True)
+        with pytest.raises(HfHubHTTPError) as exc:
+            api.create_branch("alice/env", branch="dev", repo_type=repo_type)
+        assert exc.value.response.status_code == 409
+        api.create_branch("alice/env", branch="dev", repo_type=repo_type, exist_ok=True)
+        api.create_branch("alice/env", branch="from-sha", revision=base, repo_type=repo_type)
+        assert api.repo_info("alice/env", revision="from-sha", repo_type=repo_type).sha == base
+
         api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
-    # the commit outlives its branch: pinned downloads keep working
-    assert Path(hf_hub_download("alice/env", "b.txt", revision=on_dev, repo_type=repo_type)).read_bytes() == b"b"
+        api.delete_branch("alice/env", branch="dev", repo_type=repo_type)
+        assert not api.revision_exists("alice/env", "dev", repo_type=repo_type)
+        assert not api.revision_exists("alice/env", "v1.0", repo_type=repo_type)
+        with pytest.raises(RevisionNotFoundError):
+            api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
+        # the commit outlives its branch: pinned downloads keep working
+        assert Path(hf_hub_download("alice/env", "b.txt", revision=on_dev, repo_type=repo_type)).read_bytes() == b"b"
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(hub, repo_type):
+def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(hub):
     api = hub.api
-    with pytest.raises(RepositoryNotFoundError):
-        api.repo_info("alice/nope", repo_type=repo_type)
-    with pytest.raises(RepositoryNotFoundError):
-        hf_hub_download("alice/nope", "x.txt", repo_type=repo_type)
-    with pytest.raises(RepositoryNotFoundError):
-        snapshot_download("alice/nope", repo_type=repo_type)
-    with pytest.raises(RepositoryNotFoundError):
-        _commit(api, "alice/nope", {"x": b"x"}, repo_type)
-    assert not api.repo_exists("alice/nope", repo_type=repo_type)
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        with pytest.raises(RepositoryNotFoundError):
+            api.repo_info("alice/nope", repo_type=repo_type)
+        with pytest.raises(RepositoryNotFoundError):
+            hf_hub_download("alice/nope", "x.txt", repo_type=repo_type)
+        with pytest.raises(RepositoryNotFoundError):
+            snapshot_download("alice/nope", repo_type=repo_type)
+        with pytest.raises(RepositoryNotFoundError):
+            _commit(api, "alice/nope", {"x": b"x"}, repo_type)
+        assert not api.repo_exists("alice/nope", repo_type=repo_type)
 
-    api.create_repo("alice/env", repo_type=repo_type)
-    with pytest.raises(RevisionNotFoundError):
-        api.repo_info("alice/env", revision="no-such-branch", repo_type=repo_type)
-    with pytest.raises(RevisionNotFoundError):
-        hf_hub_download("alice/env", ".gitattributes", revision="no-such-branch", repo_type=repo_type)
-    with pytest.raises(RevisionNotFoundError):
-        snapshot_download("alice/env", revision="0" * 40, repo_type=repo_type)
-    with pytest.raises(RevisionNotFoundError):
-        api.list_repo_commits("alice/env", revision="nope", repo_type=repo_type)
-    with pytest.raises(EntryNotFoundError):
-        hf_hub_download("alice/env", "missing.txt", repo_type=repo_type)
-    with pytest.raises(EntryNotFoundError):
-        list(api.list_repo_tree("alice/env", path_in_repo="missing", repo_type=repo_type))
-    assert not api.file_exists("alice/env", "missing.txt", repo_type=repo_type)
-    assert not api.revision_exists("alice/env", "nope", repo_type=repo_type)
-    with pytest.raises(FileNotFoundError):
-        HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}alice/env/missing.txt")
+        api.create_repo("alice/env", repo_type=repo_type)
+        with pytest.raises(RevisionNotFoundError):
+            api.repo_info("alice/env", revision="no-such-branch", repo_type=repo_type)
+        with pytest.raises(RevisionNotFoundError):
+            hf_hub_download("alice/env", ".gitattributes", revision="no-such-branch", repo_type=repo_type)
+        with pytest.raises(RevisionNotFoundError):
+            snapshot_download("alice/env", revision="0" * 40, repo_type=repo_type)
+        with pytest.raises(RevisionNotFoundError):
+            api.list_repo_commits("alice/env", revision="nope", repo_type=repo_type)
+        with pytest.raises(EntryNotFoundError):
+            hf_hub_download("alice/env", "missing.txt", repo_type=repo_type)
+        with pytest.raises(EntryNotFoundError):
+            list(api.list_repo_tree("alice/env", path_in_repo="missing", repo_type=repo_type))
+        assert not api.file_exists("alice/env", "missing.txt", repo_type=repo_type)
+        assert not api.revision_exists("alice/env", "nope", repo_type=repo_type)
+        with pytest.raises(FileNotFoundError):
+            HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}alice/env/missing.txt")
 
 
 def test_unusual_file_and_branch_names_round_trip(hub):
@@ -330,38 +330,38 @@ def test_stale_parent_commit_is_refused_with_412(hub):
     assert _commit(api, "alice/env", {"b.txt": b"b"}, parent_commit=head) != head
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_racing_commits_on_the_same_parent_leave_one_winner(hub, repo_type):
+def test_racing_commits_on_the_same_parent_leave_one_winner(hub):
     api = hub.api
-    api.create_repo("alice/env", repo_type=repo_type)
-    parent = api.repo_info("alice/env", repo_type=repo_type).sha
-    n = 8
-    barrier = threading.Barrier(n)
-    results: dict[int, object] = {}
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        api.create_repo("alice/env", repo_type=repo_type)
+        parent = api.repo_info("alice/env", repo_type=repo_type).sha
+        n = 8
+        barrier = threading.Barrier(n)
+        results: dict[int, object] = {}
 
-    def worker(i: int) -> None:
-        barrier.wait()
-        try:
-            results[i] = _commit(api, "alice/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
-        except HfHubHTTPError as err:
-            results[i] = err
+        def worker(i: int) -> None:
+            barrier.wait()
+            try:
+                results[i] = _commit(api, "alice/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
+            except HfHubHTTPError as err:
+                results[i] = err
 
-    threads = [threading.Thread(target=worker, args=(i,)) for i in range(n)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+        threads = [threading.Thread(target=worker, args=(i,)) for i in range(n)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
 
-    winners = {i: r for i, r in results.items() if isinstance(r, str)}
-    losers = [r for r in results.values() if not isinstance(r, str)]
-    assert len(winners) == 1 and len(losers) == n - 1
-    assert all(err.response.status_code == 412 for err in losers)
-    (i, sha), = winners.items()
-    commits = api.list_repo_commits("alice/env", repo_type=repo_type)
-    assert [c.commit_id for c in commits] == [sha, parent]
-    assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
-    snap = Path(snapshot_download("alice/env", repo_type=repo_type))
-    assert (snap / f"f{i}.txt").read_bytes() == b"x" * (1000 + i)
+        winners = {i: r for i, r in results.items() if isinstance(r, str)}
+        losers = [r for r in results.values() if not isinstance(r, str)]
+        assert len(winners) == 1 and len(losers) == n - 1
+        assert all(err.response.status_code == 412 for err in losers)
+        (i, sha), = winners.items()
+        commits = api.list_repo_commits("alice/env", repo_type=repo_type)
+        assert [c.commit_id for c in commits] == [sha, parent]
+        assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
+        snap = Path(snapshot_download("alice/env", repo_type=repo_type))
+        assert (snap / f"f{i}.txt").read_bytes() == b"x" * (1000 + i)
 
 
 def test_concurrent_commits_without_parent_all_land(hub):
@@ -469,43 +469,43 @@ def _swallow(fn, *args, **kwargs):
 # --- listing and paging -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_list_repo_commits_newest_first_across_pages(small_pages, repo_type):
+def test_list_repo_commits_newest_first_across_pages(small_pages):
     api = small_pages
-    api.create_repo("alice/env", repo_type=repo_type)
-    shas = [_commit(api, "alice/env", {"n.txt": str(i).encode()}, repo_type, message=f"step {i}") for i in range(7)]
-    commits = api.list_repo_commits("alice/env", repo_type=repo_type)  # 8 commits, 3 per page
-    assert [c.commit_id for c in commits[:7]] == shas[::-1]
-    assert [c.title for c in commits] == [f"step {i}" for i in range(6, -1, -1)] + ["initial commit"]
-    assert all(a.created_at >= b.created_at for a, b in zip(commits, commits[1:]))
-    assert commits[0].authors == ["local"]
-    formatted = api.list_repo_commits("alice/env", repo_type=repo_type, formatted=True)
-    assert formatted[0].formatted_title == "step 6"
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        api.create_repo("alice/env", repo_type=repo_type)
+        shas = [_commit(api, "alice/env", {"n.txt": str(i).encode()}, repo_type, message=f"step {i}") for i in range(7)]
+        commits = api.list_repo_commits("alice/env", repo_type=repo_type)  # 8 commits, 3 per page
+        assert [c.commit_id for c in commits[:7]] == shas[::-1]
+        assert [c.title for c in commits] == [f"step {i}" for i in range(6, -1, -1)] + ["initial commit"]
+        assert all(a.created_at >= b.created_at for a, b in zip(commits, commits[1:]))
+        assert commits[0].authors == ["local"]
+        formatted = api.list_repo_commits("alice/env", repo_type=repo_type, formatted=True)
+        assert formatted[0].formatted_title == "step 6"
 
 
-@pytest.mark.parametrize("repo_type", REPO_TYPES)
-def test_tree_is_paged_recursive_and_expandable(small_pages, repo_type):
+def test_tree_is_paged_recursive_and_expandable(small_pages):
     api = small_pages
-    api.create_repo("alice/env", repo_type=repo_type)
-    files = {f"top{i}.txt": b"t" for i in range(4)} | {f"d/sub{i}.txt": b"s" for i in range(4)} | {"d/e/deep.txt": b"x"}
-    first = _commit(api, "alice/env", files, repo_type, message="many files")
-    last = _commit(api, "alice/env", {"d/e/deep.txt": b"changed"}, repo_type, message="touch deep")
+    for repo_type in REPO_TYPES:  # dataset repos behave the same
+        api.create_repo("alice/env", repo_type=repo_type)
+        files = {f"top{i}.txt": b"t" for i in range(4)} | {f"d/sub{i}.txt": b"s" for i in range(4)} | {"d/e/deep.txt": b"x"}
+        first = _commit(api, "alice/env", files, repo_type, message="many files")
+        last = _commit(api, "alice/env", {"d/e/deep.txt": b"changed"}, repo_type, message="touch deep")
 
-    everything = list(api.list_repo_tree("alice/env", recursive=True, repo_type=repo_type))
-    assert sorted(e.path for e in everything) == sorted([".gitattributes", *files, "d", "d/e"])
-    assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
-    top = {e.path: type(e).__name__ for e in api.list_repo_tree("alice/env", repo_type=repo_type)}
-    assert top == {".gitattributes": "RepoFile", "d": "RepoFolder", **{f"top{i}.txt": "RepoFile" for i in range(4)}}
-    assert {e.path for e in api.list_repo_tree("alice/env", "d", repo_type=repo_type)} == {
-        "d/e", *(f"d/sub{i}.txt" for i in range(4))
-    }
-    api.create_branch("alice/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
-    in_d = {e.path for e in api.list_repo_tree("alice/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
-    assert in_d == {"d/e", "d/e/deep.txt", *(f"d/sub{i}.txt" for i in range(4))}
-    assert len(api.list_repo_commits("alice/env", revision="feature/x", repo_type=repo_type)) == 3
-    expanded = {e.path: e for e in api.list_repo_tree("alice/env", "d", expand=True, repo_type=repo_type)}
-    assert expanded["d/sub0.txt"].last_commit.oid == first
-    assert expanded["d/e"].last_commit.oid == last and expanded["d/e"].last_commit.title == "touch deep"
+        everything = list(api.list_repo_tree("alice/env", recursive=True, repo_type=repo_type))
+        assert sorted(e.path for e in everything) == sorted([".gitattributes", *files, "d", "d/e"])
+        assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+        top = {e.path: type(e).__name__ for e in api.list_repo_tree("alice/env", repo_type=repo_type)}
+        assert top == {".gitattributes": "RepoFile", "d": "RepoFolder", **{f"top{i}.txt": "RepoFile" for i in range(4)}}
+        assert {e.path for e in api.list_repo_tree("alice/env", "d", repo_type=repo_type)} == {
+            "d/e", *(f"d/sub{i}.txt" for i in range(4))
+        }
+        api.create_branch("alice/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
+        in_d = {e.path for e in api.list_repo_tree("alice/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
+        assert in_d == {"d/e", "d/e/deep.txt", *(f"d/sub{i}.txt" for i in range(4))}
+        assert len(api.list_repo_commits("alice/env", revision="feature/x", repo_type=repo_type)) == 3
+        expanded = {e.path: e for e in api.list_repo_tree("alice/env", "d", expand=True, repo_type=repo_type)}
+        assert expanded["d/sub0.txt"].last_commit.oid == first
+        assert expanded["d/e"].last_commit.oid == last and expanded["d/e"].last_commit.title == "touch deep"
 
 
 def test_get_paths_info(hub):
@@ -667,7 +667,11 @@ def test_hub_environment_switches_servers_and_caches_then_restores_everything(hu
     assert constants.HF_HUB_OFFLINE is False
 
 
-def test_hub_server_reports_why_it_could_not_start(tmp_path):
+def test_hub_server_reports_why_it_could_not_start(hub, tmp_path):
+    with pytest.raises(HubServerError, match="in use by another hub-envs server"):
+        HubServer(hub.root, startup_timeout=20)  # one server per root
+    assert list(hub.api.list_models()) == []  # and the first one is unharmed
+
     not_a_store = tmp_path / "home"
     not_a_store.mkdir()
     (not_a_store / "precious.txt").write_text("keep me")

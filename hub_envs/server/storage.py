@@ -4,6 +4,7 @@ A store is one folder (``root``) holding every repo the server serves::
 
     root/
       FORMAT                                 "hub-envs-store 1"
+      LOCK                                   held (flock) by the one process serving this root
       tmp/                                   scratch space; emptied when a store opens
       trash/                                 deleted repos on their way out; emptied when a store opens
       repos/<type>s/<namespace>/<name>/      one folder per repo (lower-cased: repo ids are case-insensitive)
@@ -23,7 +24,8 @@ Durability and concurrency:
   a crash at any point leaves the branch at its previous commit (unreferenced blobs are harmless).
 * Read-modify-write of ``refs.json`` (commits, branches, tags) holds a per-repo lock; readers never
   lock, they see the old or the new ``refs.json``.
-* One server process per root: the locks are in-process (threads), not across processes.
+* One server process per root: the locks are in-process (threads), not across processes; a second
+  process opening the same root is refused (an exclusive ``flock`` on ``root/LOCK``).
 
 Example:
     >>> import tempfile
@@ -390,14 +392,15 @@ class HubStore:
         self.fsync = fsync
         self.root.mkdir(parents=True, exist_ok=True)
         fmt = self.root / "FORMAT"
+        if not fmt.exists() and any(p.name not in ("tmp", "trash", "repos", "LOCK") for p in self.root.iterdir()):
+            raise StoreError(
+                f"{self.root} is not empty and is not a hub-envs store (no FORMAT file): pass an empty folder."
+            )
+        self._lock_file = _lock_exclusively(self.root / "LOCK")
         if fmt.exists():
             found = fmt.read_text().strip()
             if found != FORMAT:
                 raise StoreError(f"{self.root} holds {found!r}, not {FORMAT!r}: pass another --root.")
-        elif any(p.name not in ("tmp", "trash", "repos") for p in self.root.iterdir()):
-            raise StoreError(
-                f"{self.root} is not empty and is not a hub-envs store (no FORMAT file): pass an empty folder."
-            )
         for scratch in ("tmp", "trash"):
             shutil.rmtree(self.root / scratch, ignore_errors=True)
             (self.root / scratch).mkdir()
@@ -515,6 +518,23 @@ class HubStore:
             except (OSError, ValueError, KeyError):
                 continue
         return sorted(metas, key=lambda m: m.repo_id.lower())
+
+
+def _lock_exclusively(path: Path):
+    """Hold an exclusive lock on ``path`` for the life of the returned file (released on exit or crash)."""
+    handle = open(path, "a+")
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no cross-process guard
+        return handle
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise StoreError(
+            f"{path.parent} is in use by another hub-envs server: run one server per root, or pass another --root."
+        ) from None
+    return handle
 
 
 class Repo:
