@@ -25,8 +25,9 @@ mode, headless) with this repo's own URDF (``assets/quadrotor_x.urdf``).
   The time limit (8 s = 240 steps at 30 fps) is added by hub-envs from the config's
   ``episode_length``.
 * **Success** ``info["is_success"]`` is True when the drone is within 0.05 m of the target.
-* **Start** level, at rest, at ``x, y ~ U(-0.1, 0.1)`` m and ``z ~ U(0.1, 0.2)`` m (just above
-  the ground plane; the drone can land on it and take off again).
+* **Start** level, at rest, at ``x, y ~ U(-0.025, 0.025)`` m and ``z ~ U(0.1, 0.2)`` m, i.e. just
+  above the ground plane and nearly under the target, so that ``one_d_rpm`` (which cannot move
+  sideways) can still succeed. The drone can land on the ground and take off again.
 * **Rendering** ``render()``: an RGB frame from a fixed pybullet camera (ER_TINY_RENDERER) looking
   at the flight volume, ``(render_height, render_width, 3)`` uint8. The front rotors are red, the
   back ones blue.
@@ -71,7 +72,7 @@ TARGET_POS = np.array([0.0, 0.0, 1.0])
 SUCCESS_RADIUS = 0.05  # m
 XY_LIMIT, Z_LIMIT, TILT_LIMIT = 1.5, 2.0, 0.4  # truncation bounds (m, m, rad)
 POS_BOUND, VEL_BOUND, ANG_VEL_BOUND = 10.0, 20.0, 100.0  # observation clipping
-START_XY, START_Z = 0.1, (0.1, 0.2)
+START_XY, START_Z = 0.025, (0.1, 0.2)  # |x|, |y| <= 0.025 keeps the target reachable with one_d_rpm
 
 
 def check_act_type(act_type: str) -> int:
