@@ -275,7 +275,11 @@ class HubApp:
         if action == "commit" and arg is not None:
             if ctx.method != "POST":
                 raise HTTPError(405, "Method not allowed: use POST to commit.")
-            return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
+            try:
+                return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
+            except (HTTPError, StoreError):
+                await _drain(ctx.request)  # read the rest, so the client gets the error, not a reset
+                raise
         if action == "branch" and arg is not None:
             branch = "/".join(rest[1:])
             return await self._call(
@@ -863,6 +867,14 @@ def _parse_range(header: str, size: int):
     if suffix == 0:
         return "unsatisfiable"
     return max(size - suffix, 0), size - 1
+
+
+async def _drain(request: Request) -> None:
+    try:
+        async for _ in request.stream():
+            pass
+    except Exception:  # already consumed, or the client went away
+        pass
 
 
 async def _ndjson_lines(request: Request):
