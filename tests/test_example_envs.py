@@ -418,6 +418,12 @@ def test_hover_at_target_is_success_and_hover_rpm_holds_it(closing):
         assert info["is_success"] is True and not terminated and not truncated
         assert reward > 1.99
     assert np.allclose(obs["agent_pos"][:3], [0.0, 0.0, 1.0], atol=1e-3)
+    # flying through the target is not hovering at it
+    moving = hover_state(env, [0.0, 0.0, 1.0])
+    moving[9] = 0.5  # vertical velocity, m/s
+    env.reset_to(moving)
+    obs, _, _, _, info = env.step(np.zeros(4, dtype=np.float32))
+    assert np.linalg.norm(obs["agent_pos"][:3] - [0.0, 0.0, 1.0]) < 0.05 and info["is_success"] is False
 
 
 def test_hover_truncates_when_out_of_bounds_or_tilted(closing):

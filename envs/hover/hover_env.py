@@ -24,7 +24,9 @@ mode, headless) with this repo's own URDF (``assets/quadrotor_x.urdf``).
   ``z > 2`` m (out of bounds), or ``|roll| > 0.4`` or ``|pitch| > 0.4`` rad (tilted too far).
   The time limit (8 s = 240 steps at 30 fps) is added by hub-envs from the config's
   ``episode_length``.
-* **Success** ``info["is_success"]`` is True when the drone is within 0.05 m of the target.
+* **Success** ``info["is_success"]`` is True when the drone *hovers at the target*: within 0.05 m
+  of it **and** slower than 0.1 m/s (flying through the target does not count; random actions
+  manage it in about 5% of one_d_rpm episodes).
 * **Start** level, at rest, at ``x, y ~ U(-0.025, 0.025)`` m and ``z ~ U(0.1, 0.2)`` m, i.e. just
   above the ground plane and nearly under the target, so that ``one_d_rpm`` (which cannot move
   sideways) can still succeed. The drone can land on the ground and take off again.
@@ -70,6 +72,7 @@ KIN_DIM = 12  # position, roll/pitch/yaw, linear velocity, angular velocity
 RPM_SPAN = 0.05  # RPM = HOVER_RPM * (1 + RPM_SPAN * a)
 TARGET_POS = np.array([0.0, 0.0, 1.0])
 SUCCESS_RADIUS = 0.05  # m
+SUCCESS_MAX_SPEED = 0.1  # m/s
 XY_LIMIT, Z_LIMIT, TILT_LIMIT = 1.5, 2.0, 0.4  # truncation bounds (m, m, rad)
 POS_BOUND, VEL_BOUND, ANG_VEL_BOUND = 10.0, 20.0, 100.0  # observation clipping
 START_XY, START_Z = 0.025, (0.1, 0.2)  # |x|, |y| <= 0.025 keeps the target reachable with one_d_rpm
@@ -245,4 +248,6 @@ class HoverEnv(gym.Env):
         return {"agent_pos": np.concatenate([kin, *self._actions]).astype(np.float32)}
 
     def _get_info(self) -> dict[str, Any]:
-        return {"is_success": bool(np.linalg.norm(TARGET_POS - self._body_state[0:3]) < SUCCESS_RADIUS)}
+        s = self._body_state
+        near = np.linalg.norm(TARGET_POS - s[0:3]) < SUCCESS_RADIUS
+        return {"is_success": bool(near and np.linalg.norm(s[7:10]) < SUCCESS_MAX_SPEED)}
