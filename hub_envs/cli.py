@@ -152,8 +152,16 @@ def _usage(commands) -> str:
     return f"usage: hub-envs {{{names}}} [--flag=value ...]\nRun `hub-envs <command> --help` for the flags of one command."
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    return f"warning: {message}\n"
+
+
 def run_command(name: str, argv: list[str]) -> int:
+    import warnings
+
     from hub_envs.errors import HubEnvsError
+
+    warnings.formatwarning = _format_warning  # a CLI user needs the message, not our source line
 
     commands = {**COMMANDS, **(_extra_commands() if name not in COMMANDS and name not in RAW_COMMANDS else {})}
     try:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -77,6 +78,13 @@ class PushResult:
                 f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}")
 
 
+def _stage_printer(enabled: bool):
+    def say(message: str) -> None:
+        if enabled:
+            print(message, file=sys.stderr, flush=True)
+    return say
+
+
 def _default_workers() -> int:
     return max(1, min(2, os.cpu_count() or 1))
 
@@ -126,6 +134,8 @@ def build_repo(
     cfg = loaded.config
     timings: dict[str, float] = {}
 
+    say = _stage_printer(progress)
+    say(f"Checking {loaded.local_folder.name}: gymnasium check_env, three-way features, determinism")
     t = time.perf_counter()
     raw = loaded.env_class(**cfg.gym_kwargs)
     try:
@@ -149,6 +159,7 @@ def build_repo(
     code_digest = content_digest(hash_files(staging, list_files(staging)))
 
     # -- dataset --
+    say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps, {workers} worker(s)")
     t = time.perf_counter()
     seeds = [seed + i for i in range(episodes)]
     features = dataset_features_from_config(cfg)
@@ -165,7 +176,7 @@ def build_repo(
     summary = write_lerobot_dataset(
         staging / DATASET_DIR, repo_id=repo_id, fps=int(cfg.fps), features=features, episodes=frames(),
         task=str(cfg.task), extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
-        progress=progress,
+        progress=False,  # the rollout bar above already counts episodes
     )
     timings["dataset"] = time.perf_counter() - t
 
@@ -176,6 +187,7 @@ def build_repo(
         info = json.loads((staging / DATASET_DIR / "meta" / "info.json").read_text())
         check_features(cfg, env, info["features"], seed=seed).raise_if_mismatch(where)
         # -- fingerprint, GIF --
+        say("Recording the golden-rollout fingerprint, rendering the GIF and the card")
         fp = golden_fingerprint(loaded.make, seeds=seeds[:fingerprint_seeds], steps=min(32, int(cfg.episode_length)))
         write_rollout_gif(loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length)))
         manifest_dict: dict[str, Any] = {
@@ -262,6 +274,7 @@ def push_env(
                                   workers=workers or _default_workers(), progress=progress)
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()
+            _stage_printer(progress)(f"Publishing to {repo_id} at {hub_io.endpoint()}")
             head = hub_io.remote_head(repo_id, token=token)
             remote_manifest = None
             if head is not None:
