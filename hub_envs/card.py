@@ -12,6 +12,7 @@ Example:
 from __future__ import annotations
 
 import inspect
+import re
 from pathlib import Path
 from typing import Any
 
@@ -37,10 +38,38 @@ def env_documentation(env_class: type) -> str:
 
 
 def success_description(doc: str) -> str:
+    """The docstring paragraph (or bullet) that defines ``is_success``, as one plain line."""
+    blocks, current = [], []
     for line in doc.splitlines():
-        if "success" in line.lower():
-            return line.strip().lstrip("-* ")
+        starts_bullet = line.lstrip().startswith(("* ", "- "))
+        if not line.strip() or (starts_bullet and current):
+            if current:
+                blocks.append(" ".join(current))
+            current = []
+        if line.strip():
+            current.append(line.strip())
+    if current:
+        blocks.append(" ".join(current))
+    for block in blocks:
+        if "is_success" in block or "success" in block.lower():
+            text = re.sub(r"^[-*]\s+", "", block)
+            text = re.sub(r"^\*\*[^*]+\*\*:?\s*", "", text)  # a bold label such as **Success**
+            return text.replace("``", "`")
     return "see the environment description below"
+
+
+def describe_space(space) -> str:
+    """A compact one-line description of a gymnasium space (Box bounds summarized, not listed)."""
+    import numpy as np
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Dict):
+        return "Dict(" + ", ".join(f"{k}: {describe_space(v)}" for k, v in space.spaces.items()) + ")"
+    if isinstance(space, spaces.Box):
+        low, high = np.min(space.low), np.max(space.high)
+        bounds = f"[{low:.4g}, {high:.4g}]" if np.all(space.low == low) and np.all(space.high == high) else f" within [{low:.4g}, {high:.4g}]"
+        return f"Box{bounds} shape {tuple(space.shape)} {space.dtype}"
+    return str(space)
 
 
 def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str) -> str:
@@ -92,8 +121,8 @@ def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env,
         episode_length=config.get("episode_length"),
         requirements_text=", ".join(f"`{r}`" for r in manifest.get("requirements", [])) or "none beyond hub-envs",
         features=features,
-        observation_space=str(env.observation_space),
-        action_space=str(env.action_space),
+        observation_space=describe_space(env.observation_space),
+        action_space=describe_space(env.action_space),
         success_text=success_description(doc),
         env_doc=doc,
         dataset=dataset,
