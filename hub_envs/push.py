@@ -32,7 +32,7 @@ import numpy as np
 from hub_envs import hub_io
 from hub_envs.card import render_card
 from hub_envs.checks import check_determinism, golden_fingerprint, run_env_checker
-from hub_envs.dataset import dataset_features_from_config, rollout_to_frames, write_lerobot_dataset, EpisodeFrames
+from hub_envs.dataset import dataset_features_from_config, dataset_fingerprint, rollout_to_frames, write_lerobot_dataset, EpisodeFrames
 from hub_envs.envconfig import encode_config
 from hub_envs.errors import ConfigError, EnvFolderError
 from hub_envs.features import check_features
@@ -52,6 +52,7 @@ from hub_envs.repo_format import (
     list_files,
 )
 from hub_envs.rollout import iter_episodes
+from hub_envs.states import STATES_PATH, write_env_states
 
 ENTRY_TEMPLATE = Path(__file__).resolve().parent / "templates" / "env_entry.py"
 
@@ -165,10 +166,12 @@ def build_repo(
     features = dataset_features_from_config(cfg)
     returns: list[float] = []
     successes: list[bool] = []
+    env_states: dict[int, Any] = {}  # env.get_state() before each action, for exact replay (hub_envs.states)
 
     def frames():
         for rollout in iter_episodes(loaded.make, seeds, max_steps=int(cfg.episode_length), workers=workers,
-                                    progress=progress, desc=f"Generating {episodes} episodes"):
+                                    progress=progress, desc=f"Generating {episodes} episodes", record_states=True):
+            env_states[rollout.index] = rollout.states
             returns.append(float(np.sum(rollout.rewards)))
             successes.append(bool(np.any(rollout.is_success)))
             yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
@@ -178,6 +181,8 @@ def build_repo(
         task=str(cfg.task), extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
         progress=False,  # the rollout bar above already counts episodes
     )
+    has_states = write_env_states(staging / DATASET_DIR, env_states)
+    dataset_digest = dataset_fingerprint(staging / DATASET_DIR) if has_states else summary.fingerprint
     timings["dataset"] = time.perf_counter() - t
 
     env = loaded.make()
@@ -204,7 +209,8 @@ def build_repo(
             "config": encode_config(cfg),
             "dataset": {
                 "path": DATASET_DIR,
-                "fingerprint": summary.fingerprint,
+                "fingerprint": dataset_digest,
+                "env_states": STATES_PATH if has_states else None,
                 "episodes": summary.episodes,
                 "frames": summary.frames,
                 "fps": summary.fps,
