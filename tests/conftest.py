@@ -45,7 +45,9 @@ def _start_hub(tmp_path: Path, token: str | None, suffix: str = "") -> Iterator[
                 api=HfApi(endpoint=server.endpoint, token=token),
             )
     finally:
-        server.stop()
+        # SIGKILL, not SIGTERM: the store is crash-safe and this root is thrown away, and a
+        # graceful stop costs ~0.15 s per test.
+        server.kill()
         server.remove_log()
 
 

@@ -10,7 +10,9 @@ import hashlib
 import http.client
 import json
 import os
+import re
 import threading
+from dataclasses import dataclass
 import time
 from pathlib import Path
 
@@ -49,71 +51,113 @@ def _commit(api: HfApi, repo_id: str, files: dict[str, bytes], repo_type: str = 
     return api.create_commit(repo_id, ops, commit_message=kw.pop("message", "update"), repo_type=repo_type, **kw).oid
 
 
-@pytest.fixture
-def small_pages(tmp_path):
+@dataclass
+class Namespace:
+    """A shared server seen from one test: its own namespace for repo ids and its own HF cache."""
+
+    api: HfApi
+    ns: str
+    endpoint: str
+    hf_home: Path
+
+
+def _namespace(request) -> str:
+    name = re.sub(r"[^A-Za-z0-9_.-]", "-", request.node.name.removeprefix("test_"))
+    return re.sub(r"-{2,}", "-", name)[:80].strip("-.")
+
+
+# Most tests need fresh repos, not a fresh server: they share one (per module) under their own
+# namespace, which keeps this file fast. Tests that restart, kill or inspect a server use `hub`.
+@pytest.fixture(scope="module")
+def _shared_server(tmp_path_factory):
+    with HubServer(tmp_path_factory.mktemp("shared") / "hub-data") as server:
+        yield server
+
+
+@pytest.fixture(scope="module")
+def _small_pages_server(tmp_path_factory):
     """A server whose tree and commit lists come 3 items per page."""
-    with HubServer(tmp_path / "hub-data", page_size=3) as server, hub_environment(server.endpoint, tmp_path / "home"):
-        yield HfApi(endpoint=server.endpoint)
+    with HubServer(tmp_path_factory.mktemp("small-pages") / "hub-data", page_size=3) as server:
+        yield server
+
+
+def _enter(server: HubServer, request, tmp_path: Path):
+    with hub_environment(server.endpoint, tmp_path / "hf_home"):
+        yield Namespace(HfApi(endpoint=server.endpoint), _namespace(request), server.endpoint, tmp_path / "hf_home")
+
+
+@pytest.fixture
+def shared(_shared_server, request, tmp_path):
+    yield from _enter(_shared_server, request, tmp_path)
+
+
+@pytest.fixture
+def small_pages(_small_pages_server, request, tmp_path):
+    yield from _enter(_small_pages_server, request, tmp_path)
 
 
 # --- repos --------------------------------------------------------------------------------------
 
 
-def test_create_repo_of_each_type_with_exist_ok_and_conflict(hub):
-    api = hub.api
-    url = api.create_repo("alice/env")
-    assert url.repo_id == "alice/env" and url.repo_type == "model" and url.endpoint == hub.endpoint
-    assert api.create_repo("alice/data", repo_type="dataset").repo_type == "dataset"
-    assert api.create_repo("alice/demo", repo_type="space", space_sdk="static").repo_type == "space"
+def test_create_repo_of_each_type_with_exist_ok_and_conflict(shared):
+    ns = shared.ns
+    api = shared.api
+    url = api.create_repo(f"{ns}/env")
+    assert url.repo_id == f"{ns}/env" and url.repo_type == "model" and url.endpoint == shared.endpoint
+    assert api.create_repo(f"{ns}/data", repo_type="dataset").repo_type == "dataset"
+    assert api.create_repo(f"{ns}/demo", repo_type="space", space_sdk="static").repo_type == "space"
 
     with pytest.raises(HfHubHTTPError) as exc:
-        api.create_repo("alice/env")
+        api.create_repo(f"{ns}/env")
     assert exc.value.response.status_code == 409
-    assert api.create_repo("alice/env", exist_ok=True).repo_id == "alice/env"
+    assert api.create_repo(f"{ns}/env", exist_ok=True).repo_id == f"{ns}/env"
     # same name, other type: a different repo
-    assert api.create_repo("alice/env", repo_type="dataset").repo_type == "dataset"
+    assert api.create_repo(f"{ns}/env", repo_type="dataset").repo_type == "dataset"
 
     # a new repo has the Hub's initial commit with .gitattributes on main
-    info = api.model_info("alice/env")
+    info = api.model_info(f"{ns}/env")
     assert len(info.sha) == 40 and [s.rfilename for s in info.siblings] == [".gitattributes"]
-    commits = api.list_repo_commits("alice/env")
+    commits = api.list_repo_commits(f"{ns}/env")
     assert [c.title for c in commits] == ["initial commit"] and commits[0].commit_id == info.sha
-    assert api.space_info("alice/demo").sha
+    assert api.space_info(f"{ns}/demo").sha
     # no namespace: the caller's own
     assert api.create_repo("solo").repo_id == f"{api.whoami(token='any')['name']}/solo"
 
 
-def test_repo_ids_are_case_insensitive_like_the_hub(hub):
-    hub.api.create_repo("Alice/MyEnv")
-    _commit(hub.api, "alice/myenv", {"a.txt": b"a"})
-    assert hub.api.model_info("ALICE/myenv").id == "Alice/MyEnv"
-    assert Path(hf_hub_download("alice/MYENV", "a.txt")).read_bytes() == b"a"
+def test_repo_ids_are_case_insensitive_like_the_hub(shared):
+    ns = shared.ns
+    shared.api.create_repo(f"{ns.capitalize()}/MyEnv")
+    _commit(shared.api, f"{ns}/myenv", {"a.txt": b"a"})
+    assert shared.api.model_info(f"{ns.upper()}/myenv").id == f"{ns.capitalize()}/MyEnv"
+    assert Path(hf_hub_download(f"{ns}/MYENV", "a.txt")).read_bytes() == b"a"
 
 
-def test_private_flag_is_kept_reported_and_updatable(hub):
-    hub.api.create_repo("alice/secret", private=True)
-    hub.api.create_repo("alice/open")
-    assert hub.api.model_info("alice/secret").private is True
-    assert hub.api.model_info("alice/open").private is False
-    hub.api.update_repo_settings("alice/secret", private=False)
-    assert hub.api.model_info("alice/secret").private is False
-    assert {m.id for m in hub.api.list_models(author="alice")} == {"alice/secret", "alice/open"}
+def test_private_flag_is_kept_reported_and_updatable(shared):
+    ns = shared.ns
+    shared.api.create_repo(f"{ns}/secret", private=True)
+    shared.api.create_repo(f"{ns}/open")
+    assert shared.api.model_info(f"{ns}/secret").private is True
+    assert shared.api.model_info(f"{ns}/open").private is False
+    shared.api.update_repo_settings(f"{ns}/secret", private=False)
+    assert shared.api.model_info(f"{ns}/secret").private is False
+    assert {m.id for m in shared.api.list_models(author=ns)} == {f"{ns}/secret", f"{ns}/open"}
 
 
-def test_delete_repo(hub):
-    hub.api.create_repo("alice/gone", repo_type="dataset")
-    hub.api.delete_repo("alice/gone", repo_type="dataset")
+def test_delete_repo(shared):
+    ns = shared.ns
+    shared.api.create_repo(f"{ns}/gone", repo_type="dataset")
+    shared.api.delete_repo(f"{ns}/gone", repo_type="dataset")
     with pytest.raises(RepositoryNotFoundError):
-        hub.api.dataset_info("alice/gone")
+        shared.api.dataset_info(f"{ns}/gone")
     with pytest.raises(RepositoryNotFoundError):
-        hub.api.delete_repo("alice/gone", repo_type="dataset")
-    hub.api.delete_repo("alice/gone", repo_type="dataset", missing_ok=True)
-    hub.api.create_repo("alice/gone", repo_type="dataset")  # the name is free again
-    assert hub.api.list_repo_files("alice/gone", repo_type="dataset") == [".gitattributes"]
+        shared.api.delete_repo(f"{ns}/gone", repo_type="dataset")
+    shared.api.delete_repo(f"{ns}/gone", repo_type="dataset", missing_ok=True)
+    shared.api.create_repo(f"{ns}/gone", repo_type="dataset")  # the name is free again
+    assert shared.api.list_repo_files(f"{ns}/gone", repo_type="dataset") == [".gitattributes"]
 
 
-def test_whoami(hub, hub_with_token):
-    assert hub.api.whoami(token="whatever")["name"] == "local"
+def test_whoami(shared, hub_with_token):
+    assert shared.api.whoami(token="whatever")["name"] == "local"
     assert hub_with_token.api.whoami()["name"] == "local"
     with pytest.raises(requests.HTTPError):
         HfApi(endpoint=hub_with_token.endpoint, token="wrong").whoami()
@@ -122,219 +166,229 @@ def test_whoami(hub, hub_with_token):
 # --- uploads and downloads ----------------------------------------------------------------------
 
 
-def test_upload_folder_then_snapshot_and_file_downloads(hub, tmp_path):
+def test_upload_folder_then_snapshot_and_file_downloads(shared, tmp_path):
+    ns = shared.ns
     for repo_type in REPO_TYPES:  # dataset repos behave the same
         folder = tmp_path / "env"
         files = {"env.py": b"print('hi')\n", "assets/mesh.obj": b"v 0 0 0\n" * 100, "assets/deep/x.bin": bytes(range(256))}
         for rel, data in files.items():
             (folder / rel).parent.mkdir(parents=True, exist_ok=True)
             (folder / rel).write_bytes(data)
-        hub.api.create_repo("alice/env", repo_type=repo_type)
-        info = hub.api.upload_folder(folder_path=folder, repo_id="alice/env", repo_type=repo_type, commit_message="Add env")
+        shared.api.create_repo(f"{ns}/env", repo_type=repo_type)
+        info = shared.api.upload_folder(folder_path=folder, repo_id=f"{ns}/env", repo_type=repo_type, commit_message="Add env")
         assert len(info.oid) == 40
 
-        assert sorted(hub.api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
-        snapshot = Path(snapshot_download("alice/env", repo_type=repo_type))
-        assert snapshot.name == info.oid and str(hub.hf_home) in str(snapshot)
+        assert sorted(shared.api.list_repo_files(f"{ns}/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+        snapshot = Path(snapshot_download(f"{ns}/env", repo_type=repo_type))
+        assert snapshot.name == info.oid and str(shared.hf_home) in str(snapshot)
         for rel, data in files.items():
             assert (snapshot / rel).read_bytes() == data
-            assert Path(hf_hub_download("alice/env", rel, repo_type=repo_type)).read_bytes() == data
+            assert Path(hf_hub_download(f"{ns}/env", rel, repo_type=repo_type)).read_bytes() == data
 
-        repo = hub.api.repo_info("alice/env", repo_type=repo_type, files_metadata=True)
+        repo = shared.api.repo_info(f"{ns}/env", repo_type=repo_type, files_metadata=True)
         assert repo.sha == info.oid
         siblings = {s.rfilename: s for s in repo.siblings}
         for rel, data in files.items():  # blob ids are git blob sha1s, as on the Hub
             assert siblings[rel].size == len(data)
             assert siblings[rel].blob_id == hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
-        assert hub.api.file_exists("alice/env", "assets/deep/x.bin", repo_type=repo_type)
-        assert not hub.api.file_exists("alice/env", "assets/nope.bin", repo_type=repo_type)
-        assert repo.last_modified == hub.api.list_repo_commits("alice/env", repo_type=repo_type)[0].created_at
+        assert shared.api.file_exists(f"{ns}/env", "assets/deep/x.bin", repo_type=repo_type)
+        assert not shared.api.file_exists(f"{ns}/env", "assets/nope.bin", repo_type=repo_type)
+        assert repo.last_modified == shared.api.list_repo_commits(f"{ns}/env", repo_type=repo_type)[0].created_at
 
 
-def test_pinned_sha_and_tag_still_serve_old_content_after_a_new_commit(hub):
-    api = hub.api
+def test_pinned_sha_and_tag_still_serve_old_content_after_a_new_commit(shared):
+    ns = shared.ns
+    api = shared.api
     for repo_type in REPO_TYPES:  # dataset repos behave the same
-        api.create_repo("alice/env", repo_type=repo_type)
-        old = _commit(api, "alice/env", {"v.txt": b"one", "keep.txt": b"k"}, repo_type)
-        api.create_tag("alice/env", tag="v1", revision=old, repo_type=repo_type, tag_message="first")
-        new = _commit(api, "alice/env", {"v.txt": b"two"}, repo_type)
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
+        old = _commit(api, f"{ns}/env", {"v.txt": b"one", "keep.txt": b"k"}, repo_type)
+        api.create_tag(f"{ns}/env", tag="v1", revision=old, repo_type=repo_type, tag_message="first")
+        new = _commit(api, f"{ns}/env", {"v.txt": b"two"}, repo_type)
         assert old != new
 
         for rev in (old, "v1"):
-            assert Path(hf_hub_download("alice/env", "v.txt", revision=rev, repo_type=repo_type)).read_bytes() == b"one"
-            snap = Path(snapshot_download("alice/env", revision=rev, repo_type=repo_type))
+            assert Path(hf_hub_download(f"{ns}/env", "v.txt", revision=rev, repo_type=repo_type)).read_bytes() == b"one"
+            snap = Path(snapshot_download(f"{ns}/env", revision=rev, repo_type=repo_type))
             assert snap.name == old and (snap / "v.txt").read_bytes() == b"one"
-        assert Path(hf_hub_download("alice/env", "v.txt", repo_type=repo_type)).read_bytes() == b"two"
-        assert api.repo_info("alice/env", revision="v1", repo_type=repo_type).sha == old
+        assert Path(hf_hub_download(f"{ns}/env", "v.txt", repo_type=repo_type)).read_bytes() == b"two"
+        assert api.repo_info(f"{ns}/env", revision="v1", repo_type=repo_type).sha == old
         fs = HfFileSystem()
         prefix = "datasets/" if repo_type == "dataset" else ""
-        assert fs.read_bytes(f"{prefix}alice/env@{old}/v.txt") == b"one"
+        assert fs.read_bytes(f"{prefix}{ns}/env@{old}/v.txt") == b"one"
 
 
-def test_branches_and_tags(hub):
-    api = hub.api
+def test_branches_and_tags(shared):
+    ns = shared.ns
+    api = shared.api
     for repo_type in REPO_TYPES:  # dataset repos behave the same
-        api.create_repo("alice/env", repo_type=repo_type)
-        base = _commit(api, "alice/env", {"a.txt": b"a"}, repo_type)
-        api.create_branch("alice/env", branch="dev", repo_type=repo_type)
-        on_dev = _commit(api, "alice/env", {"b.txt": b"b"}, repo_type, revision="dev")
-        api.create_tag("alice/env", tag="v1.0", revision="dev", repo_type=repo_type)
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
+        base = _commit(api, f"{ns}/env", {"a.txt": b"a"}, repo_type)
+        api.create_branch(f"{ns}/env", branch="dev", repo_type=repo_type)
+        on_dev = _commit(api, f"{ns}/env", {"b.txt": b"b"}, repo_type, revision="dev")
+        api.create_tag(f"{ns}/env", tag="v1.0", revision="dev", repo_type=repo_type)
 
-        refs = api.list_repo_refs("alice/env", repo_type=repo_type)
+        refs = api.list_repo_refs(f"{ns}/env", repo_type=repo_type)
         assert {b.name: b.target_commit for b in refs.branches} == {"main": base, "dev": on_dev}
         assert {t.name: t.target_commit for t in refs.tags} == {"v1.0": on_dev}
         assert refs.branches[0].ref.startswith("refs/heads/") and refs.tags[0].ref == "refs/tags/v1.0"
-        assert "b.txt" not in api.list_repo_files("alice/env", repo_type=repo_type)
-        assert "b.txt" in api.list_repo_files("alice/env", revision="v1.0", repo_type=repo_type)
-        assert api.revision_exists("alice/env", "dev", repo_type=repo_type)
+        assert "b.txt" not in api.list_repo_files(f"{ns}/env", repo_type=repo_type)
+        assert "b.txt" in api.list_repo_files(f"{ns}/env", revision="v1.0", repo_type=repo_type)
+        assert api.revision_exists(f"{ns}/env", "dev", repo_type=repo_type)
 
         with pytest.raises(HfHubHTTPError) as exc:
-            api.create_tag("alice/env", tag="v1.0", repo_type=repo_type)
+            api.create_tag(f"{ns}/env", tag="v1.0", repo_type=repo_type)
         assert exc.value.response.status_code == 409
-        api.create_tag("alice/env", tag="v1.0", repo_type=repo_type, exist_ok=True)
+        api.create_tag(f"{ns}/env", tag="v1.0", repo_type=repo_type, exist_ok=True)
         with pytest.raises(HfHubHTTPError) as exc:
-            api.create_branch("alice/env", branch="dev", repo_type=repo_type)
+            api.create_branch(f"{ns}/env", branch="dev", repo_type=repo_type)
         assert exc.value.response.status_code == 409
-        api.create_branch("alice/env", branch="dev", repo_type=repo_type, exist_ok=True)
-        api.create_branch("alice/env", branch="from-sha", revision=base, repo_type=repo_type)
-        assert api.repo_info("alice/env", revision="from-sha", repo_type=repo_type).sha == base
+        api.create_branch(f"{ns}/env", branch="dev", repo_type=repo_type, exist_ok=True)
+        api.create_branch(f"{ns}/env", branch="from-sha", revision=base, repo_type=repo_type)
+        assert api.repo_info(f"{ns}/env", revision="from-sha", repo_type=repo_type).sha == base
 
-        api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
-        api.delete_branch("alice/env", branch="dev", repo_type=repo_type)
-        assert not api.revision_exists("alice/env", "dev", repo_type=repo_type)
-        assert not api.revision_exists("alice/env", "v1.0", repo_type=repo_type)
+        api.delete_tag(f"{ns}/env", tag="v1.0", repo_type=repo_type)
+        api.delete_branch(f"{ns}/env", branch="dev", repo_type=repo_type)
+        assert not api.revision_exists(f"{ns}/env", "dev", repo_type=repo_type)
+        assert not api.revision_exists(f"{ns}/env", "v1.0", repo_type=repo_type)
         with pytest.raises(RevisionNotFoundError):
-            api.delete_tag("alice/env", tag="v1.0", repo_type=repo_type)
+            api.delete_tag(f"{ns}/env", tag="v1.0", repo_type=repo_type)
         # the commit outlives its branch: pinned downloads keep working
-        assert Path(hf_hub_download("alice/env", "b.txt", revision=on_dev, repo_type=repo_type)).read_bytes() == b"b"
+        assert Path(hf_hub_download(f"{ns}/env", "b.txt", revision=on_dev, repo_type=repo_type)).read_bytes() == b"b"
 
 
-def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(hub):
-    api = hub.api
+def test_missing_repo_revision_or_file_raise_the_clients_typed_errors(shared):
+    ns = shared.ns
+    api = shared.api
     for repo_type in REPO_TYPES:  # dataset repos behave the same
         with pytest.raises(RepositoryNotFoundError):
-            api.repo_info("alice/nope", repo_type=repo_type)
+            api.repo_info(f"{ns}/nope", repo_type=repo_type)
         with pytest.raises(RepositoryNotFoundError):
-            hf_hub_download("alice/nope", "x.txt", repo_type=repo_type)
+            hf_hub_download(f"{ns}/nope", "x.txt", repo_type=repo_type)
         with pytest.raises(RepositoryNotFoundError):
-            snapshot_download("alice/nope", repo_type=repo_type)
+            snapshot_download(f"{ns}/nope", repo_type=repo_type)
         with pytest.raises(RepositoryNotFoundError):
-            _commit(api, "alice/nope", {"x": b"x"}, repo_type)
-        assert not api.repo_exists("alice/nope", repo_type=repo_type)
+            _commit(api, f"{ns}/nope", {"x": b"x"}, repo_type)
+        assert not api.repo_exists(f"{ns}/nope", repo_type=repo_type)
 
-        api.create_repo("alice/env", repo_type=repo_type)
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
         with pytest.raises(RevisionNotFoundError):
-            api.repo_info("alice/env", revision="no-such-branch", repo_type=repo_type)
+            api.repo_info(f"{ns}/env", revision="no-such-branch", repo_type=repo_type)
         with pytest.raises(RevisionNotFoundError):
-            hf_hub_download("alice/env", ".gitattributes", revision="no-such-branch", repo_type=repo_type)
+            hf_hub_download(f"{ns}/env", ".gitattributes", revision="no-such-branch", repo_type=repo_type)
         with pytest.raises(RevisionNotFoundError):
-            snapshot_download("alice/env", revision="0" * 40, repo_type=repo_type)
+            snapshot_download(f"{ns}/env", revision="0" * 40, repo_type=repo_type)
         with pytest.raises(RevisionNotFoundError):
-            api.list_repo_commits("alice/env", revision="nope", repo_type=repo_type)
+            api.list_repo_commits(f"{ns}/env", revision="nope", repo_type=repo_type)
         with pytest.raises(EntryNotFoundError):
-            hf_hub_download("alice/env", "missing.txt", repo_type=repo_type)
+            hf_hub_download(f"{ns}/env", "missing.txt", repo_type=repo_type)
         with pytest.raises(EntryNotFoundError):
-            list(api.list_repo_tree("alice/env", path_in_repo="missing", repo_type=repo_type))
-        assert not api.file_exists("alice/env", "missing.txt", repo_type=repo_type)
-        assert not api.revision_exists("alice/env", "nope", repo_type=repo_type)
+            list(api.list_repo_tree(f"{ns}/env", path_in_repo="missing", repo_type=repo_type))
+        assert not api.file_exists(f"{ns}/env", "missing.txt", repo_type=repo_type)
+        assert not api.revision_exists(f"{ns}/env", "nope", repo_type=repo_type)
         with pytest.raises(FileNotFoundError):
-            HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}alice/env/missing.txt")
+            HfFileSystem().info(f"{'datasets/' if repo_type == 'dataset' else ''}{ns}/env/missing.txt")
 
 
-def test_unusual_file_and_branch_names_round_trip(hub):
+def test_unusual_file_and_branch_names_round_trip(shared):
+    ns = shared.ns
     # the client percent-encodes file paths (keeping "/") and revisions (encoding "/")
-    api = hub.api
-    api.create_repo("alice/env", repo_type="dataset")
+    api = shared.api
+    api.create_repo(f"{ns}/env", repo_type="dataset")
     names = {"dir with space/ünï cødé #1 %.txt": b"u", "a+b=c&d?.json": b"{}", "x/y/z/deep.txt": b"d"}
-    api.create_branch("alice/env", branch="feature/x", repo_type="dataset")
-    sha = _commit(api, "alice/env", names, "dataset", revision="feature/x")
+    api.create_branch(f"{ns}/env", branch="feature/x", repo_type="dataset")
+    sha = _commit(api, f"{ns}/env", names, "dataset", revision="feature/x")
     for rev in ("feature/x", sha):
         for name, data in names.items():
-            assert Path(hf_hub_download("alice/env", name, revision=rev, repo_type="dataset")).read_bytes() == data
-    snap = Path(snapshot_download("alice/env", revision="feature/x", repo_type="dataset"))
+            assert Path(hf_hub_download(f"{ns}/env", name, revision=rev, repo_type="dataset")).read_bytes() == data
+    snap = Path(snapshot_download(f"{ns}/env", revision="feature/x", repo_type="dataset"))
     assert (snap / "dir with space" / "ünï cødé #1 %.txt").read_bytes() == b"u"
-    tree = {e.path for e in api.list_repo_tree("alice/env", "dir with space", revision="feature/x", repo_type="dataset")}
+    tree = {e.path for e in api.list_repo_tree(f"{ns}/env", "dir with space", revision="feature/x", repo_type="dataset")}
     assert tree == {"dir with space/ünï cødé #1 %.txt"}
-    assert api.list_repo_commits("alice/env", revision="feature/x", repo_type="dataset")[0].commit_id == sha
-    assert api.list_repo_files("alice/env", repo_type="dataset") == [".gitattributes"]  # main untouched
-    api.delete_branch("alice/env", branch="feature/x", repo_type="dataset")
-    assert not api.revision_exists("alice/env", "feature/x", repo_type="dataset")
+    assert api.list_repo_commits(f"{ns}/env", revision="feature/x", repo_type="dataset")[0].commit_id == sha
+    assert api.list_repo_files(f"{ns}/env", repo_type="dataset") == [".gitattributes"]  # main untouched
+    api.delete_branch(f"{ns}/env", branch="feature/x", repo_type="dataset")
+    assert not api.revision_exists(f"{ns}/env", "feature/x", repo_type="dataset")
 
 
-def test_deletions_copies_and_upload_folder_delete_patterns(hub, tmp_path):
-    api = hub.api
-    api.create_repo("alice/env")
-    _commit(api, "alice/env", {"a.txt": b"a", "logs/1.log": b"1", "logs/2.log": b"2", "keep/k.txt": b"k", "old.tmp": b"t"})
-    api.delete_file("a.txt", "alice/env")
-    api.delete_folder("logs", "alice/env")
+def test_deletions_copies_and_upload_folder_delete_patterns(shared, tmp_path):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/env")
+    _commit(api, f"{ns}/env", {"a.txt": b"a", "logs/1.log": b"1", "logs/2.log": b"2", "keep/k.txt": b"k", "old.tmp": b"t"})
+    api.delete_file("a.txt", f"{ns}/env")
+    api.delete_folder("logs", f"{ns}/env")
     api.create_commit(
-        "alice/env",
+        f"{ns}/env",
         [CommitOperationCopy(src_path_in_repo="keep/k.txt", path_in_repo="copied/k.txt")],
         commit_message="copy",
     )
-    assert sorted(api.list_repo_files("alice/env")) == [".gitattributes", "copied/k.txt", "keep/k.txt", "old.tmp"]
+    assert sorted(api.list_repo_files(f"{ns}/env")) == [".gitattributes", "copied/k.txt", "keep/k.txt", "old.tmp"]
     with pytest.raises(EntryNotFoundError):
-        api.delete_file("a.txt", "alice/env")
+        api.delete_file("a.txt", f"{ns}/env")
     with pytest.raises(EntryNotFoundError):
-        api.delete_folder("logs", "alice/env")
+        api.delete_folder("logs", f"{ns}/env")
 
     folder = tmp_path / "up"
     (folder / "new").mkdir(parents=True)
     (folder / "new" / "n.txt").write_bytes(b"n")
-    api.upload_folder(folder_path=folder, repo_id="alice/env", delete_patterns=["*.tmp", "keep/*"])
-    assert sorted(api.list_repo_files("alice/env")) == [".gitattributes", "copied/k.txt", "new/n.txt"]
+    api.upload_folder(folder_path=folder, repo_id=f"{ns}/env", delete_patterns=["*.tmp", "keep/*"])
+    assert sorted(api.list_repo_files(f"{ns}/env")) == [".gitattributes", "copied/k.txt", "new/n.txt"]
 
     # a file and a folder cannot share a name
     with pytest.raises(BadRequestError):
-        _commit(api, "alice/env", {"new/n.txt/inner": b"x"})
+        _commit(api, f"{ns}/env", {"new/n.txt/inner": b"x"})
 
 
-def test_identical_content_makes_no_commit_like_the_hub(hub):
+def test_identical_content_makes_no_commit_like_the_hub(shared):
+    ns = shared.ns
     # huggingface_hub compares the preupload `oid` with the local sha1 and skips no-op commits.
-    api = hub.api
-    api.create_repo("alice/env")
-    head = _commit(api, "alice/env", {"a.txt": b"same", "b.txt": b"b"})
-    again = _commit(api, "alice/env", {"a.txt": b"same"})
-    empty = api.create_commit("alice/env", [], commit_message="nothing").oid
+    api = shared.api
+    api.create_repo(f"{ns}/env")
+    head = _commit(api, f"{ns}/env", {"a.txt": b"same", "b.txt": b"b"})
+    again = _commit(api, f"{ns}/env", {"a.txt": b"same"})
+    empty = api.create_commit(f"{ns}/env", [], commit_message="nothing").oid
     assert again == empty == head
-    assert len(api.list_repo_commits("alice/env")) == 2
-    assert _commit(api, "alice/env", {"a.txt": b"changed", "b.txt": b"b"}) != head  # partial change: commits
-    assert len(api.list_repo_commits("alice/env")) == 3
+    assert len(api.list_repo_commits(f"{ns}/env")) == 2
+    assert _commit(api, f"{ns}/env", {"a.txt": b"changed", "b.txt": b"b"}) != head  # partial change: commits
+    assert len(api.list_repo_commits(f"{ns}/env")) == 3
 
 
-def test_readme_metadata_is_validated_and_reported_as_card_data(hub):
-    api = hub.api
-    api.create_repo("alice/env")
-    _commit(api, "alice/env", {"README.md": b"---\nlicense: mit\ntags:\n- robotics\n---\n# Env\n"})
-    info = api.model_info("alice/env")
+def test_readme_metadata_is_validated_and_reported_as_card_data(shared):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/env")
+    _commit(api, f"{ns}/env", {"README.md": b"---\nlicense: mit\ntags:\n- robotics\n---\n# Env\n"})
+    info = api.model_info(f"{ns}/env")
     assert info.card_data["license"] == "mit" and info.tags == ["robotics"]
     with pytest.raises(ValueError, match="Invalid metadata in README.md"):
-        _commit(api, "alice/env", {"README.md": b"---\ntags: [unclosed\n---\n"})
+        _commit(api, f"{ns}/env", {"README.md": b"---\ntags: [unclosed\n---\n"})
     with pytest.warns(UserWarning, match="empty or missing yaml metadata"):
-        _commit(api, "alice/env", {"README.md": b"# no metadata\n"})
+        _commit(api, f"{ns}/env", {"README.md": b"# no metadata\n"})
 
 
 # --- concurrency and crashes --------------------------------------------------------------------
 
 
-def test_stale_parent_commit_is_refused_with_412(hub):
-    api = hub.api
-    api.create_repo("alice/env")
-    parent = api.model_info("alice/env").sha
-    _commit(api, "alice/env", {"a.txt": b"a"})
+def test_stale_parent_commit_is_refused_with_412(shared):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/env")
+    parent = api.model_info(f"{ns}/env").sha
+    _commit(api, f"{ns}/env", {"a.txt": b"a"})
     with pytest.raises(HfHubHTTPError) as exc:
-        _commit(api, "alice/env", {"b.txt": b"b"}, parent_commit=parent)
+        _commit(api, f"{ns}/env", {"b.txt": b"b"}, parent_commit=parent)
     assert exc.value.response.status_code == 412
     assert "The branch was updated since you opened this page" in str(exc.value)
-    head = api.model_info("alice/env").sha
-    assert _commit(api, "alice/env", {"b.txt": b"b"}, parent_commit=head) != head
+    head = api.model_info(f"{ns}/env").sha
+    assert _commit(api, f"{ns}/env", {"b.txt": b"b"}, parent_commit=head) != head
 
 
-def test_racing_commits_on_the_same_parent_leave_one_winner(hub):
-    api = hub.api
+def test_racing_commits_on_the_same_parent_leave_one_winner(shared):
+    ns = shared.ns
+    api = shared.api
     for repo_type in REPO_TYPES:  # dataset repos behave the same
-        api.create_repo("alice/env", repo_type=repo_type)
-        parent = api.repo_info("alice/env", repo_type=repo_type).sha
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
+        parent = api.repo_info(f"{ns}/env", repo_type=repo_type).sha
         n = 8
         barrier = threading.Barrier(n)
         results: dict[int, object] = {}
@@ -342,7 +396,7 @@ def test_racing_commits_on_the_same_parent_leave_one_winner(hub):
         def worker(i: int) -> None:
             barrier.wait()
             try:
-                results[i] = _commit(api, "alice/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
+                results[i] = _commit(api, f"{ns}/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
             except HfHubHTTPError as err:
                 results[i] = err
 
@@ -357,16 +411,17 @@ def test_racing_commits_on_the_same_parent_leave_one_winner(hub):
         assert len(winners) == 1 and len(losers) == n - 1
         assert all(err.response.status_code == 412 for err in losers)
         (i, sha), = winners.items()
-        commits = api.list_repo_commits("alice/env", repo_type=repo_type)
+        commits = api.list_repo_commits(f"{ns}/env", repo_type=repo_type)
         assert [c.commit_id for c in commits] == [sha, parent]
-        assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
-        snap = Path(snapshot_download("alice/env", repo_type=repo_type))
+        assert sorted(api.list_repo_files(f"{ns}/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
+        snap = Path(snapshot_download(f"{ns}/env", repo_type=repo_type))
         assert (snap / f"f{i}.txt").read_bytes() == b"x" * (1000 + i)
 
 
-def test_concurrent_commits_without_parent_all_land(hub):
-    api = hub.api
-    api.create_repo("alice/env")
+def test_concurrent_commits_without_parent_all_land(shared):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/env")
     n = 8
     barrier = threading.Barrier(n)
     errors: list[Exception] = []
@@ -374,7 +429,7 @@ def test_concurrent_commits_without_parent_all_land(hub):
     def worker(i: int) -> None:
         barrier.wait()
         try:
-            _commit(api, "alice/env", {f"f{i}.txt": str(i).encode()}, message=f"add {i}")
+            _commit(api, f"{ns}/env", {f"f{i}.txt": str(i).encode()}, message=f"add {i}")
         except Exception as err:  # pragma: no cover - reported below
             errors.append(err)
 
@@ -384,8 +439,8 @@ def test_concurrent_commits_without_parent_all_land(hub):
     for t in threads:
         t.join()
     assert not errors
-    assert len(api.list_repo_files("alice/env")) == n + 1
-    assert len(api.list_repo_commits("alice/env")) == n + 1  # linear history, nothing lost
+    assert len(api.list_repo_files(f"{ns}/env")) == n + 1
+    assert len(api.list_repo_commits(f"{ns}/env")) == n + 1  # linear history, nothing lost
 
 
 def test_restarted_server_serves_the_same_repos(hub, tmp_path):
@@ -470,70 +525,72 @@ def _swallow(fn, *args, **kwargs):
 
 
 def test_list_repo_commits_newest_first_across_pages(small_pages):
-    api = small_pages
+    api, ns = small_pages.api, small_pages.ns
     for repo_type in REPO_TYPES:  # dataset repos behave the same
-        api.create_repo("alice/env", repo_type=repo_type)
-        shas = [_commit(api, "alice/env", {"n.txt": str(i).encode()}, repo_type, message=f"step {i}") for i in range(7)]
-        commits = api.list_repo_commits("alice/env", repo_type=repo_type)  # 8 commits, 3 per page
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
+        shas = [_commit(api, f"{ns}/env", {"n.txt": str(i).encode()}, repo_type, message=f"step {i}") for i in range(7)]
+        commits = api.list_repo_commits(f"{ns}/env", repo_type=repo_type)  # 8 commits, 3 per page
         assert [c.commit_id for c in commits[:7]] == shas[::-1]
         assert [c.title for c in commits] == [f"step {i}" for i in range(6, -1, -1)] + ["initial commit"]
         assert all(a.created_at >= b.created_at for a, b in zip(commits, commits[1:]))
         assert commits[0].authors == ["local"]
-        formatted = api.list_repo_commits("alice/env", repo_type=repo_type, formatted=True)
+        formatted = api.list_repo_commits(f"{ns}/env", repo_type=repo_type, formatted=True)
         assert formatted[0].formatted_title == "step 6"
 
 
 def test_tree_is_paged_recursive_and_expandable(small_pages):
-    api = small_pages
+    api, ns = small_pages.api, small_pages.ns
     for repo_type in REPO_TYPES:  # dataset repos behave the same
-        api.create_repo("alice/env", repo_type=repo_type)
+        api.create_repo(f"{ns}/env", repo_type=repo_type)
         files = {f"top{i}.txt": b"t" for i in range(4)} | {f"d/sub{i}.txt": b"s" for i in range(4)} | {"d/e/deep.txt": b"x"}
-        first = _commit(api, "alice/env", files, repo_type, message="many files")
-        last = _commit(api, "alice/env", {"d/e/deep.txt": b"changed"}, repo_type, message="touch deep")
+        first = _commit(api, f"{ns}/env", files, repo_type, message="many files")
+        last = _commit(api, f"{ns}/env", {"d/e/deep.txt": b"changed"}, repo_type, message="touch deep")
 
-        everything = list(api.list_repo_tree("alice/env", recursive=True, repo_type=repo_type))
+        everything = list(api.list_repo_tree(f"{ns}/env", recursive=True, repo_type=repo_type))
         assert sorted(e.path for e in everything) == sorted([".gitattributes", *files, "d", "d/e"])
-        assert sorted(api.list_repo_files("alice/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
-        top = {e.path: type(e).__name__ for e in api.list_repo_tree("alice/env", repo_type=repo_type)}
+        assert sorted(api.list_repo_files(f"{ns}/env", repo_type=repo_type)) == sorted([".gitattributes", *files])
+        top = {e.path: type(e).__name__ for e in api.list_repo_tree(f"{ns}/env", repo_type=repo_type)}
         assert top == {".gitattributes": "RepoFile", "d": "RepoFolder", **{f"top{i}.txt": "RepoFile" for i in range(4)}}
-        assert {e.path for e in api.list_repo_tree("alice/env", "d", repo_type=repo_type)} == {
+        assert {e.path for e in api.list_repo_tree(f"{ns}/env", "d", repo_type=repo_type)} == {
             "d/e", *(f"d/sub{i}.txt" for i in range(4))
         }
-        api.create_branch("alice/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
-        in_d = {e.path for e in api.list_repo_tree("alice/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
+        api.create_branch(f"{ns}/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
+        in_d = {e.path for e in api.list_repo_tree(f"{ns}/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
         assert in_d == {"d/e", "d/e/deep.txt", *(f"d/sub{i}.txt" for i in range(4))}
-        assert len(api.list_repo_commits("alice/env", revision="feature/x", repo_type=repo_type)) == 3
-        expanded = {e.path: e for e in api.list_repo_tree("alice/env", "d", expand=True, repo_type=repo_type)}
+        assert len(api.list_repo_commits(f"{ns}/env", revision="feature/x", repo_type=repo_type)) == 3
+        expanded = {e.path: e for e in api.list_repo_tree(f"{ns}/env", "d", expand=True, repo_type=repo_type)}
         assert expanded["d/sub0.txt"].last_commit.oid == first
         assert expanded["d/e"].last_commit.oid == last and expanded["d/e"].last_commit.title == "touch deep"
 
 
-def test_get_paths_info(hub):
-    api = hub.api
-    api.create_repo("alice/env")
-    sha = _commit(api, "alice/env", {"a.txt": b"abc", "d/b.txt": b"b"})
-    infos = {i.path: i for i in api.get_paths_info("alice/env", ["a.txt", "d", "missing"], expand=True)}
+def test_get_paths_info(shared):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/env")
+    sha = _commit(api, f"{ns}/env", {"a.txt": b"abc", "d/b.txt": b"b"})
+    infos = {i.path: i for i in api.get_paths_info(f"{ns}/env", ["a.txt", "d", "missing"], expand=True)}
     assert set(infos) == {"a.txt", "d"}
     assert infos["a.txt"].size == 3 and infos["a.txt"].last_commit.oid == sha
     assert len(infos["d"].tree_id) == 40
 
 
-def test_hf_file_system_ls_info_glob_and_partial_reads(hub):
-    api = hub.api
-    api.create_repo("alice/data", repo_type="dataset")
+def test_hf_file_system_ls_info_glob_and_partial_reads(shared):
+    ns = shared.ns
+    api = shared.api
+    api.create_repo(f"{ns}/data", repo_type="dataset")
     payload = bytes(i % 251 for i in range(200_000))
-    _commit(api, "alice/data", {"data/big.bin": payload, "data/x.csv": b"a,b\n", "README.md": b"---\nx: 1\n---\n"}, "dataset")
+    _commit(api, f"{ns}/data", {"data/big.bin": payload, "data/x.csv": b"a,b\n", "README.md": b"---\nx: 1\n---\n"}, "dataset")
     fs = HfFileSystem()
-    assert set(fs.ls("datasets/alice/data/data", detail=False)) == {"datasets/alice/data/data/big.bin", "datasets/alice/data/data/x.csv"}
-    assert fs.info("datasets/alice/data/data/big.bin")["size"] == len(payload)
-    assert fs.glob("datasets/alice/data/**/*.csv") == ["datasets/alice/data/data/x.csv"]
+    assert set(fs.ls(f"datasets/{ns}/data/data", detail=False)) == {f"datasets/{ns}/data/data/big.bin", f"datasets/{ns}/data/data/x.csv"}
+    assert fs.info(f"datasets/{ns}/data/data/big.bin")["size"] == len(payload)
+    assert fs.glob(f"datasets/{ns}/data/**/*.csv") == [f"datasets/{ns}/data/data/x.csv"]
     # small blocks: each read below is a Range request; a server ignoring Range would return wrong bytes
-    with fs.open("datasets/alice/data/data/big.bin", block_size=1024) as f:
+    with fs.open(f"datasets/{ns}/data/data/big.bin", block_size=1024) as f:
         f.seek(123_456)
         assert f.read(100) == payload[123_456:123_556]
         f.seek(-10, 2)
         assert f.read() == payload[-10:]
-    assert fs.cat_file("datasets/alice/data/data/big.bin", start=10, end=20) == payload[10:20]
+    assert fs.cat_file(f"datasets/{ns}/data/data/big.bin", start=10, end=20) == payload[10:20]
 
 
 # --- access control -----------------------------------------------------------------------------
