@@ -64,3 +64,9 @@ def hub_with_token(tmp_path: Path) -> Iterator[Hub]:
 
 
 # --- other fixtures below ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def hub_module(tmp_path_factory) -> Iterator[Hub]:
+    """Like ``hub``, but one server for a whole test module (give each test its own repo names)."""
+    yield from _start_hub(tmp_path_factory.mktemp("hub-module"), token=None)

@@ -59,6 +59,7 @@ from starlette.requests import Request
 from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
+from hub_envs.server.faults import install_faults
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     REPO_TYPES,
@@ -916,4 +917,5 @@ def create_app(
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
     app = Starlette(routes=[Route("/{path:path}", hub.endpoint, methods=methods)])
     app.state.hub = hub
+    install_faults(app)  # no-op unless HUB_ENVS_SERVER_FAULTS is set (tests only; see faults.py)
     return app
