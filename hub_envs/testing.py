@@ -33,6 +33,7 @@ import sys
 import tempfile
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 import weakref
 from pathlib import Path
@@ -150,8 +151,9 @@ class HubServer:
         )
 
     def _answers(self) -> bool:
+        opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))  # loopback: never via a proxy
         try:
-            with urllib.request.urlopen(f"{self.endpoint}/api/whoami-v2", timeout=2):
+            with opener.open(f"{self.endpoint}/api/whoami-v2", timeout=2):
                 return True
         except urllib.error.HTTPError:
             return True  # 401 from a server with a token: it answers
@@ -235,10 +237,11 @@ def hub_environment(
 
     Sets ``HF_ENDPOINT``, ``HF_HOME``, ``HF_HUB_CACHE``, ``HF_ASSETS_CACHE``, ``HF_XET_CACHE``,
     ``HF_TOKEN`` (or removes it when ``token`` is None, so no stored token leaks in),
-    ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME`` and
-    ``HF_DATASETS_CACHE``; patches what ``huggingface_hub.constants`` (and the modules that copied
-    from it), ``lerobot.utils.constants`` and ``datasets.config`` computed at import time; resets
-    the client's HTTP sessions and the ``HfFileSystem`` instance cache. Everything is restored on exit.
+    ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
+    ``HF_DATASETS_CACHE`` and, for a loopback endpoint, ``NO_PROXY``; patches what
+    ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants``
+    and ``datasets.config`` computed at import time; resets the client's HTTP sessions and the
+    ``HfFileSystem`` instance cache. Everything is restored on exit.
 
     Not thread-safe: it mutates process-wide state.
     """
@@ -265,6 +268,11 @@ def hub_environment(
         "HF_LEROBOT_HOME": str(home / "lerobot"),
         "HF_DATASETS_CACHE": str(home / "datasets"),
     }
+    host = urllib.parse.urlsplit(endpoint).hostname or ""
+    if host in ("127.0.0.1", "localhost", "::1"):  # a proxy (HTTP_PROXY) must not see loopback traffic
+        for var in ("NO_PROXY", "no_proxy"):
+            current = [h for h in os.environ.get(var, "").split(",") if h]
+            env[var] = ",".join(current + [h for h in (host, "localhost", "127.0.0.1") if h not in current])
     saved_env = {k: os.environ.get(k, _UNSET) for k in env}
     patches: list[tuple[object, str, object]] = []  # (module, attribute, old value)
 
