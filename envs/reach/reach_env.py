@@ -19,9 +19,10 @@ in front of it at every reset. Physics at 240 Hz, control at ``fps`` (20 by defa
   until it is at least 0.15 m from the start end effector.
 * **End effector** the origin of the last link's frame (``lbr_iiwa_link_7``).
 * **Reward** ``-distance(end effector, target)`` in metres, every step (dense).
-* **Success** ``info["is_success"]`` is True when that distance is below 0.05 m; the episode then
-  **terminates**. No truncation by the env; the time limit (``episode_length``, 100 steps = 5 s at
-  20 fps) is added by hub-envs.
+* **Success** ``info["is_success"]`` is True when the end effector is within 0.05 m of the
+  target's centre; the episode then terminates.
+* **Termination** on success. No truncation by the env; the time limit (``episode_length``,
+  100 steps = 5 s at 20 fps) is added by hub-envs.
 * **Start** joints at the home pose ``(0, 0.5, 0, -1.5, 0, 1.1, 0)`` rad plus ``U(-0.1, 0.1)`` each,
   at rest; the end effector starts around ``(0.57, 0, 0.48)`` m.
 * **Rendering** ``render()`` returns the camera image (the same picture as ``pixels``, pybullet's
