@@ -156,9 +156,20 @@ class LoadedEnv:
             raise InvalidRepoFormatError(f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env).")
         return LeRobotDataset(self.repo_id, root=self.dataset_root, **kwargs)
 
+    def processors(self, cfg=None):
+        """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares.
+
+        Empty pipelines when it declares none. See :mod:`hub_envs.processors`.
+        """
+        from hub_envs.processors import pipelines_for
+
+        return pipelines_for(self, cfg)
+
     def unregister(self) -> None:
         """Remove this env's gym id and draccus choice (the imported modules stay cached)."""
         registration.unregister(self._registration)
+        if _LOADED.get(self.env_type) is self:
+            del _LOADED[self.env_type]
 
     def __repr__(self) -> str:
         return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r})"
@@ -180,6 +191,7 @@ def _local_manifest(folder: EnvFolder) -> Manifest:
         gym_id=f"local/{slug}",
         env_type=f"local/{slug}",
         requirements=folder.requirements,
+        processors=folder.processors,
         files=files,
         content_digest=content_digest(files),
     )
@@ -337,12 +349,26 @@ def load_env(
                 t = time.perf_counter()
                 _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps)
                 timings["checks"] = time.perf_counter() - t
+            if manifest.processors:
+                from hub_envs.processors import validate_for
+
+                validate_for(loaded, dry=check)  # ProcessorError names the malformed field
     except BaseException:
         forget_env_folder(key)
         raise
     timings["total"] = time.perf_counter() - t0
     report.timings = timings
+    _LOADED[loaded.env_type] = loaded
     return loaded
+
+
+#: The envs load_env returned in this process, by draccus choice name (for integrations such as the LeRobot bridge).
+_LOADED: dict[str, LoadedEnv] = {}
+
+
+def loaded_env_for_type(env_type: str) -> LoadedEnv | None:
+    """The :class:`LoadedEnv` whose draccus choice is ``env_type``, if load_env registered it in this process."""
+    return _LOADED.get(env_type)
 
 
 def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int) -> None:

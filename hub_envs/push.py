@@ -227,7 +227,7 @@ def build_repo(
             "seeds": {"dataset": seeds, "check": seed, "fingerprint": fp["seeds"]},
             "versions": package_versions(loaded.manifest.requirements),
             "benchmarks": [_random_benchmark(returns, successes, seeds)],
-            "processors": [],
+            "processors": list(loaded.manifest.processors),
         }
         files = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE)))
         manifest_dict["content_digest"] = content_digest(files)

@@ -283,6 +283,8 @@ class EnvFolder:
     env_entry_point: str
     config_entry_point: str
     files: tuple[str, ...]
+    #: ``[tool.hub-envs] processors`` (tables; validated by load_env, see hub_envs.processors)
+    processors: tuple[dict[str, Any], ...] = ()
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
@@ -320,6 +322,12 @@ class EnvFolder:
                 Requirement(dep)
             except InvalidRequirement as e:
                 raise EnvFolderError(f"{project_path}: dependency {dep!r} is not a valid requirement ({e}).") from None
+        processors = tool.get("processors", [])
+        if not isinstance(processors, list) or not all(isinstance(p, dict) for p in processors):
+            raise EnvFolderError(
+                f"{project_path}: [tool.hub-envs] processors must be a list of tables, e.g.\n"
+                f'  [[tool.hub-envs.processors]]\n  name = "clip"\n  entry_point = "clip_action"\n  stage = "post"'
+            )
         files = list_files(root)
         clash = sorted({f.split("/")[0] for f in files} & set(GENERATED))
         if clash:
@@ -337,4 +345,5 @@ class EnvFolder:
             env_entry_point=tool["env"],
             config_entry_point=tool["config"],
             files=tuple(files),
+            processors=tuple(processors),
         )

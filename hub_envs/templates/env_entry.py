@@ -4,24 +4,34 @@
     envs = make_env("{repo_id}@<sha>", n_envs=2, trust_remote_code=True)
 
 LeRobot downloads this file alone. It finds the repo id and commit it came from in its own cache
-path (.../models--user--name/snapshots/<sha>/env.py), fetches the rest of that same snapshot,
-imports the env's code as a package unique to repo+sha, and builds vector envs from the config.
+path (.../models--user--name/snapshots/<sha>/env.py), fetches the rest of that same commit (the
+env's code and assets; not the dataset), checks every file against the manifest's sha256, imports
+the env's code as a package unique to repo+sha, and builds vector envs the way LeRobot's own
+``make_env`` does (``AutoresetMode.SAME_STEP``, so ``info["final_info"]["is_success"]`` reaches
+LeRobot's eval loop, and a ``TimeLimit`` of the config's ``episode_length``). Each env exposes the
+config's ``task`` as ``task`` / ``task_description``, which LeRobot's ``add_envs_task`` reads.
 Needs only huggingface_hub and gymnasium (both come with lerobot); hub-envs is not required.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import json
+import os
 import re
 import sys
 from pathlib import Path
 
 import gymnasium as gym
 
-_HERE = Path(__file__).resolve().parent
+# Not Path.resolve(): in a huggingface_hub cache the snapshot's files are symlinks into blobs/.
+_HERE = Path(os.path.abspath(__file__)).parent
 _MANIFEST = "hub_env.json"
+_ROOT_PACKAGE = "hub_envs_code"
+#: What making an env does not need: fetched only by load_env / open_dataset.
+_NOT_NEEDED = ("dataset/", "media/", "README.md")
 
 
 def _snapshot_origin(folder: Path):
@@ -35,12 +45,16 @@ def _snapshot_origin(folder: Path):
     return name.replace("--", "/"), sha, repo_dir.parent
 
 
+def _needed(files: dict) -> dict:
+    return {p: h for p, h in files.items() if not p.startswith(_NOT_NEEDED)}
+
+
 def _complete(folder: Path) -> bool:
     manifest = folder / _MANIFEST
     if not manifest.is_file():
         return False
     files = json.loads(manifest.read_text(encoding="utf-8")).get("files", {})
-    return all((folder / p).is_file() for p in files)
+    return all((folder / p).is_file() for p in _needed(files))
 
 
 def _ensure_snapshot() -> dict:
@@ -51,19 +65,35 @@ def _ensure_snapshot() -> dict:
         from huggingface_hub import snapshot_download
 
         repo_id, sha, cache_dir = origin
-        snapshot_download(repo_id, revision=sha, cache_dir=cache_dir)  # same commit, same cache folder
-    return json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
+        # the same commit into the same cache folder; HF_ENDPOINT / HF_TOKEN apply as usual
+        snapshot_download(repo_id, revision=sha, cache_dir=cache_dir,
+                          ignore_patterns=[p + "*" if p.endswith("/") else p for p in _NOT_NEEDED])
+    manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
+    bad = []
+    for rel, expected in sorted(_needed(manifest.get("files", {})).items()):
+        digest = hashlib.sha256((_HERE / rel).read_bytes()).hexdigest()
+        if digest != expected:
+            bad.append(rel)
+    if bad:
+        raise RuntimeError(f"{_HERE}: {', '.join(bad)} differ from the sha256 in {_MANIFEST}; not importing. "
+                           f"Delete this snapshot from the cache and download it again, or ask the repo's author.")
+    return manifest
 
 
-def _import_package(manifest: dict):
+def _module_key(*parts: str) -> str:
+    """The package name hub-envs' load_env uses for the same repo+sha (so both share one import)."""
+    key = re.sub(r"\W", "_", "__".join(parts))
+    return key if not key[0].isdigit() else f"_{key}"
+
+
+def _import_package(manifest: dict) -> str:
     origin = _snapshot_origin(_HERE)
-    ident = f"{origin[0]}__{origin[1]}" if origin else f"{manifest['name']}__{manifest['content_digest'][:12]}"
-    key = re.sub(r"\W", "_", ident)
-    name = f"hub_envs_code.{key}"
-    if "hub_envs_code" not in sys.modules:
-        root = importlib.util.module_from_spec(importlib.util.spec_from_loader("hub_envs_code", loader=None, is_package=True))
+    key = _module_key(origin[0], origin[1]) if origin else _module_key(manifest["name"], manifest["content_digest"][:12])
+    name = f"{_ROOT_PACKAGE}.{key}"
+    if _ROOT_PACKAGE not in sys.modules:
+        root = importlib.util.module_from_spec(importlib.util.spec_from_loader(_ROOT_PACKAGE, loader=None, is_package=True))
         root.__path__ = []
-        sys.modules["hub_envs_code"] = root
+        sys.modules[_ROOT_PACKAGE] = root
     if name not in sys.modules:
         pkg = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader=None, is_package=True))
         pkg.__path__ = [str(_HERE)]
@@ -86,13 +116,34 @@ def load_classes():
     return _resolve(package, manifest["env_entry_point"]), _resolve(package, manifest["config_entry_point"])
 
 
+class TaskDescription(gym.Wrapper):
+    """Exposes the config's ``task`` string to LeRobot's eval loop (``add_envs_task``)."""
+
+    def __init__(self, env: gym.Env, task: str):
+        super().__init__(env)
+        self.task = task
+        self.task_description = task
+
+
 def make_env(n_envs: int = 1, use_async_envs: bool = False, cfg=None):
-    """LeRobot EnvHub's entry point: a gymnasium VectorEnv of ``n_envs`` copies of this env."""
+    """LeRobot EnvHub's entry point: ``{name: {0: VectorEnv}}`` of ``n_envs`` copies of this env.
+
+    ``cfg``, when it is an instance of this repo's config class, overrides the published defaults;
+    anything else (LeRobot passes its own ``HubEnvConfig``) means the defaults.
+    """
     env_class, config_class = load_classes()
     cfg = cfg if isinstance(cfg, config_class) else config_class()
+    task = cfg.task if isinstance(cfg.task, str) else None
 
     def _one():
-        return gym.wrappers.TimeLimit(env_class(**cfg.gym_kwargs), max_episode_steps=cfg.episode_length)
+        env = gym.wrappers.TimeLimit(env_class(**cfg.gym_kwargs), max_episode_steps=int(cfg.episode_length))
+        return TaskDescription(env, task) if task is not None else env
 
     fns = [_one for _ in range(n_envs)]
-    return gym.vector.AsyncVectorEnv(fns, context="fork") if use_async_envs else gym.vector.SyncVectorEnv(fns)
+    mode = gym.vector.AutoresetMode.SAME_STEP
+    if use_async_envs:
+        vec = gym.vector.AsyncVectorEnv(fns, context="fork", autoreset_mode=mode)
+    else:
+        vec = gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
+    manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
+    return {manifest.get("name") or "hub_env": {0: vec}}

@@ -1,0 +1,395 @@
+"""Env processors: steps an env repo ships to run between the env and the policy in LeRobot's eval loop.
+
+LeRobot's eval loop (``lerobot.scripts.lerobot_eval.rollout``) runs, every step::
+
+    env obs -> preprocess_observation -> add_envs_task -> env_preprocessor -> policy preprocessor
+            -> policy -> policy postprocessor -> env_postprocessor -> env.step(action)
+
+An env repo can fill ``env_preprocessor`` (stage ``"pre"``: observation batches, tensors keyed like
+``observation.state``) and ``env_postprocessor`` (stage ``"post"``: the action tensor, ``(batch, action_dim)``)
+with LeRobot ``ProcessorStep`` s. The author declares them in the env folder's ``pyproject.toml``::
+
+    [[tool.hub-envs.processors]]
+    name = "clip"                 # a label, unique in the repo
+    entry_point = "clip_action"   # see below; defaults to `name`
+    stage = "post"                # "pre" or "post"
+    kwargs = {}                   # keyword arguments of the step (JSON values)
+
+``entry_point`` is one of
+
+* a hub-envs built-in: ``clip_action`` (clamp actions to the env's action space, or to ``low``/``high``),
+  ``flatten_state`` (concatenate observation keys, nested dicts included, into ``observation.state``);
+* a name in LeRobot's ``ProcessorStepRegistry`` (e.g. ``image_crop_resize_processor`` with
+  ``kwargs = {resize_size = [64, 64]}``);
+* ``"module:Class"`` in the env's own code (a ``ProcessorStep`` subclass; it runs under the same trust
+  decision as the env).
+
+push_env copies the list into the manifest (``processors``); load_env validates it (a malformed
+declaration is a :class:`~hub_envs.errors.ProcessorError` naming the field), builds every step, and
+with ``check=True`` runs them once on a live observation and a sampled action.
+``LoadedEnv.processors()`` returns fresh ``(pre, post)`` pipelines; ``hub-envs eval`` hands them to
+LeRobot's eval loop.
+
+Example:
+    >>> from hub_envs.processors import parse_declarations
+    >>> [s.stage for s in parse_declarations([{"name": "clip_action", "stage": "post"}], where="hub_env.json")]
+    ['post']
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from lerobot.configs.types import FeatureType, PipelineFeatureType, PolicyFeature
+from lerobot.processor import PolicyProcessorPipeline, ProcessorStep
+from lerobot.processor.pipeline import (
+    ActionProcessorStep,
+    ObservationProcessorStep,
+    PolicyActionProcessorStep,
+    ProcessorStepRegistry,
+)
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from hub_envs.errors import HubEnvsError, ProcessorError
+
+STAGES = ("pre", "post")
+FIELDS = ("name", "entry_point", "kwargs", "stage")
+_ENTRY_RE = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$")
+
+
+# --- built-in steps ---------------------------------------------------------------------------
+
+
+def _register(name: str):
+    """Register with LeRobot's ProcessorStepRegistry (so saved pipelines name the step), once per process."""
+
+    def deco(cls):
+        if ProcessorStepRegistry._registry.get(name) is None:
+            ProcessorStepRegistry.register(name)(cls)
+        else:
+            cls._registry_name = name
+        return cls
+
+    return deco
+
+
+@_register("hub_envs/clip_action")
+@dataclass
+class ClipActionProcessorStep(ActionProcessorStep):
+    """Clamp a ``(batch, action_dim)`` action tensor to ``[low, high]`` (per dimension or scalars).
+
+    Built from a manifest without ``low``/``high``, the bounds are the env's ``action_space``.
+    """
+
+    low: list[float] | float | None = None
+    high: list[float] | float | None = None
+
+    @classmethod
+    def from_spaces(cls, *, action_space=None, observation_space=None, **kwargs):
+        if ("low" not in kwargs or "high" not in kwargs) and action_space is not None:
+            if not hasattr(action_space, "low"):
+                raise TypeError(f"clip_action needs a Box action space or explicit low/high, got {action_space}")
+            kwargs.setdefault("low", np.asarray(action_space.low, dtype=np.float64).tolist())
+            kwargs.setdefault("high", np.asarray(action_space.high, dtype=np.float64).tolist())
+        return cls(**kwargs)
+
+    def __post_init__(self):
+        if self.low is None or self.high is None:
+            raise TypeError("clip_action needs low and high (or an env whose action_space gives them)")
+        low, high = np.asarray(self.low, dtype=np.float64), np.asarray(self.high, dtype=np.float64)
+        if low.shape != high.shape or np.any(low > high):
+            raise ValueError(f"clip_action: low {self.low} and high {self.high} must have one shape and low <= high")
+
+    def action(self, action):
+        if not isinstance(action, torch.Tensor):
+            raise TypeError(f"clip_action expects a torch.Tensor action, got {type(action).__name__}")
+        low = torch.as_tensor(self.low, dtype=action.dtype, device=action.device)
+        high = torch.as_tensor(self.high, dtype=action.dtype, device=action.device)
+        return torch.maximum(torch.minimum(action, high), low)
+
+    def get_config(self) -> dict[str, Any]:
+        return {"low": self.low, "high": self.high}
+
+    def transform_features(self, features):
+        return features
+
+
+def _flat(value, prefix: str) -> list[tuple[str, torch.Tensor]]:
+    if isinstance(value, dict):
+        out = []
+        for k in sorted(value):
+            out.extend(_flat(value[k], f"{prefix}/{k}"))
+        return out
+    return [(prefix, torch.as_tensor(value))]
+
+
+@_register("hub_envs/flatten_state")
+@dataclass
+class FlattenStateProcessorStep(ObservationProcessorStep):
+    """Concatenate observation entries (nested dicts flattened in sorted key order) into one state vector.
+
+    ``keys`` are observation keys, optionally with ``/`` paths into nested dicts
+    (``observation.robot_state/eef/pos``); each value is flattened to ``(batch, -1)`` float32, in the
+    order given. The result goes to ``output`` (``observation.state``); the sources are removed
+    unless ``keep``.
+    """
+
+    keys: list[str] = field(default_factory=list)
+    output: str = OBS_STATE
+    keep: bool = False
+
+    def __post_init__(self):
+        if not self.keys or not all(isinstance(k, str) and k for k in self.keys):
+            raise TypeError("flatten_state needs keys = [...] (observation keys, '/' for nested entries)")
+
+    @staticmethod
+    def _get(observation: dict, key: str):
+        top, *path = key.split("/")
+        value = observation[top]
+        for part in path:
+            value = value[part]
+        return value
+
+    def observation(self, observation):
+        parts = []
+        for key in self.keys:
+            try:
+                value = self._get(observation, key)
+            except (KeyError, TypeError):
+                raise KeyError(f"flatten_state: the observation has no {key!r} (it has {sorted(observation)})") from None
+            for _, tensor in _flat(value, key):
+                tensor = tensor.float()
+                if tensor.dim() <= 1:
+                    tensor = tensor.reshape(1, -1)
+                parts.append(tensor.reshape(tensor.shape[0], -1))
+        out = dict(observation)
+        if not self.keep:
+            for key in {k.split("/")[0] for k in self.keys}:
+                out.pop(key, None)
+        out[self.output] = torch.cat(parts, dim=-1)
+        return out
+
+    def get_config(self) -> dict[str, Any]:
+        return {"keys": list(self.keys), "output": self.output, "keep": self.keep}
+
+    def transform_features(self, features):
+        obs = dict(features.get(PipelineFeatureType.OBSERVATION, {}))
+        tops = [k.split("/")[0] for k in self.keys]
+        if all(k in obs and "/" not in k for k in self.keys):
+            size = int(sum(np.prod(obs[k].shape) for k in self.keys))
+            obs[self.output] = PolicyFeature(type=FeatureType.STATE, shape=(size,))
+        if not self.keep:
+            for k in tops:
+                if k != self.output:
+                    obs.pop(k, None)
+        return {**features, PipelineFeatureType.OBSERVATION: obs}
+
+
+BUILTINS: dict[str, type] = {
+    "clip_action": ClipActionProcessorStep,
+    "flatten_state": FlattenStateProcessorStep,
+}
+
+
+# --- declarations -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ProcessorSpec:
+    """One validated declaration."""
+
+    index: int
+    name: str
+    entry_point: str
+    stage: str
+    kwargs: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "entry_point": self.entry_point, "stage": self.stage, "kwargs": dict(self.kwargs)}
+
+
+def parse_declarations(declarations: Any, *, where: str) -> list[ProcessorSpec]:
+    """Validate the ``processors`` list (pure data; nothing is imported). ``where`` names its source.
+
+    Raises:
+        ProcessorError: naming the entry and field, e.g. ``hub_env.json processors[1].stage``.
+    """
+    if declarations is None:
+        return []
+    if not isinstance(declarations, (list, tuple)):
+        raise ProcessorError(f"{where}: 'processors' must be a list of tables, got {type(declarations).__name__}.")
+    specs: list[ProcessorSpec] = []
+    seen: set[str] = set()
+    for i, decl in enumerate(declarations):
+        at = f"{where} processors[{i}]"
+        if not isinstance(decl, dict):
+            raise ProcessorError(f"{at} must be a table like {{name = \"clip\", entry_point = \"clip_action\", stage = \"post\"}}, got {decl!r}.")
+        unknown = sorted(set(decl) - set(FIELDS))
+        if unknown:
+            raise ProcessorError(f"{at}: unknown field(s) {unknown}; a processor has {list(FIELDS)}.")
+        name = decl.get("name")
+        if not isinstance(name, str) or not name.strip():
+            raise ProcessorError(f"{at}.name is missing or not a non-empty string; give every processor a label, e.g. name = \"clip\".")
+        if name in seen:
+            raise ProcessorError(f"{at}.name {name!r} is used twice; processor names must be unique.")
+        seen.add(name)
+        entry = decl.get("entry_point", name)
+        if not isinstance(entry, str) or not entry:
+            raise ProcessorError(f"{at}.entry_point must be a string: a built-in ({', '.join(BUILTINS)}), a LeRobot processor name, or \"module:Class\".")
+        if ":" in entry and not _ENTRY_RE.match(entry):
+            raise ProcessorError(f"{at}.entry_point {entry!r} is not of the form \"module:Class\".")
+        if "stage" not in decl:
+            raise ProcessorError(f"{at}.stage is missing: \"pre\" (observation -> policy) or \"post\" (policy action -> env).")
+        stage = decl["stage"]
+        if stage not in STAGES:
+            raise ProcessorError(f"{at}.stage = {stage!r} must be \"pre\" (observation -> policy) or \"post\" (policy action -> env).")
+        kwargs = decl.get("kwargs", {})
+        if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
+            raise ProcessorError(f"{at}.kwargs must be a table of keyword arguments, got {kwargs!r}.")
+        try:
+            json.dumps(kwargs, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise ProcessorError(f"{at}.kwargs must hold JSON values (numbers, strings, booleans, lists, tables): {e}.") from None
+        specs.append(ProcessorSpec(index=i, name=name, entry_point=entry, stage=stage, kwargs=dict(kwargs)))
+    return specs
+
+
+# --- building ---------------------------------------------------------------------------------
+
+
+def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
+    entry = spec.entry_point
+    if ":" in entry:
+        if package is None:
+            raise ProcessorError(f"{at}.entry_point {entry!r} names env code, but no env code is loaded.")
+        from hub_envs.importing import resolve_entry_point
+
+        try:
+            return resolve_entry_point(sys.modules[package], entry, where=f"{at}.entry_point")
+        except HubEnvsError as e:
+            raise ProcessorError(str(e)) from e
+    if entry in BUILTINS:
+        return BUILTINS[entry]
+    if entry in ProcessorStepRegistry._registry:
+        return ProcessorStepRegistry.get(entry)
+    raise ProcessorError(
+        f"{at}.entry_point {entry!r} is not a built-in ({', '.join(BUILTINS)}), a LeRobot processor step "
+        f"(lerobot.processor.ProcessorStepRegistry) or \"module:Class\" in the env's code."
+    )
+
+
+def build_step(spec: ProcessorSpec, *, package: str | None = None, spaces: dict | None = None, where: str = "hub_env.json") -> ProcessorStep:
+    """Instantiate one declared step (``spaces``: the env's ``action_space`` / ``observation_space``)."""
+    at = f"{where} processors[{spec.index}]"
+    cls = _step_class(spec, package=package, at=at)
+    if not (isinstance(cls, type) and issubclass(cls, ProcessorStep)):
+        raise ProcessorError(f"{at}.entry_point {spec.entry_point!r} is {cls!r}, not a lerobot.processor.ProcessorStep subclass.")
+    if spec.stage == "post" and issubclass(cls, ObservationProcessorStep):
+        raise ProcessorError(f"{at}.stage is \"post\" but {cls.__name__} processes observations; use stage = \"pre\".")
+    if spec.stage == "pre" and issubclass(cls, (ActionProcessorStep, PolicyActionProcessorStep)):
+        raise ProcessorError(f"{at}.stage is \"pre\" but {cls.__name__} processes actions; use stage = \"post\".")
+    try:
+        if hasattr(cls, "from_spaces"):
+            return cls.from_spaces(**(spaces or {}), **spec.kwargs)
+        return cls(**spec.kwargs)
+    except (TypeError, ValueError) as e:
+        raise ProcessorError(f"{at}.kwargs {spec.kwargs} do not fit {cls.__name__}: {e}") from e
+    except Exception as e:
+        raise ProcessorError(f"{at}: building {cls.__name__}({spec.kwargs}) raised {type(e).__name__}: {e}") from e
+
+
+def build_pipelines(specs: list[ProcessorSpec], **kwargs) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
+    """``(env_preprocessor, env_postprocessor)`` made of the declared steps, in declaration order."""
+    pre = [build_step(s, **kwargs) for s in specs if s.stage == "pre"]
+    post = [build_step(s, **kwargs) for s in specs if s.stage == "post"]
+    return (PolicyProcessorPipeline(steps=pre, name="hub_envs_env_preprocessor"),
+            PolicyProcessorPipeline(steps=post, name="hub_envs_env_postprocessor"))
+
+
+def policy_observation(env_observation: dict, task: str | None = "") -> dict:
+    """What LeRobot's eval loop gives the env preprocessor for one (unbatched) env observation."""
+    from lerobot.envs.utils import preprocess_observation
+
+    batched = {k: (np.asarray(v)[None] if not isinstance(v, dict) else v) for k, v in env_observation.items()}
+    obs = preprocess_observation(batched)
+    obs["task"] = [task or ""]
+    return obs
+
+
+def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: PolicyProcessorPipeline, env, *, seed: int = 0,
+            task: str | None = "", where: str = "hub_env.json") -> None:
+    """Run every step once on a live observation and a sampled action; a failure names the step."""
+    obs, _ = env.reset(seed=seed)
+    transition = pre.to_transition(policy_observation(obs, task))
+    for spec, step in zip([s for s in specs if s.stage == "pre"], pre.steps):
+        try:
+            transition = step(transition)
+        except Exception as e:
+            raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage pre) failed on a live observation: "
+                                 f"{type(e).__name__}: {e}") from e
+    env.action_space.seed(seed)
+    action = torch.as_tensor(np.asarray(env.action_space.sample(), dtype=np.float32)).reshape(1, -1)
+    transition = post.to_transition({ACTION: action})
+    for spec, step in zip([s for s in specs if s.stage == "post"], post.steps):
+        try:
+            transition = step(transition)
+        except Exception as e:
+            raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage post) failed on a sampled action: "
+                                 f"{type(e).__name__}: {e}") from e
+    out = post.to_output(transition)[ACTION]
+    if not isinstance(out, torch.Tensor) or tuple(out.shape) != tuple(action.shape):
+        raise ProcessorError(f"{where}: the post processors turned a {tuple(action.shape)} action into {out!r}; "
+                             f"they must return a tensor of the same shape.")
+
+
+# --- with a loaded env ------------------------------------------------------------------------
+
+
+def _source(loaded) -> str:
+    if loaded.local_folder is not None and not (loaded.path / "hub_env.json").is_file():
+        return f"{loaded.local_folder / 'pyproject.toml'} [tool.hub-envs]"
+    return f"{loaded.repo_id}@{loaded.revision}: hub_env.json"
+
+
+def _package(loaded) -> str:
+    return ".".join(loaded.env_class.__module__.split(".")[:2])
+
+
+def specs_for(loaded) -> list[ProcessorSpec]:
+    return parse_declarations(list(loaded.manifest.processors), where=_source(loaded))
+
+
+def pipelines_for(loaded, cfg=None) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
+    """Fresh ``(pre, post)`` pipelines for a LoadedEnv (``cfg``: a config instance, default the published one)."""
+    specs = specs_for(loaded)
+    spaces: dict = {}
+    if specs:
+        cfg = cfg if cfg is not None else loaded.config
+        env = loaded.env_class(**cfg.gym_kwargs)
+        try:
+            spaces = {"action_space": env.action_space, "observation_space": env.observation_space}
+        finally:
+            env.close()
+    return build_pipelines(specs, package=_package(loaded), spaces=spaces, where=_source(loaded))
+
+
+def validate_for(loaded, *, dry: bool = True) -> list[ProcessorSpec]:
+    """What load_env runs: parse, build, and (``dry``) run every declared step once. Raises ProcessorError."""
+    specs = specs_for(loaded)
+    if not specs:
+        return specs
+    pre, post = pipelines_for(loaded)
+    if dry:
+        env = loaded.make()
+        try:
+            dry_run(specs, pre, post, env, seed=int(loaded.manifest.seeds.get("check", 0)),
+                    task=loaded.config.task if isinstance(loaded.config.task, str) else "", where=_source(loaded))
+        finally:
+            env.close()
+    return specs
