@@ -1,0 +1,283 @@
+"""Re-run a repo's declared benchmark results and compare each metric with what was published.
+
+One concept: a *benchmark* in the manifest (``hub_env.json`` ``benchmarks``) declares a policy, the
+reset seeds of its episodes, per-episode results and metrics, and a tolerance per metric::
+
+    {"name": "random-policy",
+     "policy": {"type": "random"},                                 # or {"type": "lerobot", "checkpoint": "user/policy@<sha>"}
+     "episodes": 10, "seeds": [0, 1, ...],
+     "metrics": {"mean_return": -1234.5, "success_rate": 0.1},
+     "per_episode": {"return": [...], "success": [...]},
+     "tolerance": {"mean_return": 1e-6, "success_rate": 0.0}}
+
+:func:`reproduce_benchmark` runs the same episodes again (the rollout engine: same seeds, same
+``max_steps``, any number of worker processes, identical results) and reports, per metric, the
+published value, the reproduced value, a seeded bootstrap confidence interval of the reproduced
+value over episodes, and pass/fail: ``|reproduced - published| <= tolerance`` (a metric without a
+declared tolerance passes when the published value lies inside the interval).
+
+Policies:
+
+* ``random``: ``env.action_space.sample()`` with the action space seeded by each episode's reset
+  seed (what push_env ran and recorded as the repo's first benchmark);
+* ``lerobot`` (alias ``checkpoint``): a LeRobot pretrained policy, ``"checkpoint": "user/policy@<40-hex sha>"``
+  (pinned; a branch is refused), loaded with ``PreTrainedPolicy.from_pretrained`` and its saved
+  pre/post-processors. Observations are renamed with the env config's ``features_map``; the
+  policy is reset and torch is seeded (0) at the start of every episode, so results do not depend
+  on which worker ran which episode.
+
+Example:
+    >>> from hub_envs.benchmark import bootstrap_ci
+    >>> bootstrap_ci([1.0, 2.0, 3.0, 4.0], resamples=1000, seed=0)
+    (1.5, 3.5)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hub_envs.errors import ReproductionError
+from hub_envs.rollout import iter_episodes
+
+__all__ = ["MetricResult", "BenchmarkResult", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
+
+#: metric name -> (per-episode key in ``per_episode``, how to get it from a rollout)
+METRICS: dict[str, tuple[str, Callable[[Any], float]]] = {
+    "mean_return": ("return", lambda r: r.episode_return),
+    "success_rate": ("success", lambda r: float(r.success)),
+}
+
+
+def bootstrap_ci(values: Sequence[float], *, resamples: int = 1000, confidence: float = 0.95, seed: int = 0,
+                 statistic: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of the mean (or ``statistic`` over axis 1), seeded."""
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        return (float("nan"), float("nan"))
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, x.size, size=(int(resamples), x.size))
+    samples = x[idx]
+    stats = statistic(samples) if statistic is not None else samples.mean(axis=1)
+    alpha = (1.0 - confidence) / 2.0
+    lo, hi = np.quantile(stats, [alpha, 1.0 - alpha])
+    return (float(lo), float(hi))
+
+
+@dataclass
+class MetricResult:
+    name: str
+    published: float
+    reproduced: float
+    ci_low: float
+    ci_high: float
+    tolerance: float | None
+    passed: bool
+
+    @property
+    def difference(self) -> float:
+        return self.reproduced - self.published
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["difference"] = self.difference
+        return d
+
+
+@dataclass
+class BenchmarkResult:
+    name: str
+    policy: dict[str, Any]
+    seeds: list[int]
+    metrics: list[MetricResult] = field(default_factory=list)
+    published_per_episode: dict[str, list] = field(default_factory=dict)
+    reproduced_per_episode: dict[str, list] = field(default_factory=dict)
+    confidence: float = 0.95
+    resamples: int = 1000
+    seconds: float = 0.0
+    error: str | None = None  # set when the benchmark could not be run (e.g. an unsupported policy)
+
+    @property
+    def passed(self) -> bool:
+        return self.error is None and all(m.passed for m in self.metrics)
+
+    @property
+    def episodes_differing(self) -> list[int]:
+        """Episodes whose published and reproduced per-episode values differ (any metric)."""
+        out = set()
+        for key, pub in self.published_per_episode.items():
+            rep = self.reproduced_per_episode.get(key, [])
+            out |= {i for i, (a, b) in enumerate(zip(pub, rep)) if a != b}
+        return sorted(out)
+
+    def summary(self) -> str:
+        if self.error:
+            return f"benchmark {self.name}: not reproduced: {self.error}"
+        parts = [f"{m.name} {m.published:.6g} -> {m.reproduced:.6g} [{m.ci_low:.6g}, {m.ci_high:.6g}] "
+                 f"{'PASS' if m.passed else 'FAIL'}" for m in self.metrics]
+        return f"benchmark {self.name} ({self.policy.get('type')} policy, {len(self.seeds)} episodes): " + "; ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name, "policy": self.policy, "seeds": self.seeds, "passed": self.passed, "error": self.error,
+            "confidence": self.confidence, "resamples": self.resamples, "seconds": self.seconds,
+            "metrics": [m.to_dict() for m in self.metrics],
+            "episodes_differing": self.episodes_differing,
+            "published_per_episode": self.published_per_episode,
+            "reproduced_per_episode": self.reproduced_per_episode,
+        }
+
+
+# --- policies ---------------------------------------------------------------------------------
+
+
+def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None = None) -> Callable[[Any, int], np.ndarray]:
+    """A LeRobot pretrained policy at a pinned commit, as the rollout engine's ``(obs, t) -> action``."""
+    from hub_envs import hub_io
+    from hub_envs.repo_format import is_commit_sha
+
+    ref = spec.get("checkpoint") or spec.get("repo_id")
+    if not isinstance(ref, str):
+        raise ReproductionError(f"benchmark policy {spec!r}: a checkpoint policy needs \"checkpoint\": \"user/policy@<sha>\".")
+    repo_id, revision = hub_io.parse_repo_ref(ref)
+    revision = spec.get("revision") or revision
+    if not is_commit_sha(revision):
+        raise ReproductionError(
+            f"benchmark policy {ref!r} is not pinned to a commit: a benchmark result is only reproducible against the exact "
+            f"weights. Declare it as \"{repo_id}@<40-hex sha>\"."
+        )
+    try:
+        import torch
+        from huggingface_hub import snapshot_download
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+    except ImportError as exc:  # pragma: no cover - lerobot is a dependency
+        raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
+    with hub_io.translate_hub_errors(repo_id, revision):
+        path = snapshot_download(repo_id, revision=revision, token=token)
+    try:
+        cfg = PreTrainedConfig.from_pretrained(path)
+        cfg.device = "cpu"
+        policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+        policy.eval()
+        import os
+
+        if os.path.isfile(os.path.join(path, "policy_preprocessor.json")):
+            pre, post = make_pre_post_processors(cfg, pretrained_path=path,
+                                                 preprocessor_overrides={"device_processor": {"device": "cpu"}})
+        else:
+            pre, post = make_pre_post_processors(cfg)
+    except Exception as exc:
+        raise ReproductionError(f"benchmark policy {repo_id}@{revision}: cannot load it as a LeRobot policy: {type(exc).__name__}: {exc}") from exc
+
+    features_map = dict(loaded.config.features_map)
+    visual = {k for k, f in loaded.config.features.items() if "VISUAL" in str(getattr(f.type, "value", f.type)).upper()}
+    task = str(getattr(loaded.config, "task", "") or "")
+
+    def act(obs: Any, t: int) -> np.ndarray:
+        from hub_envs.rollout import flatten_observation
+
+        if t == 0:
+            policy.reset()
+            torch.manual_seed(0)
+        batch: dict[str, Any] = {}
+        for key, value in flatten_observation(obs).items():
+            if key not in features_map:
+                continue
+            tensor = torch.from_numpy(np.ascontiguousarray(value))
+            if key in visual:  # HWC uint8 -> CHW float in [0, 1] (LeRobot's preprocess_observation)
+                if tensor.ndim == 3 and tensor.shape[-1] in (1, 3, 4):
+                    tensor = tensor.permute(2, 0, 1)
+                tensor = tensor.float() / 255.0 if tensor.dtype == torch.uint8 else tensor.float()
+            else:
+                tensor = tensor.float()
+            batch[features_map[key]] = tensor.unsqueeze(0)
+        batch["task"] = [task]
+        with torch.inference_mode():
+            action = post(policy.select_action(pre(batch)))
+        return action.detach().cpu().numpy()[0]
+
+    return act
+
+
+def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None) -> Any:
+    kind = str(spec.get("type", "")).lower()
+    if kind == "random":
+        return None
+    if kind in ("lerobot", "checkpoint", "pretrained"):
+        return _checkpoint_policy(spec, loaded, token=token)
+    raise ReproductionError(
+        f"benchmark policy type {spec.get('type')!r} is not supported; hub-envs reproduces \"random\" and "
+        f"\"lerobot\" (a LeRobot pretrained policy pinned as \"checkpoint\": \"user/policy@<sha>\")."
+    )
+
+
+# --- reproduction -----------------------------------------------------------------------------
+
+
+def reproduce_benchmark(
+    loaded: Any,
+    benchmark: dict[str, Any],
+    *,
+    workers: int = 1,
+    resamples: int = 1000,
+    confidence: float = 0.95,
+    seed: int = 0,
+    progress: bool = True,
+    token: str | None = None,
+) -> BenchmarkResult:
+    """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) and compare its metrics.
+
+    An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
+    than raising, so the other parts of a reproduction still report.
+    """
+    t0 = time.perf_counter()
+    name = str(benchmark.get("name", "benchmark"))
+    policy_spec = dict(benchmark.get("policy") or {})
+    seeds = [int(s) for s in benchmark.get("seeds", [])]
+    result = BenchmarkResult(name=name, policy=policy_spec, seeds=seeds, confidence=confidence, resamples=resamples)
+    metrics = dict(benchmark.get("metrics") or {})
+    unknown = sorted(set(metrics) - set(METRICS))
+    if not seeds:
+        result.error = "the benchmark declares no seeds"
+    elif unknown:
+        result.error = f"metric(s) {unknown} cannot be recomputed (hub-envs knows {sorted(METRICS)})"
+    if result.error:
+        result.seconds = time.perf_counter() - t0
+        return result
+    try:
+        policy = _policy_for(policy_spec, loaded, token)
+    except ReproductionError as exc:
+        result.error = str(exc)
+        result.seconds = time.perf_counter() - t0
+        return result
+    max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
+    per_episode: dict[str, list[float]] = {METRICS[m][0]: [] for m in metrics}
+    for rollout in iter_episodes(loaded.make, seeds, max_steps=max_steps, policy=policy, workers=workers,
+                                 progress=progress, desc=f"Benchmark {name}"):
+        for m in metrics:
+            key, get = METRICS[m]
+            per_episode[key].append(get(rollout))
+    published = dict(benchmark.get("per_episode") or {})
+    tolerance = dict(benchmark.get("tolerance") or {})
+    for m, value in metrics.items():
+        key = METRICS[m][0]
+        values = np.asarray(per_episode[key], dtype=np.float64)
+        reproduced = float(np.mean(values))
+        lo, hi = bootstrap_ci(values, resamples=resamples, confidence=confidence, seed=seed)
+        tol = tolerance.get(m)
+        if tol is None:
+            passed = lo <= float(value) <= hi
+        else:
+            passed = abs(reproduced - float(value)) <= float(tol)
+        result.metrics.append(MetricResult(m, float(value), reproduced, lo, hi, None if tol is None else float(tol), bool(passed)))
+    for key, values in per_episode.items():
+        result.reproduced_per_episode[key] = [bool(v) for v in values] if key == "success" else [float(v) for v in values]
+        if key in published:
+            result.published_per_episode[key] = list(published[key])
+    result.seconds = time.perf_counter() - t0
+    return result

@@ -1,0 +1,201 @@
+"""Rebuild exactly the env a dataset came from (robomimic's ``create_env_from_metadata``).
+
+Every dataset push_env writes carries ``env_meta`` in ``meta/info.json`` (under ``hub_envs``): the
+env repo id, the digest of the env's code, its entry points, ``env_kwargs`` and config values. The
+dataset is part of the commit it describes, so it cannot name that commit's sha; the code digest
+identifies the code instead. :func:`env_from_dataset` finds the commit:
+
+* the bundled dataset of an env repo snapshot (``<snapshot>/dataset``, or the env repo id itself):
+  the snapshot's own commit;
+* a recorded ``env_sha`` in ``env_meta`` (a dataset re-exported after publishing), or an explicit
+  ``env_revision``;
+* otherwise (a dataset repo id, or a standalone copy of the folder): the env repo's history is
+  walked, newest first, for a commit whose code has that digest, preferring the one whose bundled
+  dataset has this very fingerprint.
+
+It then loads that commit with :func:`hub_envs.load_env` (integrity, trust gate and checks as
+always) and verifies that its code digest and config are the ones recorded.
+
+Example:
+    >>> from hub_envs import env_from_dataset                                          # doctest: +SKIP
+    >>> loaded = env_from_dataset("~/data/pendulum-copy", trust_remote_code=True)      # doctest: +SKIP
+    >>> env = loaded.make()                                                            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+from hub_envs import hub_io
+from hub_envs.dataset import dataset_fingerprint, read_info
+from hub_envs.envconfig import config_differences, encode_config
+from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
+from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, MEDIA_DIR, Manifest, content_digest, is_commit_sha
+
+__all__ = ["env_from_dataset", "code_digest_of", "read_env_meta", "locate_dataset"]
+
+
+def code_digest_of(files: dict[str, str]) -> str:
+    """The code digest (what ``env_meta.code_digest`` names) of a manifest's file list: all but dataset, media, card."""
+    return content_digest({p: h for p, h in files.items()
+                           if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")})
+
+
+def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:
+    """The dataset's ``env_meta`` (``meta/info.json`` ``hub_envs.env_meta``), checked."""
+    info = read_info(dataset_root)
+    meta = (info.get("hub_envs") or {}).get("env_meta")
+    if not isinstance(meta, dict) or not meta.get("env_repo_id") or not meta.get("code_digest"):
+        raise ReproductionError(
+            f"{dataset_root}/meta/info.json has no hub_envs.env_meta (env_repo_id, code_digest): the dataset was not "
+            f"written by push_env, so which env produced it is unknown. Load the env yourself with load_env."
+        )
+    return meta
+
+
+def _snapshot_origin(folder: Path) -> tuple[str, str] | None:
+    """(repo_id, sha) when ``folder`` is a huggingface_hub cache snapshot of a model repo."""
+    sha, snapshots, repo_dir = folder.name, folder.parent, folder.parent.parent
+    if snapshots.name != "snapshots" or not re.fullmatch(r"[0-9a-f]{40}", sha):
+        return None
+    kind, _, name = repo_dir.name.partition("--")
+    if kind != "models" or not name:
+        return None
+    return name.replace("--", "/"), sha
+
+
+def locate_dataset(path_or_repo_id: str | Path, *, revision: str | None = None,
+                   token: str | None = None) -> tuple[Path, tuple[str, str] | None]:
+    """The local dataset folder, and (env repo id, sha) when the folder is the bundled dataset of an env snapshot."""
+    path = Path(str(path_or_repo_id)).expanduser()
+    if path.is_dir():
+        path = path.absolute()
+        if (path / MANIFEST_FILE).is_file() and (path / DATASET_DIR / "meta" / "info.json").is_file():
+            path = path / DATASET_DIR
+        if not (path / "meta" / "info.json").is_file():
+            raise ReproductionError(f"{path} is neither a LeRobot dataset folder (meta/info.json) nor an env repo with a dataset/.")
+        origin = _snapshot_origin(path.parent) if path.name == DATASET_DIR and (path.parent / MANIFEST_FILE).is_file() else None
+        return path, origin
+    repo_id, at_rev = hub_io.parse_repo_ref(str(path_or_repo_id))
+    revision = revision or at_rev
+    # an env repo (model type) bundles its dataset; otherwise look for a dataset repo of that name
+    try:
+        with hub_io.translate_hub_errors(repo_id, revision):
+            is_env_repo = hub_io.api(token).file_exists(repo_id, MANIFEST_FILE, revision=revision, repo_type=hub_io.REPO_TYPE)
+    except EnvRepoNotFoundError:
+        is_env_repo = False
+    if is_env_repo:
+        snap = hub_io.resolve_snapshot(repo_id, revision, token=token)
+        if snap.from_cache and not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
+            # only part of that commit is cached (e.g. its manifest, read while searching history)
+            snap = hub_io.resolve_snapshot(repo_id, snap.sha, token=token, force_download=True)
+        if not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
+            raise ReproductionError(f"{repo_id}@{snap.sha} has no dataset/. Re-publish it with push_env.")
+        return snap.path / DATASET_DIR, (repo_id, snap.sha)
+    from huggingface_hub import snapshot_download
+
+    with hub_io.translate_hub_errors(repo_id, revision):
+        local = snapshot_download(repo_id, repo_type="dataset", revision=revision, token=token)
+    return Path(local), None
+
+
+def _find_commit(env_repo_id: str, code_digest: str, dataset_root: Path, token: str | None) -> str:
+    """The newest commit of ``env_repo_id`` whose code has ``code_digest`` (the exact dataset preferred)."""
+    client = hub_io.api(token)
+    with hub_io.translate_hub_errors(env_repo_id, None):
+        commits = client.list_repo_commits(env_repo_id, repo_type=hub_io.REPO_TYPE)
+    fingerprint = None
+    first_match = None
+    for commit in commits:
+        try:
+            text = hub_io.read_remote_text(env_repo_id, MANIFEST_FILE, revision=commit.commit_id, token=token)
+            manifest = Manifest.from_json(text) if text is not None else None
+        except ManifestError:
+            manifest = None
+        if manifest is None or code_digest_of(manifest.files) != code_digest:
+            continue
+        if first_match is None:
+            first_match = commit.commit_id
+        if fingerprint is None:
+            fingerprint = dataset_fingerprint(dataset_root)
+        if manifest.dataset.get("fingerprint") == fingerprint:
+            return commit.commit_id
+    if first_match is None:
+        raise ReproductionError(
+            f"No commit of {env_repo_id} holds the code that recorded {dataset_root} (code digest {code_digest[:16]}…): "
+            f"its history was rewritten or the code was never published there. If you know the commit, pass "
+            f"env_revision='<sha>'."
+        )
+    return first_match
+
+
+def env_from_dataset(
+    path_or_repo_id: str | Path,
+    *,
+    revision: str | None = None,
+    env_revision: str | None = None,
+    trust_remote_code: bool = False,
+    check: bool = True,
+    fingerprint: str = "error",
+    token: str | None = None,
+):
+    """Load the env that recorded a dataset, at the commit whose code recorded it.
+
+    Args:
+        path_or_repo_id: a dataset folder (standalone, or ``<env snapshot>/dataset``), an env repo
+            folder, an env repo id (its bundled dataset) or a dataset repo id; ``@rev`` allowed.
+        revision: the revision of ``path_or_repo_id`` when it is a repo id.
+        env_revision: the env repo commit to use, skipping the search (it is still verified).
+        trust_remote_code, check, fingerprint, token: as for :func:`hub_envs.load_env`.
+
+    Returns:
+        A :class:`hub_envs.load.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.
+
+    Raises:
+        ReproductionError: the dataset names no env, no commit has its code, or the code or config
+            of the commit found differs from what the dataset recorded.
+    """
+    from hub_envs.load import load_env
+
+    root, origin = locate_dataset(path_or_repo_id, revision=revision, token=token)
+    meta = read_env_meta(root)
+    env_repo = str(meta["env_repo_id"])
+    digest = str(meta["code_digest"])
+    if env_revision is not None:
+        sha = env_revision
+    elif origin is not None and origin[0] == env_repo:
+        sha = origin[1]
+    elif is_commit_sha(meta.get("env_sha")):
+        sha = meta["env_sha"]
+    else:
+        sha = _find_commit(env_repo, digest, root, token)
+    loaded = load_env(f"{env_repo}@{sha}", trust_remote_code=trust_remote_code, check=check,
+                      fingerprint=fingerprint, token=token)  # type: ignore[arg-type]
+    try:
+        actual = code_digest_of(loaded.manifest.files)
+        if actual != digest:
+            raise ReproductionError(
+                f"{env_repo}@{loaded.revision} is not the code that recorded {root}: its code digest is {actual[:16]}…, "
+                f"the dataset's env_meta names {digest[:16]}…. Pass env_revision= the commit that recorded the data, or "
+                f"omit it to search the history."
+            )
+        recorded = meta.get("config")
+        if isinstance(recorded, dict):
+            diffs = config_differences(recorded, encode_config(loaded.config))
+            if diffs:
+                raise ReproductionError(
+                    f"{env_repo}@{loaded.revision}: the dataset was recorded with other config values:\n  " + "\n  ".join(diffs) +
+                    "\nThe env cannot be rebuilt exactly from this commit."
+                )
+    except HubEnvsError:
+        loaded.unregister()
+        raise
+    return loaded
+
+
+def env_meta_json(dataset_root: str | Path) -> str:
+    """``env_meta`` as pretty JSON (for printing)."""
+    return json.dumps(read_env_meta(dataset_root), indent=2, sort_keys=True)

@@ -1,0 +1,525 @@
+"""Replay a recorded dataset in an env and compare every step: does the env still produce the data?
+
+One concept: a *replay* resets the env with each episode's recorded seed, applies the recorded
+actions (the rollout engine with one action array per episode, in parallel across processes), and
+compares what comes out with what the dataset holds, frame by frame: every observation the config's
+``features_map`` maps to a dataset key (images too), ``next.reward``, ``next.done``,
+``next.success`` and, when push_env recorded them (:mod:`hub_envs.states`), the simulator states.
+Exactly by default; within an absolute ``tolerance`` if one is given (booleans are always exact).
+
+A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
+so a changed transition at step ``t`` shows in ``next.*`` at frame ``t`` and in the observations at
+frame ``t + 1``. Each diverged episode is then *localized* (robomimic's playback):
+
+* with recorded states: every step is replayed from its recorded state (``reset_to(states[t])``,
+  ``step(actions[t])``, compare with frame ``t + 1``), which separates a change in the dynamics at
+  step ``t`` from an error carried over from earlier steps: "playback diverged by {err} at step {t}";
+* without them, if the env has ``get_state``/``reset_to``: the replay's own state before the first
+  diverging step is restored in a fresh env, which must reproduce the diverging step, so the
+  difference is in that transition and not in hidden state or non-determinism.
+
+Example:
+    >>> from hub_envs.replay import replay_dataset                                   # doctest: +SKIP
+    >>> result = replay_dataset(loaded.make, loaded.dataset_root, loaded.config.features_map)  # doctest: +SKIP
+    >>> result.ok, result.first_divergence                                          # doctest: +SKIP
+    (False, Divergence(episode=0, step=1, feature='observation.state', ...))
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub_envs.dataset import read_episode_frames, read_episode_meta, read_info, rollout_to_frames
+from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
+from hub_envs.rollout import iter_episodes, run_episodes
+from hub_envs.states import read_env_states
+
+__all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "replay_dataset", "STATE_FEATURE"]
+
+#: The name under which recorded simulator states are compared.
+STATE_FEATURE = "env_state"
+NEXT_KEYS = ("next.reward", "next.done", "next.success")
+#: Diverged episodes localized by state-restored playback (each costs one more pass over the episode).
+MAX_LOCALIZED = 3
+
+
+# --- results ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Divergence:
+    """The first step at which one feature of one episode differs by more than the tolerance."""
+
+    episode: int
+    seed: int | None
+    step: int  # frame index in the episode
+    feature: str  # dataset key (``observation.state``, ``next.reward``, ...) or ``env_state``
+    env_key: str | None  # the env-side name, when the feature is an observation
+    max_abs_diff: float
+    element: list[int]  # index (within the frame) of the largest difference
+    dataset: Any  # the dataset's value there (a list; images: a short summary)
+    replay: Any  # the replay's value
+    note: str = ""
+
+    def describe(self) -> str:
+        where = f"episode {self.episode}" + (f" (seed {self.seed})" if self.seed is not None else "")
+        at = f"[{', '.join(map(str, self.element))}]" if self.element else ""
+        text = (f"{where}, step {self.step}, {self.feature}{at}: playback diverged by {self.max_abs_diff:.6g} "
+                f"at step {self.step} (dataset {_short(self.dataset)} vs replay {_short(self.replay)})")
+        return text + (f"; {self.note}" if self.note else "")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class EpisodeReplay:
+    """The replay of one episode."""
+
+    episode: int
+    seed: int | None
+    length: int  # frames in the dataset
+    replay_length: int  # frames the replay produced (one more if the env did not end where the data did)
+    divergences: list[Divergence] = field(default_factory=list)  # first divergence of each feature, by step
+    max_abs_diff: dict[str, float] = field(default_factory=dict)  # over the whole episode, per feature
+    error_curve: dict[str, list[float]] = field(default_factory=dict)  # per-step max |diff| (diverged episodes)
+    localization: dict[str, Any] | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.divergences
+
+    @property
+    def first(self) -> Divergence | None:
+        return self.divergences[0] if self.divergences else None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["ok"] = self.ok
+        return d
+
+
+@dataclass
+class ReplayResult:
+    """Every episode's replay, and what was compared."""
+
+    episodes: list[EpisodeReplay]
+    tolerance: float
+    features: dict[str, str | None]  # compared dataset key -> env-side key (None for next.* and env_state)
+    skipped: dict[str, str]  # dataset key -> why it was not compared
+    states: str  # how recorded states were used
+    steps: int  # env steps taken by the open-loop replay
+    seconds: float
+
+    @property
+    def ok(self) -> bool:
+        return all(e.ok for e in self.episodes)
+
+    @property
+    def diverged(self) -> list[EpisodeReplay]:
+        return [e for e in self.episodes if not e.ok]
+
+    @property
+    def first_divergence(self) -> Divergence | None:
+        firsts = [e.first for e in self.episodes if e.first is not None]
+        return firsts[0] if firsts else None
+
+    def summary(self) -> str:
+        n = len(self.episodes)
+        frames = sum(e.length for e in self.episodes)
+        how = "exactly" if self.tolerance == 0 else f"within {self.tolerance:g}"
+        if self.ok:
+            return f"replay: all {n} episodes ({frames} frames) reproduce {how} ({', '.join(self.features)})"
+        first = self.first_divergence
+        return (f"replay: {len(self.diverged)} of {n} episodes diverge; first: {first.describe()}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "ok": self.ok,
+            "tolerance": self.tolerance,
+            "features": self.features,
+            "skipped": self.skipped,
+            "states": self.states,
+            "episodes_total": len(self.episodes),
+            "episodes_diverged": [e.episode for e in self.diverged],
+            "frames": sum(e.length for e in self.episodes),
+            "steps": self.steps,
+            "seconds": self.seconds,
+            "first_divergence": self.first_divergence.to_dict() if self.first_divergence else None,
+            "episodes": [e.to_dict() for e in self.episodes],
+        }
+
+
+# --- comparing arrays -------------------------------------------------------------------------
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = str(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _as_dataset_layout(replay: np.ndarray, data: np.ndarray, image: bool) -> np.ndarray:
+    """Bring a replayed array to the dataset's layout and dtype (what the dataset writer does)."""
+    if image:
+        if replay.ndim == 4 and replay.shape[1:] != data.shape[1:] and replay.shape[1:] == (data.shape[3], data.shape[1], data.shape[2]):
+            replay = replay.transpose(0, 2, 3, 1)  # channel-first env images are stored channel-last
+        if replay.dtype.kind == "f":
+            replay = (replay * 255).astype(np.uint8)
+    if replay.shape[1:] != data.shape[1:] and replay.size == data.size // max(len(data), 1) * len(replay):
+        replay = replay.reshape(len(replay), *data.shape[1:])
+    if replay.dtype != data.dtype:
+        replay = replay.astype(data.dtype)
+    return replay
+
+
+def _step_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Per-frame max |replay - data| as float64 (booleans: 0 or 1; NaN vs NaN counts as equal)."""
+    n = len(data)
+    if n == 0:
+        return np.zeros(0)
+    a = replay.reshape(n, -1)
+    b = data.reshape(n, -1)
+    if a.dtype.kind == "b" or b.dtype.kind == "b":
+        return np.any(a != b, axis=1).astype(np.float64)
+    if a.dtype == b.dtype and a.dtype.kind in "iu" and a.dtype.itemsize <= 2:
+        return np.max(np.abs(a.astype(np.int32) - b.astype(np.int32)), axis=1).astype(np.float64)
+    diff = np.abs(a.astype(np.float64) - b.astype(np.float64))
+    both_nan = np.isnan(a) & np.isnan(b) if a.dtype.kind == "f" and b.dtype.kind == "f" else None
+    if both_nan is not None:
+        diff[both_nan] = 0.0
+    diff[np.isnan(diff)] = np.inf
+    return diff.max(axis=1)
+
+
+def _value(arr: np.ndarray, image: bool) -> Any:
+    if image:
+        return f"image {tuple(arr.shape)} mean {float(arr.mean()):.2f}"
+    if arr.shape == (1,):  # LeRobot stores scalars (reward, done) as shape (1,)
+        return arr[0].item()
+    return arr.tolist()
+
+
+def _element(replay_frame: np.ndarray, data_frame: np.ndarray) -> list[int]:
+    if replay_frame.ndim == 0 or replay_frame.shape == (1,):
+        return []
+    a = replay_frame.astype(np.float64) if replay_frame.dtype.kind != "b" else replay_frame.astype(np.float64)
+    b = data_frame.astype(np.float64)
+    diff = np.abs(a - b)
+    diff[np.isnan(diff)] = np.inf
+    return [int(i) for i in np.unravel_index(int(np.argmax(diff)), diff.shape)]
+
+
+# --- the replay -------------------------------------------------------------------------------
+
+
+@dataclass
+class _Plan:
+    root: Path
+    features: dict[str, str | None]  # dataset key -> env key
+    image_keys: set[str]
+    skipped: dict[str, str]
+    action_key: str
+    metas: list[dict]
+    seeds: list[int]
+    actions: list[np.ndarray]  # as recorded, per episode
+    states: dict[int, np.ndarray] | None
+
+
+def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[int] | None) -> _Plan:
+    info = read_info(dataset_root)
+    ds_features = info["features"]
+    metas = read_episode_meta(dataset_root)
+    if episodes is not None:
+        wanted = set(episodes)
+        unknown = sorted(wanted - {m["episode_index"] for m in metas})
+        if unknown:
+            raise ReproductionError(f"{dataset_root}: episodes {unknown} are not in the dataset ({len(metas)} episodes).")
+        metas = [m for m in metas if m["episode_index"] in wanted]
+    recorded_seeds = (info.get("hub_envs") or {}).get("seeds") or []
+    seeds = []
+    for m in metas:
+        seed = m.get("seed")
+        if seed is None and m["episode_index"] < len(recorded_seeds):
+            seed = recorded_seeds[m["episode_index"]]
+        if seed is None:
+            raise ReproductionError(
+                f"{dataset_root}: episode {m['episode_index']} records no reset seed (neither the episodes metadata nor "
+                f"info.json hub_envs.seeds), so it cannot be replayed. Datasets written by push_env record them."
+            )
+        seeds.append(int(seed))
+    action_key = features_map.get("action", "action")
+    if action_key not in ds_features:
+        raise ReproductionError(f"{dataset_root}: the dataset has no '{action_key}' feature (features_map['action']); nothing to replay.")
+    features: dict[str, str | None] = {}
+    skipped: dict[str, str] = {}
+    mapped = {v: k for k, v in features_map.items() if k != "action"}
+    for key, ft in ds_features.items():
+        if key in mapped:
+            if ft.get("dtype") == "video":
+                skipped[key] = "video features are lossy-encoded; not compared"
+            else:
+                features[key] = mapped[key]
+        elif key in NEXT_KEYS:
+            features[key] = None
+        elif key not in ("timestamp", "frame_index", "episode_index", "index", "task_index", action_key):
+            skipped[key] = "not in the config's features_map"
+    image_keys = {k for k in features if ds_features[k].get("dtype") == "image"}
+    actions = [read_episode_frames(dataset_root, m["episode_index"], keys=[action_key])[action_key] for m in metas]
+    states = read_env_states(dataset_root)
+    if states is not None:
+        missing = [m["episode_index"] for m in metas if m["episode_index"] not in states or len(states[m["episode_index"]]) != m["length"]]
+        if missing:
+            raise DatasetError(f"{dataset_root}: the recorded env states do not cover episodes {missing}. Re-publish the env with push_env.")
+    return _Plan(Path(dataset_root), features, image_keys, skipped, action_key, metas, seeds, actions, states)
+
+
+def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
+    """Recorded (float32) actions in the layout and dtype of the env's action space."""
+    shape = tuple(getattr(space, "shape", None) or ())
+    dtype = getattr(space, "dtype", None)
+    if actions.shape[1:] != shape:
+        if int(np.prod(actions.shape[1:])) == int(np.prod(shape)):
+            actions = actions.reshape(len(actions), *shape)
+        else:
+            raise ReproductionError(
+                f"{where}: the recorded actions have shape {actions.shape[1:]} but the env's action space is {space}. "
+                f"The env changed its action space since the data was recorded."
+            )
+    if dtype is not None and actions.dtype != dtype:
+        actions = actions.astype(dtype)
+    return actions
+
+
+def _compare_episode(plan: _Plan, pos: int, rollout: Any, features_map: Mapping[str, str], tolerance: float,
+                     keep_curves: bool) -> EpisodeReplay:
+    meta = plan.metas[pos]
+    ep, seed, length = meta["episode_index"], plan.seeds[pos], int(meta["length"])
+    data = read_episode_frames(plan.root, ep, keys=[k for k in plan.features if k not in (STATE_FEATURE,)])
+    replay = rollout_to_frames(rollout, features_map)
+    result = EpisodeReplay(episode=ep, seed=seed, length=length, replay_length=rollout.length)
+    pairs: list[tuple[str, np.ndarray | None, np.ndarray]] = [(k, replay.get(k), data[k]) for k in plan.features]
+    if plan.states is not None:
+        pairs.append((STATE_FEATURE, rollout.states, plan.states[ep]))
+    curves: dict[str, np.ndarray] = {}
+    for key, rep, dat in pairs:
+        if rep is None:
+            if key == STATE_FEATURE:
+                continue  # the env has no get_state any more: nothing to compare the states with
+            result.divergences.append(Divergence(ep, seed, 0, key, plan.features.get(key), float("inf"), [], _value(dat[0], key in plan.image_keys) if len(dat) else None,
+                                                 "missing", note=f"the env's observation has no '{plan.features.get(key)}' any more"))
+            continue
+        image = key in plan.image_keys
+        rep = _as_dataset_layout(np.asarray(rep), dat, image)
+        n = min(len(rep), len(dat))
+        if rep.shape[1:] != dat.shape[1:]:
+            result.divergences.append(Divergence(ep, seed, 0, key, plan.features.get(key), float("inf"), [],
+                                                 f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}",
+                                                 note="the feature's shape changed"))
+            continue
+        errors = _step_errors(rep[:n], dat[:n])
+        curves[key] = errors
+        result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
+        bad = np.flatnonzero(errors > tolerance) if dat.dtype.kind != "b" else np.flatnonzero(errors > 0)
+        if len(bad):
+            t = int(bad[0])
+            note = ""
+            if key == "next.done":
+                if len(rep) > len(dat):
+                    note = f"the dataset's episode ends after step {length - 1}; the env did not end it there"
+                elif len(rep) < len(dat):
+                    note = f"the env ended the episode after step {len(rep) - 1}; the dataset continues to step {length - 1}"
+            result.divergences.append(Divergence(
+                ep, seed, t, key, plan.features.get(key), float(errors[t]), _element(rep[t], dat[t]),
+                _value(dat[t], image), _value(rep[t], image), note=note,
+            ))
+    result.divergences.sort(key=lambda d: (d.step, _feature_rank(d.feature)))
+    if result.divergences and keep_curves:
+        result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
+    return result
+
+
+def _feature_rank(feature: str) -> int:
+    # at one frame: observations (and state) come before the action's outcome
+    return 2 if feature in NEXT_KEYS else 1 if feature == STATE_FEATURE else 0
+
+
+def _first_transition(ep: EpisodeReplay) -> int:
+    """The first step whose *transition* diverged: obs/state at frame t come from step t - 1."""
+    steps = [d.step if d.feature in NEXT_KEYS else d.step - 1 for d in ep.divergences]
+    return max(min(steps), -1)
+
+
+def _reset_to(env: Any) -> Callable[[Any], Any] | None:
+    return getattr(env.unwrapped, "reset_to", None)
+
+
+def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, features_map: Mapping[str, str],
+                          tolerance: float) -> dict[str, Any]:
+    """robomimic playback: from every recorded state, one step; where does the one-step error start?"""
+    meta = plan.metas[pos]
+    ep, length = meta["episode_index"], int(meta["length"])
+    data = read_episode_frames(plan.root, ep, keys=list(plan.features))
+    states = plan.states[ep]
+    raw = env.unwrapped
+    env.reset(seed=plan.seeds[pos])
+    get_state = getattr(raw, "get_state", None)
+    errors = np.zeros(length)
+    worst: list[str] = [""] * length
+    for t in range(length):
+        raw.reset_to(states[t])
+        obs, reward, terminated, truncated, _info = raw.step(actions[t])
+        errs = {"next.reward": abs(float(np.float32(reward)) - float(data["next.reward"].reshape(-1)[t]))} if "next.reward" in data else {}
+        if t + 1 < length:
+            flat = _flatten(obs)
+            for key in plan.features:
+                env_key = plan.features[key]
+                if env_key is None or env_key not in flat:
+                    continue
+                rep = _as_dataset_layout(np.asarray(flat[env_key])[None], data[key][t + 1 : t + 2], key in plan.image_keys)
+                errs[key] = float(_step_errors(rep, data[key][t + 1 : t + 2])[0])
+            if get_state is not None:
+                errs[STATE_FEATURE] = float(_step_errors(np.asarray(get_state())[None], states[t + 1 : t + 2])[0])
+            if "next.done" in data:
+                errs["next.done"] = float(bool(terminated) != bool(data["next.done"].reshape(-1)[t]))
+        key = max(errs, key=errs.get) if errs else ""
+        errors[t], worst[t] = (errs[key], key) if key else (0.0, "")
+    bad = np.flatnonzero(errors > tolerance)
+    out: dict[str, Any] = {"method": "recorded states (reset_to(states[t]), step(actions[t]), compare with frame t+1)",
+                           "one_step_error": [float(x) for x in errors]}
+    if len(bad):
+        t = int(bad[0])
+        out.update(first_step=t, feature=worst[t], max_abs_diff=float(errors[t]), steps_with_error=int(len(bad)),
+                   message=(f"playback diverged by {errors[t]:.6g} at step {t} ({worst[t]}): from the recorded state, "
+                            f"the env's step {t} no longer gives the recorded outcome, so its dynamics changed there "
+                            f"({len(bad)} of {length} steps differ one step ahead)."))
+    else:
+        out.update(first_step=None, message=(
+            "from every recorded state, one step reproduces the data: the dynamics are unchanged, so the divergence "
+            "comes from the reset or from state that get_state/reset_to do not cover"))
+    return out
+
+
+def _flatten(obs: Any) -> dict[str, Any]:
+    from hub_envs.rollout import flatten_observation
+
+    return flatten_observation(obs)
+
+
+def _localize_from_replay_state(make_env: Callable[[], Any], plan: _Plan, pos: int, ep: EpisodeReplay,
+                                actions: np.ndarray, features_map: Mapping[str, str]) -> dict[str, Any]:
+    """No recorded states: restore the replay's own state before the first diverging step in a fresh env."""
+    j = _first_transition(ep)
+    method = "replay state (reset_to(get_state()) before the first diverging step, in a fresh env)"
+    if j < 0:
+        return {"method": method, "first_step": None,
+                "message": "the reset observation itself differs: env.reset(seed) changed, nothing to restore"}
+    seed = plan.seeds[pos]
+    first = run_episodes(make_env, [seed], max_steps=j + 2, policy=[actions[: j + 2]], record_states=True, progress=False)[0]
+    if first.states is None or first.length <= j:
+        return {"method": method, "first_step": None, "message": "the env records no state (get_state), cannot localize"}
+    env = make_env()
+    try:
+        env.reset(seed=seed)
+        raw = env.unwrapped
+        raw.reset_to(first.states[j])
+        obs, reward, *_ = raw.step(actions[j])
+    finally:
+        env.close()
+    flat = _flatten(obs)
+    same = float(reward) == float(first.rewards[j])
+    if first.length > j + 1:
+        for key, arr in first.observations.items():
+            if key in flat and not np.array_equal(np.asarray(flat[key]), arr[j + 1], equal_nan=True):
+                same = False
+    if same:
+        return {"method": method, "first_step": j, "message": (
+            f"restoring the replay's own state before step {j} in a fresh env reproduces the diverging step: the "
+            f"env's transition at step {j} differs from the one that recorded the data (all earlier observations matched)")}
+    return {"method": method, "first_step": None, "message": (
+        f"restoring the replay's state before step {j} does NOT reproduce the replay: the env is non-deterministic "
+        f"or get_state/reset_to miss part of its state, so the divergence cannot be pinned to one transition")}
+
+
+def replay_dataset(
+    make_env: Callable[[], Any],
+    dataset_root: str | Path,
+    features_map: Mapping[str, str],
+    *,
+    tolerance: float = 0.0,
+    workers: int = 1,
+    episodes: list[int] | None = None,
+    localize: bool = True,
+    progress: bool = True,
+) -> ReplayResult:
+    """Replay every episode of the dataset at ``dataset_root`` in envs from ``make_env`` and compare.
+
+    Args:
+        make_env: builds the env (e.g. ``loaded.make``); called once per worker process.
+        dataset_root: a LeRobot v3 dataset written by hub-envs (seeds recorded).
+        features_map: the EnvConfig's ``features_map`` (env key -> dataset key).
+        tolerance: largest absolute difference accepted per value (0: bit-exact). Booleans are exact.
+        workers: processes for the open-loop replay; the result does not depend on it.
+        episodes: replay only these episode indices (default: all).
+        localize: localize diverged episodes with ``reset_to`` (at most 3 episodes).
+        progress: show a progress bar.
+
+    Raises:
+        ReproductionError: the dataset cannot be replayed (no seeds, no actions, action space changed).
+        EnvCodeError: the env raised while replaying.
+    """
+    if tolerance < 0 or not np.isfinite(tolerance):
+        raise ReproductionError(f"tolerance={tolerance!r}: pass a finite value >= 0 (0 means bit-exact).")
+    t0 = time.perf_counter()
+    root = Path(dataset_root)
+    plan = _plan(root, features_map, episodes)
+    probe = make_env()
+    try:
+        space = probe.action_space
+        actions = [_env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)]
+        # one extra action per episode: if the env does not end the episode where the data does, it shows
+        padded = [np.concatenate([a, a[-1:]]) if len(a) else a for a in actions]
+        max_steps = max((len(a) for a in padded), default=1)
+        can_restore = _reset_to(probe) is not None
+        record = plan.states is not None and getattr(probe.unwrapped, "get_state", None) is not None
+        if plan.states is None:
+            states_note = "not recorded in the dataset" + ("; divergences localized with the replay's own get_state/reset_to" if can_restore else "")
+        elif not record:
+            states_note = "recorded, but the env has no get_state/reset_to any more: not compared"
+        else:
+            states_note = "recorded: compared at every step as 'env_state'" + ("; divergences localized by state-restored playback" if can_restore else "")
+        results: list[EpisodeReplay] = []
+        steps = 0
+        n = len(plan.metas)
+        for pos, rollout in enumerate(iter_episodes(make_env, plan.seeds, max_steps=max_steps, policy=padded,
+                                                    record_states=record, workers=workers, progress=progress,
+                                                    desc=f"Replaying {n} episodes")):
+            steps += rollout.length
+            results.append(_compare_episode(plan, pos, rollout, features_map, tolerance, keep_curves=True))
+        if localize and can_restore:
+            for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
+                try:
+                    if plan.states is not None and record:
+                        ep.localization = _localize_with_states(plan, pos, probe, actions[pos], features_map, tolerance)
+                    else:
+                        ep.localization = _localize_from_replay_state(make_env, plan, pos, ep, actions[pos], features_map)
+                except HubEnvsError:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - localization is a diagnosis; report why it failed
+                    ep.localization = {"method": "reset_to", "first_step": None,
+                                       "message": f"localization failed: {type(exc).__name__}: {exc}"}
+    finally:
+        try:
+            probe.close()
+        except Exception:  # noqa: BLE001
+            pass
+    features = dict(plan.features)
+    if plan.states is not None and record:
+        features[STATE_FEATURE] = None
+    return ReplayResult(episodes=results, tolerance=float(tolerance), features=features, skipped=plan.skipped,
+                        states=states_note, steps=steps, seconds=time.perf_counter() - t0)

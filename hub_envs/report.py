@@ -1,0 +1,281 @@
+"""The reproduction report: one object, written as JSON (machines), Markdown (people) and a PNG plot.
+
+:class:`ReproduceReport` gathers what ``hub-envs reproduce`` found: the replay
+(:class:`hub_envs.replay.ReplayResult`), each benchmark (:class:`hub_envs.benchmark.BenchmarkResult`),
+the golden-rollout fingerprint check, and provenance: the repo sha, the dataset fingerprint, the
+seeds, and the package versions here beside those the repo was published with. A version that
+differs is printed next to every divergence, since it is the first suspect.
+
+:meth:`ReproduceReport.write` puts ``report.json``, ``report.md`` and ``report.png`` in a folder.
+The plot (matplotlib, Agg backend) shows per-episode returns published vs reproduced for each
+benchmark and, when the replay diverged, the divergence over steps of the first diverged episode.
+
+Example:
+    >>> from hub_envs.report import ReproduceReport
+    >>> report = ReproduceReport(repo_id="user/env", sha="0" * 40, provenance={}, replay=None,
+    ...                          benchmarks=[], fingerprint={"status": "matches", "ok": True})
+    >>> report.reproduced, report.verdict()
+    (True, 'REPRODUCED')
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hub_envs.benchmark import BenchmarkResult
+from hub_envs.replay import ReplayResult
+
+__all__ = ["ReproduceReport", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
+
+REPORT_JSON = "report.json"
+REPORT_MD = "report.md"
+REPORT_PNG = "report.png"
+
+
+def _fmt(x: Any, digits: int = 6) -> str:
+    if isinstance(x, bool) or x is None:
+        return str(x)
+    if isinstance(x, float):
+        if math.isnan(x) or math.isinf(x):
+            return str(x)
+        return f"{x:.{digits}g}"
+    return str(x)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
+        return str(value)
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+@dataclass
+class ReproduceReport:
+    """What a reproduction found. ``reproduced`` is True when every part that ran passed."""
+
+    repo_id: str
+    sha: str
+    provenance: dict[str, Any]
+    replay: ReplayResult | None
+    benchmarks: list[BenchmarkResult]
+    fingerprint: dict[str, Any]
+    notes: list[str] = field(default_factory=list)  # warnings that do not fail the reproduction
+    settings: dict[str, Any] = field(default_factory=dict)
+    paths: dict[str, str] = field(default_factory=dict)  # where write() put the files
+
+    # -- verdict --
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        out: dict[str, bool] = {}
+        if self.replay is not None:
+            out["replay"] = self.replay.ok
+        for b in self.benchmarks:
+            out[f"benchmark {b.name}"] = b.passed
+        if self.fingerprint.get("status") not in (None, "off", "none recorded"):
+            out["fingerprint"] = bool(self.fingerprint.get("ok"))
+        return out
+
+    @property
+    def reproduced(self) -> bool:
+        return all(self.checks.values())
+
+    def verdict(self) -> str:
+        return "REPRODUCED" if self.reproduced else "NOT REPRODUCED"
+
+    @property
+    def version_differences(self) -> dict[str, list[str]]:
+        return dict(self.provenance.get("version_differences") or {})
+
+    def versions_note(self) -> str:
+        diffs = self.version_differences
+        if not diffs:
+            return "no package version differs from the publisher's"
+        return "versions differ from the publisher's: " + ", ".join(f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items())
+
+    # -- text --
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        lines = [f"{self.verdict()}: {self.repo_id}@{self.sha}"]
+        if self.replay is not None:
+            lines.append("  " + self.replay.summary())
+            for ep in self.replay.diverged[:5]:
+                for d in ep.divergences[:4]:
+                    lines.append("    " + d.describe())
+                if ep.localization:
+                    lines.append(f"    localized: {ep.localization.get('message')}")
+            if not self.replay.ok:
+                lines.append(f"    {self.versions_note()}")
+        for b in self.benchmarks:
+            lines.append("  " + b.summary())
+            if not b.passed and not b.error:
+                lines.append(f"    episodes whose result differs: {b.episodes_differing}; {self.versions_note()}")
+        fp = self.fingerprint
+        lines.append(f"  golden-rollout fingerprint: {fp.get('status')}" + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else ""))
+        for note in self.notes:
+            lines.append(f"  note: {note}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _jsonable({
+            "repo_id": self.repo_id,
+            "sha": self.sha,
+            "reproduced": self.reproduced,
+            "verdict": self.verdict(),
+            "checks": self.checks,
+            "settings": self.settings,
+            "replay": self.replay.to_dict() if self.replay is not None else None,
+            "benchmarks": [b.to_dict() for b in self.benchmarks],
+            "fingerprint": self.fingerprint,
+            "notes": self.notes,
+            "provenance": self.provenance,
+        })
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+    def to_markdown(self) -> str:
+        p = self.provenance
+        out = [f"# Reproduction of `{self.repo_id}`", "",
+               f"**{self.verdict()}** at commit `{self.sha}` — " + ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in self.checks.items()), ""]
+        if self.replay is not None:
+            r = self.replay
+            how = "exactly" if r.tolerance == 0 else f"within an absolute tolerance of {r.tolerance:g}"
+            out += ["## Replay of the dataset", "",
+                    f"Every episode reset with its recorded seed, the recorded actions applied, and compared {how}: "
+                    f"{', '.join(f'`{k}`' for k in r.features)}. States: {r.states}.", ""]
+            if r.skipped:
+                out += ["Not compared: " + "; ".join(f"`{k}` ({why})" for k, why in r.skipped.items()), ""]
+            out += ["| episode | seed | frames | result | first divergence |", "|---|---|---|---|---|"]
+            for e in r.episodes:
+                first = e.first
+                out.append(f"| {e.episode} | {e.seed} | {e.length} | {'ok' if e.ok else 'DIVERGED'} | "
+                           f"{'' if first is None else f'step {first.step}, `{first.feature}`, by {_fmt(first.max_abs_diff)}'} |")
+            out.append("")
+            if not r.ok:
+                out += ["### Divergences", "", f"*Provenance: {self.versions_note()}.*", ""]
+                for e in r.diverged:
+                    for d in e.divergences:
+                        out.append(f"- {d.describe()}")
+                    if e.localization:
+                        out.append(f"  - localized ({e.localization.get('method')}): {e.localization.get('message')}")
+                out.append("")
+        if self.benchmarks:
+            out += ["## Benchmarks", "", "| benchmark | policy | metric | published | reproduced | 95% CI (bootstrap) | tolerance | result |",
+                    "|---|---|---|---|---|---|---|---|"]
+            for b in self.benchmarks:
+                pol = b.policy.get("type", "?") + (f" `{b.policy.get('checkpoint')}`" if b.policy.get("checkpoint") else "")
+                if b.error:
+                    out.append(f"| {b.name} | {pol} | – | – | – | – | – | NOT RUN: {b.error} |")
+                for m in b.metrics:
+                    ci = f"[{_fmt(m.ci_low)}, {_fmt(m.ci_high)}]"
+                    out.append(f"| {b.name} | {pol} | {m.name} | {_fmt(m.published)} | {_fmt(m.reproduced)} | {ci} | "
+                               f"{'CI' if m.tolerance is None else _fmt(m.tolerance)} | {'pass' if m.passed else 'FAIL'} |")
+            out.append("")
+            for b in self.benchmarks:
+                if not b.passed and not b.error:
+                    out.append(f"- {b.name}: episodes whose per-episode result differs: {b.episodes_differing}. *{self.versions_note()}.*")
+            out += [f"Confidence intervals: {self.benchmarks[0].resamples} bootstrap resamples of the reproduced episodes (seeded).", ""]
+        fp = self.fingerprint
+        out += ["## Golden-rollout fingerprint", "", f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""), ""]
+        if self.notes:
+            out += ["## Notes", ""] + [f"- {n}" for n in self.notes] + [""]
+        out += ["## Provenance", "", "| | |", "|---|---|",
+                f"| repo | `{self.repo_id}` |", f"| commit | `{self.sha}` |",
+                f"| content digest | `{p.get('content_digest', '-')}` |",
+                f"| code digest (this commit / the dataset's env_meta) | `{p.get('code_digest', '-')}` / `{p.get('dataset_code_digest', '-')}` |",
+                f"| dataset fingerprint (computed / published) | `{p.get('dataset_fingerprint', '-')}` / `{p.get('published_dataset_fingerprint', '-')}` |",
+                f"| dataset seeds | {_seeds_text(p.get('seeds', {}).get('dataset', []))} |",
+                f"| fingerprint seeds | {_seeds_text(p.get('seeds', {}).get('fingerprint', []))} |",
+                f"| generated | {p.get('generated_at', '-')} with hub-envs {p.get('hub_envs_version', '-')} |", "",
+                "| package | published with | here | |", "|---|---|---|---|"]
+        published = p.get("versions_published", {}) or {}
+        here = p.get("versions_here", {}) or {}
+        for name in sorted(set(published) | set(here)):
+            a, b = published.get(name, "-"), here.get(name, "-")
+            out.append(f"| {name} | {a} | {b} | {'**differs**' if name in self.version_differences else ''} |")
+        out.append("")
+        if self.paths.get("png"):
+            out += [f"![per-episode returns and divergence]({Path(self.paths['png']).name})", ""]
+        return "\n".join(out)
+
+    # -- files --
+
+    def plot(self, path: str | Path) -> Path | None:
+        """Per-episode returns published vs reproduced; the divergence over steps when there is one."""
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+        import numpy as np
+
+        panels = []
+        for b in self.benchmarks:
+            if b.reproduced_per_episode.get("return"):
+                panels.append(("returns", b))
+        diverged = self.replay.diverged if self.replay is not None else []
+        if diverged and diverged[0].error_curve:
+            panels.append(("divergence", diverged[0]))
+        if not panels:
+            return None
+        fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * len(panels)), squeeze=False)
+        for ax, (kind, item) in zip(axes[:, 0], panels):
+            if kind == "returns":
+                rep = np.asarray(item.reproduced_per_episode["return"], dtype=float)
+                pub = np.asarray(item.published_per_episode.get("return", []), dtype=float)
+                x = np.arange(len(rep))
+                if len(pub):
+                    ax.plot(np.arange(len(pub)), pub, "o", mfc="none", ms=9, label="published")
+                ax.plot(x, rep, "x", ms=7, label="reproduced")
+                ax.set_xlabel("episode")
+                ax.set_ylabel("return")
+                ax.set_title(f"benchmark {item.name}: per-episode returns ({'pass' if item.passed else 'FAIL'})")
+                ax.legend(loc="best")
+            else:
+                for feature, curve in item.error_curve.items():
+                    c = np.asarray(curve, dtype=float)
+                    if np.any(c > 0):
+                        ax.plot(np.arange(len(c)), c, label=feature)
+                loc = item.localization or {}
+                if loc.get("one_step_error"):
+                    ax.plot(loc["one_step_error"], "--", color="black", lw=1, label="one step from recorded state")
+                first = item.first
+                if first is not None:
+                    ax.axvline(first.step, color="red", lw=0.8, ls=":")
+                ax.set_yscale("symlog", linthresh=1e-9)
+                ax.set_xlabel("step")
+                ax.set_ylabel("max |replay - dataset|")
+                ax.set_title(f"replay divergence, episode {item.episode} (first at step {first.step if first else '-'})")
+                ax.legend(loc="best", fontsize=8)
+        fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {self.verdict()}", fontsize=10)
+        fig.tight_layout()
+        path = Path(path)
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        return path
+
+    def write(self, out: str | Path) -> dict[str, str]:
+        """Write report.json, report.md and report.png into ``out`` (created); return their paths."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        png = self.plot(out / REPORT_PNG)
+        self.paths = {"json": str(out / REPORT_JSON), "markdown": str(out / REPORT_MD)}
+        if png is not None:
+            self.paths["png"] = str(png)
+        (out / REPORT_MD).write_text(self.to_markdown(), encoding="utf-8")
+        (out / REPORT_JSON).write_text(self.to_json(), encoding="utf-8")
+        return dict(self.paths)
+
+
+def _seeds_text(seeds: list) -> str:
+    if not seeds:
+        return "-"
+    return f"{seeds[0]}…{seeds[-1]} ({len(seeds)})" if len(seeds) > 4 else ", ".join(map(str, seeds))

@@ -1,0 +1,238 @@
+"""``hub-envs reproduce``: does a published env still produce its published data and results?
+
+For one env repo at one commit:
+
+1. load it (integrity, trust gate, feature check) and recompute its golden-rollout fingerprint;
+2. **replay** its dataset (:mod:`hub_envs.replay`): every episode reset with its recorded seed, the
+   recorded actions applied, observations (images too), rewards, done/success flags and recorded
+   simulator states compared step by step, exactly or within ``tolerance``; a divergence is named by
+   episode, step and feature, and localized with ``reset_to``;
+3. re-run each declared **benchmark** (:mod:`hub_envs.benchmark`): published vs reproduced per
+   metric, with a seeded bootstrap confidence interval and pass/fail against the declared tolerance;
+4. record **provenance**: the sha, digests, dataset fingerprint, seeds, and the package versions here
+   beside those the repo was published with;
+5. write ``report.json``, ``report.md`` and ``report.png`` (:mod:`hub_envs.report`) to ``out``
+   (default ``reproduce-out/<user>/<name>/``).
+
+Episodes run in parallel across ``workers`` processes; the report does not depend on their number.
+
+    hub-envs reproduce --repo_id=user/name [--revision=<sha>] [--trust_remote_code=true] [--workers=2]
+                       [--tolerance=0] [--out=DIR]
+
+exits 0 when everything reproduces, 1 when anything diverged or failed (or on any hub-envs error).
+
+Example:
+    >>> from hub_envs import reproduce                                                    # doctest: +SKIP
+    >>> report = reproduce("user/pendulum-lerobot", revision="<sha>", trust_remote_code=True)  # doctest: +SKIP
+    >>> report.reproduced, report.paths["markdown"]                                       # doctest: +SKIP
+    (True, 'reproduce-out/user/pendulum-lerobot/report.md')
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import sys
+import types
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hub_envs.benchmark import BenchmarkResult, reproduce_benchmark
+from hub_envs.checks import verify_fingerprint
+from hub_envs.dataset import dataset_fingerprint, read_episode_meta
+from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
+from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
+from hub_envs.provenance import describe_differences, package_versions, version_differences
+from hub_envs.replay import ReplayResult, replay_dataset
+from hub_envs.report import ReproduceReport
+
+__all__ = ["reproduce", "env_from_dataset", "ReproduceReport", "ReproduceArgs", "reproduce_cli", "CLI_COMMANDS",
+           "default_out_dir"]
+
+DEFAULT_OUT = Path("reproduce-out")
+
+
+def default_out_dir(repo_id: str) -> Path:
+    """``reproduce-out/<user>/<name>/`` (local folders: ``reproduce-out/local/<folder>/``)."""
+    return DEFAULT_OUT.joinpath(*[p for p in repo_id.split("/") if p not in ("", ".", "..")])
+
+
+def _default_workers() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
+    from hub_envs import __version__
+
+    m = loaded.manifest
+    here = package_versions(m.requirements)
+    diffs = version_differences(m.versions, here)
+    prov: dict[str, Any] = {
+        "repo_id": loaded.repo_id,
+        "requested_revision": loaded.requested_revision,
+        "sha": loaded.revision,
+        "content_digest": m.content_digest,
+        "code_digest": code_digest_of(m.files),
+        "published_dataset_fingerprint": m.dataset.get("fingerprint"),
+        "seeds": {"dataset": list(m.dataset.get("seeds", [])), "fingerprint": list(m.fingerprint.get("seeds", [])),
+                  "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks}},
+        "versions_published": dict(m.versions),
+        "versions_here": here,
+        "version_differences": {k: list(v) for k, v in diffs.items()},
+        "hub_envs_version": __version__,
+        "generated_at": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+    }
+    if dataset_root is not None:
+        prov["dataset_fingerprint"] = dataset_fingerprint(dataset_root)
+        try:
+            prov["dataset_code_digest"] = read_env_meta(dataset_root).get("code_digest")
+        except ReproductionError:
+            prov["dataset_code_digest"] = None
+        prov["seeds"]["dataset"] = [m_.get("seed") for m_ in read_episode_meta(dataset_root)]
+    return prov
+
+
+def _fingerprint(loaded: Any) -> dict[str, Any]:
+    recorded = loaded.manifest.fingerprint
+    if not recorded:
+        return {"status": "none recorded", "ok": True}
+    note = describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
+    try:
+        verify_fingerprint(loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=note)
+    except FingerprintMismatchError as e:
+        return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
+    return {"status": f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)", "ok": True,
+            "digest": recorded.get("digest")}
+
+
+def reproduce(
+    repo_id: str,
+    *,
+    revision: str | None = None,
+    trust_remote_code: bool = False,
+    workers: int | None = None,
+    tolerance: float = 0.0,
+    out: str | Path | None = None,
+    replay: bool = True,
+    benchmarks: bool = True,
+    episodes: list[int] | None = None,
+    resamples: int = 1000,
+    progress: bool = True,
+    write: bool = True,
+    token: str | None = None,
+) -> ReproduceReport:
+    """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
+
+    Args:
+        repo_id: ``user/name`` (``@rev`` allowed) or a local folder of a published repo.
+        revision: branch, tag or sha; pin a sha to reproduce exactly what was published.
+        trust_remote_code: consent to run the repo's code (or trust the commit with ``hub-envs trust``).
+        workers: processes for the episodes (default: up to 2); the report does not depend on it.
+        tolerance: largest absolute difference accepted in the replay (0: bit-exact).
+        out: folder for report.json/.md/.png (default ``reproduce-out/<user>/<name>/``).
+        replay, benchmarks: run those parts.
+        episodes: replay only these episode indices (default: all).
+        resamples: bootstrap resamples for the benchmark confidence intervals.
+        progress: progress bars. write: write the report files.
+
+    Returns:
+        A :class:`ReproduceReport`; ``report.reproduced`` is the verdict, ``report.paths`` the files.
+
+    Raises:
+        hub_envs.errors.HubEnvsError: the repo cannot be loaded or replayed at all (not: it diverged).
+    """
+    from hub_envs.load import load_env
+
+    workers = _default_workers() if not workers else int(workers)
+    if workers < 1:
+        raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
+    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, check=True,
+                      fingerprint="off", token=token)
+    try:
+        dataset_root = loaded.dataset_root
+        provenance = _provenance(loaded, dataset_root)
+        notes: list[str] = []
+        if dataset_root is not None:
+            if provenance.get("published_dataset_fingerprint") and provenance["dataset_fingerprint"] != provenance["published_dataset_fingerprint"]:
+                notes.append("the dataset's files differ from the fingerprint the manifest was published with: "
+                             "the dataset was changed after push_env wrote it")
+            if provenance.get("dataset_code_digest") and provenance["dataset_code_digest"] != provenance["code_digest"]:
+                notes.append(f"the dataset was recorded by other code (code digest {str(provenance['dataset_code_digest'])[:16]}…) "
+                             f"than this commit holds ({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded")
+        fp = _fingerprint(loaded)
+        replay_result: ReplayResult | None = None
+        if replay:
+            if dataset_root is None:
+                notes.append("no dataset/ in this repo: nothing to replay")
+            else:
+                replay_result = replay_dataset(loaded.make, dataset_root, loaded.config.features_map, tolerance=tolerance,
+                                               workers=workers, episodes=episodes, progress=progress)
+        bench_results: list[BenchmarkResult] = []
+        if benchmarks:
+            for b in loaded.manifest.benchmarks:
+                bench_results.append(reproduce_benchmark(loaded, b, workers=workers, resamples=resamples,
+                                                         progress=progress, token=token))
+            if not loaded.manifest.benchmarks:
+                notes.append("the manifest declares no benchmark results")
+        report = ReproduceReport(
+            repo_id=loaded.repo_id, sha=loaded.revision, provenance=provenance, replay=replay_result,
+            benchmarks=bench_results, fingerprint=fp, notes=notes,
+            settings={"tolerance": float(tolerance), "workers": workers, "resamples": resamples,
+                      "episodes": episodes, "replay": replay, "benchmarks": benchmarks},
+        )
+        if write:
+            report.write(Path(out) if out is not None else default_out_dir(loaded.repo_id))
+        return report
+    finally:
+        loaded.unregister()
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class ReproduceArgs:
+    """Replay a repo's dataset and re-run its benchmarks; write JSON, Markdown and a plot."""
+
+    repo_id: str | None = None
+    revision: str | None = None
+    trust_remote_code: bool = False
+    workers: int = 0  # 0: up to 2 processes
+    tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
+    out: Path | None = None  # default reproduce-out/<user>/<name>/
+    replay: bool = True
+    benchmarks: bool = True
+    resamples: int = 1000
+    json: bool = False  # also print the JSON report to stdout
+
+
+def reproduce_cli(args: ReproduceArgs) -> int:
+    if args.repo_id is None:
+        raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
+    report = reproduce(args.repo_id, revision=args.revision, trust_remote_code=args.trust_remote_code,
+                       workers=args.workers or None, tolerance=args.tolerance, out=args.out, replay=args.replay,
+                       benchmarks=args.benchmarks, resamples=args.resamples)
+    if args.json:
+        print(report.to_json(), end="")
+    else:
+        print(report.summary())
+    where = report.paths
+    print(f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
+          + (f", {where['png']} (plot)" if where.get("png") else ""), file=sys.stderr if args.json else sys.stdout)
+    return 0 if report.reproduced else 1
+
+
+CLI_COMMANDS = {"reproduce": (ReproduceArgs, reproduce_cli)}
+
+
+class _CallableModule(types.ModuleType):
+    """``hub_envs.reproduce`` is both this module and its main function: ``from hub_envs import reproduce``
+    may give either (Python binds a package attribute to its submodule once the submodule is imported),
+    so the module calls :func:`reproduce` when called."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> ReproduceReport:
+        return reproduce(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

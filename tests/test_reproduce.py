@@ -1,0 +1,315 @@
+"""The reproducibility harness: fingerprints on load, replay of the dataset, benchmark reproduction,
+provenance, env_from_dataset, and the reports of ``hub-envs reproduce``.
+
+A *perturbed env* is a published repo whose code changed (a physics constant) while its dataset and
+benchmark stayed as published; integrity passes (the manifest's hashes are fixed up, as a careless
+publisher's hand-made commit would). push_env cannot make one: it regenerates the dataset from the
+new code. A *modified dataset* is the same repo with one recorded value changed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce
+from hub_envs.benchmark import bootstrap_ci, reproduce_benchmark
+from hub_envs.cli import main as cli_main
+from hub_envs.dataset import read_episode_frames
+from hub_envs.registration import snapshot_registries
+from hub_envs.replay import replay_dataset
+from helpers import TINY, copy_env, republish
+
+ENVS = Path(__file__).resolve().parent.parent / "envs"
+
+
+def _push(path, repo_id, **kw):
+    kw.setdefault("episodes", 2)
+    kw.setdefault("progress", False)
+    return push_env(path, repo_id, **kw)
+
+
+def _perturb_gain(folder: Path) -> None:
+    """A changed physics constant: the force gain of the tiny env's dynamics, 1.0 -> 1.05."""
+    path = folder / "dynamics.py"
+    text = path.read_text()
+    assert "GAIN = 1.0\n" in text
+    path.write_text(text.replace("GAIN = 1.0\n", "GAIN = 1.05\n"))
+
+
+def _edit_dataset_value(folder: Path, key: str, episode: int, frame: int, element: int, delta: float) -> None:
+    """Change one recorded value in the dataset's parquet, keeping its schema (and LeRobot's metadata)."""
+    path = next((folder / "dataset" / "data").rglob("*.parquet"))
+    table = pq.read_table(path)
+    rows = np.flatnonzero((table.column("episode_index").to_numpy() == episode) & (table.column("frame_index").to_numpy() == frame))
+    assert len(rows) == 1
+    values = table.column(key).to_pylist()
+    values[int(rows[0])][element] += delta
+    i = table.schema.get_field_index(key)
+    table = table.set_column(i, table.schema.field(i), pa.array(values, type=table.schema.field(i).type))
+    pq.write_table(table, path)
+
+
+def _comparable(report) -> dict:
+    """The report minus wall-clock fields."""
+    d = report.to_dict()
+    d["provenance"].pop("generated_at")
+    d["replay"].pop("seconds")
+    for b in d["benchmarks"]:
+        b.pop("seconds")
+    d.pop("settings")
+    return d
+
+
+# --- the example envs reproduce their own datasets -----------------------------------------------
+
+
+def _reach_small(tmp_path: Path) -> Path:
+    return copy_env(tmp_path, ENVS / "reach", "reach", edits={"config.py": lambda s: s.replace("episode_length: int = 100", "episode_length: int = 12")})
+
+
+@pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
+def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name):
+    if not (ENVS / name).is_dir():
+        pytest.skip(f"envs/{name} is not there")
+    folder = _reach_small(tmp_path) if name == "reach" else ENVS / name
+    pushed = _push(folder, f"alice/{name}")
+    before = snapshot_registries()
+    report = reproduce(f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    assert snapshot_registries() == before  # reproduce leaves no registration behind
+    assert report.reproduced, report.summary()
+    assert report.sha == pushed.sha
+    replay = report.replay
+    assert replay.ok and replay.tolerance == 0.0
+    assert [e.episode for e in replay.episodes] == [0, 1] and [e.seed for e in replay.episodes] == [0, 1]
+    assert sum(e.length for e in replay.episodes) == pushed.manifest.dataset["frames"]
+    assert {"observation.state", "next.reward", "next.done", "next.success", "env_state"} <= set(replay.features)
+    if name == "reach":  # the camera image is compared too, pixel for pixel
+        assert "observation.image" in replay.features
+    assert all(v == 0.0 for e in replay.episodes for v in e.max_abs_diff.values())
+    (bench,) = report.benchmarks
+    assert bench.passed and bench.name == "random-policy"
+    assert bench.reproduced_per_episode["return"] == pytest.approx(bench.published_per_episode["return"], abs=0)
+    assert report.fingerprint["ok"]
+    # provenance: sha, digests, seeds and versions beside the published ones
+    prov = report.provenance
+    assert prov["sha"] == pushed.sha and prov["code_digest"] == pushed.manifest.code_digest == prov["dataset_code_digest"]
+    assert prov["dataset_fingerprint"] == prov["published_dataset_fingerprint"] == pushed.manifest.dataset["fingerprint"]
+    assert prov["seeds"]["dataset"] == [0, 1]
+    assert {"python", "numpy", "gymnasium", "torch", "lerobot"} <= set(prov["versions_here"])
+    if name in ("hover", "reach"):
+        assert "pybullet" in prov["versions_here"] and "pybullet" in prov["versions_published"]
+    assert prov["version_differences"] == {}
+    # the three reports
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert data["reproduced"] is True and data["sha"] == pushed.sha and data["replay"]["episodes_diverged"] == []
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "**REPRODUCED**" in markdown and pushed.sha in markdown
+    assert (tmp_path / "out" / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# --- a perturbed env --------------------------------------------------------------------------
+
+
+def test_a_perturbed_env_is_caught_by_the_fingerprint_replay_and_benchmark(hub, tmp_path, capsys):
+    pushed = _push(TINY, "alice/tiny")
+
+    def perturb_and_claim_other_versions(folder: Path) -> None:
+        _perturb_gain(folder)
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["versions"]["numpy"] = "1.26.0"  # as if published with another numpy
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub.api, "alice/tiny", perturb_and_claim_other_versions, message="stronger motor")
+    assert sha != pushed.sha
+
+    # 1. the fingerprint on load: error / warn / off, with the version differences
+    before = snapshot_registries()
+    with pytest.raises(errors.FingerprintMismatchError) as e:
+        load_env(f"alice/tiny@{sha}", trust_remote_code=True)
+    assert "seeds [0, 1] no longer match" in str(e.value) and "hub-envs reproduce" in str(e.value)
+    assert "numpy 1.26.0 (published) vs" in str(e.value)
+    assert snapshot_registries() == before
+    with pytest.warns(UserWarning, match="golden-rollout fingerprint drifted"):
+        warned = load_env(f"alice/tiny@{sha}", trust_remote_code=True, fingerprint="warn")
+    assert warned.report.fingerprint.startswith("DRIFTED")
+    warned.unregister()
+    off = load_env(f"alice/tiny@{sha}", trust_remote_code=True, fingerprint="off")
+    assert off.report.fingerprint == "off"
+    off.unregister()
+
+    # 2. the replay names the episode, step and feature; 3. the benchmark fails
+    report = reproduce("alice/tiny", revision=sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    assert not report.reproduced
+    assert report.checks == {"replay": False, "benchmark random-policy": False, "fingerprint": False}
+    replay = report.replay
+    assert [e.episode for e in replay.diverged] == [0, 1]
+    first = replay.first_divergence
+    # frame 0 holds the reset observation (unchanged) and the reward of the first, now stronger, push
+    assert (first.episode, first.seed, first.step, first.feature) == (0, 0, 0, "next.reward")
+    by_feature = {d.feature: d for d in replay.episodes[0].divergences}
+    assert by_feature["observation.state"].step == 1 and by_feature["env_state"].step == 1
+    assert by_feature["observation.state"].env_key == "agent_pos"
+    assert "next.done" not in by_feature and "next.success" not in by_feature or by_feature["next.success"].step >= 1
+    # the reported difference is the real one: replay the perturbed physics by hand
+    frames = read_episode_frames(report_dataset(report), 0)
+    pos0, action0 = float(frames["observation.state"][0][0]), float(frames["action"][0][0])
+    vel_perturbed = np.clip(1.05 * 0.05 * action0, -2, 2)
+    expected_reward = -abs(np.clip(pos0 + 0.05 * vel_perturbed, -1, 1))
+    assert by_feature["next.reward"].replay == pytest.approx(expected_reward, abs=1e-6)
+    assert by_feature["next.reward"].dataset == pytest.approx(float(frames["next.reward"][0][0]))
+    # localized from the recorded states: the dynamics differ from the very first step
+    loc = replay.episodes[0].localization
+    assert loc["first_step"] == 0 and "playback diverged by" in loc["message"]
+    (bench,) = report.benchmarks
+    assert not bench.passed and bench.episodes_differing == [0, 1]
+    assert {m.name: m.passed for m in bench.metrics}["mean_return"] is False
+    # provenance: the version difference, and the code that recorded the data
+    assert report.provenance["version_differences"]["numpy"][0] == "1.26.0"
+    assert any("other code" in n for n in report.notes)
+    summary = report.summary()
+    assert "episode 0 (seed 0), step 0, next.reward" in summary and "numpy 1.26.0 (published)" in summary
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "**NOT REPRODUCED**" in markdown and "| numpy | 1.26.0 |" in markdown and "**differs**" in markdown
+
+    # the CLI: exit 1, says where the reports are
+    code = cli_main(["reproduce", "--repo_id=alice/tiny", f"--revision={sha}", "--trust_remote_code=true",
+                     f"--out={tmp_path / 'cli'}", "--workers=1"])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "NOT REPRODUCED" in out and f"Reports: {tmp_path / 'cli' / 'report.md'}" in out
+    assert json.loads((tmp_path / "cli" / "report.json").read_text())["replay"]["first_divergence"]["feature"] == "next.reward"
+    # and the published revision still reproduces, exit 0
+    assert cli_main(["reproduce", f"--repo_id=alice/tiny@{pushed.sha}", "--trust_remote_code=true", f"--out={tmp_path / 'ok'}"]) == 0
+    # a hub-envs error is exit 1 with the message
+    assert cli_main(["reproduce", "--repo_id=nobody/nothing", "--trust_remote_code=true", f"--out={tmp_path / 'x'}"]) == 1
+    assert "EnvRepoNotFoundError" in capsys.readouterr().err
+
+
+def report_dataset(report) -> Path:
+    """The snapshot dataset a report replayed (found through the cache, as a user would)."""
+    loaded = load_env(f"{report.repo_id}@{report.sha}", trust_remote_code=True, check=False)
+    loaded.unregister()
+    return loaded.dataset_root
+
+
+def test_results_are_identical_with_1_and_2_workers(hub, tmp_path):
+    _push(TINY, "alice/tiny-workers", episodes=4)
+    sha = republish(hub.api, "alice/tiny-workers", _perturb_gain)
+    one = reproduce("alice/tiny-workers", revision=sha, trust_remote_code=True, workers=1, out=tmp_path / "w1", progress=False)
+    two = reproduce("alice/tiny-workers", revision=sha, trust_remote_code=True, workers=2, out=tmp_path / "w2", progress=False)
+    assert len(one.replay.diverged) == 4 and one.replay.diverged[0].error_curve  # something substantial to compare
+    assert _comparable(one) == _comparable(two)
+
+
+# --- a modified dataset ------------------------------------------------------------------------
+
+
+def test_a_modified_dataset_is_detected_at_its_episode_step_and_feature(hub, tmp_path):
+    _push(TINY, "alice/tiny-data", episodes=3)
+    sha = republish(hub.api, "alice/tiny-data", lambda f: _edit_dataset_value(f, "observation.state", episode=1, frame=7, element=1, delta=0.25))
+    report = reproduce("alice/tiny-data", revision=sha, trust_remote_code=True, workers=2, out=tmp_path / "out", progress=False)
+    assert not report.reproduced and report.checks["replay"] is False
+    replay = report.replay
+    assert [e.ok for e in replay.episodes] == [True, False, True]
+    (d,) = replay.episodes[1].divergences  # that value only: the env and its states are unchanged
+    assert (d.episode, d.seed, d.step, d.feature, d.element) == (1, 1, 7, "observation.state", [1])
+    assert d.max_abs_diff == pytest.approx(0.25, abs=1e-6)
+    assert d.dataset[1] == pytest.approx(d.replay[1] + 0.25, abs=1e-6)
+    # state-restored playback: only the step that produced frame 7 disagrees with the data
+    loc = replay.episodes[1].localization
+    assert loc["first_step"] == 6 and loc["steps_with_error"] == 1
+    assert "playback diverged by 0.25" in loc["message"]
+    # the env itself is fine: its benchmark and fingerprint still reproduce
+    assert report.checks["benchmark random-policy"] and report.checks["fingerprint"]
+    assert any("dataset's files differ" in n for n in report.notes)
+    # a declared tolerance above the change accepts it
+    loose = reproduce("alice/tiny-data", revision=sha, trust_remote_code=True, tolerance=0.3, write=False, progress=False, benchmarks=False)
+    assert loose.replay.ok and loose.replay.tolerance == 0.3
+
+
+# --- env_from_dataset -----------------------------------------------------------------------------
+
+
+def test_env_from_dataset_rebuilds_the_env_that_recorded_the_data(hub, tmp_path):
+    v1 = _push(TINY, "alice/tiny-meta", episodes=2)
+    v2 = _push(copy_env(tmp_path, edits={"dynamics.py": lambda s: s.replace("GAIN = 1.0", "GAIN = 2.0")}), "alice/tiny-meta", episodes=2)
+    assert v2.sha != v1.sha and v2.manifest.code_digest != v1.manifest.code_digest
+
+    # the bundled dataset of a snapshot: that snapshot's commit
+    pinned = env_from_dataset(f"alice/tiny-meta@{v1.sha}", trust_remote_code=True)
+    assert pinned.revision == v1.sha
+    snapshot_dataset = pinned.dataset_root
+    pinned.unregister()
+    from_folder = env_from_dataset(snapshot_dataset, trust_remote_code=True)
+    assert from_folder.revision == v1.sha
+    from_folder.unregister()
+
+    # a standalone copy: main is v2 (other code); the history search finds v1 by its code digest
+    copy = tmp_path / "my-copy"
+    shutil.copytree(snapshot_dataset, copy)
+    rebuilt = env_from_dataset(copy, trust_remote_code=True)
+    assert rebuilt.revision == v1.sha and rebuilt.repo_id == "alice/tiny-meta"
+    replayed = replay_dataset(rebuilt.make, copy, rebuilt.config.features_map, progress=False)
+    assert replayed.ok
+    env = rebuilt.make()
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs["agent_pos"], read_episode_frames(copy, 0)["observation.state"][0])
+    rebuilt.unregister()
+
+    # a dataset repo of its own (dataset type) holding that copy
+    hub.api.create_repo("alice/tiny-meta-data", repo_type="dataset")
+    hub.api.upload_folder(repo_id="alice/tiny-meta-data", repo_type="dataset", folder_path=str(copy))
+    from_repo = env_from_dataset("alice/tiny-meta-data", trust_remote_code=True)
+    assert from_repo.revision == v1.sha
+    from_repo.unregister()
+
+    # what cannot be rebuilt says why
+    info_path = copy / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    info["hub_envs"]["env_meta"]["code_digest"] = "0" * 64
+    info_path.write_text(json.dumps(info))
+    with pytest.raises(errors.ReproductionError, match="No commit of alice/tiny-meta holds the code"):
+        env_from_dataset(copy, trust_remote_code=True)
+    with pytest.raises(errors.ReproductionError, match="is not the code that recorded"):
+        env_from_dataset(copy, trust_remote_code=True, env_revision=v2.sha)
+    del info["hub_envs"]["env_meta"]
+    info_path.write_text(json.dumps(info))
+    with pytest.raises(errors.ReproductionError, match="no hub_envs.env_meta"):
+        env_from_dataset(copy, trust_remote_code=True)
+
+
+# --- benchmark details ---------------------------------------------------------------------------
+
+
+def test_bootstrap_ci_is_seeded_and_brackets_the_mean():
+    values = np.random.default_rng(1).normal(3.0, 1.0, size=40)
+    lo, hi = bootstrap_ci(values, resamples=1000, seed=0)
+    assert lo < values.mean() < hi
+    assert (lo, hi) == bootstrap_ci(values, resamples=1000, seed=0)
+    assert (lo, hi) != bootstrap_ci(values, resamples=1000, seed=1)
+    assert bootstrap_ci([2.0, 2.0, 2.0]) == (2.0, 2.0)
+
+
+def test_benchmark_policies_hub_envs_cannot_run_are_reported_not_raised(hub):
+    pushed = _push(TINY, "alice/tiny-bench")
+    loaded = load_env(f"alice/tiny-bench@{pushed.sha}", trust_remote_code=True)
+    try:
+        base = dict(loaded.manifest.benchmarks[0])
+        ok = reproduce_benchmark(loaded, base, progress=False)
+        assert ok.passed and [m.name for m in ok.metrics] == ["mean_return", "success_rate"]
+        unpinned = reproduce_benchmark(loaded, {**base, "policy": {"type": "lerobot", "checkpoint": "alice/policy@main"}}, progress=False)
+        assert not unpinned.passed and "not pinned to a commit" in unpinned.error
+        unknown = reproduce_benchmark(loaded, {**base, "policy": {"type": "scripted"}}, progress=False)
+        assert not unknown.passed and "'scripted' is not supported" in unknown.error
+        no_tolerance = {**base, "tolerance": {}, "metrics": {"mean_return": base["metrics"]["mean_return"] + 1000.0}}
+        far = reproduce_benchmark(loaded, no_tolerance, progress=False)
+        assert not far.passed  # without a declared tolerance: the published value must lie in the CI
+    finally:
+        loaded.unregister()
