@@ -7,6 +7,8 @@ Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` 
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true]
     hub-envs trust user/pendulum-lerobot@<sha>
     hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true
+    hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.type=act ...
+    hub-envs eval --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.path=...
 
 Every hub-envs error is printed as one message (what failed, what to do next) with exit code 1.
 """
@@ -170,7 +172,10 @@ def run_command(name: str, argv: list[str]) -> int:
         if name not in commands:
             print(_usage(commands), file=sys.stderr)
             return 2
-        args_cls, func = commands[name]
+        entry = commands[name]
+        if callable(entry):  # a raw command: parses argv itself (hub-envs train/eval hand it to LeRobot's parser)
+            return int(entry(argv) or 0)
+        args_cls, func = entry
         args = draccus.parse(config_class=args_cls, args=argv)
         return int(func(args) or 0)
     except HubEnvsError as e:

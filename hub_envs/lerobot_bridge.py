@@ -1,0 +1,331 @@
+"""``hub-envs train`` and ``hub-envs eval``: LeRobot's own training and evaluation, with a hub env chosen by flag.
+
+LeRobot 0.4.4 auto-imports only plugins named ``lerobot_robot_*`` / ``camera_*`` / ``teleoperator_*`` /
+``policy_*``, so an ``--env.type`` choice from another package must be registered before LeRobot's
+draccus parsing runs. These commands do exactly that, then hand the same flags to LeRobot:
+
+1. import :mod:`hub_envs.lerobot_env`, which registers the generic ``hub`` choice, and
+   :func:`~hub_envs.lerobot_env.install_hooks` (env creation and env processors for hub env configs);
+2. for ``--env.type=hub``, load the repo named by ``--env.repo_id`` / ``--env.revision`` now, so a
+   wrong id or an untrusted commit is one clear error before LeRobot starts; for a per-repo choice
+   (``--env.type=user/name@<sha12>``, what load_env registers), load that repo (from the choice name,
+   or ``--env.repo_id`` / ``--env.revision``) so the choice exists when LeRobot parses;
+3. ``train`` with no ``--dataset.repo_id`` trains on the env repo's bundled dataset (and a
+   ``--dataset.repo_id`` equal to the env repo gets ``--dataset.root`` pointing at that dataset);
+4. run ``lerobot.scripts.lerobot_train.train`` / ``lerobot.scripts.lerobot_eval.eval_main`` through
+   LeRobot's own ``lerobot.configs.parser.wrap`` with those flags;
+5. write ``hub_envs_provenance.json`` (env repo id + sha, config, processors, dataset fingerprints,
+   package versions) next to the results, and add it to ``eval_info.json`` under ``"provenance"``.
+
+    hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> \\
+        --env.trust_remote_code=true --policy.type=act --policy.push_to_hub=false --steps=1000 ...
+    hub-envs eval --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> \\
+        --env.trust_remote_code=true --policy.path=outputs/train/.../pretrained_model --eval.n_episodes=10
+
+LeRobot's own CLIs work too, through LeRobot's plugin flag:
+``lerobot-eval --env.discover_packages_path=hub_envs.lerobot_plugin --env.type=hub ...``
+(see :mod:`hub_envs.lerobot_plugin`); only the provenance file is specific to ``hub-envs eval``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import json
+import re
+import sys
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from hub_envs.errors import ConfigError, HubEnvsError
+
+PROVENANCE_FILE = "hub_envs_provenance.json"
+_PER_REPO_RE = re.compile(r"^(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})$")
+_CONSUMED = ("repo_id", "revision", "trust_remote_code", "fingerprint", "check")
+
+
+# --- argv -------------------------------------------------------------------------------------
+
+
+def flag(argv: list[str], name: str) -> str | None:
+    """The value of ``--name=value`` in ``argv`` (the last one wins), else None."""
+    prefix = f"--{name}="
+    values = [a[len(prefix):] for a in argv if a.startswith(prefix)]
+    return values[-1] if values else None
+
+
+def _drop(argv: list[str], names: tuple[str, ...]) -> list[str]:
+    return [a for a in argv if not any(a.startswith(f"--{n}=") or a == f"--{n}" for n in names)]
+
+
+def _true(value: str | None) -> bool:
+    return value is not None and value.strip().lower() in ("1", "true", "yes", "on")
+
+
+def _resolve_short_sha(repo_id: str, prefix: str) -> str:
+    """The full sha of ``repo_id`` starting with ``prefix``: from the local cache, else the Hub's commit list."""
+    from huggingface_hub import constants
+
+    from hub_envs import hub_io
+
+    snapshots = Path(constants.HF_HUB_CACHE) / f"models--{repo_id.replace('/', '--')}" / "snapshots"
+    cached = sorted(p.name for p in snapshots.glob(f"{prefix}*")) if snapshots.is_dir() else []
+    if len(cached) == 1:
+        return cached[0]
+    if not hub_io.offline():
+        with hub_io.translate_hub_errors(repo_id, prefix):
+            commits = [c.commit_id for c in hub_io.api().list_repo_commits(repo_id, repo_type=hub_io.REPO_TYPE)]
+        matches = [c for c in commits if c.startswith(prefix)]
+        if len(matches) == 1:
+            return matches[0]
+    raise ConfigError(
+        f"--env.type={repo_id}@{prefix}: no single commit of {repo_id} starts with {prefix} "
+        f"({'in the local cache' if hub_io.offline() else 'locally or on the Hub'}). "
+        f"Add --env.revision=<the full 40-hex sha>, or use --env.type=hub --env.repo_id={repo_id} --env.revision=<sha>."
+    )
+
+
+def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
+    """Register hub-envs' choices, pre-load the env the flags name, and return (argv for LeRobot, LoadedEnv or None)."""
+    from hub_envs.lerobot_env import HUB_CHOICE, install_hooks, load_cached
+
+    install_hooks()
+    argv = list(argv)
+    env_type = flag(argv, "env.type")
+    top_trust = command in ("eval", "plugin") and _true(flag(argv, "trust_remote_code"))
+    trust = _true(flag(argv, "env.trust_remote_code")) or top_trust
+    fingerprint = flag(argv, "env.fingerprint") or "error"
+    check = flag(argv, "env.check")
+    check = True if check is None else _true(check)
+    loaded = None
+    if env_type == HUB_CHOICE:
+        repo_id = flag(argv, "env.repo_id")
+        if not repo_id:
+            raise ConfigError("--env.type=hub needs --env.repo_id=user/name (and --env.revision=<sha> to pin it).")
+        loaded = load_cached(repo_id, flag(argv, "env.revision"), trust_remote_code=trust, fingerprint=fingerprint, check=check)
+        if top_trust and flag(argv, "env.trust_remote_code") is None:
+            argv.append("--env.trust_remote_code=true")  # LeRobot's own consent flag counts for the env too
+    elif env_type and _PER_REPO_RE.match(env_type):
+        m = _PER_REPO_RE.match(env_type)
+        repo_id = flag(argv, "env.repo_id") or m["repo"]
+        revision = flag(argv, "env.revision")
+        if revision is None:
+            revision = _resolve_short_sha(repo_id, m["prefix"])
+        elif not revision.startswith(m["prefix"]):
+            raise ConfigError(f"--env.type={env_type} names commit {m['prefix']}..., but --env.revision={revision}.")
+        loaded = load_cached(repo_id, revision, trust_remote_code=trust, fingerprint=fingerprint, check=check)
+        if loaded.env_type != env_type:
+            raise ConfigError(f"{repo_id}@{loaded.revision} registers the choice {loaded.env_type!r}, not {env_type!r}. "
+                              f"Use --env.type={loaded.env_type}.")
+        argv = _drop(argv, tuple(f"env.{n}" for n in _CONSUMED))  # not fields of the repo's own config
+    if command == "train" and loaded is not None and loaded.dataset_root is not None:
+        ds_repo = flag(argv, "dataset.repo_id")
+        if ds_repo is None:
+            argv += [f"--dataset.repo_id={loaded.repo_id}", f"--dataset.root={loaded.dataset_root}"]
+        elif ds_repo == loaded.repo_id and flag(argv, "dataset.root") is None:
+            argv.append(f"--dataset.root={loaded.dataset_root}")
+    return argv, loaded
+
+
+@contextlib.contextmanager
+def _sys_argv(argv: list[str], prog: str) -> Iterator[None]:
+    """LeRobot's parser and its configs read ``sys.argv`` (``--policy.path``), so set it for the call."""
+    saved = sys.argv
+    sys.argv = [prog, *argv]
+    try:
+        yield
+    finally:
+        sys.argv = saved
+
+
+def _hub_envs_cause(error: BaseException) -> HubEnvsError | None:
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, HubEnvsError):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def _run_wrapped(config_class: type, body: Callable[[Any], Any], argv: list[str], prog: str):
+    """Parse ``argv`` with LeRobot's own ``parser.wrap`` into ``config_class`` and call ``body(cfg)``."""
+    from lerobot.configs import parser
+
+    def entry(cfg):
+        return body(cfg)
+
+    entry.__annotations__ = {"cfg": config_class}  # parser.wrap reads the config class from the annotation
+    wrapped = parser.wrap()(entry)
+    with _sys_argv(argv, prog):
+        try:
+            return wrapped()
+        except Exception as e:
+            cause = _hub_envs_cause(e)
+            if cause is not None and cause is not e:
+                raise cause from None
+            raise
+
+
+# --- provenance -------------------------------------------------------------------------------
+
+
+def _json_default(value):
+    if isinstance(value, Path):
+        return str(value)
+    return str(value)
+
+
+def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
+    """What identifies the env a LeRobot config names: repo, sha, digests, config values, processors."""
+    from hub_envs.envconfig import encode_config
+    from hub_envs.lerobot_env import loaded_for
+
+    found = loaded_for(env_cfg_or_hub)
+    if found is None:
+        return None
+    loaded, cfg = found
+    from hub_envs.processors import specs_for
+
+    m = loaded.manifest
+    return {
+        "repo_id": loaded.repo_id,
+        "revision": loaded.revision,
+        "requested_revision": loaded.requested_revision,
+        "load_line": loaded.load_line(),
+        "env_type": loaded.env_type,
+        "gym_id": loaded.gym_id,
+        "content_digest": m.content_digest,
+        "code_digest": m.code_digest,
+        "dataset_fingerprint": m.dataset.get("fingerprint"),
+        "golden_fingerprint": m.fingerprint.get("digest") if isinstance(m.fingerprint, dict) else None,
+        "config": encode_config(cfg),
+        "processors": [s.to_dict() for s in specs_for(loaded)],
+        "published_with": dict(m.versions),
+    }
+
+
+def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: str | None, env: dict | None) -> dict[str, Any]:
+    from hub_envs.dataset import dataset_fingerprint
+
+    out: dict[str, Any] = {"repo_id": repo_id, "root": str(root) if root else None, "revision": revision, "fingerprint": None}
+    if root and (Path(root) / "meta" / "info.json").is_file():
+        out["fingerprint"] = dataset_fingerprint(root)
+    if env is not None and out["fingerprint"] is not None:
+        out["is_env_dataset"] = out["fingerprint"] == env.get("dataset_fingerprint")
+    return out
+
+
+def _versions(env: dict | None) -> dict[str, str]:
+    from hub_envs.provenance import package_versions
+
+    return package_versions()
+
+
+def _policy_training(policy_path: Path | None) -> dict[str, Any] | None:
+    """What the policy's checkpoint says about its training: hub-envs' sidecar, else LeRobot's train_config.json."""
+    if policy_path is None or not Path(policy_path).is_dir():
+        return None
+    sidecar = Path(policy_path) / PROVENANCE_FILE
+    if sidecar.is_file():
+        return json.loads(sidecar.read_text(encoding="utf-8"))
+    train_config = Path(policy_path) / "train_config.json"
+    if train_config.is_file():
+        data = json.loads(train_config.read_text(encoding="utf-8"))
+        ds = data.get("dataset") or {}
+        return {"dataset": dataset_provenance(ds.get("repo_id"), ds.get("root"), ds.get("revision"), None),
+                "steps": data.get("steps"), "seed": data.get("seed")}
+    return None
+
+
+def _write_json(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n", encoding="utf-8")
+
+
+def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
+    env = env_provenance(cfg.env) if cfg.env is not None else None
+    return {
+        "hub_envs_provenance": 1,
+        "command": ["hub-envs", "train", *argv],
+        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "env": env,
+        "dataset": dataset_provenance(cfg.dataset.repo_id, cfg.dataset.root, cfg.dataset.revision, env),
+        "policy": {"type": cfg.policy.type if cfg.policy else None},
+        "steps": cfg.steps,
+        "seed": cfg.seed,
+        "output_dir": str(cfg.output_dir),
+        "versions": _versions(env),
+    }
+
+
+def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
+    env = env_provenance(cfg.env)
+    policy_path = getattr(cfg.policy, "pretrained_path", None) if cfg.policy else None
+    return {
+        "hub_envs_provenance": 1,
+        "command": ["hub-envs", "eval", *argv],
+        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "env": env,
+        "policy": {"type": cfg.policy.type if cfg.policy else None, "path": str(policy_path) if policy_path else None,
+                   "training": _policy_training(Path(policy_path) if policy_path else None)},
+        "eval": {"n_episodes": cfg.eval.n_episodes, "batch_size": cfg.eval.batch_size, "seed": cfg.seed},
+        "output_dir": str(cfg.output_dir),
+        "versions": _versions(env),
+    }
+
+
+# --- the commands -----------------------------------------------------------------------------
+
+
+def train_cli(argv: list[str]) -> int:
+    """``hub-envs train <LeRobot's lerobot-train flags>``."""
+    argv, _ = prepare_argv(argv, command="train")
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.scripts.lerobot_train import train
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+
+    def body(cfg):
+        train(cfg)  # LeRobot's own training loop (cfg.validate() runs inside)
+        prov = train_provenance(cfg, argv)
+        _write_json(Path(cfg.output_dir) / PROVENANCE_FILE, prov)
+        for model_dir in sorted(Path(cfg.output_dir).glob("checkpoints/*/pretrained_model")):
+            if not model_dir.parent.is_symlink():
+                _write_json(model_dir / PROVENANCE_FILE, prov)
+        print(f"hub-envs: wrote {Path(cfg.output_dir) / PROVENANCE_FILE}")
+
+    _run_wrapped(TrainPipelineConfig, body, argv, "hub-envs train")
+    return 0
+
+
+def eval_cli(argv: list[str]) -> int:
+    """``hub-envs eval <LeRobot's lerobot-eval flags>``."""
+    argv, _ = prepare_argv(argv, command="eval")
+    from lerobot.configs.eval import EvalPipelineConfig
+    from lerobot.scripts.lerobot_eval import eval_main
+    from lerobot.utils.import_utils import register_third_party_plugins
+    from lerobot.utils.utils import init_logging
+
+    init_logging()
+    register_third_party_plugins()
+
+    def body(cfg):
+        eval_main(cfg)  # LeRobot's own eval loop; writes eval_info.json
+        prov = eval_provenance(cfg, argv)
+        out = Path(cfg.output_dir)
+        _write_json(out / PROVENANCE_FILE, prov)
+        info_path = out / "eval_info.json"
+        if info_path.is_file():
+            info = json.loads(info_path.read_text(encoding="utf-8"))
+            info["provenance"] = prov
+            _write_json(info_path, info)
+        print(f"hub-envs: results with provenance in {info_path}")
+
+    _run_wrapped(EvalPipelineConfig, body, argv, "hub-envs eval")
+    return 0
+
+
+#: Picked up by hub_envs.cli: plain callables take the raw argv (LeRobot parses the flags itself).
+CLI_COMMANDS: dict[str, Callable[[list[str]], int]] = {"train": train_cli, "eval": eval_cli}

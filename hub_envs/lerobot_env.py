@@ -1,0 +1,292 @@
+"""Hub envs as LeRobot env configs: the generic ``--env.type=hub`` choice and LeRobot-ready vector envs.
+
+``HubEnv`` is an ``EnvConfig`` choice registered as ``"hub"`` when this module is imported. Its
+fields name a repo (``repo_id``, ``revision``, ``trust_remote_code``) and optionally override the
+repo config's own fields (``overrides``, plus ``task`` / ``fps`` / ``episode_length``). Building it
+(that is, draccus parsing ``--env.type=hub --env.repo_id=...``) runs :func:`hub_envs.load_env`,
+so a wrong repo id, an untrusted commit or a failing check stops a run before it starts, and fills
+the LeRobot fields from the repo's config: ``task``, ``fps``, ``episode_length``, ``features``,
+``features_map``. ``revision`` becomes the resolved commit sha, so a saved ``train_config.json``
+names exactly the code it ran. ``gym_id`` / ``gym_kwargs`` point at the env load_env registered
+with gymnasium, so LeRobot's own unmodified ``lerobot.envs.factory.make_env(cfg)`` builds it.
+
+:func:`make_env` and :func:`make_env_pre_post_processors` have LeRobot's signatures: for a hub env
+config (``hub`` or the per-repo choice load_env registers) they build vector envs the way LeRobot's
+eval loop expects (``AutoresetMode.SAME_STEP`` so ``info["final_info"]["is_success"]`` is there,
+the config's ``episode_length`` as time limit, the config's ``task`` exposed as
+``task``/``task_description`` for ``add_envs_task``) and add the repo's env processors; for any
+other config they call LeRobot's own. :func:`install_hooks` puts them in place of LeRobot's in the
+``lerobot_train`` and ``lerobot_eval`` scripts (``hub-envs train`` / ``hub-envs eval`` do that).
+
+Example:
+    >>> import draccus
+    >>> from lerobot.configs.eval import EvalPipelineConfig
+    >>> from hub_envs.lerobot_env import HubEnv, make_env
+    >>> cfg = draccus.parse(EvalPipelineConfig, args=["--env.type=hub", "--env.repo_id=user/pendulum-lerobot",
+    ...     "--env.revision=<sha>", "--env.trust_remote_code=true"])                     # doctest: +SKIP
+    >>> envs = make_env(cfg.env, n_envs=2)                                               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+import draccus
+import gymnasium as gym
+from lerobot.envs.configs import EnvConfig
+
+from hub_envs.errors import ConfigError, HubEnvsError, UntrustedCodeError
+from hub_envs.load import LoadedEnv, load_env, loaded_env_for_type
+from hub_envs.registration import owner_of_choice
+
+HUB_CHOICE = "hub"
+
+#: (repo_id, revision, trust, fingerprint, check) -> LoadedEnv, so re-building a config does not re-run the checks.
+_CACHE: dict[tuple, LoadedEnv] = {}
+
+
+def load_cached(repo_id: str, revision: str | None = None, *, trust_remote_code: bool = False,
+                fingerprint: str = "error", check: bool = True) -> LoadedEnv:
+    """:func:`hub_envs.load_env`, once per process for the same arguments."""
+    key = (repo_id, revision, bool(trust_remote_code), fingerprint, bool(check))
+    loaded = _CACHE.get(key)
+    if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
+        return loaded
+    try:
+        loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code,
+                          fingerprint=fingerprint, check=check)
+    except UntrustedCodeError as e:
+        raise UntrustedCodeError(f"{e}\nWith LeRobot's CLIs (hub-envs train / eval): add --env.trust_remote_code=true.") from None
+    _CACHE[key] = loaded
+    if not loaded.is_local:
+        _CACHE[(loaded.repo_id, loaded.revision, bool(trust_remote_code), fingerprint, bool(check))] = loaded
+    return loaded
+
+
+def _typed_overrides(config_class: type, overrides: dict[str, Any], *, where: str) -> dict[str, Any]:
+    names = {f.name: f for f in dataclasses.fields(config_class) if f.init}
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ConfigError(f"{where}: --env.overrides has {unknown}, which {config_class.__qualname__} does not have; "
+                          f"its fields are {sorted(names)}.")
+    try:
+        hints = typing.get_type_hints(config_class)
+    except Exception:
+        hints = {}
+    out = {}
+    for name, value in overrides.items():
+        if name in hints:
+            try:
+                value = draccus.decode(hints[name], value)
+            except Exception as e:
+                raise ConfigError(f"{where}: --env.overrides {name}={value!r} is not a valid {hints[name]}: {e}") from None
+        out[name] = value
+    return out
+
+
+@EnvConfig.register_subclass(HUB_CHOICE)
+@dataclass
+class HubEnv(EnvConfig):
+    """``--env.type=hub``: any env repo by id, pinned to a commit, with its own config's values.
+
+    Fields (flags ``--env.<field>``):
+        repo_id: ``user/name`` (``user/name@rev`` works too) or a local env folder.
+        revision: a commit sha (pin it), tag or branch; replaced by the resolved sha once loaded.
+        trust_remote_code: consent to run the repo's code (or ``hub-envs trust user/name@sha`` once).
+        overrides: values for the repo config's own fields, e.g. ``--env.overrides='{obs_type: pixels_agent_pos}'``.
+        task, fps, episode_length: override the repo config's (default: the repo's).
+        fingerprint: ``error`` / ``warn`` / ``off``, what a drifted golden rollout does at load.
+        check: run load_env's feature and fingerprint checks.
+    """
+
+    repo_id: str | None = None
+    revision: str | None = None
+    trust_remote_code: bool = False
+    overrides: dict[str, Any] = field(default_factory=dict)
+    fps: int | None = None
+    episode_length: int | None = None
+    fingerprint: str = "error"
+    check: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.repo_id:
+            raise ConfigError("--env.type=hub needs --env.repo_id=user/name (and --env.revision=<sha> to pin it).")
+        if self.fingerprint not in ("error", "warn", "off"):
+            raise ConfigError(f"--env.fingerprint={self.fingerprint!r}: use error, warn or off.")
+        loaded = load_cached(self.repo_id, self.revision, trust_remote_code=self.trust_remote_code,
+                             fingerprint=self.fingerprint, check=self.check)
+        where = f"{loaded.repo_id}@{loaded.revision}"
+        overrides = dict(self.overrides or {})
+        for name in ("task", "fps", "episode_length"):
+            if getattr(self, name) is not None:
+                overrides.setdefault(name, getattr(self, name))
+        overrides = _typed_overrides(loaded.config_class, overrides, where=where)
+        from hub_envs.envconfig import instantiate_config
+
+        env_cfg = instantiate_config(loaded.config_class, where=where, **overrides) if overrides else loaded.config
+        self._loaded = loaded
+        self._env_config = env_cfg
+        if not loaded.is_local:
+            self.repo_id, self.revision = loaded.repo_id, loaded.revision
+        self.task = env_cfg.task
+        self.fps = int(env_cfg.fps)
+        self.episode_length = int(env_cfg.episode_length)
+        self.features = dict(env_cfg.features)
+        self.features_map = dict(env_cfg.features_map)
+
+    @property
+    def loaded(self) -> LoadedEnv:
+        """The :class:`~hub_envs.load.LoadedEnv` this config names."""
+        return self._loaded
+
+    @property
+    def env_config(self) -> EnvConfig:
+        """The repo's own config instance (its class, with the overrides applied)."""
+        return self._env_config
+
+    @property
+    def gym_id(self) -> str:
+        return self._loaded.gym_id
+
+    @property
+    def gym_kwargs(self) -> dict:
+        # for LeRobot's own make_env: gym.make(gym_id, **gym_kwargs) honours episode_length this way
+        return {**self._env_config.gym_kwargs, "max_episode_steps": int(self.episode_length)}
+
+
+# --- vector envs and processors for LeRobot's eval loop ---------------------------------------
+
+
+class TaskDescription(gym.Wrapper):
+    """Exposes the config's ``task`` string to LeRobot's eval loop (``add_envs_task`` reads it)."""
+
+    def __init__(self, env: gym.Env, task: str):
+        super().__init__(env)
+        self.task = task
+        self.task_description = task
+
+
+def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
+    """``(loaded env, repo config instance)`` for a hub env config (``hub`` or a per-repo choice), else None."""
+    if isinstance(cfg, HubEnv):
+        return cfg.loaded, cfg.env_config
+    if isinstance(cfg, EnvConfig):
+        try:
+            env_type = cfg.type
+        except Exception:
+            return None
+        loaded = loaded_env_for_type(env_type) if owner_of_choice(env_type) else None
+        if loaded is not None and isinstance(cfg, loaded.config_class):
+            return loaded, cfg
+    return None
+
+
+def make_vec_env(loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 1, use_async_envs: bool = False) -> gym.vector.VectorEnv:
+    """``n_envs`` copies of a loaded env, as LeRobot's eval loop expects them (see the module docstring)."""
+    if n_envs < 1:
+        raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+    cfg = cfg if cfg is not None else loaded.config
+    gym_id, kwargs, steps = loaded.gym_id, dict(cfg.gym_kwargs), int(cfg.episode_length)
+    task = cfg.task if isinstance(cfg.task, str) else None
+
+    def _one():
+        env = gym.make(gym_id, max_episode_steps=steps, disable_env_checker=True, **kwargs)
+        return TaskDescription(env, task) if task is not None else env
+
+    fns = [_one for _ in range(n_envs)]
+    mode = gym.vector.AutoresetMode.SAME_STEP
+    if use_async_envs:
+        return gym.vector.AsyncVectorEnv(fns, context="fork", autoreset_mode=mode)
+    return gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
+
+
+def make_env(cfg, n_envs: int = 1, use_async_envs: bool = False, hub_cache_dir: str | None = None,
+             trust_remote_code: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+    """LeRobot's ``make_env`` signature; hub env configs get :func:`make_vec_env`, others LeRobot's own.
+
+    A hub env config was loaded through load_env's trust gate when it was built, so LeRobot's
+    ``trust_remote_code`` argument (which ``lerobot_train`` never passes) is not needed for it.
+    """
+    found = loaded_for(cfg)
+    if found is None:
+        from lerobot.envs import factory
+
+        return factory.make_env(cfg, n_envs=n_envs, use_async_envs=use_async_envs, hub_cache_dir=hub_cache_dir,
+                                trust_remote_code=trust_remote_code)
+    loaded, env_cfg = found
+    return {loaded.manifest.name: {0: make_vec_env(loaded, env_cfg, n_envs, use_async_envs)}}
+
+
+def make_env_pre_post_processors(env_cfg, policy_cfg):
+    """LeRobot's ``make_env_pre_post_processors``, plus the processors a hub env repo declares."""
+    from lerobot.envs import factory
+    from lerobot.processor import PolicyProcessorPipeline
+
+    pre, post = factory.make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
+    found = loaded_for(env_cfg)
+    if found is None:
+        return pre, post
+    loaded, cfg = found
+    ours_pre, ours_post = loaded.processors(cfg)
+    return (PolicyProcessorPipeline(steps=[*pre.steps, *ours_pre.steps], name=ours_pre.name),
+            PolicyProcessorPipeline(steps=[*post.steps, *ours_post.steps], name=ours_post.name))
+
+
+def keep_declared_shapes(dataset):
+    """Make ``action`` / ``observation.*`` features declared with shape ``(1,)`` come back with that shape.
+
+    LeRobot stores a shape-``(1,)`` feature as a scalar column and returns it as a 0-d tensor (and a
+    chunk of them as ``(T,)``), while its policies expect ``(..., 1)``: a 1-D action (pendulum's torque)
+    breaks ACT and diffusion training with a broadcasting error. This adds the last dimension back,
+    in the dataset's own torch transform.
+    """
+    import torch
+    from lerobot.datasets.utils import hf_transform_to_torch
+    from lerobot.utils.constants import ACTION, OBS_PREFIX
+
+    keys = [k for k, ft in dataset.meta.features.items()
+            if tuple(ft.get("shape", ())) == (1,) and ft.get("dtype") not in ("image", "video", "string")
+            and (k == ACTION or k.startswith(OBS_PREFIX))]
+    hf = getattr(dataset, "hf_dataset", None)
+    if not keys or hf is None:
+        return dataset
+
+    def to_torch(items):
+        items = hf_transform_to_torch(items)
+        for key in keys:
+            if key in items:
+                items[key] = [x.reshape(1) if isinstance(x, torch.Tensor) and x.dim() == 0 else x for x in items[key]]
+        return items
+
+    hf.set_transform(to_torch)
+    return dataset
+
+
+def make_dataset(cfg):
+    """LeRobot's ``make_dataset``; for a hub env run or a hub-envs dataset, with :func:`keep_declared_shapes`."""
+    from lerobot.datasets import factory
+
+    dataset = factory.make_dataset(cfg)
+    meta = getattr(dataset, "meta", None)
+    if loaded_for(getattr(cfg, "env", None)) is not None or (meta is not None and "hub_envs" in getattr(meta, "info", {})):
+        keep_declared_shapes(dataset)
+    return dataset
+
+
+def install_hooks() -> None:
+    """Route ``lerobot_train`` / ``lerobot_eval`` env creation through :func:`make_env` and
+    :func:`make_env_pre_post_processors`, and ``lerobot_train``'s dataset through :func:`make_dataset`
+    (idempotent; other env configs and datasets still get LeRobot's own behaviour)."""
+    from lerobot.scripts import lerobot_eval, lerobot_train
+
+    for module in (lerobot_eval, lerobot_train):
+        module.make_env = make_env
+        module.make_env_pre_post_processors = make_env_pre_post_processors
+    lerobot_train.make_dataset = make_dataset
+
+
+__all__ = ["HubEnv", "HUB_CHOICE", "TaskDescription", "install_hooks", "load_cached", "loaded_for", "make_env",
+           "make_env_pre_post_processors", "make_vec_env", "make_dataset", "keep_declared_shapes"]
