@@ -116,3 +116,7 @@ class ProcessorError(InvalidRepoFormatError):
 
 class HubError(HubEnvsError):
     """The Hub (or the loopback server) refused or failed a request that is not covered above."""
+
+
+class ConcurrentPushError(HubError):
+    """The repo's main moved while push_env was preparing its commit (another push landed first); nothing was written."""

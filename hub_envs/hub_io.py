@@ -32,6 +32,7 @@ from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundEr
 from huggingface_hub.utils import validate_repo_id
 
 from hub_envs.errors import (
+    ConcurrentPushError,
     ConfigError,
     EnvRepoNotFoundError,
     HubError,
@@ -125,6 +126,15 @@ def translate_hub_errors(repo_id: str, revision: str | None):
             f"{where}: cannot reach the Hub at {constants.ENDPOINT} ({type(e).__name__}). Check HF_ENDPOINT and the network, "
             f"or set HF_HUB_OFFLINE=1 to use the cache."
         ) from e
+    except requests.RequestException as e:  # e.g. ChunkedEncodingError: the connection broke mid-file (not retried)
+        raise HubError(
+            f"{where}: the transfer from {constants.ENDPOINT} broke off ({type(e).__name__}: {e}). Retry: the files that "
+            f"arrived are kept, the rest is fetched again."
+        ) from e
+    except OSError as e:
+        if "Consistency check failed" not in str(e):  # huggingface_hub: size of a downloaded file is wrong
+            raise
+        raise HubError(f"{where}: a downloaded file was incomplete ({e}). Retry; the file is fetched again.") from e
 
 
 def resolve_snapshot(
@@ -206,14 +216,22 @@ def publish_folder(
         # the dataset's parquet files belong in this model-type repo (LeRobot's EnvHub reads model repos)
         warnings.filterwarnings("ignore", message=".*commit a data file.*")
         client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
-        info = client.create_commit(
-            repo_id,
-            operations=ops,
-            commit_message=message,
-            commit_description=description,
-            repo_type=REPO_TYPE,
-            parent_commit=parent_commit,
-        )
+        try:
+            info = client.create_commit(
+                repo_id,
+                operations=ops,
+                commit_message=message,
+                commit_description=description,
+                repo_type=REPO_TYPE,
+                parent_commit=parent_commit,
+            )
+        except HfHubHTTPError as e:
+            if getattr(e.response, "status_code", None) != 412:
+                raise
+            raise ConcurrentPushError(
+                f"{repo_id}: main moved away from {parent_commit} while this commit was prepared (another push landed "
+                f"first); nothing was written. Re-run push_env: it compares with the new main and commits on top of it."
+            ) from e
     return info.oid
 
 

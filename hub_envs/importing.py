@@ -5,7 +5,11 @@ whose ``__path__`` is the folder, named after repo + revision, so
 
 * files import each other with relative imports (``from .physics import step``);
 * two revisions of one repo live side by side in one process (``sys.modules`` never collides);
-* nothing is added to ``sys.path``.
+* nothing is added to ``sys.path``;
+* only the ``.py`` sources are ever run: no ``__pycache__`` bytecode is read or written and no
+  extension module (``.so``) is imported from the folder, so what runs is exactly the source the
+  manifest hashes (a planted unchecked-hash ``.pyc`` would otherwise run instead of it), and a
+  snapshot in the Hugging Face cache is never written to.
 
 Example:
     >>> from hub_envs.importing import import_env_folder, resolve_entry_point
@@ -16,13 +20,15 @@ Example:
 from __future__ import annotations
 
 import importlib
+import importlib.machinery
 import importlib.util
+import os
 import re
 import sys
 import types
 from pathlib import Path
 
-from hub_envs.errors import EnvCodeError, InvalidRepoFormatError
+from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationConflictError
 
 ROOT_PACKAGE = "hub_envs_code"
 _ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_][\w]*(\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*)$")
@@ -33,6 +39,31 @@ def module_key(*parts: str) -> str:
     raw = "__".join(parts)
     key = re.sub(r"\W", "_", raw)
     return key if not key[0].isdigit() else f"_{key}"
+
+
+class _SourceLoader(importlib.machinery.SourceFileLoader):
+    """Loads a module from its ``.py`` source only: never reads or writes ``__pycache__``."""
+
+    def get_code(self, fullname):
+        path = self.get_filename(fullname)
+        return self.source_to_code(self.get_data(path), path)
+
+    def set_data(self, *args, **kwargs) -> None:  # no bytecode cache is written
+        return None
+
+
+_FINDER_DIRS: dict[str, list[str]] = {}  # package name -> the folders given a source-only finder
+
+
+def _install_source_finders(name: str, folder: Path) -> None:
+    """Make imports below ``folder`` use :class:`_SourceLoader` for ``.py`` files and nothing else."""
+    dirs = [str(folder)]
+    for dirpath, dirnames, _ in os.walk(folder):
+        dirnames[:] = sorted(d for d in dirnames if d not in ("__pycache__", ".git"))
+        dirs += [os.path.join(dirpath, d) for d in dirnames]
+    for d in dirs:
+        sys.path_importer_cache[d] = importlib.machinery.FileFinder(d, (_SourceLoader, [".py"]))
+    _FINDER_DIRS[name] = dirs
 
 
 def _root_package() -> types.ModuleType:
@@ -61,6 +92,7 @@ def import_env_folder(folder: str | Path, key: str) -> types.ModuleType:
     pkg = importlib.util.module_from_spec(spec)
     pkg.__path__ = [str(folder)]
     pkg.__file__ = None
+    _install_source_finders(name, folder)
     sys.modules[name] = pkg
     setattr(root, key, pkg)
     return pkg
@@ -71,6 +103,8 @@ def forget_env_folder(key: str) -> None:
     name = f"{ROOT_PACKAGE}.{module_key(key)}"
     for mod in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
         del sys.modules[mod]
+    for d in _FINDER_DIRS.pop(name, []):
+        sys.path_importer_cache.pop(d, None)
     root = sys.modules.get(ROOT_PACKAGE)
     if root is not None and hasattr(root, module_key(key)):
         delattr(root, module_key(key))
@@ -104,6 +138,14 @@ def resolve_entry_point(package: types.ModuleType, entry_point: str, *, where: s
             f"If it is a third-party package, declare it in the requirements; between the env's own files "
             f"use relative imports (from .{e.name} import ...)."
         ) from e
+    except ValueError as e:
+        if "already registered as" in str(e):  # draccus' register_subclass: a choice name is taken
+            raise RegistrationConflictError(
+                f"Importing {module_name} for entry point {entry_point!r} in {where} registers a draccus choice that is "
+                f"already taken: {e}. Remove its @EnvConfig.register_subclass decorator: hub-envs registers the config "
+                f"itself, under a name unique to the repo and commit."
+            ) from e
+        raise EnvCodeError(f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {e}") from e
     except Exception as e:  # the env's own code raised at import time
         raise EnvCodeError(f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {e}") from e
     obj = module

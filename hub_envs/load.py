@@ -19,7 +19,7 @@ Example:
 
 from __future__ import annotations
 
-import json
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -31,12 +31,18 @@ import gymnasium as gym
 from hub_envs import hub_io, registration, trust
 from hub_envs.checks import verify_fingerprint
 from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
+from hub_envs.dataset import read_info
 from hub_envs.errors import (
     ConfigError,
+    DatasetError,
+    EnvCodeError,
+    EnvFolderError,
     FingerprintMismatchError,
     HubEnvsError,
     IntegrityError,
     InvalidRepoFormatError,
+    OfflineNotCachedError,
+    RegistrationConflictError,
     UntrustedCodeError,
 )
 from hub_envs.features import FeatureReport, check_features
@@ -267,7 +273,13 @@ def load_env(
     t0 = time.perf_counter()
     report = LoadReport()
     local_folder = None
+    if not isinstance(repo_id, (str, os.PathLike)) or not str(repo_id).strip():
+        raise ConfigError(f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}.")
+    repo_id = os.fspath(repo_id)
     path_candidate = Path(repo_id).expanduser()
+    if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
+        raise EnvFolderError(f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
+                             f"or a Hub repo id such as 'user/name'.")
     if path_candidate.is_dir():
         repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
         local_folder = path
@@ -289,6 +301,8 @@ def load_env(
             manifest = Manifest.read(snap.path, where=f"{where}: hub_env.json")
             manifest.verify_files(snap.path, where=where)
         except (IntegrityError, InvalidRepoFormatError):
+            if snap.from_cache and hub_io.offline():
+                _raise_if_partly_cached(snap.path, where)
             if not snap.from_cache or hub_io.offline():
                 raise
             # a cached snapshot may be damaged locally: fetch it again once, then judge
@@ -315,10 +329,17 @@ def load_env(
     key = module_key(repo, sha)
     owner = f"{repo}@{sha}"
     try:
-        with registration.registry_transaction():
+        with registration.registry_transaction() as txn:
             package = import_env_folder(path, key)
             env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
             config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
+            replaced = txn.replaced()
+            if replaced:
+                raise RegistrationConflictError(
+                    f"{where}: importing its code replaced {', '.join(replaced)}, already registered by another package. "
+                    f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
+                    f"env itself, under names unique to the repo and commit."
+                )
             validate_config_class(config_class, where=where)
             config = instantiate_config(config_class, where=where)
             if manifest.config:
@@ -371,13 +392,39 @@ def loaded_env_for_type(env_type: str) -> LoadedEnv | None:
     return _LOADED.get(env_type)
 
 
+def _raise_if_partly_cached(path: Path, where: str) -> None:
+    """Offline, a snapshot left incomplete by an interrupted download is a cache problem, not tampering."""
+    try:
+        files = Manifest.read(path).files
+    except HubEnvsError:
+        files = {}
+    missing = sorted(p for p in files if not (path / p).is_file()) if files else ["hub_env.json"]
+    if missing:
+        raise OfflineNotCachedError(
+            f"{where} is only partly in the local cache ({len(missing)} file(s) missing, e.g. {missing[0]}; an interrupted "
+            f"download?). Load it once online (unset HF_HUB_OFFLINE) to complete it."
+        )
+
+
 def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int) -> None:
     where = f"{loaded.repo_id}@{loaded.revision}"
     dataset_features = None
-    if loaded.dataset_root is not None:
-        info = json.loads((loaded.dataset_root / "meta" / "info.json").read_text())
+    dataset_dir = loaded.manifest.dataset.get("path") if loaded.manifest.dataset else None
+    if loaded.dataset_root is not None or dataset_dir:
+        try:
+            info = read_info(loaded.path / (dataset_dir or DATASET_DIR))
+        except DatasetError as e:
+            raise DatasetError(f"{where}: the manifest lists a dataset, but {e} Re-publish with push_env.") from e
         dataset_features = info.get("features", {})
-    env = loaded.make()
+    try:
+        env = loaded.make()
+    except HubEnvsError:
+        raise
+    except Exception as e:
+        raise EnvCodeError(
+            f"{where}: making the env ({loaded.manifest.env_entry_point} with its config's gym_kwargs) raised "
+            f"{type(e).__name__}: {e}. Fix the env's __init__."
+        ) from e
     try:
         report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)))
     finally:

@@ -36,6 +36,7 @@ from hub_envs.dataset import dataset_features_from_config, dataset_fingerprint, 
 from hub_envs.envconfig import encode_config
 from hub_envs.errors import ConfigError, EnvFolderError
 from hub_envs.features import check_features
+from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
 from hub_envs.media import write_rollout_gif
 from hub_envs.provenance import package_versions
@@ -305,6 +306,7 @@ def push_env(
             timings["publish"] = time.perf_counter() - t
     finally:
         loaded.unregister()
+        forget_env_folder(module_key(loaded.repo_id, loaded.revision))  # push keeps nothing imported
     timings["total"] = time.perf_counter() - t0
     return PushResult(repo_id=repo_id, sha=sha, created_commit=created, content_tag=tags[0], manifest=manifest,
                       timings=timings, tags=tags)

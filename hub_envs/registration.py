@@ -44,14 +44,30 @@ def _choices() -> dict[str, Any]:
     return EnvConfig._choice_registry
 
 
+class Transaction:
+    """What :func:`registry_transaction` yields: the registries as they were when it started."""
+
+    def __init__(self) -> None:
+        self.gym_before = dict(gym.registry)
+        self.choices_before = dict(_choices())
+
+    def replaced(self) -> list[str]:
+        """Names registered before the block whose entry something in the block replaced or removed
+        (env code calling ``gym.register`` with a taken id overwrites it with only a warning)."""
+        gym_now, choices_now = gym.registry, _choices()
+        out = [f"gym id {k!r}" for k, v in self.gym_before.items() if gym_now.get(k) is not v]
+        out += [f"draccus choice {k!r}" for k, v in self.choices_before.items() if choices_now.get(k) is not v]
+        return out
+
+
 @contextlib.contextmanager
 def registry_transaction():
     """On an exception inside the block, restore gymnasium's registry and draccus' EnvConfig choices."""
-    gym_before = dict(gym.registry)
-    choices_before = dict(_choices())
+    txn = Transaction()
+    gym_before, choices_before = txn.gym_before, txn.choices_before
     owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES))
     try:
-        yield
+        yield txn
     except BaseException:
         gym.registry.clear()
         gym.registry.update(gym_before)

@@ -60,6 +60,7 @@ IGNORED_PARTS = ("__pycache__", ".git", ".ipynb_checkpoints", ".pytest_cache", "
 IGNORED_SUFFIXES = (".pyc", ".pyo")
 
 _SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
+_REPUBLISH = "Re-publish with push_env, which writes a valid manifest."
 _SHA1_RE = re.compile(r"^[0-9a-f]{40}$")
 
 
@@ -68,8 +69,17 @@ def is_commit_sha(revision: str | None) -> bool:
     return bool(revision) and bool(_SHA1_RE.match(revision))
 
 
+#: Files Python can import as code: source, and compiled extension modules (``x.so``, ``x.abi3.so``,
+#: ``x.cpython-311-x86_64-linux-gnu.so``, ``x.pyd``), which the import system would pick before ``x.py``.
+CODE_SUFFIXES = (".py", ".so", ".pyd")
+#: ``module:Attr`` (dotted parts allowed on both sides).
+ENTRY_POINT_RE = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+#: What gymnasium accepts as the id part we prefix to ``-<sha>`` (namespace/name, no spaces).
+GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
+
+
 def is_code_file(path: str) -> bool:
-    return path.endswith(".py")
+    return path.endswith(CODE_SUFFIXES)
 
 
 # --- paths and hashing ------------------------------------------------------------------------
@@ -185,7 +195,7 @@ class Manifest:
         if not isinstance(data, dict):
             raise ManifestError(f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env.")
         version = data.get("format_version")
-        if version != FORMAT_VERSION:
+        if type(version) is not int or version != FORMAT_VERSION:
             hint = "upgrade hub-envs" if isinstance(version, int) and version > FORMAT_VERSION else "re-publish it with push_env"
             raise ManifestError(f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); {hint}.")
         known = {f.name for f in fields(cls)}
@@ -198,26 +208,40 @@ class Manifest:
             raise ManifestError(f"{where}: missing field(s) {missing}. Re-publish with push_env, which writes them all.")
         for key in ("name", "env_entry_point", "config_entry_point", "gym_id", "env_type", "content_digest", "version", "description", "code_digest"):
             if key in data and not isinstance(data[key], str):
-                raise ManifestError(f"{where}: field {key!r} must be a string, got {type(data[key]).__name__}.")
+                raise ManifestError(f"{where}: field {key!r} must be a string, got {type(data[key]).__name__}. {_REPUBLISH}")
         for key in ("config", "dataset", "fingerprint", "seeds", "versions"):
             if key in data and not isinstance(data[key], dict):
-                raise ManifestError(f"{where}: field {key!r} must be an object, got {type(data[key]).__name__}.")
+                raise ManifestError(f"{where}: field {key!r} must be an object, got {type(data[key]).__name__}. {_REPUBLISH}")
+        for key in ("env_entry_point", "config_entry_point"):
+            if not ENTRY_POINT_RE.match(data[key]):
+                raise ManifestError(f"{where}: {key} {data[key]!r} is not of the form 'module:Attribute' "
+                                    f"(e.g. 'pendulum_env:PendulumEnv'). {_REPUBLISH}")
+        for key in ("gym_id", "env_type"):
+            if not GYM_ID_RE.match(data[key]):
+                raise ManifestError(f"{where}: {key} {data[key]!r} is not a valid name (letters, digits, '_', '-', '.', "
+                                    f"':' and one optional 'namespace/'). {_REPUBLISH}")
+        if "path" in data.get("dataset", {}):
+            safe_relpath(data["dataset"]["path"], where=f"{where} dataset.path")
         files = data["files"]
         if not isinstance(files, dict) or not files:
-            raise ManifestError(f"{where}: field 'files' must map each repo path to its sha256.")
+            raise ManifestError(f"{where}: field 'files' must map each repo path to its sha256. {_REPUBLISH}")
         for path, digest in files.items():
             safe_relpath(path, where=f"{where} files")
             if not isinstance(digest, str) or not _SHA256_RE.match(digest):
-                raise ManifestError(f"{where}: files[{path!r}] = {digest!r} is not a sha256 hex digest.")
+                raise ManifestError(f"{where}: files[{path!r}] = {digest!r} is not a sha256 hex digest. {_REPUBLISH}")
         if not _SHA256_RE.match(data["content_digest"]):
-            raise ManifestError(f"{where}: content_digest {data['content_digest']!r} is not a sha256 hex digest.")
+            raise ManifestError(f"{where}: content_digest {data['content_digest']!r} is not a sha256 hex digest. {_REPUBLISH}")
         reqs = data.get("requirements", [])
         if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
-            raise ManifestError(f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'.")
+            raise ManifestError(f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'. {_REPUBLISH}")
         for key in ("benchmarks", "processors"):
             val = data.get(key, [])
             if not isinstance(val, list) or not all(isinstance(v, dict) for v in val):
-                raise ManifestError(f"{where}: {key!r} must be a list of objects.")
+                raise ManifestError(f"{where}: {key!r} must be a list of objects. {_REPUBLISH}")
+        try:  # what to_json will write: strict JSON (no NaN/Infinity), string keys
+            json.dumps(data, allow_nan=False, sort_keys=True)
+        except (TypeError, ValueError) as e:
+            raise ManifestError(f"{where}: not strict JSON ({e}; NaN and Infinity are not allowed). {_REPUBLISH}") from None
         kwargs = dict(data)
         kwargs["requirements"] = tuple(reqs)
         kwargs["benchmarks"] = tuple(data.get("benchmarks", []))
@@ -230,6 +254,8 @@ class Manifest:
             data = json.loads(text)
         except json.JSONDecodeError as e:
             raise ManifestError(f"{where} is not valid JSON ({e}). Re-publish with push_env.") from None
+        except (RecursionError, TypeError) as e:  # nested too deeply; not text at all
+            raise ManifestError(f"{where} cannot be read as JSON ({type(e).__name__}). Re-publish with push_env.") from None
         return cls.from_dict(data, where=where)
 
     @classmethod
@@ -302,6 +328,9 @@ class EnvFolder:
             data = tomllib.loads(project_path.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise EnvFolderError(f"{project_path} is not valid TOML ({e}). Fix the syntax.") from None
+        for table in ("project", "tool"):
+            if not isinstance(data.get(table, {}), dict):
+                raise EnvFolderError(f"{project_path}: [{table}] must be a table, e.g. [{table}] on a line of its own. Fix the file.")
         project = data.get("project", {})
         tool = data.get("tool", {}).get("hub-envs")
         if not isinstance(tool, dict):
@@ -309,6 +338,9 @@ class EnvFolder:
         for key in ("env", "config"):
             if not isinstance(tool.get(key), str):
                 raise EnvFolderError(f"{project_path}: [tool.hub-envs] {key} is missing or not a string, e.g. {key} = \"my_env:My{'Env' if key == 'env' else 'EnvConfig'}\".")
+            if not ENTRY_POINT_RE.match(tool[key]):
+                raise EnvFolderError(f"{project_path}: [tool.hub-envs] {key} = {tool[key]!r} is not of the form 'module:Attribute', "
+                                     f"e.g. {key} = \"my_env:My{'Env' if key == 'env' else 'EnvConfig'}\" for a class in my_env.py.")
         name = project.get("name")
         if not isinstance(name, str) or not name:
             raise EnvFolderError(f"{project_path}: [project] name is missing. Add name = \"my-env\".")
@@ -334,7 +366,7 @@ class EnvFolder:
             raise EnvFolderError(
                 f"{root}: {clash} are generated by push_env and must not be in an env folder. Remove or rename them."
             )
-        if not any(is_code_file(f) for f in files):
+        if not any(f.endswith(".py") for f in files):
             raise EnvFolderError(f"{root} has no .py file. Put the env and its config in a module next to pyproject.toml.")
         return cls(
             root=root,
