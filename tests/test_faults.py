@@ -1,0 +1,205 @@
+"""Faults and concurrency against the real loopback server, through the unmodified client.
+
+Faults are injected into the server itself (``HUB_ENVS_SERVER_FAULTS``, see
+:mod:`hub_envs.server.faults`): 500 answers, a connection dropped mid-file, the server process
+dying in the middle of a push. What huggingface_hub does about them (0.35): file downloads
+(``HEAD``/``GET .../resolve/...``) go through ``http_backoff``, which retries 500/502/503/504 and
+connection errors up to 5 times (sleeping 1, 2, 4, 8, 8 s); API calls (``repo_info``,
+``create_commit``) are not retried; a body cut off mid-file is *not* retried or resumed by
+``http_get`` (it raises ``ChunkedEncodingError``) and leaves a ``.incomplete`` blob that the next
+download resumes. hub-envs turns each failure into a typed error and never treats a partial
+snapshot as a good one.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import traceback
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from huggingface_hub import HfApi
+
+from hub_envs import errors, load_env, push_env
+from hub_envs.testing import HubServer, hub_environment
+from helpers import TINY, copy_env
+
+
+class FaultyHub:
+    """A server started with ``HUB_ENVS_SERVER_FAULTS`` pointing at a rules file tests rewrite."""
+
+    def __init__(self, root: Path):
+        self.rules = root / "faults.json"
+        self.rules.write_text("[]")
+        self.server = HubServer(root / "hub-data", env={"HUB_ENVS_SERVER_FAULTS": str(self.rules)})
+        self.endpoint = self.server.endpoint
+        self.api = HfApi(endpoint=self.endpoint)
+
+    def inject(self, *rules: dict) -> None:
+        self.rules.write_text(json.dumps(list(rules)))
+
+    def heal(self) -> None:
+        self.rules.write_text("[]")
+
+    def injected(self) -> int:
+        return self.server.output().count("injected fault")
+
+
+@pytest.fixture(scope="module")
+def faulty(tmp_path_factory):
+    root = tmp_path_factory.mktemp("faulty")
+    hub = FaultyHub(root)
+    try:
+        with hub_environment(hub.endpoint, root / "pusher-home"):
+            hub.sha = push_env(TINY, "flt/base", episodes=2, progress=False).sha
+        yield hub
+    finally:
+        hub.server.stop()
+        hub.server.remove_log()
+
+
+def _incomplete(home: Path) -> list[Path]:
+    return list((home / "hub").rglob("*.incomplete")) if (home / "hub").is_dir() else []
+
+
+def test_transient_500s_on_file_downloads_are_retried_and_the_load_succeeds(faulty, tmp_path):
+    before = faulty.injected()
+    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/", "times": 3})
+    try:
+        with hub_environment(faulty.endpoint, tmp_path / "home"):
+            loaded = load_env(f"flt/base@{faulty.sha}", trust_remote_code=True)
+            assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
+            loaded.unregister()
+    finally:
+        faulty.heal()
+    assert faulty.injected() - before == 3  # three GETs failed, and huggingface_hub retried each
+
+
+def test_a_failing_hub_api_is_a_clear_error_and_the_next_load_succeeds(faulty, tmp_path):
+    faulty.inject({"match": r"GET /api/models/flt/base/revision/", "times": -1, "status": 503})
+    home = tmp_path / "home"
+    with hub_environment(faulty.endpoint, home):
+        try:
+            with pytest.raises(errors.HubError) as e:
+                load_env("flt/base@main", trust_remote_code=True)
+        finally:
+            faulty.heal()
+        assert "flt/base@main" in str(e.value) and "answered 503" in str(e.value) and "Retry" in str(e.value)
+        assert not list((home / "hub").glob("models--flt--base/snapshots/*"))  # nothing half-fetched
+        with pytest.warns(UserWarning, match=faulty.sha):
+            load_env("flt/base@main", trust_remote_code=True).unregister()
+
+
+def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partial_snapshot(faulty, tmp_path):
+    home = tmp_path / "home"
+    ref = f"flt/base@{faulty.sha}"
+    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "action": "drop", "after_bytes": 64, "times": -1})
+    try:
+        with hub_environment(faulty.endpoint, home):
+            with pytest.raises(errors.HubError) as e:
+                load_env(ref, trust_remote_code=True)
+            assert ref in str(e.value) and "broke off" in str(e.value) and "Retry" in str(e.value)
+            with hub_environment(faulty.endpoint, home, offline=True):  # the partial snapshot is not a usable one
+                with pytest.raises(errors.OfflineNotCachedError, match="only partly in the local cache"):
+                    load_env(ref, trust_remote_code=True)
+    finally:
+        faulty.heal()
+    with hub_environment(faulty.endpoint, home):  # the network heals: the same cache completes and verifies
+        loaded = load_env(ref, trust_remote_code=True)
+        assert loaded.report.integrity.endswith("match the manifest") and loaded.report.features.ok
+        assert loaded.open_dataset().num_frames == loaded.manifest.dataset["frames"]
+        loaded.unregister()
+    assert _incomplete(home) == []
+
+
+def test_a_server_killed_during_a_push_leaves_no_partial_commit_and_a_rerun_completes(faulty, tmp_path):
+    faulty.inject({"match": r"POST /api/models/flt/killed/commit/", "action": "exit", "after_bytes": 4096})
+    with hub_environment(faulty.endpoint, tmp_path / "home"):
+        with pytest.raises(errors.HubError) as e:
+            push_env(TINY, "flt/killed", episodes=2, progress=False)
+        assert "flt/killed" in str(e.value) and "cannot reach the Hub" in str(e.value)
+        assert not faulty.server.running  # the fault killed the server mid-upload
+        faulty.heal()
+        faulty.server.start()  # same root, same port
+        commits = faulty.api.list_repo_commits("flt/killed")
+        assert len(commits) == 1 and faulty.api.list_repo_files("flt/killed") == [".gitattributes"]  # only create_repo's
+
+        result = push_env(TINY, "flt/killed", episodes=2, progress=False)
+        assert result.created_commit
+        loaded = load_env(f"flt/killed@{result.sha}", trust_remote_code=True)
+        assert loaded.report.features.ok
+        loaded.unregister()
+
+
+# --- concurrency ------------------------------------------------------------------------------
+
+_FORK = multiprocessing.get_context("fork")
+
+
+def _in_children(calls: list[tuple]) -> list:
+    """Run each ``fn(barrier, *args)`` of ``calls`` in its own forked process, released together by
+    one barrier; return ``(status, value)`` per call, in order."""
+    barrier, queue = _FORK.Barrier(len(calls)), _FORK.Queue()
+
+    def child(i: int) -> None:
+        fn, *args = calls[i]
+        try:
+            queue.put((i, "ok", fn(barrier, *args)))
+        except BaseException as e:  # report everything: the test decides what is acceptable
+            queue.put((i, "error", (type(e).__name__, str(e), traceback.format_exc())))
+
+    procs = [_FORK.Process(target=child, args=(i,)) for i in range(len(calls))]
+    for p in procs:
+        p.start()
+    results = {i: (status, value) for i, status, value in (queue.get(timeout=240) for _ in procs)}
+    for p in procs:
+        p.join(30)
+    return [results[i] for i in range(len(calls))]
+
+
+def _load_once(barrier, ref: str) -> tuple[str, bool, tuple]:
+    barrier.wait()
+    loaded = load_env(ref, trust_remote_code=True)
+    obs, _ = gym.make(loaded.gym_id).reset(seed=0)
+    return loaded.revision, loaded.report.features.ok, tuple(obs["agent_pos"].tolist())
+
+
+def test_16_processes_loading_the_same_repo_into_one_cache_all_succeed(faulty, tmp_path):
+    ref = f"flt/base@{faulty.sha}"
+    with hub_environment(faulty.endpoint, tmp_path / "shared-home"):
+        results = _in_children([(_load_once, ref)] * 16)
+        failures = [value for status, value in results if status != "ok"]
+        assert failures == []
+        assert {value for _, value in results} == {results[0][1]}  # same sha, checks ok, same first observation
+        assert results[0][1][0] == faulty.sha and results[0][1][1]
+        loaded = load_env(ref, trust_remote_code=True)  # and the cache they filled together verifies
+        assert loaded.report.integrity.endswith("match the manifest")
+        loaded.unregister()
+        assert _incomplete(tmp_path / "shared-home") == []
+
+
+def _push_once(barrier, folder: str, seed: int) -> str:
+    barrier.wait()
+    return push_env(folder, "flt/race", episodes=2, seed=seed, progress=False).sha
+
+
+def test_two_pushes_racing_on_one_repo_leave_a_consistent_history(faulty, tmp_path):
+    with hub_environment(faulty.endpoint, tmp_path / "home"):
+        first = push_env(TINY, "flt/race", episodes=2, progress=False).sha  # both racers start from this main
+        folder = str(copy_env(tmp_path))
+        results = _in_children([(_push_once, folder, 1), (_push_once, folder, 2)])  # different content
+        winners = [value for status, value in results if status == "ok"]
+        losers = [value for status, value in results if status != "ok"]
+        assert winners, f"no push landed: {losers}"
+        for name, message, _ in losers:  # a loser fails cleanly, with a typed error that says what to do
+            assert name == "ConcurrentPushError" and "Re-run push_env" in message and "nothing was written" in message
+        history = [c.commit_id for c in faulty.api.list_repo_commits("flt/race")]
+        assert history[0] in winners and first in history
+        assert set(winners) <= set(history) and len(history) == 2 + len(winners)  # create_repo's + first + winners
+        for sha in [first, *winners]:  # every commit on main is a complete, valid env
+            loaded = load_env(f"flt/race@{sha}", trust_remote_code=True)
+            assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
+            loaded.unregister()
+
