@@ -91,10 +91,16 @@ def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: 
     return {"algorithm": "sha256", "seeds": list(seeds), "steps": steps, "digest": overall, "episodes": digests}
 
 
-def verify_fingerprint(make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str, versions_note: str = "") -> dict[str, Any]:
-    """Recompute a recorded fingerprint; raise :class:`FingerprintMismatchError` naming the drifting seeds."""
+def verify_fingerprint(make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str,
+                       versions_note: str | Callable[[], str] = "") -> dict[str, Any]:
+    """Recompute a recorded fingerprint; raise :class:`FingerprintMismatchError` naming the drifting seeds.
+
+    ``versions_note`` (or a callable returning it, called only on a mismatch) ends the message.
+    """
     fresh = golden_fingerprint(make_env, seeds=list(recorded["seeds"]), steps=int(recorded["steps"]))
     if fresh["digest"] != recorded["digest"]:
+        if callable(versions_note):
+            versions_note = versions_note()
         drifted = [s for s, a, b in zip(recorded["seeds"], recorded["episodes"], fresh["episodes"]) if a != b]
         raise FingerprintMismatchError(
             f"{where}: the golden-rollout fingerprint drifted: the first {recorded['steps']} steps of seeds {drifted} "

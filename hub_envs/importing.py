@@ -19,9 +19,11 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.machinery
 import importlib.util
+import marshal
 import os
 import re
 import sys
@@ -29,6 +31,7 @@ import types
 from pathlib import Path
 
 from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationConflictError
+from hub_envs.paths import hub_envs_home
 
 ROOT_PACKAGE = "hub_envs_code"
 _ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_][\w]*(\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*)$")
@@ -42,11 +45,33 @@ def module_key(*parts: str) -> str:
 
 
 class _SourceLoader(importlib.machinery.SourceFileLoader):
-    """Loads a module from its ``.py`` source only: never reads or writes ``__pycache__``."""
+    """Loads a module from its ``.py`` source only: never reads or writes ``__pycache__``.
+
+    Compiled code is cached under ``$HUB_ENVS_HOME/bytecode``, keyed by a sha256 of the source
+    bytes themselves (and path, Python magic number, optimization level), so a cache entry can only
+    ever stand for exactly the source that was read; nothing is written if ``sys.dont_write_bytecode``.
+    """
 
     def get_code(self, fullname):
         path = self.get_filename(fullname)
-        return self.source_to_code(self.get_data(path), path)
+        source = self.get_data(path)
+        key = hashlib.sha256(b"\0".join([importlib.util.MAGIC_NUMBER, str(sys.flags.optimize).encode(),
+                                         path.encode("utf-8", "surrogateescape"), source])).hexdigest()
+        cached = hub_envs_home() / "bytecode" / f"{key}.bin"
+        try:
+            return marshal.loads(cached.read_bytes())
+        except (OSError, ValueError, EOFError, TypeError):
+            pass
+        code = self.source_to_code(source, path)
+        if not sys.dont_write_bytecode:
+            try:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                tmp = cached.with_name(f".{key}.{os.getpid()}.tmp")
+                tmp.write_bytes(marshal.dumps(code))
+                os.replace(tmp, cached)
+            except OSError:
+                pass
+        return code
 
     def set_data(self, *args, **kwargs) -> None:  # no bytecode cache is written
         return None

@@ -425,22 +425,28 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
             f"{where}: making the env ({loaded.manifest.env_entry_point} with its config's gym_kwargs) raised "
             f"{type(e).__name__}: {e}. Fix the env's __init__."
         ) from e
+    recorded = loaded.manifest.fingerprint
+    handed_over = False  # the fingerprint's rollouts reuse this env (reset(seed) determines an episode) and close it
     try:
         report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)))
+        loaded.report.features = report
+        report.raise_if_mismatch(where)
+        if fingerprint == "off" or not recorded:
+            loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
+            return
+
+        def note() -> str:  # reading package versions costs milliseconds: only for the error message
+            return describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
+
+        handed_over = True
+        try:
+            verify_fingerprint(lambda: env, recorded, where=where, versions_note=note)
+            loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
+        except FingerprintMismatchError as e:
+            if fingerprint == "error":
+                raise
+            loaded.report.fingerprint = f"DRIFTED: {e}"
+            warnings.warn(str(e), stacklevel=3)
     finally:
-        env.close()
-    loaded.report.features = report
-    report.raise_if_mismatch(where)
-    recorded = loaded.manifest.fingerprint
-    if fingerprint == "off" or not recorded:
-        loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
-        return
-    note = describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
-    try:
-        verify_fingerprint(loaded.make, recorded, where=where, versions_note=note)
-        loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
-    except FingerprintMismatchError as e:
-        if fingerprint == "error":
-            raise
-        loaded.report.fingerprint = f"DRIFTED: {e}"
-        warnings.warn(str(e), stacklevel=3)
+        if not handed_over:
+            env.close()

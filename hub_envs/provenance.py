@@ -8,19 +8,17 @@ Example:
 
 from __future__ import annotations
 
-import importlib.metadata as md
 import platform
 
 from packaging.requirements import InvalidRequirement, Requirement
+
+from hub_envs.requirements import installed_version
 
 CORE_PACKAGES = ("numpy", "gymnasium", "lerobot", "torch", "huggingface_hub", "draccus", "hub-envs")
 
 
 def _version(name: str) -> str:
-    try:
-        return md.version(name)
-    except md.PackageNotFoundError:
-        return "not installed"
+    return installed_version(name) or "not installed"
 
 
 def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str, str]:

@@ -18,6 +18,25 @@ from packaging.requirements import InvalidRequirement, Requirement
 from hub_envs.errors import ManifestError, MissingRequirementsError
 
 
+def installed_version(name: str) -> str | None:
+    """The installed version of distribution ``name``, or None.
+
+    Same answer as ``importlib.metadata.version`` but reads only the header of METADATA instead of
+    parsing the whole file (long descriptions make that ~1 ms per package, on every load_env).
+    """
+    try:
+        dist = md.distribution(name)
+    except md.PackageNotFoundError:
+        return None
+    text = dist.read_text("METADATA") or dist.read_text("PKG-INFO") or ""
+    for line in text.splitlines():
+        if not line:
+            break  # end of the headers
+        if line.startswith("Version:"):
+            return line[len("Version:"):].strip()
+    return dist.version
+
+
 def unmet_requirements(requirements: list[str] | tuple[str, ...]) -> list[tuple[str, str]]:
     """``(requirement, why)`` for each requirement that is not satisfied in this environment."""
     unmet = []
@@ -28,9 +47,8 @@ def unmet_requirements(requirements: list[str] | tuple[str, ...]) -> list[tuple[
             raise ManifestError(f"Requirement {text!r} is not valid ({e}). Fix the repo's dependencies.") from None
         if req.marker is not None and not req.marker.evaluate():
             continue
-        try:
-            installed = md.version(req.name)
-        except md.PackageNotFoundError:
+        installed = installed_version(req.name)
+        if installed is None:
             unmet.append((text, "not installed"))
             continue
         if req.specifier and not req.specifier.contains(installed, prereleases=True):
