@@ -26,5 +26,10 @@ demo: install
 bench: install
 	$(PY) -m benchmarks.run
 
+# Train LeRobot's ACT on published envs' random-action datasets and evaluate it (CPU, ~1 h;
+# flags: make train-long TRAIN_LONG_ARGS="--envs reach --steps 2000").
+train-long: install
+	$(PY) -m benchmarks.train_long $(TRAIN_LONG_ARGS)
+
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis benchmarks/out demo-out

@@ -216,7 +216,7 @@ def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: s
     return out
 
 
-def _versions(env: dict | None) -> dict[str, str]:
+def _versions() -> dict[str, str]:
     from hub_envs.provenance import package_versions
 
     return package_versions()
@@ -255,7 +255,7 @@ def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
         "steps": cfg.steps,
         "seed": cfg.seed,
         "output_dir": str(cfg.output_dir),
-        "versions": _versions(env),
+        "versions": _versions(),
     }
 
 
@@ -271,7 +271,7 @@ def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
                    "training": _policy_training(Path(policy_path) if policy_path else None)},
         "eval": {"n_episodes": cfg.eval.n_episodes, "batch_size": cfg.eval.batch_size, "seed": cfg.seed},
         "output_dir": str(cfg.output_dir),
-        "versions": _versions(env),
+        "versions": _versions(),
     }
 
 

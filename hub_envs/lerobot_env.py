@@ -29,6 +29,7 @@ Example:
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import typing
 from dataclasses import dataclass, field
@@ -136,6 +137,14 @@ class HubEnv(EnvConfig):
         self.episode_length = int(env_cfg.episode_length)
         self.features = dict(env_cfg.features)
         self.features_map = dict(env_cfg.features_map)
+
+    def __deepcopy__(self, memo):
+        # a copy of the config names the same loaded env (imported code and registrations are per process)
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            setattr(new, key, value if key == "_loaded" else copy.deepcopy(value, memo))
+        return new
 
     @property
     def loaded(self) -> LoadedEnv:

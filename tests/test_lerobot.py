@@ -1,0 +1,362 @@
+"""Hub envs inside LeRobot: its own EnvHub loader, its draccus pipeline configs, its train and eval
+scripts, and env processors between env and policy in its eval loop.
+
+Real parts only: the loopback Hub server, huggingface_hub, LeRobot 0.4.4's make_env / parser /
+lerobot_train.train / lerobot_eval.eval_main / rollout, gymnasium, draccus, torch on the CPU.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import draccus
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from lerobot.configs.eval import EvalPipelineConfig
+from lerobot.configs.train import TrainPipelineConfig
+
+from hub_envs import errors, load_env, push_env
+from hub_envs.cli import main as cli_main
+from hub_envs.load import UnpinnedRevisionWarning
+from hub_envs.lerobot_env import HubEnv, install_hooks, make_env, make_env_pre_post_processors
+from hub_envs.registration import snapshot_registries
+from hub_envs.testing import hub_environment
+from helpers import copy_env, republish, TINY
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = {"pendulum": ROOT / "envs" / "pendulum", "hover": ROOT / "envs" / "hover", "reach": ROOT / "envs" / "reach"}
+
+#: A repo-local env processor step, shipped in the env folder next to the env's code.
+OBS_STEPS = '''"""Env processor steps of this env (declared in pyproject.toml)."""
+from dataclasses import dataclass
+
+from lerobot.processor.pipeline import ObservationProcessorStep
+from lerobot.utils.constants import OBS_STATE
+
+
+@dataclass
+class ScaleState(ObservationProcessorStep):
+    factor: float = 1.0
+
+    def observation(self, observation):
+        out = dict(observation)
+        out[OBS_STATE] = observation[OBS_STATE] * self.factor
+        return out
+
+    def transform_features(self, features):
+        return features
+'''
+
+PROCESSORS_TOML = '''
+[[tool.hub-envs.processors]]
+name = "scale_state"
+entry_point = "obs_steps:ScaleState"
+stage = "pre"
+kwargs = { factor = 2.0 }
+
+[[tool.hub-envs.processors]]
+name = "clip"
+entry_point = "clip_action"
+stage = "post"
+kwargs = { low = [-0.2], high = [0.2] }
+'''
+
+#: A tiny ACT: seconds on a CPU.
+TINY_ACT = ["--policy.type=act", "--policy.push_to_hub=false", "--policy.device=cpu", "--policy.dim_model=32",
+            "--policy.n_heads=2", "--policy.dim_feedforward=64", "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1",
+            "--policy.chunk_size=10", "--policy.n_action_steps=10", "--policy.use_vae=false",
+            "--policy.pretrained_backbone_weights=null"]
+
+
+def _pendulum_pixels(tmp_path: Path) -> Path:
+    """envs/pendulum observing pixels too (LeRobot's ACT needs an image), with two env processors."""
+    folder = copy_env(tmp_path, EXAMPLES["pendulum"], "pendulum_pixels", {
+        "config.py": lambda s: s.replace('obs_type: str = "state"', 'obs_type: str = "pixels_agent_pos"'),
+        "pyproject.toml": lambda s: s + PROCESSORS_TOML,
+    })
+    (folder / "obs_steps.py").write_text(OBS_STEPS)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def published(hub_module, tmp_path_factory):
+    """Every example env, the tiny env, and the processor-carrying pendulum variant, pushed once."""
+    tmp = tmp_path_factory.mktemp("envs")
+    shas = {"tiny": push_env(TINY, "alice/tiny", episodes=1, progress=False).sha}
+    for name, folder in EXAMPLES.items():
+        shas[name] = push_env(folder, f"alice/{name}", episodes=1, progress=False).sha
+    shas["pendulum-pixels"] = push_env(_pendulum_pixels(tmp), "alice/pendulum-pixels", episodes=2, progress=False).sha
+    return shas
+
+
+def _hub_args(name: str, sha: str, *extra: str) -> list[str]:
+    return ["--env.type=hub", f"--env.repo_id=alice/{name}", f"--env.revision={sha}", "--env.trust_remote_code=true", *extra]
+
+
+# --- 1. LeRobot's own EnvHub loader ------------------------------------------------------------
+
+
+def test_lerobot_make_env_loads_each_example_repo_pinned_to_its_sha(hub_module, published, tmp_path):
+    from lerobot.envs.factory import make_env as lerobot_make_env
+    from lerobot.envs.utils import add_envs_task, check_env_attributes_and_types, preprocess_observation
+
+    with hub_environment(hub_module.endpoint, tmp_path / "fresh_home"):  # nothing cached: env.py comes alone
+        for name in ("tiny", *EXAMPLES):
+            sha = published[name]
+            envs = lerobot_make_env(f"alice/{name}@{sha}", n_envs=2, trust_remote_code=True)
+            (suite, tasks), = envs.items()
+            vec = tasks[0]
+            assert isinstance(vec, gym.vector.SyncVectorEnv) and vec.num_envs == 2
+            # env.py fetched the rest of its own commit (code, assets, manifest) into the same snapshot
+            snapshot = tmp_path / "fresh_home" / "hub" / f"models--alice--{name}" / "snapshots" / sha
+            manifest = json.loads((snapshot / "hub_env.json").read_text())
+            code = [p for p in manifest["files"] if p.endswith(".py") or p.startswith("assets/")]
+            assert len(code) >= 3 and all((snapshot / p).is_file() for p in code)
+            assert not (snapshot / "dataset").exists()  # making envs does not need the dataset
+            # what LeRobot's eval loop does with the first observation
+            obs, _ = vec.reset(seed=[0, 1])
+            with _no_warning():
+                check_env_attributes_and_types(vec)
+            batch = add_envs_task(vec, preprocess_observation(obs))
+            assert batch["task"] == [manifest["config"]["task"]] * 2
+            features, features_map = manifest["config"]["features"], manifest["config"]["features_map"]
+            expected = {features_map[k] for k in features if k != "action"}
+            assert expected == set(batch) - {"task"}  # the keys the bundled dataset has
+            assert tuple(batch["observation.state"].shape) == (2, *features["agent_pos"]["shape"])
+            assert vec.call("_max_episode_steps") == (manifest["config"]["episode_length"],) * 2
+            vec.step(np.stack([vec.single_action_space.sample() for _ in range(2)]))
+            vec.close()
+        # load_env on the same cache completes the partial snapshot env.py left (it has no dataset yet)
+        loaded = load_env(f"alice/tiny@{published['tiny']}", trust_remote_code=True)
+        assert loaded.open_dataset().num_episodes == 1
+
+
+class _no_warning:
+    """Fail if LeRobot warns that the env lacks task / task_description."""
+
+    def __enter__(self):
+        import warnings
+
+        self._cm = warnings.catch_warnings(record=True)
+        self._rec = self._cm.__enter__()
+        warnings.simplefilter("always")
+        return self
+
+    def __exit__(self, *exc):
+        self._cm.__exit__(*exc)
+        assert not [w for w in self._rec if "task_description" in str(w.message)]
+
+
+def test_lerobot_make_env_reports_success_through_final_info_and_refuses_without_trust(hub_module, published, tmp_path):
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    with hub_environment(hub_module.endpoint, tmp_path / "home"):
+        with pytest.raises(RuntimeError, match="Refusing to execute remote code"):
+            lerobot_make_env(f"alice/tiny@{published['tiny']}", n_envs=1)
+        assert not (tmp_path / "home" / "hub" / "models--alice--tiny").exists()  # nothing was even downloaded
+
+        vec = lerobot_make_env(f"alice/tiny@{published['tiny']}", n_envs=2, trust_remote_code=True)["tiny-env"][0]
+        vec.reset(seed=[0, 1])
+        for t in range(30):
+            _, _, terminated, truncated, info = vec.step(np.zeros((2, 1), dtype=np.float32))
+            assert ("final_info" in info) == (t == 29)
+        # LeRobot's rollout reads success from here (gymnasium 1.x, same-step autoreset)
+        assert truncated.all() and info["final_info"]["is_success"].dtype == bool and info["final_info"]["is_success"].shape == (2,)
+        vec.close()
+
+
+# --- 2. hub envs in LeRobot's pipeline configs -------------------------------------------------
+
+
+def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
+    sha = published["pendulum"]
+    with pytest.warns(UnpinnedRevisionWarning, match=sha):
+        cfg = draccus.parse(TrainPipelineConfig, args=[
+            *_hub_args("pendulum", "main", "--env.overrides={g: 9.81}", "--env.episode_length=50"),
+            "--dataset.repo_id=alice/pendulum", *TINY_ACT,
+        ])
+    assert isinstance(cfg.env, HubEnv) and cfg.env.type == "hub"
+    assert cfg.env.revision == sha  # a branch is replaced by the commit it resolved to
+    assert cfg.env.episode_length == 50 and cfg.env.env_config.g == 9.81 and cfg.env.fps == 30
+    assert cfg.env.features["agent_pos"].shape == (3,) and cfg.env.features_map["agent_pos"] == "observation.state"
+    assert cfg.env.gym_kwargs["max_episode_steps"] == 50 and cfg.env.gym_kwargs["g"] == 9.81
+    # what train_config.json holds decodes back to the same pinned env
+    again = draccus.decode(TrainPipelineConfig, draccus.encode(cfg))
+    assert again.env.revision == sha and again.env.episode_length == 50 and again.env.loaded is cfg.env.loaded
+
+    # LeRobot's own make_env builds it from the gym registry, with the overridden time limit
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    vec = lerobot_make_env(cfg.env, n_envs=1)["hub"][0]
+    assert vec.call("_max_episode_steps") == (50,)
+    vec.close()
+
+    # the per-repo choice load_env registers, with the repo config's own fields as flags
+    loaded = cfg.env.loaded
+    ev = draccus.parse(EvalPipelineConfig, args=[f"--env.type={loaded.env_type}", "--env.g=5.0", "--env.episode_length=7",
+                                                 "--policy.type=act", "--eval.n_episodes=2", "--eval.batch_size=2"])
+    assert type(ev.env) is loaded.config_class and ev.env.g == 5.0
+    vec = make_env(ev.env, n_envs=2)["pendulum"][0]
+    assert vec.call("_max_episode_steps") == (7, 7) and vec.call("task_description") == ("Pendulum-v1",) * 2
+    vec.close()
+
+    with pytest.raises(draccus.utils.ParsingError) as info:
+        draccus.parse(EvalPipelineConfig, args=["--env.type=hub", "--env.overrides={gravity: 3}"])
+    assert "--env.repo_id" in str(info.value.__cause__)
+    with pytest.raises(draccus.utils.ParsingError) as info:
+        draccus.parse(EvalPipelineConfig, args=[*_hub_args("pendulum", sha), "--env.overrides={gravity: 3}"])
+    assert isinstance(info.value.__cause__, errors.ConfigError) and "gravity" in str(info.value.__cause__)
+
+
+def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys):
+    assert cli_main(["eval", "--env.type=hub", "--policy.type=act"]) == 1
+    assert "--env.repo_id=user/name" in capsys.readouterr().err
+    assert cli_main(["eval", "--env.type=hub", "--env.repo_id=alice/tiny", f"--env.revision={published['tiny']}"]) == 1
+    err = capsys.readouterr().err
+    assert "UntrustedCodeError" in err and "--env.trust_remote_code=true" in err and f"hub-envs trust alice/tiny@{published['tiny']}" in err
+    assert cli_main(["train", "--env.type=alice/tiny@0123456789ab", "--env.trust_remote_code=true"]) == 1
+    assert "--env.revision=<the full 40-hex sha>" in capsys.readouterr().err
+
+
+# --- 3. train then eval through LeRobot's own scripts -----------------------------------------
+
+
+def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: list[str]) -> dict:
+    common = [*TINY_ACT, "--batch_size=4", "--num_workers=0", "--eval_freq=0", "--log_freq=100"]
+    assert cli_main(["train", *env_flags_train, *common, "--steps=3", "--save_freq=3", f"--output_dir={out / 'train'}"]) == 0
+    model = out / "train" / "checkpoints" / "last" / "pretrained_model"
+    assert (model / "model.safetensors").is_file() and (model / "hub_envs_provenance.json").is_file()
+    assert cli_main(["eval", *env_flags_eval, f"--policy.path={model}", "--policy.device=cpu", "--eval.n_episodes=2",
+                     "--eval.batch_size=2", f"--output_dir={out / 'eval'}"]) == 0
+    info = json.loads((out / "eval" / "eval_info.json").read_text())
+    sidecar = json.loads((out / "eval" / "hub_envs_provenance.json").read_text())
+    assert info["provenance"] == sidecar
+    assert info["overall"]["n_episodes"] == 2 and np.isfinite(info["overall"]["avg_sum_reward"])
+    return info
+
+
+def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, published, tmp_path):
+    sha = published["pendulum-pixels"]
+    loaded = load_env(f"alice/pendulum-pixels@{sha}", trust_remote_code=True)
+    # train: no --dataset flag = the env repo's bundled random-action dataset; eval: 30-step episodes
+    info = _train_then_eval(tmp_path, env_flags_train=_hub_args("pendulum-pixels", sha),
+                            env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"))
+    prov = info["provenance"]
+    assert prov["env"]["repo_id"] == "alice/pendulum-pixels" and prov["env"]["revision"] == sha
+    assert prov["env"]["config"]["episode_length"] == 30
+    assert prov["env"]["dataset_fingerprint"] == loaded.manifest.dataset["fingerprint"]
+    assert [p["name"] for p in prov["env"]["processors"]] == ["scale_state", "clip"]
+    training = prov["policy"]["training"]
+    assert training["env"]["revision"] == sha and training["steps"] == 3
+    assert training["dataset"]["fingerprint"] == loaded.manifest.dataset["fingerprint"] and training["dataset"]["is_env_dataset"]
+    assert prov["versions"]["lerobot"] == "0.4.4" and prov["versions"]["hub-envs"]
+    assert info["per_group"]["pendulum"]["n_episodes"] == 2
+
+
+def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, published, tmp_path):
+    sha = published["reach"]
+    loaded = load_env(f"alice/reach@{sha}", trust_remote_code=True)
+    # the per-repo choice (short sha) for training, the generic one for eval
+    info = _train_then_eval(tmp_path, env_flags_train=[f"--env.type={loaded.env_type}", "--env.trust_remote_code=true"],
+                            env_flags_eval=_hub_args("reach", sha, "--env.episode_length=15"))
+    prov = info["provenance"]
+    assert prov["env"]["revision"] == sha and prov["env"]["processors"] == [
+        {"name": "clip_action", "entry_point": "clip_action", "stage": "post", "kwargs": {}}]
+    assert prov["env"]["config"]["features"]["pixels"]["shape"] == [96, 96, 3]
+    assert prov["policy"]["training"]["dataset"]["is_env_dataset"]
+
+
+# --- 4. env processors ------------------------------------------------------------------------
+
+
+def test_a_processor_declared_by_the_repo_is_applied_between_env_and_policy(published):
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+    from lerobot.scripts.lerobot_eval import rollout
+    from lerobot.utils.constants import OBS_STATE
+
+    sha = published["pendulum-pixels"]
+    cfg = draccus.parse(EvalPipelineConfig, args=[*_hub_args("pendulum-pixels", sha, "--env.episode_length=12"),
+                                                  "--eval.n_episodes=2", "--eval.batch_size=2"])
+    loaded = cfg.env.loaded
+    pre, post = loaded.processors()
+    assert [type(s).__name__ for s in pre.steps] == ["ScaleState"] and [type(s).__name__ for s in post.steps] == ["ClipActionProcessorStep"]
+
+    torch.manual_seed(0)
+    policy_cfg = ACTConfig(device="cpu", dim_model=32, n_heads=2, dim_feedforward=64, n_encoder_layers=1, n_decoder_layers=1,
+                           chunk_size=4, n_action_steps=4, use_vae=False, pretrained_backbone_weights=None)
+    policy = make_policy(policy_cfg, env_cfg=cfg.env)
+    preprocessor, postprocessor = make_pre_post_processors(policy_cfg, dataset_stats=loaded.open_dataset().meta.stats)
+    seen, policy_actions = [], []
+    preprocessor.register_before_step_hook(lambda i, transition: seen.append(transition) if i == 0 else None)
+    last = len(postprocessor.steps) - 1
+    postprocessor.register_after_step_hook(lambda i, tr: policy_actions.append(tr["action"].clone()) if i == last else None)
+    env_pre, env_post = make_env_pre_post_processors(cfg.env, policy_cfg)  # what lerobot_eval gets once hooked
+    vec = make_env(cfg.env, n_envs=2)["pendulum"][0]
+    out = rollout(vec, policy, env_pre, env_post, preprocessor, postprocessor, seeds=[3, 4])
+    vec.close()
+
+    # the policy's first input is the env's first observation, scaled by the repo's ScaleState(factor=2)
+    first_state = seen[0]["observation"][OBS_STATE]
+    for row, seed in enumerate((3, 4)):
+        raw, _ = loaded.make().reset(seed=seed)
+        np.testing.assert_allclose(first_state[row].numpy(), 2.0 * raw["agent_pos"], rtol=1e-6)
+    # and every action the policy chose reached the env clipped to the repo's [-0.2, 0.2]
+    chosen = torch.stack(policy_actions, dim=1)
+    assert out["action"].shape == chosen.shape == (2, 12, 1)
+    assert float(chosen.abs().max()) > 0.2  # so the clip did something
+    torch.testing.assert_close(out["action"], chosen.clamp(-0.2, 0.2))
+
+
+def test_install_hooks_route_lerobot_scripts_and_leave_other_envs_alone():
+    from lerobot.envs import factory
+    from lerobot.envs.configs import PushtEnv
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.scripts import lerobot_eval, lerobot_train
+
+    install_hooks()
+    assert lerobot_eval.make_env is make_env and lerobot_train.make_env_pre_post_processors is make_env_pre_post_processors
+    pre, post = make_env_pre_post_processors(PushtEnv(), ACTConfig())
+    ref_pre, ref_post = factory.make_env_pre_post_processors(PushtEnv(), ACTConfig())
+    assert [type(s) for s in pre.steps] == [type(s) for s in ref_pre.steps] == []
+
+
+def test_a_malformed_processor_declaration_is_a_clear_error(hub_module, tmp_path):
+    cases = {
+        'name = "c"\nentry_point = "clip_action"\nstage = "middle"': r"processors\[0\]\.stage = 'middle' must be \"pre\"",
+        'name = "c"\nentry_point = "clip_action"': r"processors\[0\]\.stage is missing",
+        'entry_point = "clip_action"\nstage = "post"': r"processors\[0\]\.name is missing",
+        'name = "c"\nentry_point = "no_such_step"\nstage = "post"': r"processors\[0\]\.entry_point 'no_such_step' is not a built-in",
+        'name = "c"\nentry_point = "clip_action"\nstage = "pre"': r"processors\[0\]\.stage is \"pre\" but ClipActionProcessorStep processes actions",
+        'name = "c"\nentry_point = "clip_action"\nstage = "post"\nkwargs = { lo = 1 }': r"processors\[0\]\.kwargs \{'lo': 1\} do not fit ClipActionProcessorStep",
+        'name = "c"\nentry_point = "flatten_state"\nstage = "pre"\nkwargs = { keys = ["observation.nope"] }':
+            r"processors\[0\] \('c', stage pre\) failed on a live observation: KeyError",
+        'name = "c"\nentry_point = "clip_action"\nstage = "post"\ncolor = "red"': r"processors\[0\]: unknown field\(s\) \['color'\]",
+    }
+    for i, (decl, message) in enumerate(cases.items()):
+        folder = copy_env(tmp_path, TINY, f"bad{i}", {"pyproject.toml": lambda s, d=decl: s + f"\n[[tool.hub-envs.processors]]\n{d}\n"})
+        before = snapshot_registries()
+        with pytest.raises(errors.ProcessorError, match=message) as info:
+            if "live observation" in message:
+                load_env(str(folder))  # the dry run needs check=True; push_env builds with check=False
+            else:
+                push_env(folder, f"alice/bad{i}", episodes=1, progress=False)
+        assert "[tool.hub-envs]" in str(info.value)
+        assert snapshot_registries() == before
+
+    # a published manifest edited by hand is refused at load, naming hub_env.json and the field
+    push_env(TINY, "alice/tiny-proc", episodes=1, progress=False)
+
+    def bad_manifest(folder: Path):
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["processors"] = [{"name": "clip", "entry_point": "clip_action", "stage": "post", "kwargs": [1, 2]}]
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub_module.api, "alice/tiny-proc", bad_manifest)
+    before = snapshot_registries()
+    with pytest.raises(errors.ProcessorError, match=rf"alice/tiny-proc@{sha}: hub_env.json processors\[0\]\.kwargs must be a table"):
+        load_env(f"alice/tiny-proc@{sha}", trust_remote_code=True)
+    assert snapshot_registries() == before
