@@ -224,8 +224,9 @@ def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys
 # --- 3. train then eval through LeRobot's own scripts -----------------------------------------
 
 
-def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: list[str]) -> dict:
-    common = [*TINY_ACT, "--batch_size=4", "--num_workers=0", "--eval_freq=0", "--log_freq=100"]
+def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: list[str],
+                     train_eval: tuple[str, ...] = ("--eval_freq=0",)) -> dict:
+    common = [*TINY_ACT, "--batch_size=4", "--num_workers=0", "--log_freq=100", *train_eval]
     assert cli_main(["train", *env_flags_train, *common, "--steps=3", "--save_freq=3", f"--output_dir={out / 'train'}"]) == 0
     model = out / "train" / "checkpoints" / "last" / "pretrained_model"
     assert (model / "model.safetensors").is_file() and (model / "hub_envs_provenance.json").is_file()
@@ -241,9 +242,12 @@ def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: l
 def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, published, tmp_path):
     sha = published["pendulum-pixels"]
     loaded = load_env(f"alice/pendulum-pixels@{sha}", trust_remote_code=True)
-    # train: no --dataset flag = the env repo's bundled random-action dataset; eval: 30-step episodes
-    info = _train_then_eval(tmp_path, env_flags_train=_hub_args("pendulum-pixels", sha),
-                            env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"))
+    # train: no --dataset flag = the env repo's bundled random-action dataset, and LeRobot's in-training
+    # eval (lerobot_train makes its env without trust_remote_code); eval: 30-step episodes
+    info = _train_then_eval(tmp_path, env_flags_train=_hub_args("pendulum-pixels", sha, "--env.episode_length=10"),
+                            env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"),
+                            train_eval=("--eval_freq=3", "--eval.n_episodes=1", "--eval.batch_size=1"))
+    assert (tmp_path / "train" / "eval" / "videos_step_000003" / "pendulum_0" / "eval_episode_0.mp4").is_file()
     prov = info["provenance"]
     assert prov["env"]["repo_id"] == "alice/pendulum-pixels" and prov["env"]["revision"] == sha
     assert prov["env"]["config"]["episode_length"] == 30
