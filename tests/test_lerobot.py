@@ -364,3 +364,29 @@ def test_a_malformed_processor_declaration_is_a_clear_error(hub_module, tmp_path
     with pytest.raises(errors.ProcessorError, match=rf"alice/tiny-proc@{sha}: hub_env.json processors\[0\]\.kwargs must be a table"):
         load_env(f"alice/tiny-proc@{sha}", trust_remote_code=True)
     assert snapshot_registries() == before
+
+
+def test_declared_steps_can_be_builtins_or_lerobot_registry_steps():
+    from lerobot.envs.utils import preprocess_observation
+
+    from hub_envs.processors import build_pipelines, parse_declarations
+
+    specs = parse_declarations([
+        {"name": "flatten", "entry_point": "flatten_state", "stage": "pre",
+         "kwargs": {"keys": ["observation.robot_state", "observation.state"]}},
+        {"name": "resize", "entry_point": "image_crop_resize_processor", "stage": "pre", "kwargs": {"resize_size": [16, 16]}},
+    ], where="hub_env.json")
+    pre, post = build_pipelines(specs)
+    assert not post.steps
+    rng = np.random.default_rng(0)
+    env_obs = {  # a batch of 2, as a vector env returns it
+        "robot_state": {"eef": {"pos": rng.random((2, 3)), "quat": rng.random((2, 4))}, "gripper": {"qpos": rng.random((2, 2))}},
+        "agent_pos": rng.random((2, 1)).astype(np.float32),
+        "pixels": rng.integers(0, 255, (2, 32, 32, 3), dtype=np.uint8),
+    }
+    out = pre(preprocess_observation(env_obs))
+    expected = np.concatenate([env_obs["robot_state"]["eef"]["pos"], env_obs["robot_state"]["eef"]["quat"],
+                               env_obs["robot_state"]["gripper"]["qpos"], env_obs["agent_pos"]], axis=1)
+    np.testing.assert_allclose(out["observation.state"].numpy(), expected, rtol=1e-6)
+    assert "observation.robot_state" not in out
+    assert tuple(out["observation.image"].shape) == (2, 3, 16, 16)
