@@ -159,6 +159,7 @@ def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None =
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
     with hub_io.translate_hub_errors(repo_id, revision):
         path = snapshot_download(repo_id, revision=revision, token=token)
+    torch.set_num_threads(1)  # see act(): identical results in every worker, no OpenMP pool across fork
     try:
         cfg = PreTrainedConfig.from_pretrained(path)
         cfg.device = "cpu"
@@ -182,6 +183,8 @@ def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None =
         from hub_envs.rollout import flatten_observation
 
         if t == 0:
+            # one thread: the same arithmetic in every process (and no OpenMP pool inherited across fork)
+            torch.set_num_threads(1)
             policy.reset()
             torch.manual_seed(0)
         batch: dict[str, Any] = {}
@@ -214,6 +217,21 @@ def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None) -> Any:
         f"benchmark policy type {spec.get('type')!r} is not supported; hub-envs reproduces \"random\" and "
         f"\"lerobot\" (a LeRobot pretrained policy pinned as \"checkpoint\": \"user/policy@<sha>\")."
     )
+
+
+def _torch_threads() -> int | None:
+    import sys
+
+    torch = sys.modules.get("torch")  # only if imported already: a random policy never imports torch
+    return torch.get_num_threads() if torch is not None else None
+
+
+def _restore_torch_threads(n: int | None) -> None:
+    import sys
+
+    torch = sys.modules.get("torch")
+    if n is not None and torch is not None and torch.get_num_threads() != n:
+        torch.set_num_threads(n)
 
 
 # --- reproduction -----------------------------------------------------------------------------
@@ -249,19 +267,23 @@ def reproduce_benchmark(
     if result.error:
         result.seconds = time.perf_counter() - t0
         return result
+    threads = _torch_threads()
     try:
-        policy = _policy_for(policy_spec, loaded, token)
-    except ReproductionError as exc:
-        result.error = str(exc)
-        result.seconds = time.perf_counter() - t0
-        return result
-    max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
-    per_episode: dict[str, list[float]] = {METRICS[m][0]: [] for m in metrics}
-    for rollout in iter_episodes(loaded.make, seeds, max_steps=max_steps, policy=policy, workers=workers,
-                                 progress=progress, desc=f"Benchmark {name}"):
-        for m in metrics:
-            key, get = METRICS[m]
-            per_episode[key].append(get(rollout))
+        try:
+            policy = _policy_for(policy_spec, loaded, token)
+        except ReproductionError as exc:
+            result.error = str(exc)
+            result.seconds = time.perf_counter() - t0
+            return result
+        max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
+        per_episode: dict[str, list[float]] = {METRICS[m][0]: [] for m in metrics}
+        for rollout in iter_episodes(loaded.make, seeds, max_steps=max_steps, policy=policy, workers=workers,
+                                     progress=progress, desc=f"Benchmark {name}"):
+            for m in metrics:
+                key, get = METRICS[m]
+                per_episode[key].append(get(rollout))
+    finally:
+        _restore_torch_threads(threads)
     published = dict(benchmark.get("per_episode") or {})
     tolerance = dict(benchmark.get("tolerance") or {})
     for m, value in metrics.items():

@@ -76,7 +76,7 @@ class Divergence:
     def describe(self) -> str:
         where = f"episode {self.episode}" + (f" (seed {self.seed})" if self.seed is not None else "")
         at = f"[{', '.join(map(str, self.element))}]" if self.element else ""
-        text = (f"{where}, step {self.step}, {self.feature}{at}: playback diverged by {self.max_abs_diff:.6g} "
+        text = (f"{where}, {self.feature}{at}: playback diverged by {self.max_abs_diff:.6g} "
                 f"at step {self.step} (dataset {_short(self.dataset)} vs replay {_short(self.replay)})")
         return text + (f"; {self.note}" if self.note else "")
 
@@ -165,8 +165,16 @@ class ReplayResult:
 # --- comparing arrays -------------------------------------------------------------------------
 
 
-def _short(value: Any, limit: int = 80) -> str:
-    text = str(value)
+def _short(value: Any, limit: int = 100) -> str:
+    """A value for a message: floats with 9 significant digits (float32 round-trips), long lists cut."""
+    def fmt(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.9g}"
+        if isinstance(v, list):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
+        return str(v)
+
+    text = fmt(value)
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 

@@ -107,11 +107,14 @@ class ReproduceReport:
         lines = [f"{self.verdict()}: {self.repo_id}@{self.sha}"]
         if self.replay is not None:
             lines.append("  " + self.replay.summary())
-            for ep in self.replay.diverged[:5]:
-                for d in ep.divergences[:4]:
+            shown = self.replay.diverged[:2]
+            for ep in shown:
+                for d in ep.divergences[:3]:
                     lines.append("    " + d.describe())
                 if ep.localization:
                     lines.append(f"    localized: {ep.localization.get('message')}")
+            if len(self.replay.diverged) > len(shown):
+                lines.append(f"    ... and {len(self.replay.diverged) - len(shown)} more diverged episodes (see the Markdown report)")
             if not self.replay.ok:
                 lines.append(f"    {self.versions_note()}")
         for b in self.benchmarks:
@@ -251,6 +254,7 @@ class ReproduceReport:
                 if first is not None:
                     ax.axvline(first.step, color="red", lw=0.8, ls=":")
                 ax.set_yscale("symlog", linthresh=1e-9)
+                ax.set_ylim(bottom=0)
                 ax.set_xlabel("step")
                 ax.set_ylabel("max |replay - dataset|")
                 ax.set_title(f"replay divergence, episode {item.episode} (first at step {first.step if first else '-'})")

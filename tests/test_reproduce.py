@@ -97,6 +97,9 @@ def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_pat
     assert bench.passed and bench.name == "random-policy"
     assert bench.reproduced_per_episode["return"] == pytest.approx(bench.published_per_episode["return"], abs=0)
     assert report.fingerprint["ok"]
+    # the card shows the same benchmark as model-index evaluation results
+    card = hub.api.model_info(f"alice/{name}", revision=pushed.sha).card_data
+    assert {e.metric_type: e.metric_value for e in card.eval_results} == pytest.approx(pushed.manifest.benchmarks[0]["metrics"])
     # provenance: sha, digests, seeds and versions beside the published ones
     prov = report.provenance
     assert prov["sha"] == pushed.sha and prov["code_digest"] == pushed.manifest.code_digest == prov["dataset_code_digest"]
@@ -174,7 +177,7 @@ def test_a_perturbed_env_is_caught_by_the_fingerprint_replay_and_benchmark(hub, 
     assert report.provenance["version_differences"]["numpy"][0] == "1.26.0"
     assert any("other code" in n for n in report.notes)
     summary = report.summary()
-    assert "episode 0 (seed 0), step 0, next.reward" in summary and "numpy 1.26.0 (published)" in summary
+    assert "episode 0 (seed 0), next.reward: playback diverged by" in summary and "at step 0" in summary and "numpy 1.26.0 (published)" in summary
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert "**NOT REPRODUCED**" in markdown and "| numpy | 1.26.0 |" in markdown and "**differs**" in markdown
 
@@ -313,3 +316,60 @@ def test_benchmark_policies_hub_envs_cannot_run_are_reported_not_raised(hub):
         assert not far.passed  # without a declared tolerance: the published value must lie in the CI
     finally:
         loaded.unregister()
+
+
+def _tiny_lerobot_policy(folder: Path) -> Path:
+    """A small untrained LeRobot TD-MPC policy for the tiny env (state (2,) -> action (1,)), saved as LeRobot saves one."""
+    import torch
+    from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+    from lerobot.policies.tdmpc.configuration_tdmpc import TDMPCConfig
+
+    cfg = TDMPCConfig(
+        input_features={"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(2,))},
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(1,))},
+        device="cpu", latent_dim=8, mlp_dim=16, q_ensemble_size=2, horizon=2, cem_iterations=2,
+        n_gaussian_samples=16, n_pi_samples=4, n_elites=4,
+        normalization_mapping={"STATE": NormalizationMode.IDENTITY, "ACTION": NormalizationMode.MIN_MAX,
+                               "VISUAL": NormalizationMode.IDENTITY},
+    )
+    torch.manual_seed(0)
+    get_policy_class("tdmpc")(cfg).save_pretrained(folder)
+    pre, post = make_pre_post_processors(cfg, dataset_stats={"action": {"min": torch.tensor([-1.0]), "max": torch.tensor([1.0])}})
+    pre.save_pretrained(folder)
+    post.save_pretrained(folder)
+    return folder
+
+
+def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_path):
+    policy_sha = hub.api.upload_folder(repo_id=hub.api.create_repo("alice/tiny-policy").repo_id,
+                                       folder_path=str(_tiny_lerobot_policy(tmp_path / "policy"))).oid
+    pushed = _push(TINY, "alice/tiny-policy-env", episodes=3)
+    spec = {"name": "tdmpc-untrained", "policy": {"type": "lerobot", "checkpoint": f"alice/tiny-policy@{policy_sha}"},
+            "episodes": 3, "seeds": [100, 101, 102], "metrics": {"mean_return": 0.0, "success_rate": 0.0},
+            "tolerance": {"mean_return": 1e-9, "success_rate": 0.0}}
+    # the publisher evaluates the policy once and declares the result in the manifest
+    loaded = load_env(f"alice/tiny-policy-env@{pushed.sha}", trust_remote_code=True)
+    evaluated = reproduce_benchmark(loaded, spec, workers=1, progress=False)
+    loaded.unregister()
+    assert evaluated.error is None
+    returns = evaluated.reproduced_per_episode["return"]
+    spec["metrics"] = {"mean_return": float(np.mean(returns)), "success_rate": float(np.mean(evaluated.reproduced_per_episode["success"]))}
+    spec["per_episode"] = {"return": returns, "success": evaluated.reproduced_per_episode["success"]}
+
+    def declare(folder: Path) -> None:
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["benchmarks"].append(spec)
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    declared = republish(hub.api, "alice/tiny-policy-env", declare)
+    report = reproduce("alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=2, write=False, progress=False)
+    assert report.reproduced, report.summary()
+    assert [b.name for b in report.benchmarks] == ["random-policy", "tdmpc-untrained"]
+    assert report.benchmarks[1].reproduced_per_episode["return"] == returns  # bit-identical, on 2 workers
+
+    perturbed = republish(hub.api, "alice/tiny-policy-env", _perturb_gain)
+    report = reproduce("alice/tiny-policy-env", revision=perturbed, trust_remote_code=True, workers=1, write=False,
+                       progress=False, replay=False)
+    checkpoint = report.benchmarks[1]
+    assert not checkpoint.passed and checkpoint.error is None and checkpoint.episodes_differing
