@@ -1,0 +1,133 @@
+"""``make bench``: run every benchmark, print one table of figures against their goals, write JSON.
+
+Each figure is a ratio measured side by side in one run (medians of several repeats: the machine
+may be shared and noisy). The figures and every module's details go to ``benchmarks/out/latest.json``.
+
+    python -m benchmarks.run            # all of them (a few minutes)
+    python -m benchmarks.run --only load download
+
+The modules run in this order, ``bench_load`` first: it forks its "fresh process" for warm loads
+before anything imports env code or a simulator. A module that is missing (``bench_replay`` may not
+be there yet) or that fails is reported as such; the others still run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import operator
+import os
+import platform
+import sys
+import time
+import traceback
+from datetime import datetime, timezone
+from pathlib import Path
+
+OUT = Path(__file__).resolve().parent / "out" / "latest.json"
+
+#: module -> keyword arguments of its run()
+MODULES: dict[str, dict] = {
+    "bench_load": {"repeats": 9},
+    "bench_download": {"clients": 8, "size_mb": 32, "repeats": 3},
+    "bench_datagen": {"repeats": 3},
+    "bench_replay": {"repeats": 3},
+    "bench_server": {"repeats": 3, "n_files": 100, "size_mb": 16},
+}
+
+GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
+#: figure -> (module that measures it, goal or None, what it is)
+FIGURES: dict[str, tuple[str, tuple | None, str]] = {
+    "wrapper_overhead_pendulum": ("bench_load", (GE, 0.95), "steps/s via load_env ÷ EnvClass(**gym_kwargs)"),
+    "wrapper_overhead_hover": ("bench_load", (GE, 0.95), "same, pybullet quadrotor"),
+    "warm_load_vs_lerobot": ("bench_load", (LE, 1.0), "warm load_env with checks ÷ lerobot make_env (worst env)"),
+    "warm_load_check_share": ("bench_load", None, "share of the check stage in that warm load"),
+    "warm_load_no_checks_vs_lerobot": ("bench_load", None, "the same with check=False (worst env)"),
+    "cold_load_vs_snapshot": ("bench_load", (LE, 1.2), "cold load_env ÷ snapshot_download + import (worst env)"),
+    "datagen_vs_lerobot": ("bench_datagen", (GE, 3.0), "dataset frames/s ÷ LeRobot add_frame/save_episode"),
+    "datagen_vs_raw": ("bench_datagen", (GE, 0.33), "dataset frames/s ÷ raw env stepping"),
+    "replay_vs_raw": ("bench_replay", (GE, 0.8), "replay-verify steps/s ÷ raw env stepping"),
+    "reproduce_speedup_2workers": ("bench_replay", (GE, 1.6), "reproduce on 1 worker ÷ on 2 (time)"),
+    "server_download_mb_s": ("bench_download", None, "MiB/s to 8 concurrent snapshot_downloads"),
+    "server_errors": ("bench_download", (EQ, 0), "failed or corrupt downloads among them"),
+}
+
+
+def run(only: list[str] | None = None) -> dict:
+    started = time.perf_counter()
+    out: dict = {
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+                    "load_average_before": os.getloadavg()},
+        "details": {},
+        "skipped": {},
+    }
+    for name, kwargs in MODULES.items():
+        if only and name not in only and name.removeprefix("bench_") not in only:
+            continue
+        print(f"--- {name} ---", file=sys.stderr, flush=True)
+        t = time.perf_counter()
+        try:
+            module = importlib.import_module(f"benchmarks.{name}")
+        except ModuleNotFoundError as e:
+            out["skipped"][name] = f"not present ({e})"
+            print(f"{name}: skipped, {out['skipped'][name]}", file=sys.stderr)
+            continue
+        try:
+            out["details"][name] = module.run(**kwargs)
+        except Exception as e:  # noqa: BLE001 - one failing benchmark must not hide the others
+            out["skipped"][name] = f"failed: {type(e).__name__}: {e}"
+            traceback.print_exc()
+            continue
+        out["details"][name]["seconds"] = round(time.perf_counter() - t, 1)
+    for figure, (module, goal, _) in FIGURES.items():
+        value = out["details"].get(module, {}).get(figure)
+        if value is not None:
+            out[figure] = value
+    out["goals_met"] = {f: _verdict(out.get(f), FIGURES[f][1]) for f in FIGURES if FIGURES[f][1] and f in out}
+    out["machine"]["load_average_after"] = os.getloadavg()
+    out["seconds"] = round(time.perf_counter() - started, 1)
+    return out
+
+
+def _verdict(value, goal) -> bool | None:
+    if value is None or goal is None:
+        return None
+    (_, op), threshold = goal
+    return bool(op(value, threshold))
+
+
+def table(out: dict) -> str:
+    """The figures as a Markdown table (what the README shows)."""
+    rows = ["| figure | value | goal | verdict | what |", "|---|---:|---|---|---|"]
+    for figure, (module, goal, what) in FIGURES.items():
+        value = out.get(figure)
+        shown = "—" if value is None else (f"{value:.0f}" if figure == "server_download_mb_s" else
+                                           f"{value:.0%}" if figure.endswith("share") else f"{value:g}")
+        goal_text = f"{goal[0][0]} {goal[1]:g}" if goal else "—"
+        verdict = ("pass" if _verdict(value, goal) else "**fail**") if goal and value is not None else (
+            "not run" if value is None else "info")
+        if value is None and module in out.get("skipped", {}):
+            verdict = f"not run: {out['skipped'][module][:60]}"
+        rows.append(f"| `{figure}` | {shown} | {goal_text} | {verdict} | {what} |")
+    return "\n".join(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", nargs="*", help="module names (load, download, datagen, replay, server)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args()
+    out = run(args.only)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(out, indent=2, default=str) + "\n")
+    la = out["machine"]["load_average_before"]
+    print(f"\nBenchmarks, {out['date']} ({out['machine']['cpu_count']} CPUs, load average {la[0]:.2f} before, "
+          f"{out['seconds']:.0f} s)\n")
+    print(table(out))
+    print(f"\nWritten to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
