@@ -41,6 +41,8 @@ def version_differences(recorded: dict[str, str], current: dict[str, str]) -> di
 
 
 def describe_differences(diffs: dict[str, tuple[str, str]]) -> str:
+    """The sentence a drift message ends with: which versions differ, or that none does (then the code or machine did)."""
     if not diffs:
-        return ""
+        return ("\nNo package version differs from the publisher's, so the env's code or assets, or the machine "
+                "(CPU, OS, libraries outside Python), changed.")
     return "\nVersions differ from the publisher's: " + ", ".join(f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items())
