@@ -16,7 +16,8 @@ Measured side by side in each repeat (medians over ``repeats``):
 
 Figures: ``replay_vs_raw`` = min over variants of replay / raw (goal >= 0.8);
 ``reproduce_speedup_2workers`` = reproduce_w1 time / reproduce_w2 time (goal >= 1.6 on 2 idle cores).
-The machine's load average is recorded: other processes on a shared machine lower the speedup.
+The machine's load average and a calibration (pure CPU work on 2 forked processes vs 1, ``machine_2process_ceiling``)
+are recorded: other processes on a shared machine lower the speedup.
 
 Run: ``python benchmarks/bench_replay.py [--repeats 3] [--profile]``; ``run()`` returns the dict.
 """
@@ -72,6 +73,28 @@ def _replay(loaded) -> float:
     return result.steps / dt
 
 
+def _burn(n: int) -> int:
+    s = 0
+    for i in range(n):
+        s += i * i
+    return s
+
+
+def _pool_ceiling(n: int = 2_000_000, tasks: int = 4) -> float:
+    """Pure-Python CPU work on 2 forked processes vs 1: what this machine allows right now (2.0 when idle)."""
+    import multiprocessing
+
+    t = time.perf_counter()
+    for _ in range(tasks):
+        _burn(n)
+    serial = time.perf_counter() - t
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        t = time.perf_counter()
+        pool.map(_burn, [n] * tasks)
+        parallel = time.perf_counter() - t
+    return serial / parallel
+
+
 def _reproduce(repo: str, workers: int, out: Path) -> float:
     from hub_envs import reproduce
 
@@ -120,12 +143,15 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
             repo = repos[REPRODUCE_VARIANT]
             _reproduce(repo, 2, tmp / "warm")
             times: dict[int, list[float]] = {1: [], 2: []}
+            ceiling = []
             for i in range(repeats):
                 for w in (1, 2):
                     times[w].append(_reproduce(repo, w, tmp / f"out-{w}-{i}"))
+                ceiling.append(_pool_ceiling())
             t1, t2 = statistics.median(times[1]), statistics.median(times[2])
             results["reproduce"] = {"variant": REPRODUCE_VARIANT, "episodes": REPRODUCE_EPISODES,
-                                    "seconds_w1": round(t1, 3), "seconds_w2": round(t2, 3)}
+                                    "seconds_w1": round(t1, 3), "seconds_w2": round(t2, 3),
+                                    "machine_2process_ceiling": round(statistics.median(ceiling), 3)}
             results["reproduce_speedup_2workers"] = round(t1 / t2, 3)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -143,7 +169,8 @@ def print_table(results: dict) -> None:
         r = results[v]
         print(f"{v:15} {r['frames']:>7} {r['raw_steps_per_s']:>10.0f} {r['replay_steps_per_s']:>10.0f} {r['replay_vs_raw']:>7.2f}")
     rp = results["reproduce"]
-    print(f"reproduce {rp['variant']} ({rp['episodes']} episodes): {rp['seconds_w1']:.2f}s on 1 worker, {rp['seconds_w2']:.2f}s on 2")
+    print(f"reproduce {rp['variant']} ({rp['episodes']} episodes): {rp['seconds_w1']:.2f}s on 1 worker, {rp['seconds_w2']:.2f}s on 2; "
+          f"pure CPU work on 2 processes gets {rp['machine_2process_ceiling']:.2f}x on this machine right now")
     la = results["load_average_before"]
     print(f"replay_vs_raw = {results['replay_vs_raw']:.2f} (goal >= 0.8), reproduce_speedup_2workers = "
           f"{results['reproduce_speedup_2workers']:.2f} (goal >= 1.6); load average before: {la[0]:.2f}")

@@ -69,6 +69,7 @@ class ReproduceReport:
     notes: list[str] = field(default_factory=list)  # warnings that do not fail the reproduction
     settings: dict[str, Any] = field(default_factory=dict)
     paths: dict[str, str] = field(default_factory=dict)  # where write() put the files
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (load, replay, benchmarks, ...)
 
     # -- verdict --
 
@@ -140,6 +141,7 @@ class ReproduceReport:
             "fingerprint": self.fingerprint,
             "notes": self.notes,
             "provenance": self.provenance,
+            "timings": self.timings,
         })
 
     def to_json(self) -> str:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import sys
+import time
 import types
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,8 +148,11 @@ def reproduce(
     workers = _default_workers() if not workers else int(workers)
     if workers < 1:
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
+    timings: dict[str, float] = {}
+    t0 = t = time.perf_counter()
     loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, check=True,
                       fingerprint="off", token=token)
+    timings["load"] = time.perf_counter() - t
     try:
         dataset_root = loaded.dataset_root
         provenance = _provenance(loaded, dataset_root)
@@ -160,7 +164,10 @@ def reproduce(
             if provenance.get("dataset_code_digest") and provenance["dataset_code_digest"] != provenance["code_digest"]:
                 notes.append(f"the dataset was recorded by other code (code digest {str(provenance['dataset_code_digest'])[:16]}…) "
                              f"than this commit holds ({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded")
+        timings["provenance"] = time.perf_counter() - t0 - timings["load"]
+        t = time.perf_counter()
         fp = _fingerprint(loaded)
+        timings["fingerprint"] = time.perf_counter() - t
         replay_result: ReplayResult | None = None
         if replay:
             if dataset_root is None:
@@ -168,21 +175,28 @@ def reproduce(
             else:
                 replay_result = replay_dataset(loaded.make, dataset_root, loaded.config.features_map, tolerance=tolerance,
                                                workers=workers, episodes=episodes, progress=progress)
+                timings["replay"] = replay_result.seconds
         bench_results: list[BenchmarkResult] = []
+        t = time.perf_counter()
         if benchmarks:
             for b in loaded.manifest.benchmarks:
                 bench_results.append(reproduce_benchmark(loaded, b, workers=workers, resamples=resamples,
                                                          progress=progress, token=token))
             if not loaded.manifest.benchmarks:
                 notes.append("the manifest declares no benchmark results")
+        timings["benchmarks"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id, sha=loaded.revision, provenance=provenance, replay=replay_result,
             benchmarks=bench_results, fingerprint=fp, notes=notes,
             settings={"tolerance": float(tolerance), "workers": workers, "resamples": resamples,
                       "episodes": episodes, "replay": replay, "benchmarks": benchmarks},
         )
+        report.timings = {k: round(v, 4) for k, v in timings.items()}
         if write:
+            t = time.perf_counter()
             report.write(Path(out) if out is not None else default_out_dir(loaded.repo_id))
+            report.timings["report"] = round(time.perf_counter() - t, 4)  # not in the files: they are written by then
+        report.timings["total"] = round(time.perf_counter() - t0, 4)
         return report
     finally:
         loaded.unregister()

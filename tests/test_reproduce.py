@@ -64,6 +64,7 @@ def _comparable(report) -> dict:
     for b in d["benchmarks"]:
         b.pop("seconds")
     d.pop("settings")
+    d.pop("timings")
     return d
 
 
