@@ -374,3 +374,57 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
                        progress=False, replay=False)
     checkpoint = report.benchmarks[1]
     assert not checkpoint.passed and checkpoint.error is None and checkpoint.episodes_differing
+
+
+_ENDS = ("return self._obs(), reward, False, False, self._info()",
+         "return self._obs(), reward, bool(abs(self.pos[0]) > 0.5), False, self._info()")
+
+
+def test_an_episode_end_that_moved_is_named_in_both_directions(hub, tmp_path):
+    assert _ENDS[0] in (TINY / "tiny.py").read_text()
+    original = (TINY / "tiny.py").read_text()
+
+    # data recorded by code that ends episodes (|pos| > 0.5); a later commit no longer ends them
+    _push(copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace(*_ENDS)}), "alice/tiny-ends", episodes=6)
+    sha = republish(hub.api, "alice/tiny-ends", lambda f: (f / "tiny.py").write_text(original))
+    report = reproduce("alice/tiny-ends", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    ended = [e for e in report.replay.episodes if e.length < 30]
+    assert ended, "some episode should have ended early"
+    for e in ended:
+        done = next(d for d in e.divergences if d.feature == "next.done")
+        assert (done.step, done.dataset, done.replay) == (e.length - 1, True, False)
+        assert "the env did not end it there" in done.note
+    assert all(e.ok for e in report.replay.episodes if e.length == 30)
+
+    # data recorded by code that never ends episodes; a later commit ends them
+    _push(TINY, "alice/tiny-ends-later", episodes=6)
+    sha = republish(hub.api, "alice/tiny-ends-later", lambda f: (f / "tiny.py").write_text(original.replace(*_ENDS)))
+    report = reproduce("alice/tiny-ends-later", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    dataset = report_dataset(report)
+    for e in report.replay.episodes:
+        rewards = read_episode_frames(dataset, e.episode)["next.reward"][:, 0]
+        expected = np.flatnonzero(-rewards.astype(np.float64) > 0.5)  # |pos| after each action, from the data
+        if not len(expected):
+            assert e.ok
+            continue
+        done = next(d for d in e.divergences if d.feature == "next.done")
+        assert (done.step, done.dataset, done.replay) == (int(expected[0]), False, True)
+        assert f"the env ended the episode after step {int(expected[0])}" in done.note
+
+
+def test_without_recorded_states_the_replay_state_localizes_the_divergence(hub):
+    _push(TINY, "alice/tiny-nostates")
+
+    def old_style_and_perturbed(folder: Path) -> None:
+        (folder / "dataset" / "meta" / "env_states.parquet").unlink()  # as datasets without recorded states
+        _perturb_gain(folder)
+
+    sha = republish(hub.api, "alice/tiny-nostates", old_style_and_perturbed)
+    report = reproduce("alice/tiny-nostates", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    replay = report.replay
+    assert "env_state" not in replay.features and replay.states.startswith("not recorded")
+    first = replay.first_divergence
+    assert (first.episode, first.step, first.feature) == (0, 0, "next.reward")
+    loc = replay.episodes[0].localization
+    assert loc["method"].startswith("replay state") and loc["first_step"] == 0
+    assert "reproduces the diverging step" in loc["message"]
