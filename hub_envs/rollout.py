@@ -347,9 +347,10 @@ class _Runner:
                 obs, reward, terminated, truncated, info = step(action)
             except Exception as exc:
                 raise EnvCodeError(f"{where}, step {t}: env.step(action) raised {_exc_text(exc)}. Fix the env's step.") from exc
-            if act_buf is None:
-                act_buf = _Buffer(action, max_steps)
-            act_buf.append(action)
+            if fixed is None:  # replayed actions are copied once at the end
+                if act_buf is None:
+                    act_buf = _Buffer(action, max_steps)
+                act_buf.append(action)
             rewards.append(reward)
             terms.append(bool(terminated))
             truncs.append(bool(truncated))
@@ -369,7 +370,7 @@ class _Runner:
             index=index,
             seed=seed,
             observations=observations,
-            actions=act_buf.array(),
+            actions=act_buf.array() if fixed is None else np.array(fixed[: len(rewards)]),
             rewards=reward_arr,
             terminated=np.asarray(terms, dtype=bool),
             truncated=np.asarray(truncs, dtype=bool),
