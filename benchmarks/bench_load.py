@@ -287,6 +287,8 @@ def run(repeats: int = 7, verbose: bool = True, profile: bool = False) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
     for name in ENVS:
         results[f"wrapper_overhead_{name}"] = results[f"wrapper_{name}"]["ratio"]
+        results[f"warm_load_vs_lerobot_{name}"] = results[f"warm_{name}"]["ratio"]
+        results[f"cold_load_vs_snapshot_{name}"] = results[f"cold_{name}"]["ratio"]
     worst_warm = max(ENVS, key=lambda n: results[f"warm_{n}"]["ratio"])
     results["warm_load_vs_lerobot"] = results[f"warm_{worst_warm}"]["ratio"]
     results["warm_load_check_share"] = results[f"warm_{worst_warm}"]["check_share"]
