@@ -108,7 +108,7 @@ def _reproduce(repo: str, workers: int, out: Path) -> float:
 def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
     """Push the example envs to a loopback Hub, then measure; return the figures."""
     from hub_envs import load_env, push_env
-    from hub_envs.replay import _plan
+    from hub_envs.dataset import read_episode_frames, read_episode_meta
     from hub_envs.testing import HubServer, hub_environment
 
     results: dict = {"cpu_count": os.cpu_count(), "repeats": repeats, "load_average_before": os.getloadavg()}
@@ -122,14 +122,16 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
                 repos[variant] = f"bench/{variant}@{pushed.sha}"
             for variant, repo in repos.items():
                 loaded = load_env(repo, trust_remote_code=True)
-                plan = _plan(loaded.dataset_root, loaded.config.features_map, None)
+                metas = read_episode_meta(loaded.dataset_root)
+                seeds = [m["seed"] for m in metas]
+                actions = [read_episode_frames(loaded.dataset_root, m["episode_index"], keys=["action"])["action"] for m in metas]
                 _replay(loaded)  # warm-up: imports, page cache
                 raw, replay = [], []
                 for _ in range(repeats):
-                    raw.append(_raw(loaded, plan.seeds, plan.actions))
+                    raw.append(_raw(loaded, seeds, actions))
                     replay.append(_replay(loaded))
                 r, p = statistics.median(raw), statistics.median(replay)
-                results[variant] = {"frames": sum(len(a) for a in plan.actions), "raw_steps_per_s": round(r, 1),
+                results[variant] = {"frames": sum(len(a) for a in actions), "raw_steps_per_s": round(r, 1),
                                     "replay_steps_per_s": round(p, 1), "replay_vs_raw": round(p / r, 3)}
                 if profile and variant == "pendulum":
                     import cProfile
