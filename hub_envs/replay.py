@@ -51,7 +51,8 @@ __all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "replay_dataset", "STA
 #: The name under which recorded simulator states are compared.
 STATE_FEATURE = "env_state"
 NEXT_KEYS = ("next.reward", "next.done", "next.success")
-#: Diverged episodes localized by state-restored playback (each costs one more pass over the episode).
+#: Diverged episodes localized by state-restored playback (each costs one more pass over the episode)
+#: and whose per-step error curves are kept in the report.
 MAX_LOCALIZED = 3
 
 
@@ -609,6 +610,8 @@ def replay_dataset(
                 data = ahead.pop(pos).result()
                 steps += rollout.length
                 results.append(_compare_episode(plan, pos, rollout, data, features_map, tolerance, keep_curves=True))
+        for ep in [e for e in results if not e.ok][MAX_LOCALIZED:]:
+            ep.error_curve = {}  # per-step curves for the first few diverged episodes only: bounded report size
         if localize and can_restore:
             for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
                 try:
