@@ -32,6 +32,7 @@ from pathlib import Path
 
 from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationConflictError
 from hub_envs.paths import hub_envs_home
+from hub_envs.repo_format import DATASET_DIR, IGNORED_PARTS, MEDIA_DIR
 
 ROOT_PACKAGE = "hub_envs_code"
 _ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_][\w]*(\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*)$")
@@ -77,6 +78,7 @@ class _SourceLoader(importlib.machinery.SourceFileLoader):
         return None
 
 
+_NO_CODE_DIRS = {*IGNORED_PARTS, DATASET_DIR, MEDIA_DIR}
 _FINDER_DIRS: dict[str, list[str]] = {}  # package name -> the folders given a source-only finder
 
 
@@ -84,7 +86,8 @@ def _install_source_finders(name: str, folder: Path) -> None:
     """Make imports below ``folder`` use :class:`_SourceLoader` for ``.py`` files and nothing else."""
     dirs = [str(folder)]
     for dirpath, dirnames, _ in os.walk(folder):
-        dirnames[:] = sorted(d for d in dirnames if d not in ("__pycache__", ".git"))
+        # no code lives in caches, hidden folders (a .venv!) or the generated dataset/ and media/
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d not in _NO_CODE_DIRS)
         dirs += [os.path.join(dirpath, d) for d in dirnames]
     for d in dirs:
         sys.path_importer_cache[d] = importlib.machinery.FileFinder(d, (_SourceLoader, [".py"]))
