@@ -548,6 +548,18 @@ def _localize_from_replay_state(make_env: Callable[[], Any], plan: _Plan, pos: i
         f"or get_state/reset_to miss part of its state, so the divergence cannot be pinned to one transition")}
 
 
+class _Done:
+    """An already computed value with a future's ``result()``."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any):
+        self.value = value
+
+    def result(self) -> Any:
+        return self.value
+
+
 def replay_dataset(
     make_env: Callable[[], Any],
     dataset_root: str | Path,
@@ -599,14 +611,19 @@ def replay_dataset(
         steps = 0
         n = len(plan.metas)
         keys = list(plan.features)
-        # decode the dataset's frames a couple of episodes ahead in a thread, while the env steps
+        # images: decode the dataset's frames a couple of episodes ahead in a thread, while the env steps
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hub-envs-replay-read") as reader:
-            ahead = {p: reader.submit(plan.frames.episode, plan.metas[p]["episode_index"], keys) for p in range(min(2, n))}
+            def fetch(p: int):
+                if not plan.image_keys:  # numeric columns are already in memory
+                    return _Done(plan.frames.episode(plan.metas[p]["episode_index"], keys))
+                return reader.submit(plan.frames.episode, plan.metas[p]["episode_index"], keys)
+
+            ahead = {p: fetch(p) for p in range(min(2, n))}
             for pos, rollout in enumerate(iter_episodes(make_env, plan.seeds, max_steps=max_steps, policy=padded,
                                                         record_states=record, workers=workers, progress=progress,
                                                         desc=f"Replaying {n} episodes")):
                 if pos + 2 < n:
-                    ahead[pos + 2] = reader.submit(plan.frames.episode, plan.metas[pos + 2]["episode_index"], keys)
+                    ahead[pos + 2] = fetch(pos + 2)
                 data = ahead.pop(pos).result()
                 steps += rollout.length
                 results.append(_compare_episode(plan, pos, rollout, data, features_map, tolerance, keep_curves=True))
