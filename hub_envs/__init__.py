@@ -36,6 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401
+    from hub_envs.reproduce import env_from_dataset, reproduce  # noqa: F401
     from hub_envs.trust import is_trusted, trust, untrust  # noqa: F401
 
 
