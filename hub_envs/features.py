@@ -77,6 +77,11 @@ class FeatureReport:
             "rows": [r.__dict__ for r in self.rows],
         }
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> FeatureReport:
+        return cls(rows=[FeatureRow(**row) for row in data["rows"]], steps=int(data["steps"]), seed=int(data["seed"]),
+                   dataset_checked=bool(data["dataset_checked"]))
+
     def raise_if_mismatch(self, where: str) -> None:
         if self.ok:
             return

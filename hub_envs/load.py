@@ -28,7 +28,7 @@ from typing import Any, Literal
 
 import gymnasium as gym
 
-from hub_envs import hub_io, registration, trust
+from hub_envs import check_cache, hub_io, registration, trust
 from hub_envs.checks import verify_fingerprint
 from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.dataset import read_info
@@ -248,6 +248,7 @@ def load_env(
     check: bool = True,
     fingerprint: FingerprintPolicy = "error",
     check_steps: int = 8,
+    recheck: bool = False,
     token: str | None = None,
     cache_dir: str | Path | None = None,
 ) -> LoadedEnv:
@@ -261,6 +262,8 @@ def load_env(
         check: run the three-way feature check and the fingerprint check after registering.
         fingerprint: what a drifted golden-rollout fingerprint does: ``"error"``, ``"warn"`` or ``"off"``.
         check_steps: random-action steps of the feature check.
+        recheck: run the checks even if they already passed for this repo@sha with the same packages
+            and platform (see :mod:`hub_envs.check_cache`; ``HUB_ENVS_RECHECK=1`` does the same).
         token, cache_dir: passed to huggingface_hub.
 
     Returns:
@@ -321,7 +324,12 @@ def load_env(
     where = f"{repo}@{sha}"
 
     t = time.perf_counter()
-    check_requirements(manifest.requirements, repo=where)
+    checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint)
+    use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
+    cached_checks = check_cache.lookup(checks_key) if use_cache else None
+    if cached_checks is None:
+        check_requirements(manifest.requirements, repo=where)
+    # else: this repo@sha passed every stage before with exactly these installed distributions
     report.requirements = list(manifest.requirements)
     timings["requirements"] = time.perf_counter() - t
 
@@ -368,7 +376,7 @@ def load_env(
             )
             if check:
                 t = time.perf_counter()
-                _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps)
+                _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps, key=checks_key, cached=cached_checks)
                 timings["checks"] = time.perf_counter() - t
             if manifest.processors:
                 from hub_envs.processors import validate_for
@@ -406,8 +414,22 @@ def _raise_if_partly_cached(path: Path, where: str) -> None:
         )
 
 
-def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int) -> None:
+def _checks_key(where: str, manifest: Manifest, *, steps: int, fingerprint: FingerprintPolicy) -> str:
+    recorded = manifest.fingerprint
+    return check_cache.check_key(
+        owner=where, content_digest=manifest.content_digest, requirements=manifest.requirements,
+        settings={"steps": steps, "seed": int(manifest.seeds.get("check", 0)), "fingerprint": fingerprint,
+                  "recorded": recorded.get("digest") if recorded else None},
+    )
+
+
+def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int, key: str, cached: dict | None) -> None:
     where = f"{loaded.repo_id}@{loaded.revision}"
+    recorded = loaded.manifest.fingerprint
+    if cached is not None:
+        loaded.report.features = FeatureReport.from_dict(cached["features"])
+        loaded.report.fingerprint = f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages; recheck=True re-runs)"
+        return
     dataset_features = None
     dataset_dir = loaded.manifest.dataset.get("path") if loaded.manifest.dataset else None
     if loaded.dataset_root is not None or dataset_dir:
@@ -425,7 +447,6 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
             f"{where}: making the env ({loaded.manifest.env_entry_point} with its config's gym_kwargs) raised "
             f"{type(e).__name__}: {e}. Fix the env's __init__."
         ) from e
-    recorded = loaded.manifest.fingerprint
     handed_over = False  # the fingerprint's rollouts reuse this env (reset(seed) determines an episode) and close it
     try:
         report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)))
@@ -433,6 +454,7 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
         report.raise_if_mismatch(where)
         if fingerprint == "off" or not recorded:
             loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
+            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
             return
 
         def note() -> str:  # reading package versions costs milliseconds: only for the error message
@@ -442,6 +464,7 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
         try:
             verify_fingerprint(lambda: env, recorded, where=where, versions_note=note)
             loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
+            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
         except FingerprintMismatchError as e:
             if fingerprint == "error":
                 raise

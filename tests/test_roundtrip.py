@@ -245,3 +245,16 @@ def test_missing_repo_and_revision_are_typed_errors(hub):
     _push(TINY, "alice/tiny-rev")
     with pytest.raises(errors.RevisionNotFoundError, match="no revision 'v9'"):
         load_env("alice/tiny-rev@v9", trust_remote_code=True)
+
+
+def test_checks_that_passed_are_reused_for_the_same_sha_and_packages(hub):
+    result = _push(TINY, "alice/tiny-cache")
+    first = load_env(f"alice/tiny-cache@{result.sha}", trust_remote_code=True)
+    assert first.report.fingerprint.startswith("matches") and "cached" not in first.report.fingerprint
+    second = load_env(f"alice/tiny-cache@{result.sha}", trust_remote_code=True)
+    assert "cached" in second.report.fingerprint
+    assert second.report.features.table() == first.report.features.table()
+    forced = load_env(f"alice/tiny-cache@{result.sha}", trust_remote_code=True, recheck=True)
+    assert "cached" not in forced.report.fingerprint
+    other_settings = load_env(f"alice/tiny-cache@{result.sha}", trust_remote_code=True, check_steps=5)
+    assert "cached" not in other_settings.report.fingerprint and other_settings.report.features.steps == 5

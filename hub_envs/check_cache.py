@@ -1,0 +1,110 @@
+"""Remember load checks that passed, keyed by everything their outcome depends on.
+
+The three-way feature check and the golden-rollout fingerprint are pure functions of the env's
+code and data (fixed by the verified commit), the packages that run them, and the machine. Once
+they pass for a repo@sha in one environment, running them again there can only give the same
+answer, so a warm ``load_env`` reuses the result instead of stepping the env ~100 times.
+
+The key covers the commit and its content digest, the check settings, the name and version of
+EVERY installed distribution (the ``*.dist-info`` folders on ``sys.path``: numpy, gymnasium, the
+simulator, ... alike), hub-envs' own checking code, the interpreter and the platform (OS, kernel,
+libc, CPU architecture). Install, upgrade or remove any package and the checks run again. Only passing results are stored; failures always re-run.
+``load_env(..., recheck=True)`` (or ``HUB_ENVS_RECHECK=1``) ignores the cache.
+
+Example:
+    >>> from hub_envs.check_cache import check_key
+    >>> len(check_key(owner="u/n@" + "0" * 40, content_digest="0" * 64, requirements=(), settings={"steps": 8}))
+    64
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import sys
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from hub_envs.paths import hub_envs_home
+
+CACHE_DIR = "checks"
+
+
+def recheck_forced() -> bool:
+    return os.environ.get("HUB_ENVS_RECHECK", "").lower() in {"1", "true", "yes"}
+
+
+def _installed_distributions() -> list[str]:
+    """Every ``name-version.dist-info`` on ``sys.path``: all installed packages and versions, from one listdir each."""
+    found = []
+    for entry in sys.path:
+        if not entry or not os.path.isabs(entry):  # the working directory: where you run from must not matter
+            continue
+        try:
+            names = os.listdir(entry)
+        except OSError:
+            continue
+        found += [f"{entry}:{n}" for n in names if n.endswith((".dist-info", ".egg-info"))]
+    return sorted(found)
+
+
+def _checker_source_digest() -> str:
+    """hub-envs' own checking code, so an edited (editable-installed) checker never reuses old verdicts."""
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("features.py", "checks.py", "rollout.py", "load.py"):
+        try:
+            h.update((here / name).read_bytes())
+        except OSError:
+            h.update(name.encode())
+    return h.hexdigest()
+
+
+def environment_identity(requirements: tuple[str, ...] | list[str] = ()) -> dict[str, Any]:
+    """What, besides the code and data, can change a check's outcome: every installed package
+    version (not just the declared ones), the interpreter, the OS, libc and CPU architecture."""
+    uname = platform.uname()
+    return {
+        "distributions": hashlib.sha256("\n".join(_installed_distributions()).encode()).hexdigest(),
+        "requirements": list(requirements),
+        "checker": _checker_source_digest(),
+        "python": sys.version,
+        "os": [uname.system, uname.release, uname.machine],
+        "libc": os.confstr("CS_GNU_LIBC_VERSION") if hasattr(os, "confstr") and "CS_GNU_LIBC_VERSION" in os.confstr_names else "",
+    }
+
+
+def check_key(*, owner: str, content_digest: str, requirements, settings: dict[str, Any]) -> str:
+    payload = {"owner": owner, "content_digest": content_digest, "settings": settings,
+               "environment": environment_identity(requirements)}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+def _path(key: str) -> Path:
+    return hub_envs_home() / CACHE_DIR / f"{key}.json"
+
+
+def lookup(key: str) -> dict[str, Any] | None:
+    """The stored result for ``key``, or None (missing or unreadable entries are misses)."""
+    try:
+        data = json.loads(_path(key).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("key") == key else None
+
+
+def store(key: str, result: dict[str, Any]) -> None:
+    """Atomically record a passing result (best effort: a read-only home only costs speed)."""
+    path = _path(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".check-")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump({"key": key, "checked_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), **result}, f)
+        os.replace(tmp, path)
+    except OSError:
+        pass
