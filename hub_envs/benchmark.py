@@ -44,7 +44,7 @@ import numpy as np
 from hub_envs.errors import ReproductionError
 from hub_envs.rollout import iter_episodes
 
-__all__ = ["MetricResult", "BenchmarkResult", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
+__all__ = ["MetricResult", "BenchmarkResult", "BenchmarkRun", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
 
 #: metric name -> (per-episode key in ``per_episode``, how to get it from a rollout)
 METRICS: dict[str, tuple[str, Callable[[Any], float]]] = {
@@ -237,6 +237,83 @@ def _restore_torch_threads(n: int | None) -> None:
 # --- reproduction -----------------------------------------------------------------------------
 
 
+class BenchmarkRun:
+    """One benchmark reproduction, in three steps, so its episodes can share a worker pool.
+
+    ``BenchmarkRun(loaded, benchmark)`` checks the declaration and builds the policy; when
+    :attr:`runnable`, :attr:`seeds`, :attr:`policy` (``None``: the seeded random policy) and
+    :attr:`max_steps` are what to run through the rollout engine; :meth:`consume` takes the rollouts
+    in order and :meth:`finish` computes the metrics. :func:`reproduce_benchmark` does all three.
+    """
+
+    def __init__(self, loaded: Any, benchmark: dict[str, Any], *, resamples: int = 1000, confidence: float = 0.95,
+                 seed: int = 0, token: str | None = None):
+        t0 = time.perf_counter()
+        self.benchmark = benchmark
+        self.name = str(benchmark.get("name", "benchmark"))
+        policy_spec = dict(benchmark.get("policy") or {})
+        self.seeds = [int(s) for s in benchmark.get("seeds", [])]
+        self.result = BenchmarkResult(name=self.name, policy=policy_spec, seeds=self.seeds, confidence=confidence,
+                                      resamples=resamples)
+        self.bootstrap_seed = seed
+        self.metrics = dict(benchmark.get("metrics") or {})
+        self.max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
+        self.policy: Any = None
+        self.per_episode: dict[str, list[float]] = {METRICS[m][0]: [] for m in self.metrics if m in METRICS}
+        self._threads = _torch_threads()
+        unknown = sorted(set(self.metrics) - set(METRICS))
+        if not self.seeds:
+            self.result.error = "the benchmark declares no seeds"
+        elif unknown:
+            self.result.error = f"metric(s) {unknown} cannot be recomputed (hub-envs knows {sorted(METRICS)})"
+        else:
+            try:
+                self.policy = _policy_for(policy_spec, loaded, token)
+            except ReproductionError as exc:
+                self.result.error = str(exc)
+        self._seconds = time.perf_counter() - t0
+
+    @property
+    def runnable(self) -> bool:
+        return self.result.error is None
+
+    @property
+    def random_policy(self) -> bool:
+        """True when the episodes use the engine's seeded random actions (``policy`` is None)."""
+        return self.runnable and self.policy is None
+
+    def consume(self, rollout: Any) -> None:
+        for m in self.metrics:
+            key, get = METRICS[m]
+            self.per_episode[key].append(get(rollout))
+
+    def finish(self, *, episodes_seconds: float = 0.0) -> BenchmarkResult:
+        _restore_torch_threads(self._threads)
+        result = self.result
+        if result.error is not None:
+            result.seconds = self._seconds
+            return result
+        published = dict(self.benchmark.get("per_episode") or {})
+        tolerance = dict(self.benchmark.get("tolerance") or {})
+        for m, value in self.metrics.items():
+            key = METRICS[m][0]
+            values = np.asarray(self.per_episode[key], dtype=np.float64)
+            reproduced = float(np.mean(values))
+            lo, hi = bootstrap_ci(values, resamples=result.resamples, confidence=result.confidence, seed=self.bootstrap_seed)
+            tol = tolerance.get(m)
+            if tol is None:
+                passed = lo <= float(value) <= hi
+            else:
+                passed = abs(reproduced - float(value)) <= float(tol)
+            result.metrics.append(MetricResult(m, float(value), reproduced, lo, hi, None if tol is None else float(tol), bool(passed)))
+        for key, values in self.per_episode.items():
+            result.reproduced_per_episode[key] = [bool(v) for v in values] if key == "success" else [float(v) for v in values]
+            if key in published:
+                result.published_per_episode[key] = list(published[key])
+        result.seconds = self._seconds + episodes_seconds
+        return result
+
+
 def reproduce_benchmark(
     loaded: Any,
     benchmark: dict[str, Any],
@@ -253,53 +330,14 @@ def reproduce_benchmark(
     An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
     than raising, so the other parts of a reproduction still report.
     """
-    t0 = time.perf_counter()
-    name = str(benchmark.get("name", "benchmark"))
-    policy_spec = dict(benchmark.get("policy") or {})
-    seeds = [int(s) for s in benchmark.get("seeds", [])]
-    result = BenchmarkResult(name=name, policy=policy_spec, seeds=seeds, confidence=confidence, resamples=resamples)
-    metrics = dict(benchmark.get("metrics") or {})
-    unknown = sorted(set(metrics) - set(METRICS))
-    if not seeds:
-        result.error = "the benchmark declares no seeds"
-    elif unknown:
-        result.error = f"metric(s) {unknown} cannot be recomputed (hub-envs knows {sorted(METRICS)})"
-    if result.error:
-        result.seconds = time.perf_counter() - t0
-        return result
-    threads = _torch_threads()
+    run = BenchmarkRun(loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token)
+    t = time.perf_counter()
     try:
-        try:
-            policy = _policy_for(policy_spec, loaded, token)
-        except ReproductionError as exc:
-            result.error = str(exc)
-            result.seconds = time.perf_counter() - t0
-            return result
-        max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
-        per_episode: dict[str, list[float]] = {METRICS[m][0]: [] for m in metrics}
-        for rollout in iter_episodes(loaded.make, seeds, max_steps=max_steps, policy=policy, workers=workers,
-                                     progress=progress, desc=f"Benchmark {name}"):
-            for m in metrics:
-                key, get = METRICS[m]
-                per_episode[key].append(get(rollout))
+        if run.runnable:
+            for rollout in iter_episodes(loaded.make, run.seeds, max_steps=run.max_steps, policy=run.policy,
+                                         workers=workers, progress=progress, desc=f"Benchmark {run.name}"):
+                run.consume(rollout)
     finally:
-        _restore_torch_threads(threads)
-    published = dict(benchmark.get("per_episode") or {})
-    tolerance = dict(benchmark.get("tolerance") or {})
-    for m, value in metrics.items():
-        key = METRICS[m][0]
-        values = np.asarray(per_episode[key], dtype=np.float64)
-        reproduced = float(np.mean(values))
-        lo, hi = bootstrap_ci(values, resamples=resamples, confidence=confidence, seed=seed)
-        tol = tolerance.get(m)
-        if tol is None:
-            passed = lo <= float(value) <= hi
-        else:
-            passed = abs(reproduced - float(value)) <= float(tol)
-        result.metrics.append(MetricResult(m, float(value), reproduced, lo, hi, None if tol is None else float(tol), bool(passed)))
-    for key, values in per_episode.items():
-        result.reproduced_per_episode[key] = [bool(v) for v in values] if key == "success" else [float(v) for v in values]
-        if key in published:
-            result.published_per_episode[key] = list(published[key])
-    result.seconds = time.perf_counter() - t0
+        episodes_seconds = time.perf_counter() - t
+        result = run.finish(episodes_seconds=episodes_seconds)
     return result

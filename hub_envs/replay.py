@@ -46,7 +46,7 @@ try:  # LeRobot depends on opencv; the fast PNG decoder
 except ImportError:  # pragma: no cover
     _cv2 = None
 
-__all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "replay_dataset", "STATE_FEATURE"]
+__all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "Replay", "replay_dataset", "STATE_FEATURE"]
 
 #: The name under which recorded simulator states are compared.
 STATE_FEATURE = "env_state"
@@ -560,6 +560,123 @@ class _Done:
         return self.value
 
 
+class Replay:
+    """One replay, in three steps, so its episodes can share a worker pool with other episodes.
+
+    ``Replay(...)`` reads the dataset and builds a probe env; :attr:`seeds`, :attr:`policy`,
+    :attr:`max_steps` and :attr:`record_states` are what to run through the rollout engine;
+    :meth:`consume` compares the rollouts (in episode order) and :meth:`finish` localizes the
+    diverged episodes and returns the :class:`ReplayResult`. :func:`replay_dataset` does all three.
+    Use it as a context manager (or call :meth:`close`) so the probe env is closed.
+    """
+
+    def __init__(self, make_env: Callable[[], Any], dataset_root: str | Path, features_map: Mapping[str, str], *,
+                 tolerance: float = 0.0, episodes: list[int] | None = None, localize: bool = True):
+        if tolerance < 0 or not np.isfinite(tolerance):
+            raise ReproductionError(f"tolerance={tolerance!r}: pass a finite value >= 0 (0 means bit-exact).")
+        self._t0 = time.perf_counter()
+        self._seconds = 0.0
+        self.make_env = make_env
+        self.features_map = dict(features_map)
+        self.tolerance = float(tolerance)
+        self.localize = localize
+        root = Path(dataset_root)
+        self.plan = plan = _plan(root, features_map, episodes)
+        self.probe = make_env()
+        try:
+            space = self.probe.action_space
+            self.actions = [_env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)]
+            self.can_restore = _reset_to(self.probe) is not None
+            self.record_states = plan.states is not None and getattr(self.probe.unwrapped, "get_state", None) is not None
+            self.max_episode_steps = getattr(getattr(self.probe, "spec", None), "max_episode_steps", None)
+        except BaseException:
+            self.close()
+            raise
+        #: one extra action per episode: if the env does not end the episode where the data does, it shows
+        self.policy = [np.concatenate([a, a[-1:]]) if len(a) else a for a in self.actions]
+        self.seeds = list(plan.seeds)
+        self.max_steps = max((len(a) for a in self.policy), default=1)
+        self.results: list[EpisodeReplay] = []
+        self.steps = 0
+        self._keys = list(plan.features)
+        self._reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hub-envs-replay-read")
+        self._ahead: dict[int, Any] = {p: self._fetch(p) for p in range(min(2, len(plan.metas)))}
+        self._seconds += time.perf_counter() - self._t0
+
+    def __enter__(self) -> Replay:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        reader = getattr(self, "_reader", None)
+        if reader is not None:
+            reader.shutdown(wait=True, cancel_futures=True)
+            self._reader = None
+        if getattr(self, "probe", None) is not None:
+            try:
+                self.probe.close()
+            except Exception:  # noqa: BLE001
+                pass
+            self.probe = None
+
+    def _fetch(self, pos: int) -> Any:
+        """The dataset frames of episode ``pos``: images decoded a couple of episodes ahead in a thread."""
+        ep = self.plan.metas[pos]["episode_index"]
+        if not self.plan.image_keys:  # numeric columns are already in memory
+            return _Done(self.plan.frames.episode(ep, self._keys))
+        return self._reader.submit(self.plan.frames.episode, ep, self._keys)
+
+    def consume(self, rollout: Any) -> EpisodeReplay:
+        """Compare the next episode's rollout (rollouts must come in episode order)."""
+        t = time.perf_counter()
+        pos = len(self.results)
+        n = len(self.plan.metas)
+        if pos + 2 < n:
+            self._ahead[pos + 2] = self._fetch(pos + 2)
+        data = self._ahead.pop(pos).result()
+        self.steps += rollout.length
+        result = _compare_episode(self.plan, pos, rollout, data, self.features_map, self.tolerance, keep_curves=True)
+        self.results.append(result)
+        self._seconds += time.perf_counter() - t
+        return result
+
+    def finish(self, *, episodes_seconds: float = 0.0) -> ReplayResult:
+        """Localize diverged episodes and return the result (``episodes_seconds``: time spent running the episodes)."""
+        t = time.perf_counter()
+        plan, results = self.plan, self.results
+        if len(results) != len(plan.metas):
+            raise ReproductionError(f"replay: {len(results)} of {len(plan.metas)} episodes were consumed before finish().")
+        for ep in [e for e in results if not e.ok][MAX_LOCALIZED:]:
+            ep.error_curve = {}  # per-step curves for the first few diverged episodes only: bounded report size
+        if self.localize and self.can_restore:
+            for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
+                try:
+                    if plan.states is not None and self.record_states:
+                        ep.localization = _localize_with_states(plan, pos, self.probe, self.actions[pos], self.features_map, self.tolerance)
+                    else:
+                        ep.localization = _localize_from_replay_state(self.make_env, plan, pos, ep, self.actions[pos], self.features_map)
+                except HubEnvsError:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - localization is a diagnosis; report why it failed
+                    ep.localization = {"method": "reset_to", "first_step": None,
+                                       "message": f"localization failed: {type(exc).__name__}: {exc}"}
+        self.close()
+        if plan.states is None:
+            states_note = "not recorded in the dataset" + ("; divergences localized with the replay's own get_state/reset_to" if self.can_restore else "")
+        elif not self.record_states:
+            states_note = "recorded, but the env has no get_state/reset_to any more: not compared"
+        else:
+            states_note = "recorded: compared at every step as 'env_state'" + ("; divergences localized by state-restored playback" if self.can_restore else "")
+        features = dict(plan.features)
+        if plan.states is not None and self.record_states:
+            features[STATE_FEATURE] = None
+        self._seconds += time.perf_counter() - t
+        return ReplayResult(episodes=results, tolerance=self.tolerance, features=features, skipped=plan.skipped,
+                            states=states_note, steps=self.steps, seconds=self._seconds + episodes_seconds)
+
+
 def replay_dataset(
     make_env: Callable[[], Any],
     dataset_root: str | Path,
@@ -587,67 +704,13 @@ def replay_dataset(
         ReproductionError: the dataset cannot be replayed (no seeds, no actions, action space changed).
         EnvCodeError: the env raised while replaying.
     """
-    if tolerance < 0 or not np.isfinite(tolerance):
-        raise ReproductionError(f"tolerance={tolerance!r}: pass a finite value >= 0 (0 means bit-exact).")
-    t0 = time.perf_counter()
-    root = Path(dataset_root)
-    plan = _plan(root, features_map, episodes)
-    probe = make_env()
-    try:
-        space = probe.action_space
-        actions = [_env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)]
-        # one extra action per episode: if the env does not end the episode where the data does, it shows
-        padded = [np.concatenate([a, a[-1:]]) if len(a) else a for a in actions]
-        max_steps = max((len(a) for a in padded), default=1)
-        can_restore = _reset_to(probe) is not None
-        record = plan.states is not None and getattr(probe.unwrapped, "get_state", None) is not None
-        if plan.states is None:
-            states_note = "not recorded in the dataset" + ("; divergences localized with the replay's own get_state/reset_to" if can_restore else "")
-        elif not record:
-            states_note = "recorded, but the env has no get_state/reset_to any more: not compared"
-        else:
-            states_note = "recorded: compared at every step as 'env_state'" + ("; divergences localized by state-restored playback" if can_restore else "")
-        results: list[EpisodeReplay] = []
-        steps = 0
-        n = len(plan.metas)
-        keys = list(plan.features)
-        # images: decode the dataset's frames a couple of episodes ahead in a thread, while the env steps
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hub-envs-replay-read") as reader:
-            def fetch(p: int):
-                if not plan.image_keys:  # numeric columns are already in memory
-                    return _Done(plan.frames.episode(plan.metas[p]["episode_index"], keys))
-                return reader.submit(plan.frames.episode, plan.metas[p]["episode_index"], keys)
-
-            ahead = {p: fetch(p) for p in range(min(2, n))}
-            for pos, rollout in enumerate(iter_episodes(make_env, plan.seeds, max_steps=max_steps, policy=padded,
-                                                        record_states=record, workers=workers, progress=progress,
-                                                        desc=f"Replaying {n} episodes")):
-                if pos + 2 < n:
-                    ahead[pos + 2] = fetch(pos + 2)
-                data = ahead.pop(pos).result()
-                steps += rollout.length
-                results.append(_compare_episode(plan, pos, rollout, data, features_map, tolerance, keep_curves=True))
-        for ep in [e for e in results if not e.ok][MAX_LOCALIZED:]:
-            ep.error_curve = {}  # per-step curves for the first few diverged episodes only: bounded report size
-        if localize and can_restore:
-            for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
-                try:
-                    if plan.states is not None and record:
-                        ep.localization = _localize_with_states(plan, pos, probe, actions[pos], features_map, tolerance)
-                    else:
-                        ep.localization = _localize_from_replay_state(make_env, plan, pos, ep, actions[pos], features_map)
-                except HubEnvsError:
-                    raise
-                except Exception as exc:  # noqa: BLE001 - localization is a diagnosis; report why it failed
-                    ep.localization = {"method": "reset_to", "first_step": None,
-                                       "message": f"localization failed: {type(exc).__name__}: {exc}"}
-    finally:
-        try:
-            probe.close()
-        except Exception:  # noqa: BLE001
-            pass
-    features = dict(plan.features)
-    if plan.states is not None and record:
-        features[STATE_FEATURE] = None
-    return ReplayResult(episodes=results, tolerance=float(tolerance), features=features, skipped=plan.skipped,
-                        states=states_note, steps=steps, seconds=time.perf_counter() - t0)
+    with Replay(make_env, dataset_root, features_map, tolerance=tolerance, episodes=episodes, localize=localize) as replay:
+        t = time.perf_counter()
+        consumed = 0.0
+        for rollout in iter_episodes(make_env, replay.seeds, max_steps=replay.max_steps, policy=replay.policy,
+                                     record_states=replay.record_states, workers=workers, progress=progress,
+                                     desc=f"Replaying {len(replay.seeds)} episodes"):
+            c = time.perf_counter()
+            replay.consume(rollout)
+            consumed += time.perf_counter() - c
+        return replay.finish(episodes_seconds=time.perf_counter() - t - consumed)

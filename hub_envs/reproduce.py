@@ -39,13 +39,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hub_envs.benchmark import BenchmarkResult, reproduce_benchmark
+from hub_envs.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.checks import verify_fingerprint
 from hub_envs.dataset import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 from hub_envs.provenance import describe_differences, package_versions, version_differences
-from hub_envs.replay import ReplayResult, replay_dataset
+from hub_envs.replay import Replay, ReplayResult
+from hub_envs.rollout import iter_episodes
 from hub_envs.report import ReproduceReport
 
 __all__ = ["reproduce", "env_from_dataset", "ReproduceReport", "ReproduceArgs", "reproduce_cli", "CLI_COMMANDS",
@@ -105,6 +106,58 @@ def _fingerprint(loaded: Any) -> dict[str, Any]:
         return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
     return {"status": f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)", "ok": True,
             "digest": recorded.get("digest")}
+
+
+def _run_episodes(loaded: Any, *, replay: bool, benchmarks: bool, tolerance: float, workers: int,
+                  episodes: list[int] | None, resamples: int, progress: bool, token: str | None,
+                  timings: dict[str, float]) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
+    """The replay and the benchmark re-runs. Replayed episodes and random-policy benchmark episodes go
+    through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own."""
+    rep = Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance,
+                 episodes=episodes) if replay else None
+    try:
+        runs = [BenchmarkRun(loaded, b, resamples=resamples, token=token) for b in loaded.manifest.benchmarks] if benchmarks else []
+        time_limit = int(loaded.config.episode_length)  # load_env registers it as max_episode_steps
+        longest = max([rep.max_steps] if rep is not None else [1])
+        # a random-policy episode may join when a longer max_steps cannot change it: the env's time limit ends it first
+        joint = [r for r in runs if r.random_policy and (r.max_steps >= longest or time_limit <= r.max_steps)]
+        longest = max([longest] + [r.max_steps for r in joint])
+        seeds = (rep.seeds if rep is not None else []) + [s for r in joint for s in r.seeds]
+        policy = (rep.policy if rep is not None else []) + [None for r in joint for _ in r.seeds]
+        owners = [(rep, None)] * (len(rep.seeds) if rep is not None else 0) + [(None, r) for r in joint for _ in r.seeds]
+        n_replay = len(rep.seeds) if rep is not None else 0
+        desc = " and ".join(x for x in (f"replaying {n_replay} episodes" if rep is not None else "",
+                                         f"re-running {len(seeds) - n_replay} benchmark episodes" if joint else "") if x)
+        t = time.perf_counter()
+        if seeds:
+            for i, rollout in enumerate(iter_episodes(
+                    loaded.make, seeds, max_steps=longest, policy=policy if n_replay else None,
+                    record_states=rep.record_states if rep is not None else False, workers=workers,
+                    progress=progress, desc=desc[:1].upper() + desc[1:])):
+                replay_owner, bench_owner = owners[i]
+                (replay_owner.consume if replay_owner is not None else bench_owner.consume)(rollout)
+        joint_seconds = time.perf_counter() - t
+        steps_total = max(1, sum(len(a) for a in (rep.actions if rep is not None else [])) + sum(len(r.seeds) for r in joint) * time_limit)
+        replay_share = (sum(len(a) for a in rep.actions) / steps_total) if rep is not None else 0.0
+        replay_result = rep.finish(episodes_seconds=joint_seconds * replay_share) if rep is not None else None
+        if replay_result is not None:
+            timings["replay"] = replay_result.seconds
+        results = []
+        for r in runs:
+            if r in joint:
+                results.append(r.finish(episodes_seconds=joint_seconds * (1 - replay_share) / max(1, len(joint))))
+            else:  # a checkpoint policy (or an unusual max_steps): its own pass
+                t = time.perf_counter()
+                if r.runnable:
+                    for rollout in iter_episodes(loaded.make, r.seeds, max_steps=r.max_steps, policy=r.policy, workers=workers,
+                                                 progress=progress, desc=f"Benchmark {r.name}"):
+                        r.consume(rollout)
+                results.append(r.finish(episodes_seconds=time.perf_counter() - t))
+        timings["benchmarks"] = sum(b.seconds for b in results)
+        return replay_result, results
+    finally:
+        if rep is not None:
+            rep.close()
 
 
 def reproduce(
@@ -169,22 +222,16 @@ def reproduce(
         fp = _fingerprint(loaded)
         timings["fingerprint"] = time.perf_counter() - t
         replay_result: ReplayResult | None = None
-        if replay:
-            if dataset_root is None:
-                notes.append("no dataset/ in this repo: nothing to replay")
-            else:
-                replay_result = replay_dataset(loaded.make, dataset_root, loaded.config.features_map, tolerance=tolerance,
-                                               workers=workers, episodes=episodes, progress=progress)
-                timings["replay"] = replay_result.seconds
         bench_results: list[BenchmarkResult] = []
+        if replay and dataset_root is None:
+            notes.append("no dataset/ in this repo: nothing to replay")
+        if benchmarks and not loaded.manifest.benchmarks:
+            notes.append("the manifest declares no benchmark results")
         t = time.perf_counter()
-        if benchmarks:
-            for b in loaded.manifest.benchmarks:
-                bench_results.append(reproduce_benchmark(loaded, b, workers=workers, resamples=resamples,
-                                                         progress=progress, token=token))
-            if not loaded.manifest.benchmarks:
-                notes.append("the manifest declares no benchmark results")
-        timings["benchmarks"] = time.perf_counter() - t
+        replay_result, bench_results = _run_episodes(
+            loaded, replay=replay and dataset_root is not None, benchmarks=benchmarks, tolerance=tolerance,
+            workers=workers, episodes=episodes, resamples=resamples, progress=progress, token=token, timings=timings)
+        timings["episodes"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id, sha=loaded.revision, provenance=provenance, replay=replay_result,
             benchmarks=bench_results, fingerprint=fp, notes=notes,

@@ -231,6 +231,9 @@ class _Runner:
             self.shared_actions = policy
         elif isinstance(policy, (list, tuple)) and policy and all(isinstance(p, np.ndarray) for p in policy):
             self.episode_actions = list(policy)  # disambiguated against the action space on first use
+        elif (isinstance(policy, (list, tuple)) and policy and all(p is None or isinstance(p, np.ndarray) for p in policy)
+              and any(p is None for p in policy)):
+            self.episode_actions = list(policy)  # per episode: recorded actions, or None for seeded random actions
         else:
             try:
                 self.shared_actions = np.asarray(policy)
@@ -268,8 +271,12 @@ class _Runner:
 
     def _actions_for(self, index: int, action_ndim: int) -> np.ndarray | None:
         if self.episode_actions is not None:
-            per_episode = all(a.ndim == action_ndim + 1 for a in self.episode_actions)
-            if per_episode:
+            per_episode = all(a is None or a.ndim == action_ndim + 1 for a in self.episode_actions)
+            if per_episode or any(a is None for a in self.episode_actions):
+                if not per_episode:
+                    raise ConfigError(
+                        "policy mixes None with action arrays: then every array must be one episode's (T, *action_shape) actions."
+                    )
                 if len(self.episode_actions) != self.n_episodes:
                     raise ConfigError(
                         f"policy has {len(self.episode_actions)} action arrays but there are {self.n_episodes} "
@@ -556,7 +563,8 @@ def run_episodes(
         max_steps: at most this many steps per episode (the env may end it earlier).
         policy: ``None`` (seeded uniform random actions from ``env.action_space.sample()``), a
             callable ``(obs, step_index) -> action`` (``obs`` as the env returns it), an action array
-            ``(T, *A)`` applied to every episode, or a list with one ``(T_i, *A)`` array per episode
+            ``(T, *A)`` applied to every episode, or a list with one ``(T_i, *A)`` array (or ``None``: seeded
+            random actions) per episode
             (replay). Replayed episodes last at most as many steps as there are actions.
         record_states: also record ``env.get_state()`` before each action (when the env has it).
         workers: number of processes. Results are identical for any value.

@@ -428,3 +428,18 @@ def test_without_recorded_states_the_replay_state_localizes_the_divergence(hub):
     loc = replay.episodes[0].localization
     assert loc["method"].startswith("replay state") and loc["first_step"] == 0
     assert "reproduces the diverging step" in loc["message"]
+
+
+def test_the_engine_runs_replayed_and_random_episodes_in_one_pass():
+    """What reproduce relies on to share one worker pool: per-episode None = the seeded random policy."""
+    import gymnasium as gym
+
+    from hub_envs.rollout import run_episodes
+
+    make = lambda: gym.make("Pendulum-v1")  # noqa: E731
+    random = run_episodes(make, [0, 1, 2], max_steps=40, progress=False)
+    mixed = run_episodes(make, [0, 1, 2], max_steps=40, policy=[None, random[1].actions, None], progress=False)
+    assert mixed == random
+    assert run_episodes(make, [0, 1, 2], max_steps=40, policy=[None, random[1].actions, None], workers=2, progress=False) == mixed
+    with pytest.raises(errors.ConfigError, match="mixes None"):
+        run_episodes(make, [0, 1], max_steps=40, policy=[None, random[1].actions[0]], progress=False)
