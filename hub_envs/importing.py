@@ -126,6 +126,11 @@ def import_env_folder(folder: str | Path, key: str) -> types.ModuleType:
     return pkg
 
 
+def is_imported(key: str) -> bool:
+    """True if :func:`import_env_folder` already made the package for ``key`` in this process."""
+    return f"{ROOT_PACKAGE}.{module_key(key)}" in sys.modules
+
+
 def forget_env_folder(key: str) -> None:
     """Remove a package imported by :func:`import_env_folder` and all its submodules from ``sys.modules``."""
     name = f"{ROOT_PACKAGE}.{module_key(key)}"

@@ -46,7 +46,7 @@ from hub_envs.errors import (
     UntrustedCodeError,
 )
 from hub_envs.features import FeatureReport, check_features
-from hub_envs.importing import forget_env_folder, import_env_folder, module_key, resolve_entry_point
+from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.provenance import describe_differences, package_versions, version_differences
 from hub_envs.repo_format import (
     DATASET_DIR,
@@ -272,6 +272,8 @@ def load_env(
     Raises:
         hub_envs.errors.HubEnvsError: a subclass naming what failed and what to do next.
     """
+    if fingerprint not in ("error", "warn", "off"):
+        raise ConfigError(f"fingerprint={fingerprint!r} is not a policy: pass 'error' (the default), 'warn' or 'off'.")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     report = LoadReport()
@@ -336,6 +338,7 @@ def load_env(
     t = time.perf_counter()
     key = module_key(repo, sha)
     owner = f"{repo}@{sha}"
+    imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
     try:
         with registration.registry_transaction() as txn:
             package = import_env_folder(path, key)
@@ -383,7 +386,8 @@ def load_env(
 
                 validate_for(loaded, dry=check)  # ProcessorError names the malformed field
     except BaseException:
-        forget_env_folder(key)
+        if not imported_before:
+            forget_env_folder(key)
         raise
     timings["total"] = time.perf_counter() - t0
     report.timings = timings

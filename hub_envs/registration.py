@@ -97,6 +97,8 @@ def register(
     disable_env_checker: bool = True,
 ) -> Registration:
     """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner."""
+    if gym_id in gym.registry and _OWNED_GYM.get(gym_id) == owner and gym.registry[gym_id].entry_point is not entry_point:
+        _OWNED_GYM.pop(gym_id)  # replaced behind our back: it is no longer ours
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) != owner:
         holder = _OWNED_GYM.get(gym_id) or gym.registry[gym_id].entry_point
         raise RegistrationConflictError(

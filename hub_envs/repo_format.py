@@ -110,6 +110,22 @@ def _ignored(rel: PurePosixPath) -> bool:
     return any(part in IGNORED_PARTS for part in rel.parts) or rel.name.endswith(IGNORED_SUFFIXES)
 
 
+#: Files Python would import or load instead of (or besides) a verified ``.py`` source.
+EXECUTABLE_SUFFIXES = (".py", ".pyc", ".pyo", ".so", ".pyd")
+
+
+def executable_files(root: Path) -> list[str]:
+    """Every file under ``root`` Python could run, caches included (``__pycache__/*.pyc``, ``*.so``)."""
+    root = Path(root)
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames.sort()
+        for name in filenames:
+            if name.endswith(EXECUTABLE_SUFFIXES):
+                out.append(Path(dirpath, name).relative_to(root).as_posix())
+    return sorted(out)
+
+
 def list_files(root: Path, *, skip: tuple[str, ...] = ()) -> list[str]:
     """Relative POSIX paths of the files under ``root`` (sorted), leaving out caches and ``skip``."""
     root = Path(root)
@@ -147,6 +163,29 @@ def content_tag(digest: str) -> str:
 
 
 # --- the manifest -----------------------------------------------------------------------------
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_fingerprint_and_seeds(data: dict, where: str) -> None:
+    """The fields load_env computes with must have the shapes push_env writes."""
+    fp = data.get("fingerprint") or {}
+    if fp:
+        seeds, episodes = fp.get("seeds"), fp.get("episodes")
+        if not (isinstance(seeds, list) and seeds and all(_is_int(x) and x >= 0 for x in seeds)):
+            raise ManifestError(f"{where}: fingerprint.seeds must be a non-empty list of non-negative ints. {_REPUBLISH}")
+        if not (_is_int(fp.get("steps")) and fp["steps"] > 0):
+            raise ManifestError(f"{where}: fingerprint.steps must be a positive int. {_REPUBLISH}")
+        if not (isinstance(fp.get("digest"), str) and _SHA256_RE.match(fp["digest"])):
+            raise ManifestError(f"{where}: fingerprint.digest must be a sha256 hex digest. {_REPUBLISH}")
+        if not (isinstance(episodes, list) and len(episodes) == len(seeds)
+                and all(isinstance(e, str) and _SHA256_RE.match(e) for e in episodes)):
+            raise ManifestError(f"{where}: fingerprint.episodes must hold one sha256 per seed. {_REPUBLISH}")
+    seeds = data.get("seeds") or {}
+    if "check" in seeds and not (_is_int(seeds["check"]) and seeds["check"] >= 0):
+        raise ManifestError(f"{where}: seeds.check must be a non-negative int, got {seeds['check']!r}. {_REPUBLISH}")
 
 
 @dataclass(frozen=True)
@@ -234,6 +273,7 @@ class Manifest:
         reqs = data.get("requirements", [])
         if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
             raise ManifestError(f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'. {_REPUBLISH}")
+        _check_fingerprint_and_seeds(data, where)
         for key in ("benchmarks", "processors"):
             val = data.get(key, [])
             if not isinstance(val, list) or not all(isinstance(v, dict) for v in val):
@@ -281,9 +321,9 @@ class Manifest:
                 problems.append(f"  missing   {path}")
             elif sha256_file(local) != expected:
                 problems.append(f"  tampered  {path} (sha256 differs from the manifest)")
-        present = set(list_files(folder, skip=(MANIFEST_FILE,)))
+        present = set(list_files(folder, skip=(MANIFEST_FILE,))) | set(executable_files(folder))
         for path in sorted(present - set(self.files)):
-            if is_code_file(path):
+            if is_code_file(path) or path.endswith(EXECUTABLE_SUFFIXES):
                 problems.append(f"  unlisted  {path} (code not covered by the manifest)")
         if problems:
             raise IntegrityError(

@@ -422,14 +422,26 @@ def test_planted_bytecode_never_runs_instead_of_the_verified_source(base, tmp_pa
 
     sha = publish_variant(base, "planted-pyc", plant)
     assert any("__pycache__" in f for f in base.hub.api.list_repo_files(f"{NS}/planted-pyc", revision=sha))
-    loaded = load_env(f"{NS}/planted-pyc@{sha}", trust_remote_code=True)
-    try:
-        assert "HUB_ENVS_PWNED" not in os.environ
-        assert loaded.make().reset(seed=0)[0]["agent_pos"].shape == (2,)
-        written = [p for p in loaded.path.rglob("*.pyc") if not p.is_symlink()]
-        assert written == []  # nor does importing write bytecode into the cached snapshot
-    finally:
-        loaded.unregister()
+    from hub_envs.testing import hub_environment
+    from lerobot.envs.factory import make_env
+
+    # LeRobot's own loader (it downloads env.py alone): env.py never fetches bytecode and imports the
+    # verified .py sources only, so the env works and the planted code does not run.
+    with hub_environment(base.hub.endpoint, tmp_path / "lerobot_home"):
+        envs = make_env(f"{NS}/planted-pyc@{sha}", n_envs=1, trust_remote_code=True)
+        vec = next(iter(next(iter(envs.values())).values()))
+        assert vec.reset(seed=0)[0]["agent_pos"].shape == (1, 2)
+        vec.close()
+    assert "HUB_ENVS_PWNED" not in os.environ
+
+    # load_env fetches the whole snapshot and refuses the unlisted bytecode before anything runs
+    with pytest.raises(E.IntegrityError, match=r"unlisted  __pycache__/dynamics\.cpython-\d+\.pyc"):
+        load_env(f"{NS}/planted-pyc@{sha}", trust_remote_code=True)
+    assert "HUB_ENVS_PWNED" not in os.environ
+    # ... and once that bytecode sits in the cache, env.py refuses the snapshot too
+    with pytest.raises(RuntimeError, match="code it does not list"):
+        make_env(f"{NS}/planted-pyc@{sha}", n_envs=1, trust_remote_code=True)
+    assert "HUB_ENVS_PWNED" not in os.environ
 
 
 # --- property-based: the parsers only ever raise their own error ------------------------------

@@ -258,3 +258,26 @@ def test_checks_that_passed_are_reused_for_the_same_sha_and_packages(hub):
     assert "cached" not in forced.report.fingerprint
     other_settings = load_env(f"alice/tiny-cache@{result.sha}", trust_remote_code=True, check_steps=5)
     assert "cached" not in other_settings.report.fingerprint and other_settings.report.features.steps == 5
+
+
+def test_a_failed_reload_leaves_the_earlier_load_working(hub):
+    import sys
+
+    result = _push(TINY, "alice/tiny-reload")
+    first = load_env(f"alice/tiny-reload@{result.sha}", trust_remote_code=True)
+    with pytest.raises(errors.ConfigError, match="fingerprint='erorr'"):
+        load_env(f"alice/tiny-reload@{result.sha}", trust_remote_code=True, fingerprint="erorr")
+    # someone else takes the gym id: the reload fails after importing, and must not drop the modules
+    # the first load's classes live in
+    spec = gym.registry.pop(first.gym_id)
+    gym.register(first.gym_id, entry_point="gymnasium.envs.classic_control:CartPoleEnv")
+    try:
+        with pytest.raises(errors.RegistrationConflictError):
+            load_env(f"alice/tiny-reload@{result.sha}", trust_remote_code=True)
+        assert first.env_class.__module__ in sys.modules
+    finally:
+        gym.registry[first.gym_id] = spec
+    again = load_env(f"alice/tiny-reload@{result.sha}", trust_remote_code=True)
+    assert again.env_class is first.env_class
+    assert EnvConfig.get_choice_class(first.env_type) is first.config_class
+    assert type(gym.make(first.gym_id).unwrapped) is first.env_class

@@ -67,17 +67,39 @@ def _ensure_snapshot() -> dict:
         repo_id, sha, cache_dir = origin
         # the same commit into the same cache folder; HF_ENDPOINT / HF_TOKEN apply as usual
         snapshot_download(repo_id, revision=sha, cache_dir=cache_dir,
-                          ignore_patterns=[p + "*" if p.endswith("/") else p for p in _NOT_NEEDED])
+                          ignore_patterns=[p + "*" if p.endswith("/") else p for p in _NOT_NEEDED]
+                          + ["*.pyc", "*.pyo", "*.so", "*.pyd", "__pycache__/*"])
     manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
     bad = []
     for rel, expected in sorted(_needed(manifest.get("files", {})).items()):
         digest = hashlib.sha256((_HERE / rel).read_bytes()).hexdigest()
         if digest != expected:
             bad.append(rel)
+    listed = set(manifest.get("files", {}))
+    for dirpath, _, names in os.walk(_HERE):  # code Python could run instead of the verified sources
+        for name in names:
+            rel = Path(dirpath, name).relative_to(_HERE).as_posix()
+            if name.endswith((".py", ".pyc", ".pyo", ".so", ".pyd")) and rel not in listed:
+                bad.append(f"{rel} (unlisted)")
     if bad:
-        raise RuntimeError(f"{_HERE}: {', '.join(bad)} differ from the sha256 in {_MANIFEST}; not importing. "
+        raise RuntimeError(f"{_HERE}: {', '.join(bad)} differ from the sha256 in {_MANIFEST} or are code it does not list; not importing. "
                            f"Delete this snapshot from the cache and download it again, or ask the repo's author.")
     return manifest
+
+
+def _source_only(folder: Path) -> None:
+    """Import the snapshot's modules from their verified .py sources only: no bytecode cache, no .so."""
+    import importlib.machinery
+
+    class _SourceLoader(importlib.machinery.SourceFileLoader):
+        def path_stats(self, path):  # never trust or write a __pycache__ entry
+            raise OSError("source only")
+
+        def set_data(self, *args, **kwargs):
+            pass
+
+    for d in [str(folder)] + [str(p) for p in folder.rglob("*") if p.is_dir() and "__pycache__" not in p.parts]:
+        sys.path_importer_cache[d] = importlib.machinery.FileFinder(d, (_SourceLoader, [".py"]))
 
 
 def _module_key(*parts: str) -> str:
@@ -95,6 +117,7 @@ def _import_package(manifest: dict) -> str:
         root.__path__ = []
         sys.modules[_ROOT_PACKAGE] = root
     if name not in sys.modules:
+        _source_only(_HERE)
         pkg = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader=None, is_package=True))
         pkg.__path__ = [str(_HERE)]
         sys.modules[name] = pkg
