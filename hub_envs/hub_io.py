@@ -255,6 +255,16 @@ def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | No
                 ) from e
 
 
+def tag_target(repo_id: str, name: str, *, token: str | None = None) -> str | None:
+    """The commit sha tag ``name`` names, or None if the repo or the tag does not exist."""
+    try:
+        with translate_hub_errors(repo_id, name):
+            refs = api(token).list_repo_refs(repo_id, repo_type=REPO_TYPE)
+    except EnvRepoNotFoundError:
+        return None
+    return next((t.target_commit for t in refs.tags if t.name == name), None)
+
+
 def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None) -> list[str]:
     if sha is None:
         return []

@@ -291,17 +291,26 @@ def push_env(
                         remote_manifest = Manifest.from_json(text)
                     except Exception:
                         remote_manifest = None
-            if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json():
+            remote_files = hub_io.list_remote_files(repo_id, head, token=token)
+            same_files = set(remote_files) - {".gitattributes"} == set(manifest.files) | {MANIFEST_FILE}
+            if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files:
                 sha, created = head, False
             else:
+                if tag and hub_io.tag_target(repo_id, tag, token=token) is not None:
+                    raise ConfigError(
+                        f"Tag {tag!r} of {repo_id} already names commit {hub_io.tag_target(repo_id, tag, token=token)}; this "
+                        f"push would make a new commit. Choose another --tag (nothing was published)."
+                    )
                 message = commit_message or f"push_env: {manifest.name} {manifest.version} ({manifest.dataset['episodes']} episodes, seed {seed})"
                 sha = hub_io.publish_folder(
-                    staging, repo_id, parent_commit=head, remote_files=hub_io.list_remote_files(repo_id, head, token=token),
+                    staging, repo_id, parent_commit=head, remote_files=remote_files,
                     message=message, description=f"content digest {manifest.content_digest}", private=private, token=token,
                 )
                 created = True
             tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
             for name in tags:
+                if name == tags[0] and hub_io.tag_target(repo_id, name, token=token) not in (None, sha):
+                    continue  # an earlier commit holds the same content and keeps its content tag
                 hub_io.tag(repo_id, sha, name, message=f"hub-envs content {manifest.content_digest}", token=token)
             timings["publish"] = time.perf_counter() - t
     finally:

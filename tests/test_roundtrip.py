@@ -281,3 +281,16 @@ def test_a_failed_reload_leaves_the_earlier_load_working(hub):
     assert again.env_class is first.env_class
     assert EnvConfig.get_choice_class(first.env_type) is first.config_class
     assert type(gym.make(first.gym_id).unwrapped) is first.env_class
+
+
+def test_push_repairs_a_repo_a_hand_commit_changed_and_guards_a_taken_tag(hub):
+    first = _push(TINY, "alice/tiny-repair", tag="v1")
+    stray = hub.api.upload_file(path_or_fileobj=b"notes\n", path_in_repo="NOTES.txt", repo_id="alice/tiny-repair").oid
+    again = _push(TINY, "alice/tiny-repair")  # same content, but the repo holds an extra file now
+    assert again.created_commit and again.sha != stray
+    assert "NOTES.txt" not in hub.api.list_repo_files("alice/tiny-repair", revision=again.sha)
+    assert again.manifest.content_digest == first.manifest.content_digest
+    head_before = hub.api.model_info("alice/tiny-repair").sha
+    with pytest.raises(errors.ConfigError, match="Tag 'v1' of alice/tiny-repair already names commit"):
+        _push(TINY, "alice/tiny-repair", episodes=4, tag="v1")
+    assert hub.api.model_info("alice/tiny-repair").sha == head_before  # nothing was published
