@@ -20,6 +20,7 @@ Example:
 from __future__ import annotations
 
 import os
+import re
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -59,6 +60,9 @@ from hub_envs.repo_format import (
 from hub_envs.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
+
+
+_REPO_ID_RE = re.compile(r"^[\w.-]+/[\w.-]+(@[^/]+)?$")
 
 
 class UnpinnedRevisionWarning(UserWarning):
@@ -280,12 +284,19 @@ def load_env(
     local_folder = None
     if not isinstance(repo_id, (str, os.PathLike)) or not str(repo_id).strip():
         raise ConfigError(f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}.")
-    repo_id = os.fspath(repo_id)
+    original, repo_id = repo_id, os.fspath(repo_id)
     path_candidate = Path(repo_id).expanduser()
     if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
         raise EnvFolderError(f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
                              f"or a Hub repo id such as 'user/name'.")
-    if path_candidate.is_dir():
+    explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
+    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.match(repo_id))
+    if path_candidate.is_dir() and not use_local:
+        # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
+        # without consent, so it must never be picked by accident
+        warnings.warn(f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
+                      f"'./{repo_id}' to load the folder instead.", stacklevel=2)
+    if use_local:
         repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
         local_folder = path
         requested = None

@@ -272,7 +272,7 @@ def push_env(
         raise EnvFolderError(f"Env folder {env_dir} does not exist. Pass --env_dir=PATH to the folder with pyproject.toml.")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    loaded = load_env(str(env_dir), check=False)
+    loaded = load_env(env_dir.resolve(), check=False)
     try:
         with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp:
             staging = Path(tmp) / "repo"

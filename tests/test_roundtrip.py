@@ -294,3 +294,14 @@ def test_push_repairs_a_repo_a_hand_commit_changed_and_guards_a_taken_tag(hub):
     with pytest.raises(errors.ConfigError, match="Tag 'v1' of alice/tiny-repair already names commit"):
         _push(TINY, "alice/tiny-repair", episodes=4, tag="v1")
     assert hub.api.model_info("alice/tiny-repair").sha == head_before  # nothing was published
+
+
+def test_a_repo_id_never_picks_a_same_named_local_folder(hub, tmp_path, monkeypatch):
+    result = _push(TINY, "alice/tiny-shadow")
+    copy_env(tmp_path / "alice", name="tiny-shadow", edits={"tiny.py": lambda s: "raise RuntimeError('local code ran')\n" + s})
+    monkeypatch.chdir(tmp_path)
+    with pytest.warns(UserWarning, match="'./alice/tiny-shadow' to load the folder"):
+        loaded = load_env(f"alice/tiny-shadow", revision=result.sha, trust_remote_code=True)
+    assert loaded.revision == result.sha and not loaded.is_local
+    with pytest.raises(errors.EnvCodeError, match="local code ran"):
+        load_env("./alice/tiny-shadow")
