@@ -131,12 +131,13 @@ def _type_name(ftype: Any) -> str:
     return getattr(ftype, "value", str(ftype))
 
 
-def _rollout(env, steps: int, seed: int) -> tuple[list[Any], list[Any], list[dict]]:
+def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[Any], list[Any], list[dict]]:
     """``steps`` seeded random-action steps; observations include the reset one."""
     try:
         obs, info = env.reset(seed=seed)
     except Exception as e:
-        raise EnvCodeError(f"env.reset(seed={seed}) raised {type(e).__name__}: {e}") from e
+        raise EnvCodeError(f"{where}: env.reset(seed={seed}) raised {type(e).__name__}: {e}. Fix the env's reset "
+                           f"(reproduce with env.reset(seed={seed})) and re-publish with push_env.") from e
     env.action_space.seed(seed)
     observations, actions, infos = [obs], [], [info]
     for i in range(steps):
@@ -144,7 +145,8 @@ def _rollout(env, steps: int, seed: int) -> tuple[list[Any], list[Any], list[dic
         try:
             obs, _, terminated, truncated, info = env.step(action)
         except Exception as e:
-            raise EnvCodeError(f"env.step at step {i} (seed {seed}) raised {type(e).__name__}: {e}") from e
+            raise EnvCodeError(f"{where}: env.step at step {i} (seed {seed}) raised {type(e).__name__}: {e}. Fix the env's "
+                               f"step (reproduce with seeded random actions) and re-publish with push_env.") from e
         actions.append(action)
         observations.append(obs)
         infos.append(info)
@@ -155,11 +157,12 @@ def _rollout(env, steps: int, seed: int) -> tuple[list[Any], list[Any], list[dic
     return observations, actions, infos
 
 
-def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0) -> FeatureReport:
+def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0,
+                   where: str = "the env") -> FeatureReport:
     """Compare declared features, a live seeded rollout of ``env`` and the dataset's info.json features."""
     from lerobot.configs.types import FeatureType
 
-    observations, actions, infos = _rollout(env, steps, seed)
+    observations, actions, infos = _rollout(env, steps, seed, where)
     features_map = dict(getattr(cfg, "features_map", {}) or {})
     rows: list[FeatureRow] = []
     live_keys = set(_flat_keys(observations[0])) if isinstance(observations[0], dict) else set()

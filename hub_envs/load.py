@@ -220,8 +220,11 @@ def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_re
         if (prev_manifest / "hub_env.json").is_file():
             try:
                 old = Manifest.read(prev_manifest).files
-                diff = sorted(p for p in set(old) | set(manifest.files) if is_code_file(p) and old.get(p) != manifest.files.get(p))
-                changed = f"\nYou trusted {previous[-1][:12]} before; code changed since then in: {', '.join(diff) or 'nothing'}."
+                diff = [p for p in sorted(set(old) | set(manifest.files)) if old.get(p) != manifest.files.get(p)]
+                code = [p for p in diff if is_code_file(p)]
+                other = [p for p in diff if not is_code_file(p)]
+                changed = (f"\nYou trusted {previous[-1][:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
+                           f"{'; other files: ' + ', '.join(other[:8]) + (' …' if len(other) > 8 else '') if other else ''}.")
             except HubEnvsError:
                 pass
         else:
@@ -464,7 +467,8 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
         ) from e
     handed_over = False  # the fingerprint's rollouts reuse this env (reset(seed) determines an episode) and close it
     try:
-        report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)))
+        report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)),
+                                where=where)
         loaded.report.features = report
         report.raise_if_mismatch(where)
         if fingerprint == "off" or not recorded:

@@ -146,7 +146,7 @@ def build_repo(
         raw.close()
     env = loaded.make()
     try:
-        check_features(cfg, env, None, seed=seed).raise_if_mismatch(where)
+        check_features(cfg, env, None, seed=seed, where=where).raise_if_mismatch(where)
     finally:
         env.close()
     check_determinism(loaded.make, seed=seed, steps=min(determinism_steps, int(cfg.episode_length)), where=where)
@@ -191,7 +191,7 @@ def build_repo(
         import json
 
         info = json.loads((staging / DATASET_DIR / "meta" / "info.json").read_text())
-        check_features(cfg, env, info["features"], seed=seed).raise_if_mismatch(where)
+        check_features(cfg, env, info["features"], seed=seed, where=where).raise_if_mismatch(where)
         # -- fingerprint, GIF --
         say("Recording the golden-rollout fingerprint, rendering the GIF and the card")
         fp = golden_fingerprint(loaded.make, seeds=seeds[:fingerprint_seeds], steps=min(32, int(cfg.episode_length)))
