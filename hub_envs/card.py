@@ -74,7 +74,6 @@ def describe_space(space) -> str:
 
 def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str) -> str:
     """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet)."""
-    from lerobot.configs.types import FeatureType  # noqa: F401  (features were encoded by draccus)
 
     config = manifest["config"]
     dataset = manifest["dataset"]
@@ -110,7 +109,7 @@ def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env,
         card_data,
         template_path=str(template_path()),
         title=f"{manifest['name']} — a hub-envs environment",
-        description=manifest.get("description") or f"A gymnasium environment in LeRobot's format, shared with hub-envs.",
+        description=manifest.get("description") or "A gymnasium environment in LeRobot's format, shared with hub-envs.",
         gif_path="media/rollout.gif",
         gif_caption="Random-action rollouts",
         repo_id=repo_id,

@@ -33,15 +33,14 @@ from hub_envs import hub_io
 from hub_envs.dataset import dataset_fingerprint, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
-from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, MEDIA_DIR, Manifest, content_digest, is_commit_sha
+from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
 
 __all__ = ["env_from_dataset", "code_digest_of", "read_env_meta", "locate_dataset"]
 
 
 def code_digest_of(files: dict[str, str]) -> str:
-    """The code digest (what ``env_meta.code_digest`` names) of a manifest's file list: all but dataset, media, card."""
-    return content_digest({p: h for p, h in files.items()
-                           if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")})
+    """The code digest (what ``env_meta.code_digest`` names) of a manifest's file list."""
+    return code_digest(files)
 
 
 def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:

@@ -32,10 +32,10 @@ from pathlib import Path
 
 from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationConflictError
 from hub_envs.paths import hub_envs_home
-from hub_envs.repo_format import DATASET_DIR, IGNORED_PARTS, MEDIA_DIR
+from hub_envs.repo_format import DATASET_DIR, ENTRY_POINT_RE, IGNORED_PARTS, MEDIA_DIR
 
 ROOT_PACKAGE = "hub_envs_code"
-_ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_][\w]*(\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*)$")
+_ENTRY_POINT_RE = ENTRY_POINT_RE
 
 
 def module_key(*parts: str) -> str:

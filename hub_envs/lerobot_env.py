@@ -39,7 +39,7 @@ import draccus
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
-from hub_envs.errors import ConfigError, HubEnvsError, UntrustedCodeError
+from hub_envs.errors import ConfigError, UntrustedCodeError
 from hub_envs.load import LoadedEnv, load_env, loaded_env_for_type
 from hub_envs.registration import owner_of_choice
 

@@ -40,6 +40,7 @@ from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
 from hub_envs.media import write_rollout_gif
 from hub_envs.provenance import package_versions
+from hub_envs.repo_format import code_digest as code_digest_of_files
 from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
@@ -158,7 +159,7 @@ def build_repo(
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(loaded.local_folder / rel, dest)
     (staging / ENV_ENTRY_FILE).write_text(ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8")
-    code_digest = content_digest(hash_files(staging, list_files(staging)))
+    code_digest = code_digest_of_files(hash_files(staging, list_files(staging)))
 
     # -- dataset --
     say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps, {workers} worker(s)")

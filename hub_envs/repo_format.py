@@ -73,7 +73,7 @@ def is_commit_sha(revision: str | None) -> bool:
 #: ``x.cpython-311-x86_64-linux-gnu.so``, ``x.pyd``), which the import system would pick before ``x.py``.
 CODE_SUFFIXES = (".py", ".so", ".pyd")
 #: ``module:Attr`` (dotted parts allowed on both sides).
-ENTRY_POINT_RE = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*)$")
 #: What gymnasium accepts as the id part we prefix to ``-<sha>`` (namespace/name, no spaces).
 GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
 
@@ -155,6 +155,13 @@ def content_digest(files: dict[str, str]) -> str:
             continue
         h.update(f"{path}\x00{files[path]}\n".encode())
     return h.hexdigest()
+
+
+def code_digest(files: dict[str, str]) -> str:
+    """The digest of the env's code alone (all files but dataset, media, card and manifest): what the
+    dataset's ``env_meta.code_digest`` names, since the dataset cannot name the commit it is part of."""
+    return content_digest({p: h for p, h in files.items()
+                           if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")})
 
 
 def content_tag(digest: str) -> str:

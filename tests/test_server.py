@@ -21,7 +21,6 @@ import requests
 from huggingface_hub import (
     CommitOperationAdd,
     CommitOperationCopy,
-    CommitOperationDelete,
     HfApi,
     HfFileSystem,
     hf_hub_download,
