@@ -129,5 +129,6 @@ def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env,
         benchmarks=benchmarks,
         fingerprint_digest=manifest.get("fingerprint", {}).get("digest", "-"),
         versions=manifest.get("versions", {}),
+        processors=list(manifest.get("processors", [])),
     )
     return str(card)

@@ -288,6 +288,8 @@ def test_a_processor_declared_by_the_repo_is_applied_between_env_and_policy(publ
     loaded = cfg.env.loaded
     pre, post = loaded.processors()
     assert [type(s).__name__ for s in pre.steps] == ["ScaleState"] and [type(s).__name__ for s in post.steps] == ["ClipActionProcessorStep"]
+    card = (loaded.path / "README.md").read_text()
+    assert "## Env processors" in card and "| `clip` | post | `clip_action` |" in card  # the card tells users too
 
     torch.manual_seed(0)
     policy_cfg = ACTConfig(device="cpu", dim_model=32, n_heads=2, dim_feedforward=64, n_encoder_layers=1, n_decoder_layers=1,
