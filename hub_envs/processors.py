@@ -332,7 +332,8 @@ def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: Poli
             transition = step(transition)
         except Exception as e:
             raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage pre) failed on a live observation: "
-                                 f"{type(e).__name__}: {e}") from e
+                                 f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
+                                 f"and re-publish with push_env.") from e
     env.action_space.seed(seed)
     action = torch.as_tensor(np.asarray(env.action_space.sample(), dtype=np.float32)).reshape(1, -1)
     transition = post.to_transition({ACTION: action})
@@ -341,7 +342,8 @@ def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: Poli
             transition = step(transition)
         except Exception as e:
             raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage post) failed on a sampled action: "
-                                 f"{type(e).__name__}: {e}") from e
+                                 f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
+                                 f"and re-publish with push_env.") from e
     out = post.to_output(transition)[ACTION]
     if not isinstance(out, torch.Tensor) or tuple(out.shape) != tuple(action.shape):
         raise ProcessorError(f"{where}: the post processors turned a {tuple(action.shape)} action into {out!r}; "
