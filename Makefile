@@ -1,24 +1,55 @@
 # hub-envs — every target installs what it needs first, so on a fresh clone one command is enough.
-PYTHON ?= python3
-VENV   := .venv
-PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.install-stamp
+#
+# Two venvs, the two ends of the supported range, both tested by `make test`:
+#   .venv         the newest Python >= 3.12 on this machine (3.13, else 3.12) with the newest lerobot in
+#                 range (0.6.x: huggingface_hub 1.x, draccus 0.11); used by demo and bench too. With no
+#                 such Python it falls back to Python 3.11 + lerobot 0.4.4 and says so.
+#   .venv-compat  Python 3.11, lerobot 0.4.4, huggingface_hub 0.35, draccus 0.10 (constraints/compat.txt).
+PYTHON_NEW    ?= $(shell sh scripts/find-python 3.13 3.12)
+PYTHON_COMPAT ?= $(shell sh scripts/find-python 3.11)
+VENV          := .venv
+VENV_COMPAT   := .venv-compat
+PY            := $(VENV)/bin/python
+PY_COMPAT     := $(VENV_COMPAT)/bin/python
+COMPAT        := constraints/compat.txt
 export HF_HUB_DISABLE_TELEMETRY := 1
 
-.PHONY: install test demo bench train-long clean
+ifeq ($(strip $(PYTHON_NEW)),)
+NEW_PYTHON      := $(PYTHON_COMPAT)
+NEW_CONSTRAINTS := $(COMPAT)
+FALLBACK        := 1
+else
+NEW_PYTHON      := $(PYTHON_NEW)
+NEW_CONSTRAINTS :=
+FALLBACK        :=
+endif
 
-install: $(STAMP)
+.PHONY: install install-compat test demo bench train-long clean
 
-# Re-run only when the dependency list changes. uv (installed into the venv from PyPI) resolves the
-# same pins as pip, several times faster; lerobot==0.4.4 brings torch with its own pin.
-$(STAMP): pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --disable-pip-version-check uv
-	$(VENV)/bin/uv pip install --quiet --python $(PY) -e ".[dev]"
-	touch $(STAMP)
+install: $(VENV)/.install-stamp
+install-compat: $(VENV_COMPAT)/.install-stamp
 
+# Rebuilt only when the dependency lists change. uv resolves several times faster than pip; lerobot
+# brings torch with its own pin. pybullet has no wheel for Python >= 3.12: uv builds it once (minutes)
+# and keeps the wheel in its cache.
+$(VENV)/.install-stamp: pyproject.toml $(COMPAT) scripts/make-venv
+ifneq ($(FALLBACK),)
+	@echo "make install: no Python >= 3.12 found (looked for python3.13, python3.12 on PATH and in pyenv);" \
+	      "falling back to Python 3.11 + lerobot 0.4.4 in $(VENV)."
+endif
+	sh scripts/make-venv $(VENV) "$(NEW_PYTHON)" "$(NEW_CONSTRAINTS)"
+
+$(VENV_COMPAT)/.install-stamp: pyproject.toml $(COMPAT) scripts/make-venv
+	sh scripts/make-venv $(VENV_COMPAT) "$(PYTHON_COMPAT)" "$(COMPAT)"
+
+# The whole suite in both venvs (one leg when .venv fell back to the compat stack); says which leg failed.
+ifeq ($(FALLBACK),)
+test: install install-compat
+	sh scripts/test-legs venv=$(PY) venv-compat=$(PY_COMPAT)
+else
 test: install
-	$(PY) -m pytest -q tests
+	sh scripts/test-legs venv=$(PY)
+endif
 
 demo: install
 	$(PY) -m hub_envs.demo
@@ -32,4 +63,4 @@ train-long: install
 	$(PY) -m benchmarks.train_long $(TRAIN_LONG_ARGS)
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis benchmarks/out demo-out
+	rm -rf $(VENV) $(VENV_COMPAT) .pytest_cache .hypothesis .test-results benchmarks/out demo-out

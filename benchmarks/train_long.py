@@ -20,6 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from hub_envs._compat import train_eval_freq_flag
+
 ROOT = Path(__file__).resolve().parent.parent
 ACT = ["--policy.type=act", "--policy.push_to_hub=false", "--policy.device=cpu", "--policy.dim_model=128",
        "--policy.n_heads=4", "--policy.dim_feedforward=512", "--policy.n_encoder_layers=2", "--policy.n_decoder_layers=1",
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
                 t1 = time.perf_counter()
                 env = ["--env.type=hub", f"--env.repo_id=bench/{name}", f"--env.revision={sha}", "--env.trust_remote_code=true"]
                 rc = hub_envs(["train", *env, *ACT, f"--steps={args.steps}", f"--batch_size={args.batch_size}", "--num_workers=2",
-                               "--eval_freq=0", f"--save_freq={args.steps}", f"--log_freq={max(1, args.steps // 20)}",
+                               f"--{train_eval_freq_flag()}=0", f"--save_freq={args.steps}", f"--log_freq={max(1, args.steps // 20)}",
                                f"--output_dir={out / 'train'}"])
                 t2 = time.perf_counter()
                 batch = min(args.eval_episodes, 5)

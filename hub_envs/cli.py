@@ -107,9 +107,13 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
     from hub_envs import hub_io, trust
     from hub_envs.errors import ConfigError
 
+    usage = f"usage: hub-envs {'untrust' if remove else 'trust'} user/name@<40-hex sha>"
+    if any(a in ("-h", "--help") for a in argv):
+        print(f"{usage}\n{SUMMARIES['untrust' if remove else 'trust']}")
+        return 0
     refs = [a for a in argv if not a.startswith("-")]
     if len(refs) != 1:
-        raise ConfigError(f"usage: hub-envs {'untrust' if remove else 'trust'} user/name@<40-hex sha>")
+        raise ConfigError(usage)
     repo_id, sha = hub_io.parse_repo_ref(refs[0])
     if remove:
         n = trust.untrust(repo_id, sha)
@@ -129,29 +133,36 @@ RAW_COMMANDS = {
     "trust": lambda argv: _trust_cmd(argv, remove=False),
     "untrust": lambda argv: _trust_cmd(argv, remove=True),
 }
+#: Commands whose modules import lerobot and torch: imported only when the command runs, never for
+#: ``--help`` or the light commands above (each module has a ``CLI_COMMANDS`` table).
+LAZY_COMMANDS = {
+    "reproduce": "hub_envs.reproduce",
+    "train": "hub_envs.lerobot_bridge",
+    "eval": "hub_envs.lerobot_bridge",
+}
+SUMMARIES = {
+    "serve": "run the loopback Hub-protocol server",
+    "push": "validate an env folder, generate its dataset and card, publish it in one commit (also: push_env)",
+    "load": "load an env repo, run its checks, print the three-way feature table",
+    "trust": "trust one commit of a repo: hub-envs trust user/name@<sha>",
+    "untrust": "forget the trust entries of a repo: hub-envs untrust user/name[@<sha>]",
+    "reproduce": "re-run what a repo recorded (dataset replay, benchmarks, fingerprint) and report",
+    "train": "LeRobot's lerobot-train with a hub env (--env.type=hub --env.repo_id=...)",
+    "eval": "LeRobot's lerobot-eval with a hub env (--env.type=hub --env.repo_id=...)",
+}
 
 
-def _extra_commands() -> dict:
-    """Commands whose modules are optional at import time (reproduce, LeRobot integration)."""
-    extra = {}
-    try:
-        from hub_envs.reproduce import CLI_COMMANDS as reproduce_commands
+def _lazy_command(name: str):
+    import importlib
 
-        extra.update(reproduce_commands)
-    except ImportError:
-        pass
-    try:
-        from hub_envs.lerobot_bridge import CLI_COMMANDS as lerobot_commands
-
-        extra.update(lerobot_commands)
-    except ImportError:
-        pass
-    return extra
+    return importlib.import_module(LAZY_COMMANDS[name]).CLI_COMMANDS[name]
 
 
-def _usage(commands) -> str:
-    names = ", ".join(list(commands) + list(RAW_COMMANDS))
-    return f"usage: hub-envs {{{names}}} [--flag=value ...]\nRun `hub-envs <command> --help` for the flags of one command."
+def _usage() -> str:
+    width = max(map(len, SUMMARIES))
+    lines = "\n".join(f"  {name:<{width}}  {SUMMARIES[name]}" for name in SUMMARIES)
+    return (f"usage: hub-envs <command> [--flag=value ...]\n\ncommands:\n{lines}\n\n"
+            f"Run `hub-envs <command> --help` for the flags of one command.")
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
@@ -165,14 +176,13 @@ def run_command(name: str, argv: list[str]) -> int:
 
     warnings.formatwarning = _format_warning  # a CLI user needs the message, not our source line
 
-    commands = {**COMMANDS, **(_extra_commands() if name not in COMMANDS and name not in RAW_COMMANDS else {})}
+    if name not in COMMANDS and name not in RAW_COMMANDS and name not in LAZY_COMMANDS:
+        print(f"hub-envs: unknown command {name!r}\n{_usage()}", file=sys.stderr)
+        return 2
     try:
         if name in RAW_COMMANDS:
             return int(RAW_COMMANDS[name](argv) or 0)
-        if name not in commands:
-            print(_usage(commands), file=sys.stderr)
-            return 2
-        entry = commands[name]
+        entry = COMMANDS[name] if name in COMMANDS else _lazy_command(name)
         if callable(entry):  # a raw command: parses argv itself (hub-envs train/eval hand it to LeRobot's parser)
             return int(entry(argv) or 0)
         args_cls, func = entry
@@ -186,7 +196,7 @@ def run_command(name: str, argv: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in {"-h", "--help"}:
-        print(_usage({**COMMANDS, **_extra_commands()}), file=sys.stderr)
+        print(_usage(), file=sys.stdout if argv else sys.stderr)
         return 0 if argv else 2
     return run_command(argv[0], argv[1:])
 

@@ -61,7 +61,10 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._compat import stats_extremes_as_float, tasks_index_name
 from hub_envs.errors import ConfigError, DatasetError, HubEnvsError
+
+STATS_EXTREMES_AS_FLOAT = stats_extremes_as_float()
 
 try:  # LeRobot depends on opencv; used only for fast image histograms
     import cv2 as _cv2
@@ -330,9 +333,10 @@ def _vector_stats(arr: np.ndarray) -> dict[str, np.ndarray]:
         arr = arr.reshape(-1, 1)
     as_float = arr.astype(np.float64, copy=False)
     mean = as_float.mean(axis=0)
+    extremes = as_float if STATS_EXTREMES_AS_FLOAT else arr  # as the installed LeRobot writes them
     stats = {
-        "min": arr.min(axis=0),
-        "max": arr.max(axis=0),
+        "min": extremes.min(axis=0),
+        "max": extremes.max(axis=0),
         "mean": mean,
         "std": np.sqrt(np.maximum(0.0, ((as_float - mean) ** 2).mean(axis=0))),
         "count": np.array([arr.shape[0]], dtype=np.int64),
@@ -748,7 +752,8 @@ class _Writer:
             self.meta_writer = None
         tasks_path = self.tmp / TASKS_PATH
         tasks_path.parent.mkdir(parents=True, exist_ok=True)
-        pd.DataFrame({"task_index": [0]}, index=[self.task]).to_parquet(tasks_path)
+        # the layout the installed LeRobot's own writer gives (its index name changed in 0.5)
+        pd.DataFrame({"task_index": [0]}, index=pd.Index([self.task], name=tasks_index_name())).to_parquet(tasks_path)
         stats = {key: {stat: value.tolist() for stat, value in st.items()} for key, st in (self.stats or {}).items()}
         _write_json(self.tmp / STATS_PATH, stats)
         hub_envs_info: dict[str, Any] = {"seeds": list(self.seeds)}

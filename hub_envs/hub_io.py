@@ -18,7 +18,6 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import requests
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, snapshot_download
 from huggingface_hub.errors import (
     EntryNotFoundError,
@@ -31,6 +30,7 @@ from huggingface_hub.errors import (
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
 from huggingface_hub.utils import validate_repo_id
 
+from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS
 from hub_envs.errors import (
     ConcurrentPushError,
     ConfigError,
@@ -95,7 +95,7 @@ def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) ->
 
 @contextlib.contextmanager
 def translate_hub_errors(repo_id: str, revision: str | None):
-    """Turn huggingface_hub / requests errors into hub-envs errors that say what to do next."""
+    """Turn huggingface_hub / HTTP errors into hub-envs errors that say what to do next."""
     where = f"{repo_id}@{revision}" if revision else repo_id
     try:
         yield
@@ -121,12 +121,12 @@ def translate_hub_errors(repo_id: str, revision: str | None):
         if status == 401:
             raise HubError(f"{where}: the Hub at {constants.ENDPOINT} refused the token (401). Set HF_TOKEN to a token with access.") from e
         raise HubError(f"{where}: the Hub at {constants.ENDPOINT} answered {status}: {e}. Retry, or check the server.") from e
-    except (requests.ConnectionError, requests.Timeout) as e:
+    except NETWORK_ERRORS as e:
         raise HubError(
             f"{where}: cannot reach the Hub at {constants.ENDPOINT} ({type(e).__name__}). Check HF_ENDPOINT and the network, "
             f"or set HF_HUB_OFFLINE=1 to use the cache."
         ) from e
-    except requests.RequestException as e:  # e.g. ChunkedEncodingError: the connection broke mid-file (not retried)
+    except TRANSFER_ERRORS as e:  # e.g. the connection broke mid-file (not retried by the client)
         raise HubError(
             f"{where}: the transfer from {constants.ENDPOINT} broke off ({type(e).__name__}: {e}). Retry: the files that "
             f"arrived are kept, the rest is fetched again."

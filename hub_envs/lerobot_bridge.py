@@ -1,8 +1,9 @@
 """``hub-envs train`` and ``hub-envs eval``: LeRobot's own training and evaluation, with a hub env chosen by flag.
 
-LeRobot 0.4.4 auto-imports only plugins named ``lerobot_robot_*`` / ``camera_*`` / ``teleoperator_*`` /
-``policy_*``, so an ``--env.type`` choice from another package must be registered before LeRobot's
-draccus parsing runs. These commands do exactly that, then hand the same flags to LeRobot:
+LeRobot 0.4 auto-imports only plugins named ``lerobot_robot_*`` / ``camera_*`` / ``teleoperator_*`` /
+``policy_*`` (0.5 adds ``lerobot_env_*``, see ``plugins/lerobot_env_hub``), so an ``--env.type`` choice
+from another package must be registered before LeRobot's draccus parsing runs. These commands do exactly
+that, then hand the same flags to LeRobot:
 
 1. import :mod:`hub_envs.lerobot_env`, which registers the generic ``hub`` choice, and
    :func:`~hub_envs.lerobot_env.install_hooks` (env creation and env processors for hub env configs);
@@ -37,7 +38,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from hub_envs.errors import ConfigError, HubEnvsError
+from hub_envs._compat import missing_training_packages
+from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
 
 PROVENANCE_FILE = "hub_envs_provenance.json"
 _PER_REPO_RE = re.compile(r"^(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})$")
@@ -280,6 +282,12 @@ def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
 
 def train_cli(argv: list[str]) -> int:
     """``hub-envs train <LeRobot's lerobot-train flags>``."""
+    missing = missing_training_packages()
+    if missing:
+        raise MissingRequirementsError(
+            f"hub-envs train runs LeRobot's training loop, which needs {', '.join(missing)} (LeRobot's 'training' extra). "
+            f"Install it: pip install 'lerobot[training]'  (or: pip install 'hub-envs[train]')"
+        )
     argv, _ = prepare_argv(argv, command="train")
     from lerobot.configs.train import TrainPipelineConfig
     from lerobot.scripts.lerobot_train import train

@@ -39,6 +39,7 @@ import draccus
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
+from hub_envs._compat import env_configs_create_envs, train_dataset_hooks
 from hub_envs.errors import ConfigError, UntrustedCodeError
 from hub_envs.load import LoadedEnv, load_env, loaded_env_for_type
 from hub_envs.registration import owner_of_choice
@@ -165,6 +166,16 @@ class HubEnv(EnvConfig):
         # for LeRobot's own make_env: gym.make(gym_id, **gym_kwargs) honours episode_length this way
         return {**self._env_config.gym_kwargs, "max_episode_steps": int(self.episode_length)}
 
+    # LeRobot >= 0.5 asks the config itself for its envs and env processors (0.4 branches in its factory,
+    # where install_hooks routes hub env configs here).
+    def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+        """``{name: {0: VectorEnv}}`` of ``n_envs`` copies, as LeRobot's eval loop expects (see :func:`make_vec_env`)."""
+        return {self._loaded.manifest.name: {0: make_vec_env(self._loaded, self._env_config, n_envs, use_async_envs)}}
+
+    def get_env_processors(self):
+        """The repo's declared env processors as ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines."""
+        return self._loaded.processors(self._env_config)
+
 
 # --- vector envs and processors for LeRobot's eval loop ---------------------------------------
 
@@ -236,8 +247,8 @@ def make_env_pre_post_processors(env_cfg, policy_cfg):
 
     pre, post = factory.make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
     found = loaded_for(env_cfg)
-    if found is None:
-        return pre, post
+    if found is None or (isinstance(env_cfg, HubEnv) and env_configs_create_envs()):
+        return pre, post  # LeRobot >= 0.5 already asked HubEnv.get_env_processors()
     loaded, cfg = found
     ours_pre, ours_post = loaded.processors(cfg)
     return (PolicyProcessorPipeline(steps=[*pre.steps, *ours_pre.steps], name=ours_pre.name),
@@ -253,8 +264,11 @@ def keep_declared_shapes(dataset):
     in the dataset's own torch transform.
     """
     import torch
-    from lerobot.datasets.utils import hf_transform_to_torch
     from lerobot.utils.constants import ACTION, OBS_PREFIX
+
+    from hub_envs._compat import hf_transform_to_torch
+
+    to_torch_base = hf_transform_to_torch()
 
     keys = [k for k, ft in dataset.meta.features.items()
             if tuple(ft.get("shape", ())) == (1,) and ft.get("dtype") not in ("image", "video", "string")
@@ -264,7 +278,7 @@ def keep_declared_shapes(dataset):
         return dataset
 
     def to_torch(items):
-        items = hf_transform_to_torch(items)
+        items = to_torch_base(items)
         for key in keys:
             if key in items:
                 items[key] = [x.reshape(1) if isinstance(x, torch.Tensor) and x.dim() == 0 else x for x in items[key]]
@@ -274,15 +288,43 @@ def keep_declared_shapes(dataset):
     return dataset
 
 
+def _written_by_hub_envs(meta) -> bool:
+    """Whether a dataset's ``meta/info.json`` carries hub-envs' key (read from the file: LeRobot >= 0.5's
+    ``DatasetInfo`` drops keys it does not know)."""
+    import json
+    from pathlib import Path
+
+    root = getattr(meta, "root", None)
+    try:
+        return root is not None and "hub_envs" in json.loads((Path(root) / "meta" / "info.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+
+
+def _fix_shapes(cfg, dataset):
+    meta = getattr(dataset, "meta", None)
+    if dataset is not None and (loaded_for(getattr(cfg, "env", None)) is not None
+                                or (meta is not None and _written_by_hub_envs(meta))):
+        keep_declared_shapes(dataset)
+    return dataset
+
+
 def make_dataset(cfg):
     """LeRobot's ``make_dataset``; for a hub env run or a hub-envs dataset, with :func:`keep_declared_shapes`."""
     from lerobot.datasets import factory
 
-    dataset = factory.make_dataset(cfg)
-    meta = getattr(dataset, "meta", None)
-    if loaded_for(getattr(cfg, "env", None)) is not None or (meta is not None and "hub_envs" in getattr(meta, "info", {})):
-        keep_declared_shapes(dataset)
-    return dataset
+    return _fix_shapes(cfg, factory.make_dataset(cfg))
+
+
+def make_train_eval_datasets(cfg, *args, **kwargs):
+    """LeRobot >= 0.5's ``make_train_eval_datasets``, each dataset with :func:`keep_declared_shapes`."""
+    from lerobot.datasets import factory
+
+    train, evaluation = factory.make_train_eval_datasets(cfg, *args, **kwargs)
+    return _fix_shapes(cfg, train), _fix_shapes(cfg, evaluation)
+
+
+_DATASET_HOOKS = {"make_dataset": make_dataset, "make_train_eval_datasets": make_train_eval_datasets}
 
 
 def install_hooks() -> None:
@@ -294,8 +336,9 @@ def install_hooks() -> None:
     for module in (lerobot_eval, lerobot_train):
         module.make_env = make_env
         module.make_env_pre_post_processors = make_env_pre_post_processors
-    lerobot_train.make_dataset = make_dataset
+    for name in train_dataset_hooks():
+        setattr(lerobot_train, name, _DATASET_HOOKS[name])
 
 
 __all__ = ["HubEnv", "HUB_CHOICE", "TaskDescription", "install_hooks", "load_cached", "loaded_for", "make_env",
-           "make_env_pre_post_processors", "make_vec_env", "make_dataset", "keep_declared_shapes"]
+           "make_env_pre_post_processors", "make_vec_env", "make_dataset", "make_train_eval_datasets", "keep_declared_shapes"]

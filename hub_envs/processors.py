@@ -56,6 +56,7 @@ from lerobot.processor.pipeline import (
 )
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from hub_envs._compat import processor_step_names
 from hub_envs.errors import HubEnvsError, ProcessorError
 
 STAGES = ("pre", "post")
@@ -70,7 +71,7 @@ def _register(name: str):
     """Register with LeRobot's ProcessorStepRegistry (so saved pipelines name the step), once per process."""
 
     def deco(cls):
-        if ProcessorStepRegistry._registry.get(name) is None:
+        if name not in processor_step_names():
             ProcessorStepRegistry.register(name)(cls)
         else:
             cls._registry_name = name
@@ -276,7 +277,7 @@ def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
             raise ProcessorError(str(e)) from e
     if entry in BUILTINS:
         return BUILTINS[entry]
-    if entry in ProcessorStepRegistry._registry:
+    if entry in processor_step_names():
         return ProcessorStepRegistry.get(entry)
     raise ProcessorError(
         f"{at}.entry_point {entry!r} is not a built-in ({', '.join(BUILTINS)}), a LeRobot processor step "

@@ -24,6 +24,7 @@ from typing import Any, Callable
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
+from hub_envs._compat import env_config_choices
 from hub_envs.errors import RegistrationConflictError
 
 #: name -> owner key ("repo@sha") for every gym id and draccus choice hub-envs registered.
@@ -41,7 +42,7 @@ class Registration:
 
 
 def _choices() -> dict[str, Any]:
-    return EnvConfig._choice_registry
+    return env_config_choices()
 
 
 class Transaction:

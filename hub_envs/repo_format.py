@@ -195,6 +195,18 @@ def _check_fingerprint_and_seeds(data: dict, where: str) -> None:
         raise ManifestError(f"{where}: seeds.check must be a non-negative int, got {seeds['check']!r}. {_REPUBLISH}")
 
 
+def _newer_format_message(data: dict, version: int, where: str) -> str:
+    """A manifest from a newer hub-envs: name the version that wrote it, and the upgrade that reads it."""
+    from hub_envs import __version__
+
+    versions = data.get("versions")
+    writer = versions.get("hub-envs") if isinstance(versions, dict) and isinstance(versions.get("hub-envs"), str) else None
+    by = f"hub-envs {writer}" if writer else "a newer hub-envs"
+    pin = f"'hub-envs>={writer}'" if writer and re.fullmatch(r"[0-9][0-9A-Za-z.+-]*", writer) else "hub-envs"
+    return (f"{where}: format_version {version} was written by {by}; this hub-envs ({__version__}) reads format_version "
+            f"{FORMAT_VERSION} and older. To read it, upgrade hub-envs: pip install -U {pin}")
+
+
 @dataclass(frozen=True)
 class Manifest:
     """What ``hub_env.json`` holds. Frozen: load, check, never mutate.
@@ -241,9 +253,11 @@ class Manifest:
         if not isinstance(data, dict):
             raise ManifestError(f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env.")
         version = data.get("format_version")
+        if type(version) is int and version > FORMAT_VERSION:
+            raise ManifestError(_newer_format_message(data, version, where))
         if type(version) is not int or version != FORMAT_VERSION:
-            hint = "upgrade hub-envs" if isinstance(version, int) and version > FORMAT_VERSION else "re-publish it with push_env"
-            raise ManifestError(f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); {hint}.")
+            raise ManifestError(f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); "
+                                f"re-publish it with push_env.")
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:

@@ -124,6 +124,7 @@ class ReproduceReport:
                 lines.append(f"    episodes whose result differs: {b.episodes_differing}; {self.versions_note()}")
         fp = self.fingerprint
         lines.append(f"  golden-rollout fingerprint: {fp.get('status')}" + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else ""))
+        lines.append(f"  stack: {self.versions_note()}")
         for note in self.notes:
             lines.append(f"  note: {note}")
         return "\n".join(lines)

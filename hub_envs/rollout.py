@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._compat import live_children, terminate_new_children
 from hub_envs.errors import ConfigError, EnvCodeError
 
 __all__ = ["EpisodeRollout", "run_episodes", "iter_episodes", "flatten_observation"]
@@ -503,6 +504,7 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
         ctx = multiprocessing.get_context("spawn")
         token = None
         initargs = (None, args)
+    children_before = live_children()
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=initargs)
     finished = False
     pending: deque = deque()
@@ -534,9 +536,7 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
             for *_, fut in pending:
                 fut.cancel()
             pool.shutdown(wait=False, cancel_futures=True)
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                if proc.is_alive():
-                    proc.terminate()
+            terminate_new_children(children_before)
         if token is not None:
             _FORK_STATES.pop(token, None)
 

@@ -376,7 +376,7 @@ def hub_environment(
 def _reset_client_state(huggingface_hub) -> None:
     """Drop what the client cached about the previous endpoint: HTTP sessions (their offline
     adapter is chosen at creation) and ``HfFileSystem`` instances (fsspec caches them by arguments)."""
-    from huggingface_hub.utils import reset_sessions
+    from hub_envs._compat import reset_http_sessions
 
-    reset_sessions()
+    reset_http_sessions()
     huggingface_hub.HfFileSystem.clear_instance_cache()

@@ -8,6 +8,8 @@ lerobot_train.train / lerobot_eval.eval_main / rollout, gymnasium, draccus, torc
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import draccus
@@ -18,7 +20,7 @@ import torch
 from lerobot.configs.eval import EvalPipelineConfig
 from lerobot.configs.train import TrainPipelineConfig
 
-from hub_envs import errors, load_env, push_env
+from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.cli import main as cli_main
 from hub_envs.load import UnpinnedRevisionWarning
 from hub_envs.lerobot_env import HubEnv, install_hooks, make_env, make_env_pre_post_processors
@@ -71,6 +73,10 @@ TINY_ACT = ["--policy.type=act", "--policy.push_to_hub=false", "--policy.device=
             "--policy.pretrained_backbone_weights=null"]
 
 
+#: lerobot-train's flag for in-training env evaluation (renamed in LeRobot 0.5).
+EVAL_FREQ = _compat.train_eval_freq_flag()
+
+
 def _pendulum_pixels(tmp_path: Path) -> Path:
     """envs/pendulum observing pixels too (LeRobot's ACT needs an image), with two env processors."""
     folder = copy_env(tmp_path, EXAMPLES["pendulum"], "pendulum_pixels", {
@@ -101,7 +107,7 @@ def _hub_args(name: str, sha: str, *extra: str) -> list[str]:
 
 def test_lerobot_make_env_loads_each_example_repo_pinned_to_its_sha(hub_module, published, tmp_path):
     from lerobot.envs.factory import make_env as lerobot_make_env
-    from lerobot.envs.utils import add_envs_task, check_env_attributes_and_types, preprocess_observation
+    from lerobot.envs.utils import check_env_attributes_and_types, preprocess_observation
 
     with hub_environment(hub_module.endpoint, tmp_path / "fresh_home"):  # nothing cached: env.py comes alone
         for name in ("tiny", *EXAMPLES):
@@ -120,7 +126,7 @@ def test_lerobot_make_env_loads_each_example_repo_pinned_to_its_sha(hub_module, 
             obs, _ = vec.reset(seed=[0, 1])
             with _no_warning():
                 check_env_attributes_and_types(vec)
-            batch = add_envs_task(vec, preprocess_observation(obs))
+            batch = _add_envs_task(vec, preprocess_observation(obs))
             assert batch["task"] == [manifest["config"]["task"]] * 2
             features, features_map = manifest["config"]["features"], manifest["config"]["features_map"]
             expected = {features_map[k] for k in features if k != "action"}
@@ -132,6 +138,16 @@ def test_lerobot_make_env_loads_each_example_repo_pinned_to_its_sha(hub_module, 
         # load_env on the same cache completes the partial snapshot env.py left (it has no dataset yet)
         loaded = load_env(f"alice/tiny@{published['tiny']}", trust_remote_code=True)
         assert loaded.open_dataset().num_episodes == 1
+
+
+def _add_envs_task(vec, observation: dict) -> dict:
+    """What LeRobot's eval loop adds to an observation batch: the envs' ``task_description`` (else ``task``).
+    LeRobot 0.4 has it as ``lerobot.envs.utils.add_envs_task``; 0.5+ does it inline in ``rollout``."""
+    try:
+        observation["task"] = list(vec.call("task_description"))
+    except (AttributeError, NotImplementedError):
+        observation["task"] = list(vec.call("task"))
+    return observation
 
 
 class _no_warning:
@@ -190,7 +206,8 @@ def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
     # LeRobot's own make_env builds it from the gym registry, with the overridden time limit
     from lerobot.envs.factory import make_env as lerobot_make_env
 
-    vec = lerobot_make_env(cfg.env, n_envs=1)["hub"][0]
+    (suite, tasks), = lerobot_make_env(cfg.env, n_envs=1).items()
+    vec = tasks[0]
     assert vec.call("_max_episode_steps") == (50,)
     vec.close()
 
@@ -225,7 +242,7 @@ def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys
 
 
 def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: list[str],
-                     train_eval: tuple[str, ...] = ("--eval_freq=0",)) -> dict:
+                     train_eval: tuple[str, ...] = (f"--{EVAL_FREQ}=0",)) -> dict:
     common = [*TINY_ACT, "--batch_size=4", "--num_workers=0", "--log_freq=100", *train_eval]
     assert cli_main(["train", *env_flags_train, *common, "--steps=3", "--save_freq=3", f"--output_dir={out / 'train'}"]) == 0
     model = out / "train" / "checkpoints" / "last" / "pretrained_model"
@@ -246,7 +263,7 @@ def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, pu
     # eval (lerobot_train makes its env without trust_remote_code); eval: 30-step episodes
     info = _train_then_eval(tmp_path, env_flags_train=_hub_args("pendulum-pixels", sha, "--env.episode_length=10"),
                             env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"),
-                            train_eval=("--eval_freq=3", "--eval.n_episodes=1", "--eval.batch_size=1"))
+                            train_eval=(f"--{EVAL_FREQ}=3", "--eval.n_episodes=1", "--eval.batch_size=1"))
     assert (tmp_path / "train" / "eval" / "videos_step_000003" / "pendulum_0" / "eval_episode_0.mp4").is_file()
     prov = info["provenance"]
     assert prov["env"]["repo_id"] == "alice/pendulum-pixels" and prov["env"]["revision"] == sha
@@ -256,7 +273,7 @@ def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, pu
     training = prov["policy"]["training"]
     assert training["env"]["revision"] == sha and training["steps"] == 3
     assert training["dataset"]["fingerprint"] == loaded.manifest.dataset["fingerprint"] and training["dataset"]["is_env_dataset"]
-    assert prov["versions"]["lerobot"] == "0.4.4" and prov["versions"]["hub-envs"]
+    assert prov["versions"]["lerobot"] == str(_compat.LEROBOT_VERSION) and prov["versions"]["hub-envs"]
     assert info["per_group"]["pendulum"]["n_episodes"] == 2
 
 
@@ -271,6 +288,28 @@ def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, publi
         {"name": "clip_action", "entry_point": "clip_action", "stage": "post", "kwargs": {}}]
     assert prov["env"]["config"]["features"]["pixels"]["shape"] == [96, 96, 3]
     assert prov["policy"]["training"]["dataset"]["is_env_dataset"]
+
+
+@pytest.mark.parametrize("route", ["--env.discover_packages_path", "the lerobot_env_hub plugin"])
+def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_path, route):
+    """LeRobot's unmodified ``lerobot-eval`` console script, in a fresh process: with LeRobot's plugin flag on
+    every version, and with no flag at all from LeRobot 0.5 on (it imports ``lerobot_env_*`` distributions)."""
+    plain = route == "the lerobot_env_hub plugin"
+    if plain and not _compat.env_configs_create_envs():
+        pytest.skip(f"LeRobot {_compat.LEROBOT_VERSION} does not discover lerobot_env_* plugins (0.5 does); "
+                    "on 0.4 the --env.discover_packages_path route is the one")
+    sha = published["pendulum-pixels"]
+    train = tmp_path / "train"
+    assert cli_main(["train", *_hub_args("pendulum-pixels", sha), *TINY_ACT, "--batch_size=4", "--num_workers=0",
+                     f"--{EVAL_FREQ}=0", "--steps=1", "--save_freq=1", f"--output_dir={train}"]) == 0
+    flags = [] if plain else ["--env.discover_packages_path=hub_envs.lerobot_plugin"]
+    cmd = [str(Path(sys.executable).with_name("lerobot-eval")), *flags, *_hub_args("pendulum-pixels", sha, "--env.episode_length=8"),
+           f"--policy.path={train / 'checkpoints' / 'last' / 'pretrained_model'}", "--policy.device=cpu",
+           "--eval.n_episodes=2", "--eval.batch_size=2", f"--output_dir={tmp_path / 'eval'}"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2 and "pendulum" in info["per_group"]
 
 
 # --- 4. env processors ------------------------------------------------------------------------

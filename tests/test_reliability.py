@@ -33,6 +33,7 @@ from hub_envs import errors, load_env, push_env
 from hub_envs.paths import hub_envs_home
 from hub_envs.registration import snapshot_registries
 from hub_envs.repo_format import MANIFEST_FILE, content_digest, hash_files, list_files
+from hub_envs.requirements import installed_version
 from hub_envs.testing import hub_environment
 from helpers import TINY, copy_env
 
@@ -248,6 +249,9 @@ CASES: list[Case] = [
     repo_case("manifest-not-json", E.ManifestError, ("hub_env.json", "not valid JSON", "Re-publish"), write(MANIFEST_FILE, "{oops"), fix=False),
     repo_case("manifest-not-object", E.ManifestError, ("hub_env.json", "must be a JSON object", "Re-publish"), write(MANIFEST_FILE, "[1, 2]"), fix=False),
     repo_case("manifest-future-version", E.ManifestError, ("hub_env.json", "format_version 2", "upgrade hub-envs"), manifest=setitem("format_version", 2)),
+    repo_case("manifest-newer-writer", E.ManifestError, ("hub_env.json", "format_version 3 was written by hub-envs 9.1.0",
+                                                         "pip install -U 'hub-envs>=9.1.0'"),
+              manifest=lambda m: (m.__setitem__("format_version", 3), m["versions"].__setitem__("hub-envs", "9.1.0"))),
     repo_case("manifest-no-version", E.ManifestError, ("hub_env.json", "format_version None", "re-publish"), manifest=delitem("format_version")),
     repo_case("manifest-bool-version", E.ManifestError, ("hub_env.json", "format_version True", "re-publish"), manifest=setitem("format_version", True)),
     repo_case("manifest-unknown-field", E.ManifestError, ("hub_env.json", "unknown field(s) ['surprise']", "upgrade hub-envs"), manifest=setitem("surprise", 1)),
@@ -280,6 +284,8 @@ CASES: list[Case] = [
     _corrupt_trust_list_case(),
     repo_case("requirement-missing", E.MissingRequirementsError, ("hub-envs-no-such-package", "not installed", "pip install hub-envs-no-such-package"),
               manifest=lambda m: m["requirements"].append("hub-envs-no-such-package")),
+    repo_case("requirement-newer-lerobot", E.MissingRequirementsError, ("lerobot>", "installed", "pip install 'lerobot>"),
+              manifest=lambda m: m["requirements"].append(f"lerobot>{installed_version('lerobot')}")),
     repo_case("requirement-incompatible", E.MissingRequirementsError, ("numpy<1", "installed", "pip install 'numpy<1'"),
               manifest=lambda m: m["requirements"].append("numpy<1")),
     # -- env code --
@@ -363,8 +369,9 @@ def _cache_state(hf_home: Path) -> dict[str, int]:
     cache = hf_home / "hub"
     if not cache.is_dir():
         return {}
+    # huggingface_hub 1.x marks its cache folder with a CACHEDIR.TAG the first time it writes there
     return {p.relative_to(cache).as_posix(): p.lstat().st_size for p in cache.rglob("*")
-            if not p.is_dir() and ".locks" not in p.parts}
+            if not p.is_dir() and ".locks" not in p.parts and p.name != "CACHEDIR.TAG"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])

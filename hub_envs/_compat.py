@@ -1,0 +1,212 @@
+"""Every version-dependent reach into huggingface_hub, lerobot, draccus, gymnasium and the stdlib.
+
+hub-envs supports a range of stacks (tested at both ends: Python 3.11 + lerobot 0.4.4 +
+huggingface_hub 0.35 + draccus 0.10, and Python >= 3.12 + lerobot 0.6 + huggingface_hub 1.x +
+draccus 0.11). Whatever differs between them, and every use of an upstream name that is not public,
+lives here and nowhere else; ``tests/test_compat.py`` fails loudly when upstream moves one of them.
+
+Example:
+    >>> from hub_envs import _compat
+    >>> _compat.HF_HUB_MAJOR >= 0
+    True
+    >>> isinstance(_compat.NETWORK_ERRORS, tuple)
+    True
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import sys
+from typing import Any
+
+from packaging.version import Version
+
+
+def _version(dist: str) -> Version | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return Version(version(dist))
+    except PackageNotFoundError:
+        return None
+
+
+# --- huggingface_hub: requests (0.x) or httpx (1.x) --------------------------------------------
+
+HF_HUB_VERSION: Version = _version("huggingface_hub") or Version("0")
+HF_HUB_MAJOR: int = HF_HUB_VERSION.major
+
+
+def _network_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
+    """``(cannot reach the Hub, transfer broke off)`` exception classes of the client's HTTP library.
+
+    *Cannot reach*: no connection, a timeout, or the connection refused or reset while a request was
+    in flight (the server died or went away): requests' ``ConnectionError`` / ``Timeout``; httpx's
+    ``NetworkError`` (``ConnectError``, ``ReadError``, ``WriteError``, ``CloseError``),
+    ``TimeoutException`` and ``ProxyError``. A server killed while it reads a request resets the
+    connection: requests raises ``ConnectionError``, httpx ``ReadError`` / ``WriteError``.
+
+    *Broke off*: everything else the HTTP library raises, chiefly a response body cut off mid-file
+    (requests' ``ChunkedEncodingError``, httpx's ``RemoteProtocolError`` "peer closed connection
+    without sending complete message body"). httpx's classes cannot tell where a failure happened,
+    so two edge cases differ from requests: a server closing (not resetting) the connection before
+    answering is a ``RemoteProtocolError`` ("Server disconnected without sending a response") and
+    reads as *broke off*; a connection reset mid-body is a ``ReadError`` and reads as *cannot reach*.
+    """
+    if HF_HUB_MAJOR >= 1:
+        import httpx
+
+        network = (httpx.NetworkError, httpx.TimeoutException, httpx.ProxyError)
+        return network, (httpx.TransportError, httpx.DecodingError, httpx.StreamError)
+    import requests
+
+    return (requests.ConnectionError, requests.Timeout), (requests.RequestException,)
+
+
+#: ``NETWORK_ERRORS``: the Hub cannot be reached (connection refused or reset, DNS, timeout).
+#: ``TRANSFER_ERRORS``: the transfer broke off after it started (e.g. a connection dropped mid-file).
+#: Catch ``NETWORK_ERRORS`` first: with requests, ``TRANSFER_ERRORS`` includes it.
+NETWORK_ERRORS, TRANSFER_ERRORS = _network_errors()
+
+
+def file_get_retries_server_errors() -> bool:
+    """Whether the client retries a 5xx answer to the ``GET`` of a file's content (``hf_hub_download``).
+
+    0.x: yes. Both the metadata ``HEAD`` and the content ``GET`` of ``.../resolve/...`` go through
+    ``http_backoff``, which retries 500/502/503/504 and connection errors up to 5 times.
+    1.x: no. ``http_get`` calls ``http_stream_backoff(..., retry_on_status_codes=(408, 429))``, so a
+    5xx on the ``GET`` fails the download at once (a body cut off mid-file is resumed instead, up to
+    5 times). A 5xx on the metadata ``HEAD`` is still retried: after the first failure, unless
+    ``force_download=True``, ``hf_hub_download`` asks again with ``retry_on_errors=True``
+    (``http_backoff``: 408, 429, 5xx and network errors, up to 5 more times).
+    """
+    return HF_HUB_MAJOR < 1
+
+
+def reset_http_sessions() -> None:
+    """Drop the client's cached HTTP sessions (0.x ``reset_sessions``, 1.x ``close_session``)."""
+    from huggingface_hub import utils
+
+    reset = getattr(utils, "close_session", None) or getattr(utils, "reset_sessions")
+    reset()
+
+
+# --- lerobot -----------------------------------------------------------------------------------
+
+LEROBOT_VERSION: Version | None = _version("lerobot")
+
+
+def env_config_choices() -> dict[str, Any]:
+    """LeRobot's ``EnvConfig`` draccus choices, name -> class, as a live dict.
+
+    ``EnvConfig.get_known_choices()`` is public and returns the registry itself on draccus 0.10 and
+    0.11; hub-envs mutates it to unregister what it registered (draccus has no public unregister),
+    so this checks it really is the live registry and not a copy.
+    """
+    from lerobot.envs.configs import EnvConfig
+
+    choices = EnvConfig.get_known_choices()
+    if choices is not getattr(EnvConfig, "_choice_registry", None):  # pragma: no cover - upstream change
+        raise RuntimeError("draccus' EnvConfig.get_known_choices() no longer returns the live registry; "
+                           "update hub_envs._compat.env_config_choices.")
+    return choices
+
+
+def processor_step_names() -> list[str]:
+    """Names in LeRobot's ``ProcessorStepRegistry`` (public ``list()`` on every supported version)."""
+    from lerobot.processor.pipeline import ProcessorStepRegistry
+
+    return ProcessorStepRegistry.list()
+
+
+def hf_transform_to_torch():
+    """LeRobot's dataset transform to torch tensors (``datasets.utils`` in 0.4, ``datasets.io_utils`` from 0.5)."""
+    try:
+        from lerobot.datasets.io_utils import hf_transform_to_torch as fn
+    except ImportError:
+        from lerobot.datasets.utils import hf_transform_to_torch as fn
+    return fn
+
+
+def lerobot_dataset_io():
+    """The LeRobot module with its dataset metadata readers (``load_info``, ``load_episodes``, ``load_stats``,
+    ``load_tasks``): ``lerobot.datasets.utils`` in 0.4, ``lerobot.datasets.io_utils`` from 0.5 (where
+    ``load_info`` returns a ``DatasetInfo`` that drops keys LeRobot does not know, such as ``hub_envs``)."""
+    try:
+        from lerobot.datasets import io_utils as module
+    except ImportError:
+        from lerobot.datasets import utils as module
+    return module
+
+
+def tasks_index_name() -> str | None:
+    """The name of ``meta/tasks.parquet``'s index (the task strings) as the installed LeRobot writes it:
+    unnamed in 0.4 (stored as ``__index_level_0__``), ``"task"`` from 0.5. Both read back the same."""
+    return "task" if LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5") else None
+
+
+def stats_extremes_as_float() -> bool:
+    """Whether the installed LeRobot's writer stores the min/max stats of every numeric feature as float64
+    (0.5 on: its running statistics work in float64) rather than in the feature's dtype (0.4: bool for
+    ``next.done``, int64 for ``frame_index``), in ``meta/episodes`` and ``meta/stats.json``."""
+    return LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5")
+
+
+def train_dataset_hooks() -> tuple[str, ...]:
+    """Names in ``lerobot.scripts.lerobot_train`` that build the training dataset.
+
+    0.4 calls ``make_dataset(cfg)``; from 0.5 it calls ``make_train_eval_datasets(cfg)``, which returns
+    ``(train, eval_or_None)``.
+    """
+    from lerobot.scripts import lerobot_train
+
+    return tuple(name for name in ("make_dataset", "make_train_eval_datasets") if hasattr(lerobot_train, name))
+
+
+def missing_training_packages() -> list[str]:
+    """Packages LeRobot's training loop needs that are not installed: from 0.5 they are its ``training``
+    extra (``accelerate`` is required at start; 0.4 has it in its core dependencies)."""
+    from importlib.util import find_spec
+
+    return [name for name in ("accelerate",) if find_spec(name) is None]
+
+
+def train_eval_freq_flag() -> str:
+    """``lerobot-train``'s flag for how often to evaluate in the env: ``eval_freq`` in 0.4, ``env_eval_freq`` from 0.5."""
+    import dataclasses
+
+    from lerobot.configs.train import TrainPipelineConfig
+
+    names = {f.name for f in dataclasses.fields(TrainPipelineConfig)}
+    return "env_eval_freq" if "env_eval_freq" in names else "eval_freq"
+
+
+def env_configs_create_envs() -> bool:
+    """LeRobot >= 0.5 builds envs with ``EnvConfig.create_envs()`` and env processors with
+    ``EnvConfig.get_env_processors()`` (0.4 has neither: its factory branches on the config type)."""
+    from lerobot.envs.configs import EnvConfig
+
+    return hasattr(EnvConfig, "create_envs") and hasattr(EnvConfig, "get_env_processors")
+
+
+# --- stdlib ------------------------------------------------------------------------------------
+
+
+def live_children() -> set[int]:
+    """Pids of this process's live multiprocessing children (public API: ``active_children``)."""
+    return {p.pid for p in multiprocessing.active_children() if p.pid is not None}
+
+
+def terminate_new_children(before: set[int]) -> None:
+    """Terminate the multiprocessing children started since ``before`` (:func:`live_children`).
+
+    A ``ProcessPoolExecutor`` abandoned mid-run (``shutdown(wait=False)``) keeps its workers busy until
+    their current task ends; Python 3.14 has ``terminate_workers()`` for that, older ones no public
+    handle on the workers, so the children that appeared since the pool was made are stopped instead.
+    """
+    for proc in multiprocessing.active_children():
+        if proc.pid not in before and proc.is_alive():
+            proc.terminate()
+
+
+PY_VERSION = sys.version_info[:2]
