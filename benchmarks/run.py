@@ -30,6 +30,7 @@ OUT = Path(__file__).resolve().parent / "out" / "latest.json"
 #: module -> keyword arguments of its run()
 MODULES: dict[str, dict] = {
     "bench_load": {"repeats": 9},
+    "bench_startup": {"repeats": 7},
     "bench_download": {"clients": 8, "size_mb": 32, "repeats": 3},
     "bench_datagen": {"repeats": 3},
     "bench_replay": {"repeats": 3},
@@ -53,6 +54,10 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "datagen_vs_raw": ("bench_datagen", (GE, 0.33), "dataset frames/s ÷ raw env stepping"),
     "replay_vs_raw": ("bench_replay", (GE, 0.8), "replay-verify steps/s ÷ raw env stepping"),
     "reproduce_speedup_2workers": ("bench_replay", (GE, 1.6), "reproduce on 1 worker ÷ on 2 (time)"),
+    "cli_help_s": ("bench_startup", (LE, 0.5), "seconds: hub-envs --help (no torch, no lerobot)"),
+    "cli_trust_s": ("bench_startup", (LE, 0.5), "seconds: hub-envs trust user/name@<sha>"),
+    "push_env_help_s": ("bench_startup", (LE, 0.5), "seconds: push_env --help"),
+    "cli_help_vs_python": ("bench_startup", None, "hub-envs --help ÷ python -c pass"),
     "server_download_mb_s": ("bench_download", None, "MiB/s to 8 concurrent snapshot_downloads"),
     "server_errors": ("bench_download", (EQ, 0), "failed or corrupt downloads among them"),
 }
@@ -120,7 +125,7 @@ def table(out: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", nargs="*", help="module names (load, download, datagen, replay, server)")
+    parser.add_argument("--only", nargs="*", help="module names (load, startup, download, datagen, replay, server)")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     out = run(args.only)

@@ -104,13 +104,13 @@ def load(args: LoadArgs) -> int:
 
 
 def _trust_cmd(argv: list[str], *, remove: bool) -> int:
-    from hub_envs import hub_io, trust
-    from hub_envs.errors import ConfigError
-
     usage = f"usage: hub-envs {'untrust' if remove else 'trust'} user/name@<40-hex sha>"
     if any(a in ("-h", "--help") for a in argv):
         print(f"{usage}\n{SUMMARIES['untrust' if remove else 'trust']}")
         return 0
+    from hub_envs import hub_io, trust
+    from hub_envs.errors import ConfigError
+
     refs = [a for a in argv if not a.startswith("-")]
     if len(refs) != 1:
         raise ConfigError(usage)
