@@ -22,9 +22,9 @@ _EXPORTS = {
     "LoadReport": "hub_envs.load",
     "push_env": "hub_envs.push",
     "PushResult": "hub_envs.push",
-    "trust": "hub_envs.trust",
-    "untrust": "hub_envs.trust",
-    "is_trusted": "hub_envs.trust",
+    "trust": "hub_envs.trust_list",
+    "untrust": "hub_envs.trust_list",
+    "is_trusted": "hub_envs.trust_list",
     "Manifest": "hub_envs.repo_format",
     "reproduce": "hub_envs.reproduce",
     "env_from_dataset": "hub_envs.reproduce",
@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401
     from hub_envs.reproduce import env_from_dataset, reproduce  # noqa: F401
-    from hub_envs.trust import is_trusted, trust, untrust  # noqa: F401
+    from hub_envs.trust_list import is_trusted, trust, untrust  # noqa: F401
 
 
 def __getattr__(name: str):

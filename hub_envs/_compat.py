@@ -91,6 +91,51 @@ def reset_http_sessions() -> None:
     reset()
 
 
+def install_response_hook(hook) -> bool:
+    """Run ``hook(url, headers, read_body)`` on every HTTP response huggingface_hub's client receives.
+
+    ``read_body()`` returns the response body (call it only for small API answers, never for file
+    downloads). An exception raised by the hook propagates out of the client call before the client
+    uses the response. 0.x: a ``requests`` response hook on every session its backend factory makes
+    (``configure_http_backend``); 1.x: an ``httpx`` event hook on the clients of ``set_client_factory``.
+    Whatever factory was configured before (by the user or another library) is kept and wrapped.
+    Idempotent per hook; returns True when it installed it now. Reads the current factory from a private
+    name (``_GLOBAL_BACKEND_FACTORY`` / ``_GLOBAL_CLIENT_FACTORY``): huggingface_hub has no getter.
+    """
+    import huggingface_hub
+    from huggingface_hub.utils import _http
+
+    name = "_GLOBAL_CLIENT_FACTORY" if HF_HUB_MAJOR >= 1 else "_GLOBAL_BACKEND_FACTORY"
+    previous = getattr(_http, name)
+    if hook in getattr(previous, "_hub_envs_hooks", ()):
+        return False
+
+    if HF_HUB_MAJOR >= 1:
+        def on_response(response) -> None:
+            hook(str(response.request.url), response.headers, lambda: response.read())
+
+        def factory():
+            client = previous()
+            client.event_hooks = {**client.event_hooks, "response": [*client.event_hooks.get("response", []), on_response]}
+            return client
+
+        factory._hub_envs_hooks = (*getattr(previous, "_hub_envs_hooks", ()), hook)
+        huggingface_hub.set_client_factory(factory)  # also closes the current client
+    else:
+        def on_response(response, *args, **kwargs):
+            hook(response.url, response.headers, lambda: response.content)
+            return response
+
+        def factory():
+            session = previous()
+            session.hooks.setdefault("response", []).append(on_response)
+            return session
+
+        factory._hub_envs_hooks = (*getattr(previous, "_hub_envs_hooks", ()), hook)
+        huggingface_hub.configure_http_backend(backend_factory=factory)  # also resets the sessions
+    return True
+
+
 # --- lerobot -----------------------------------------------------------------------------------
 
 LEROBOT_VERSION: Version | None = _version("lerobot")

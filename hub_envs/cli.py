@@ -108,7 +108,7 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
     if any(a in ("-h", "--help") for a in argv):
         print(f"{usage}\n{SUMMARIES['untrust' if remove else 'trust']}")
         return 0
-    from hub_envs import hub_io, trust
+    from hub_envs import hub_io, trust_list
     from hub_envs.errors import ConfigError
 
     refs = [a for a in argv if not a.startswith("-")]
@@ -116,11 +116,16 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
         raise ConfigError(usage)
     repo_id, sha = hub_io.parse_repo_ref(refs[0])
     if remove:
-        n = trust.untrust(repo_id, sha)
+        n = trust_list.untrust(repo_id, sha)
         print(f"Removed {n} trust entr{'y' if n == 1 else 'ies'} for {repo_id}.")
         return 0
-    trust.trust(repo_id, sha or "")
-    print(f"Trusted {repo_id}@{sha}: load_env will run its code at this commit (and no other) without asking.")
+    if sha is None or not hub_io.is_commit_sha(sha):
+        raise ConfigError(f"Trust is given to an exact commit: hub-envs trust {repo_id}@<40-hex sha> "
+                          f"(load_env and the card print the sha).")
+    digest = trust_list.manifest_digest(repo_id, sha)
+    trust_list.trust(repo_id, sha, content_digest=digest)
+    print(f"Trusted {repo_id}@{sha} (manifest content {digest[:16]}…): load_env will run its code at this commit, "
+          f"with exactly this content, without asking.")
     return 0
 
 

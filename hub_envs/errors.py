@@ -118,5 +118,10 @@ class HubError(HubEnvsError):
     """The Hub (or the loopback server) refused or failed a request that is not covered above."""
 
 
+class HostileResponseError(HubError, IntegrityError):
+    """The endpoint answered something no Hub sends (a non-hex ETag or commit id, a path escaping the repo):
+    refused before the client wrote anything with it."""
+
+
 class ConcurrentPushError(HubError):
     """The repo's main moved while push_env was preparing its commit (another push landed first); nothing was written."""

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs import hub_io
+from hub_envs._text import printable
 from hub_envs.dataset import dataset_fingerprint, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
@@ -53,6 +54,24 @@ def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:
             f"written by push_env, so which env produced it is unknown. Load the env yourself with load_env."
         )
     return meta
+
+
+def _env_repo_id(value: Any, dataset_root: Path) -> str:
+    """The env repo a dataset names: data, so it must be a Hub repo id and nothing else.
+
+    A path-shaped value (``./payload``, ``/abs``, ``~/x``) would make load_env import a local folder,
+    which needs no consent: a dataset could run code of its choosing. Only ``user/name`` passes.
+    """
+    try:
+        repo_id, revision = hub_io.parse_repo_ref(value if isinstance(value, str) else "")
+    except HubEnvsError:
+        repo_id, revision = "", None
+    if not repo_id or revision is not None:
+        raise ReproductionError(
+            f"{dataset_root}/meta/info.json names the env repo {printable(repr(value))}, which is not a Hub repo id "
+            f"('user/name'). A dataset can only name an env on the Hub; load a local env folder yourself with load_env."
+        )
+    return repo_id
 
 
 def _snapshot_origin(folder: Path) -> tuple[str, str] | None:
@@ -161,7 +180,7 @@ def env_from_dataset(
 
     root, origin = locate_dataset(path_or_repo_id, revision=revision, token=token)
     meta = read_env_meta(root)
-    env_repo = str(meta["env_repo_id"])
+    env_repo = _env_repo_id(meta["env_repo_id"], root)
     digest = str(meta["code_digest"])
     if env_revision is not None:
         sha = env_revision

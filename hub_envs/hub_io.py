@@ -13,10 +13,14 @@ Example:
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import re
+import shutil
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import unquote, urlsplit
 
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, snapshot_download
 from huggingface_hub.errors import (
@@ -30,12 +34,15 @@ from huggingface_hub.errors import (
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
 from huggingface_hub.utils import validate_repo_id
 
-from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS
+from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook
+from hub_envs._text import printable
 from hub_envs.errors import (
     ConcurrentPushError,
     ConfigError,
     EnvRepoNotFoundError,
+    HostileResponseError,
     HubError,
+    IntegrityError,
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
@@ -59,8 +66,15 @@ class Snapshot:
         return self.requested == self.sha
 
 
+_REPO_ID_CHARS = re.compile(r"[\w.-]+(/[\w.-]+)?", re.ASCII)
+
+
 def parse_repo_ref(ref: str) -> tuple[str, str | None]:
-    """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``."""
+    """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``.
+
+    Never a path: ``./x``, ``/abs``, ``~/x`` and anything with characters a Hub repo id cannot have
+    (a trailing newline included) are refused.
+    """
     if not isinstance(ref, str) or not ref:
         raise ConfigError(f"Repo id {ref!r} is not valid: use 'user/name', optionally '@revision'.")
     repo_id, _, revision = ref.partition("@")
@@ -68,11 +82,66 @@ def parse_repo_ref(ref: str) -> tuple[str, str | None]:
         validate_repo_id(repo_id)
     except HFValidationError as e:
         raise ConfigError(f"Repo id {repo_id!r} is not valid ({e}). Use 'user/name', optionally '@revision'.") from None
+    if not _REPO_ID_CHARS.fullmatch(repo_id):  # huggingface_hub's check ends in `$`, which lets "user/name\n" through
+        raise ConfigError(f"Repo id {repo_id!r} is not valid: only ASCII letters, digits, '-', '_' and '.' around one '/'.")
     if "/" not in repo_id:
         raise ConfigError(f"Repo id {repo_id!r} needs a namespace: 'user/{repo_id}'.")
     if "@" in ref and not revision:
         raise ConfigError(f"{ref!r} ends with '@' but names no revision. Write 'user/name@<sha, tag or branch>'.")
     return repo_id, revision or None
+
+
+# --- what a hostile endpoint could make the client write ----------------------------------------
+
+_HUB_ETAG = re.compile(r"[0-9a-f]{40}|[0-9a-f]{64}")  # git blob sha1, or the sha256 of an LFS/Xet file
+_REVISION_API = re.compile(r"/api/(models|datasets|spaces)/[^/]+/[^/]+/revision/")
+
+
+def _refuse(url: str, what: str) -> None:
+
+    raise HostileResponseError(
+        f"The endpoint {printable(urlsplit(url).netloc)} answered {printable(url)} with {what}: no Hub sends that, and "
+        f"huggingface_hub would have used it as a file name in the cache. Refused before anything was written. "
+        f"Check HF_ENDPOINT (and use https to a Hub you trust: plain http on a shared network can be rewritten)."
+    )
+
+
+def check_hub_response(url: str, headers, read_body) -> None:
+    """Refuse a response whose commit id, ETag or file names are not of the forms the Hub uses.
+
+    huggingface_hub (0.35 and 1.x alike) builds cache paths from them without checking: the blob path
+    from the ETag (``blobs/<etag>``), the snapshot folder from ``X-Repo-Commit`` or the revision API's
+    ``sha``, files from its ``siblings``. A lying endpoint could write anywhere the user can (a ``.pth``
+    into site-packages, hub-envs' trust list) before any hub-envs check ran. Installed on huggingface_hub's
+    HTTP client when this module is imported (see :func:`hub_envs._compat.install_response_hook`).
+    """
+    commit = headers.get("X-Repo-Commit")
+    if commit is not None and not is_commit_sha(commit):
+        _refuse(url, f"X-Repo-Commit {commit[:80]!r} (a commit id is 40 lowercase hex digits)")
+    path = unquote(urlsplit(url).path)
+    if "/resolve/" in path:
+        for name in ("X-Linked-Etag", "ETag"):
+            value = headers.get(name)
+            if value is not None and not _HUB_ETAG.fullmatch(value.lstrip("W/").strip('"')):  # huggingface_hub's own normalization
+                _refuse(url, f"{name} {value[:80]!r} (a file's ETag is its 40-hex git or 64-hex sha256 digest)")
+    elif _REVISION_API.match(path):
+        try:
+            info = json.loads(read_body())
+        except (ValueError, UnicodeDecodeError):
+            return  # not JSON: the client raises its own error
+        if not isinstance(info, dict):
+            return
+        sha = info.get("sha")
+        if sha is not None and not is_commit_sha(sha):
+            _refuse(url, f"a repo sha {str(sha)[:80]!r} (a commit id is 40 lowercase hex digits)")
+        for sibling in info.get("siblings") or []:
+            name = sibling.get("rfilename") if isinstance(sibling, dict) else None
+            parts = name.split("/") if isinstance(name, str) else [""]
+            if not name or name.startswith("/") or "\\" in name or any(p in ("", ".", "..") for p in parts):
+                _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo")
+
+
+install_response_hook(check_hub_response)
 
 
 def offline() -> bool:
@@ -162,10 +231,76 @@ def resolve_snapshot(
             return Snapshot(repo_id, revision, Path(path).name, Path(path), from_cache=True)
         info = api(token).repo_info(repo_id, revision=revision, repo_type=REPO_TYPE)
         sha = info.sha
+        _check_resolved(repo_id, revision, sha)
         path = snapshot_download(
             repo_id, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download,
         )
+    _check_resolved(repo_id, revision, Path(path).name)
     return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
+
+
+def _check_resolved(repo_id: str, requested: str | None, sha: str | None) -> None:
+    """The Hub answered ``sha`` for ``requested``: a commit id, and the very one asked for when a sha was asked."""
+    if not is_commit_sha(sha):
+        raise HostileResponseError(f"{repo_id}@{requested or 'main'}: the Hub at {constants.ENDPOINT} resolved it to {str(sha)[:80]!r}, "
+                                   f"which is not a commit id. Nothing was imported. Check HF_ENDPOINT.")
+    if is_commit_sha(requested) and sha != requested:
+        raise IntegrityError(
+            f"{repo_id}@{requested}: the Hub at {constants.ENDPOINT} served commit {sha} instead of the one asked for. "
+            f"A commit id names its content, so this endpoint is not serving what you pinned; nothing was imported. "
+            f"Check HF_ENDPOINT (and that nothing rewrites the traffic: use https)."
+        )
+
+
+def snapshot_cache_dir(repo_id: str, sha: str, cache_dir: str | Path | None = None) -> Path:
+    """Where huggingface_hub keeps ``repo_id`` at commit ``sha`` (it may not exist)."""
+    return _cache_snapshot_dir(repo_id, sha, cache_dir)
+
+
+def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
+    """A cache snapshot holds exactly the manifest's files, each a link into its repo's ``blobs/``.
+
+    huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving
+    anywhere else, or a file the manifest does not list (``.gitattributes`` and the manifest excepted),
+    was not put there by a download of this commit: the snapshot is refused.
+    """
+    blobs = path.parent.parent / "blobs"
+    bad = []
+    for dirpath, dirnames, filenames in os.walk(path):
+        for name in dirnames + filenames:
+            full = Path(dirpath, name)
+            rel = full.relative_to(path).as_posix()
+            if full.is_symlink():
+                target = Path(os.path.realpath(full))
+                if blobs.resolve() not in target.parents:
+                    bad.append(f"{rel} -> {target} (a link outside the cache's blobs/)")
+                    continue
+            if name in filenames and rel not in listed and rel not in (MANIFEST_FILE, ".gitattributes"):
+                bad.append(f"{rel} (not in the manifest)")
+    if bad:
+
+        raise IntegrityError(f"{where}: the cached snapshot {path} holds what no download of this commit puts there:\n  "
+                             + "\n  ".join(printable(b) for b in bad[:20])
+                             + "\nNot importing it. It was removed from the cache; load again to download the commit afresh.")
+
+
+def drop_snapshot(path: Path) -> None:
+    """Remove one snapshot folder of the cache (its blobs stay: they are content-addressed)."""
+    if path.parent.name == "snapshots" and is_commit_sha(path.name):
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> str:
+    """The text of ``hub_env.json`` at commit ``sha``: from the cache when it is there, else from the Hub."""
+    from huggingface_hub import try_to_load_from_cache
+
+    cached = try_to_load_from_cache(repo_id, MANIFEST_FILE, revision=sha, repo_type=REPO_TYPE)
+    if isinstance(cached, str) and Path(cached).is_file():
+        return Path(cached).read_text(encoding="utf-8")
+    text = read_remote_text(repo_id, MANIFEST_FILE, revision=sha, token=token)
+    if text is None:
+        raise EnvRepoNotFoundError(f"{repo_id}@{sha} has no {MANIFEST_FILE}: it is not an env repo published by push_env.")
+    return text
 
 
 def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None) -> str | None:

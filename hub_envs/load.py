@@ -29,7 +29,7 @@ from typing import Any, Literal
 
 import gymnasium as gym
 
-from hub_envs import check_cache, hub_io, registration, trust
+from hub_envs import check_cache, hub_io, registration, trust_list
 from hub_envs.checks import verify_fingerprint
 from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.dataset import read_info
@@ -49,8 +49,10 @@ from hub_envs.errors import (
 from hub_envs.features import FeatureReport, check_features
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.provenance import describe_differences, package_versions, version_differences
+from hub_envs._text import printable
 from hub_envs.repo_format import (
     DATASET_DIR,
+    MANIFEST_FILE,
     EnvFolder,
     Manifest,
     content_digest,
@@ -62,7 +64,7 @@ from hub_envs.requirements import check_requirements
 FingerprintPolicy = Literal["error", "warn", "off"]
 
 
-_REPO_ID_RE = re.compile(r"^[\w.-]+/[\w.-]+(@[^/]+)?$")
+_REPO_ID_RE = re.compile(r"[\w.-]+/[\w.-]+(@[^/]+)?")
 
 
 class UnpinnedRevisionWarning(UserWarning):
@@ -207,35 +209,88 @@ def _local_manifest(folder: EnvFolder) -> Manifest:
     )
 
 
-def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_remote_code: bool) -> str:
+def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_remote_code: bool,
+                trusted: trust_list.TrustList) -> str:
+    """Consent for exactly this commit and content: the call's flag, or an entry of the trust list as it was
+    read before anything was downloaded (``trusted``), never a re-read of a file a download could have written."""
     if trust_remote_code:
         return "trust_remote_code=True"
-    if trust.is_trusted(repo_id, sha):
-        return f"trust list ({trust.trust_file()})"
-    code = sorted(p for p in manifest.files if is_code_file(p))
-    previous = trust.trusted_revisions(repo_id)
+    if trusted.covers(repo_id, sha, manifest.content_digest):
+        return f"trust list ({trusted.path})"
+    code = sorted(printable(p) for p in manifest.files if is_code_file(p))
+    previous = [e for e in trusted.previous(repo_id) if e.sha != sha]
     changed = ""
-    if previous:
-        prev_manifest = path.parent / previous[-1]
-        if (prev_manifest / "hub_env.json").is_file():
+    if any(e.sha == sha for e in trusted.previous(repo_id)):
+        changed = (f"\nYou trusted {repo_id}@{sha[:12]} for other content (manifest digest "
+                   f"{next(e.content_digest for e in trusted.previous(repo_id) if e.sha == sha)[:16]}…); the endpoint now serves "
+                   f"{manifest.content_digest[:16]}… under the same commit id. Do not trust it again unless you know why.")
+    elif trust_list.legacy_trusted(repo_id, sha):
+        changed = ("\nAn older hub-envs trusted this commit by its sha alone; trust now also binds the content. "
+                   "Confirm it once more (command below).")
+    elif previous:
+        prev_dir = path.parent / previous[-1].sha
+        if (prev_dir / MANIFEST_FILE).is_file():
             try:
-                old = Manifest.read(prev_manifest).files
+                old = Manifest.read(prev_dir).files
                 diff = [p for p in sorted(set(old) | set(manifest.files)) if old.get(p) != manifest.files.get(p)]
-                code = [p for p in diff if is_code_file(p)]
-                other = [p for p in diff if not is_code_file(p)]
-                changed = (f"\nYou trusted {previous[-1][:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
+                code = [printable(p) for p in diff if is_code_file(p)]
+                other = [printable(p) for p in diff if not is_code_file(p)]
+                changed = (f"\nYou trusted {previous[-1].sha[:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
                            f"{'; other files: ' + ', '.join(other[:8]) + (' …' if len(other) > 8 else '') if other else ''}.")
             except HubEnvsError:
                 pass
         else:
-            changed = f"\nYou trusted {repo_id}@{previous[-1][:12]} before, not this commit."
+            changed = f"\nYou trusted {repo_id}@{previous[-1].sha[:12]} before, not this commit."
     raise UntrustedCodeError(
         f"{repo_id}@{sha} contains Python code that would run on this machine ({', '.join(code)}); nothing was imported.{changed}\n"
         f"Read it in {path}, then either pass trust_remote_code=True:\n"
         f'  load_env("{repo_id}@{sha}", trust_remote_code=True)\n'
-        f"or trust this exact commit once (remembered, keyed by sha):\n"
+        f"or trust this exact commit and content once (remembered):\n"
         f"  hub-envs trust {repo_id}@{sha}"
     )
+
+
+_CONTENT_TAG = re.compile(r"sha256-([0-9a-f]{16})")
+
+
+def _check_content_tag(requested: str | None, manifest: Manifest, where: str) -> None:
+    """``@sha256-<digest16>`` (the tag push_env gives every push, and the card pins) names content: hold it to that."""
+    m = _CONTENT_TAG.fullmatch(requested or "")
+    if m and not manifest.content_digest.startswith(m.group(1)):
+        raise IntegrityError(
+            f"{where}: the tag {requested} names content {m.group(1)}…, but the commit it points at holds content "
+            f"{manifest.content_digest[:16]}…. The tag was moved or the endpoint lies; nothing was imported. Pin the commit "
+            f"sha you meant instead."
+        )
+
+
+def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> tuple[hub_io.Snapshot, Manifest]:
+    """Resolve, download and verify a snapshot; a snapshot that fails is removed from the cache (so nothing,
+    LeRobot's own loader included, later runs what it holds)."""
+    snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir)
+    where = f"{repo}@{snap.sha}"
+
+    def verify(s: hub_io.Snapshot) -> Manifest:
+        manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
+        manifest.verify_files(s.path, where=where)
+        hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
+        return manifest
+
+    try:
+        try:
+            return snap, verify(snap)
+        except (IntegrityError, InvalidRepoFormatError):
+            if snap.from_cache and hub_io.offline():
+                _raise_if_partly_cached(snap.path, where)
+            if not snap.from_cache or hub_io.offline():
+                raise
+            # a cached snapshot may be damaged locally: fetch it again once, then judge
+            hub_io.drop_snapshot(snap.path)
+            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True)
+            return snap, verify(snap)
+    except IntegrityError:
+        hub_io.drop_snapshot(snap.path)
+        raise
 
 
 def _resolve_local(path: Path) -> tuple[str, str, Path, Manifest, EnvFolder | None]:
@@ -293,7 +348,7 @@ def load_env(
         raise EnvFolderError(f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
                              f"or a Hub repo id such as 'user/name'.")
     explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
-    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.match(repo_id))
+    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.fullmatch(repo_id))
     if path_candidate.is_dir() and not use_local:
         # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
         # without consent, so it must never be picked by accident
@@ -312,31 +367,18 @@ def load_env(
     else:
         repo, at_rev = hub_io.parse_repo_ref(repo_id)
         requested = revision or at_rev
-        snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir)
-        timings["fetch"] = time.perf_counter() - t0
-        t = time.perf_counter()
-        where = f"{repo}@{snap.sha}"
-        try:
-            manifest = Manifest.read(snap.path, where=f"{where}: hub_env.json")
-            manifest.verify_files(snap.path, where=where)
-        except (IntegrityError, InvalidRepoFormatError):
-            if snap.from_cache and hub_io.offline():
-                _raise_if_partly_cached(snap.path, where)
-            if not snap.from_cache or hub_io.offline():
-                raise
-            # a cached snapshot may be damaged locally: fetch it again once, then judge
-            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True)
-            manifest = Manifest.read(snap.path, where=f"{where}: hub_env.json")
-            manifest.verify_files(snap.path, where=where)
-        timings["verify"] = time.perf_counter() - t
+        trusted = trust_list.read_trust_list()  # before any download: nothing a download writes can change it
+        snap, manifest = _fetch_and_verify(repo, requested, token=token, cache_dir=cache_dir)
+        timings["fetch_verify"] = time.perf_counter() - t0
         report.integrity = f"{len(manifest.files)} files match the manifest"
         sha, path = snap.sha, snap.path
-        if not snap.pinned:
+        _check_content_tag(requested, manifest, f"{repo}@{sha}")
+        if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
             warnings.warn(
                 f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
                 f'load_env("{repo}@{sha}")', UnpinnedRevisionWarning, stacklevel=2,
             )
-        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code)
+        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
     where = f"{repo}@{sha}"
 
     t = time.perf_counter()

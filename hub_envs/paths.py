@@ -1,7 +1,8 @@
-"""Where hub-envs keeps its own local state (the trust list), read at call time.
+"""Where hub-envs keeps its own local state (the trust list, the check and bytecode caches).
 
-``$HUB_ENVS_HOME`` if set, else ``$HF_HOME/hub_envs`` (``~/.cache/huggingface/hub_envs``), so a
-test that points ``HF_HOME`` at a temp folder also gets a private trust list.
+``$HUB_ENVS_HOME`` if set, else ``$XDG_STATE_HOME/hub-envs`` (``~/.local/state/hub-envs``): never
+inside the Hugging Face cache, whose file names a Hub endpoint chooses. Tests point ``HUB_ENVS_HOME``
+at a temp folder (:func:`hub_envs.testing.hub_environment` does).
 """
 
 from __future__ import annotations
@@ -13,5 +14,10 @@ from pathlib import Path
 def hub_envs_home() -> Path:
     if os.environ.get("HUB_ENVS_HOME"):
         return Path(os.environ["HUB_ENVS_HOME"]).expanduser()
+    return Path(os.environ.get("XDG_STATE_HOME") or "~/.local/state").expanduser() / "hub-envs"
+
+
+def legacy_hub_envs_home() -> Path:
+    """Where hub-envs before content-bound trust kept its state: ``$HF_HOME/hub_envs`` (read only to explain)."""
     hf_home = os.environ.get("HF_HOME") or os.path.join(os.environ.get("XDG_CACHE_HOME", "~/.cache"), "huggingface")
     return Path(hf_home).expanduser() / "hub_envs"

@@ -238,7 +238,7 @@ def hub_environment(
     Sets ``HF_ENDPOINT``, ``HF_HOME``, ``HF_HUB_CACHE``, ``HF_ASSETS_CACHE``, ``HF_XET_CACHE``,
     ``HF_TOKEN`` (or removes it when ``token`` is None, so no stored token leaks in),
     ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
-    ``HF_DATASETS_CACHE`` and, for a loopback endpoint, ``NO_PROXY``; patches what
+    ``HF_DATASETS_CACHE``, ``HUB_ENVS_HOME`` (a folder beside ``hf_home``) and, for a loopback endpoint, ``NO_PROXY``; patches what
     ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants``
     and ``datasets.config`` computed at import time; resets the client's HTTP sessions and the
     ``HfFileSystem`` instance cache. Everything is restored on exit.
@@ -267,6 +267,8 @@ def hub_environment(
         "HF_DATASETS_OFFLINE": None,
         "HF_LEROBOT_HOME": str(home / "lerobot"),
         "HF_DATASETS_CACHE": str(home / "datasets"),
+        # hub-envs' own state (trust list, check cache) beside this HF_HOME, as private as it is
+        "HUB_ENVS_HOME": str(home.parent / f"{home.name}.hub-envs"),
     }
     host = urllib.parse.urlsplit(endpoint).hostname or ""
     if host in ("127.0.0.1", "localhost", "::1"):  # a proxy (HTTP_PROXY) must not see loopback traffic

@@ -2,13 +2,22 @@
 
 Faults are injected into the server itself (``HUB_ENVS_SERVER_FAULTS``, see
 :mod:`hub_envs.server.faults`): 500 answers, a connection dropped mid-file, the server process
-dying in the middle of a push. What huggingface_hub does about them (0.35): file downloads
-(``HEAD``/``GET .../resolve/...``) go through ``http_backoff``, which retries 500/502/503/504 and
-connection errors up to 5 times (sleeping 1, 2, 4, 8, 8 s); API calls (``repo_info``,
-``create_commit``) are not retried; a body cut off mid-file is *not* retried or resumed by
-``http_get`` (it raises ``ChunkedEncodingError``) and leaves a ``.incomplete`` blob that the next
-download resumes. hub-envs turns each failure into a typed error and never treats a partial
-snapshot as a good one.
+dying in the middle of a push. What huggingface_hub does about them, on 0.35 (requests) and 1.x (httpx):
+
+* A 5xx on a file's metadata ``HEAD .../resolve/...`` is retried by both. 0.35 sends every HEAD
+  through ``http_backoff`` (500/502/503/504 and connection errors, up to 5 retries, sleeping 1, 2,
+  4, 8, 8 s); 1.x sends the first HEAD without retries and, when it fails with a retryable error
+  and the file is not cached, asks again through ``http_backoff`` (408/429/5xx, same schedule).
+* A 5xx on a file's content ``GET .../resolve/...`` is retried by 0.35 (``http_backoff`` again) but
+  not by 1.x (``http_get`` retries only 408 and 429): the load fails, with an error that says to retry.
+* A body cut off mid-file is neither retried nor resumed by 0.35 (``http_get`` raises
+  ``ChunkedEncodingError``); 1.x resumes it (a ``Range`` request, up to 5 times, 1 s apart), then
+  raises ``httpx.RemoteProtocolError``. Either way the next load completes the same cache.
+* API calls (``repo_info``, ``create_commit``) are not retried by either. A server killed while it
+  reads a commit resets the connection: ``requests.ConnectionError`` / ``httpx.ReadError``.
+
+hub-envs turns each failure into a typed error (``cannot reach the Hub``, ``broke off``,
+``answered 5xx``, each with a next step) and never treats a partial snapshot as a good one.
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ import gymnasium as gym
 import pytest
 from huggingface_hub import HfApi
 
-from hub_envs import errors, load_env, push_env
+from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.testing import HubServer, hub_environment
 from helpers import TINY, copy_env
 
@@ -65,8 +74,9 @@ def _incomplete(home: Path) -> list[Path]:
 
 
 def test_transient_500s_on_file_downloads_are_retried_and_the_load_succeeds(faulty, tmp_path):
+    # the metadata HEAD of each file: both client versions retry a 5xx there
     before = faulty.injected()
-    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/", "times": 3})
+    faulty.inject({"match": rf"HEAD /flt/base/resolve/{faulty.sha}/", "times": 3})
     try:
         with hub_environment(faulty.endpoint, tmp_path / "home"):
             loaded = load_env(f"flt/base@{faulty.sha}", trust_remote_code=True)
@@ -74,7 +84,38 @@ def test_transient_500s_on_file_downloads_are_retried_and_the_load_succeeds(faul
             loaded.unregister()
     finally:
         faulty.heal()
-    assert faulty.injected() - before == 3  # three GETs failed, and huggingface_hub retried each
+    assert faulty.injected() - before == 3  # three HEADs failed, and huggingface_hub asked again each time
+
+
+def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_1x(faulty, tmp_path):
+    home = tmp_path / "home"
+    ref = f"flt/base@{faulty.sha}"
+    before = faulty.injected()
+    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+    try:
+        with hub_environment(faulty.endpoint, home):
+            if _compat.file_get_retries_server_errors():  # huggingface_hub 0.x: retried, the load succeeds
+                loaded = load_env(ref, trust_remote_code=True)
+                assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
+                loaded.unregister()
+                assert faulty.injected() - before == 3  # three GETs failed, and huggingface_hub retried each
+            else:  # huggingface_hub 1.x: not retried, the load fails and says to retry
+                with pytest.raises(errors.HubError) as e:
+                    load_env(ref, trust_remote_code=True)
+                assert ref in str(e.value) and "answered 500" in str(e.value) and "Retry" in str(e.value)
+                assert faulty.injected() - before >= 1
+                # the partial snapshot is not a usable one (1.x cancels the downloads not yet started when
+                # one fails, so the manifest itself may be missing: then the snapshot is not cached at all)
+                with hub_environment(faulty.endpoint, home, offline=True):
+                    with pytest.raises(errors.OfflineNotCachedError, match="(only partly|is not) in the local cache"):
+                        load_env(ref, trust_remote_code=True)
+    finally:
+        faulty.heal()
+    with hub_environment(faulty.endpoint, home):  # loaded again (1.x: retried as the error says), the cache verifies
+        loaded = load_env(ref, trust_remote_code=True)
+        assert loaded.report.integrity.endswith("match the manifest") and loaded.report.features.ok
+        loaded.unregister()
+    assert _incomplete(home) == []
 
 
 def test_a_failing_hub_api_is_a_clear_error_and_the_next_load_succeeds(faulty, tmp_path):
@@ -117,12 +158,16 @@ def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partia
 def test_a_server_killed_during_a_push_leaves_no_partial_commit_and_a_rerun_completes(faulty, tmp_path):
     faulty.inject({"match": r"POST /api/models/flt/killed/commit/", "action": "exit", "after_bytes": 4096})
     with hub_environment(faulty.endpoint, tmp_path / "home"):
-        with pytest.raises(errors.HubError) as e:
-            push_env(TINY, "flt/killed", episodes=2, progress=False)
+        try:
+            with pytest.raises(errors.HubError) as e:
+                push_env(TINY, "flt/killed", episodes=2, progress=False)
+            assert not faulty.server.running  # the fault killed the server mid-upload
+        finally:  # whatever happened, the module's later tests need the server back
+            faulty.heal()
+            faulty.server.start()  # same root, same port; no-op if it still runs
+        # a connection reset mid-request: requests' ConnectionError, httpx's ReadError or WriteError
+        assert isinstance(e.value.__cause__, _compat.NETWORK_ERRORS), repr(e.value.__cause__)
         assert "flt/killed" in str(e.value) and "cannot reach the Hub" in str(e.value)
-        assert not faulty.server.running  # the fault killed the server mid-upload
-        faulty.heal()
-        faulty.server.start()  # same root, same port
         commits = faulty.api.list_repo_commits("flt/killed")
         assert len(commits) == 1 and faulty.api.list_repo_files("flt/killed") == [".gitattributes"]  # only create_repo's
 

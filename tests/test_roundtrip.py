@@ -156,7 +156,7 @@ def test_untrusted_load_imports_and_registers_nothing_and_tofu_is_keyed_by_sha(h
     assert snapshot_registries() == before
     assert not any(name.startswith("hub_envs_code.mallory") for name in list(__import__("sys").modules))
 
-    trust.trust("mallory/tiny", first.sha)
+    trust("mallory/tiny", first.sha)  # the function (hub_envs.trust), bound to the manifest it reads
     loaded = load_env(f"mallory/tiny@{first.sha}")
     assert marker.exists() and loaded.report.trust.startswith("trust list")
     loaded.unregister()

@@ -1,6 +1,7 @@
 """The loopback Hub server, driven only through the unmodified ``huggingface_hub`` client
 (``HfApi``, ``snapshot_download``, ``hf_hub_download``, ``HfFileSystem``) — plus a few raw HTTP
-requests where the client itself would refuse to send what an attacker would.
+requests: what the client itself would refuse to send but an attacker would, and the request
+formats of the huggingface_hub version not under test (0.x and 1.x differ in places).
 """
 
 from __future__ import annotations
@@ -142,6 +143,41 @@ def test_private_flag_is_kept_reported_and_updatable(shared):
     assert {m.id for m in shared.api.list_models(author=ns)} == {f"{ns}/secret", f"{ns}/open"}
 
 
+def test_private_flag_is_understood_as_either_client_version_sends_it(shared):
+    # huggingface_hub 0.x sends {"private": bool}, 1.x {"visibility": "public" | "private" | "protected"};
+    # the client under test sends only one of them, so both are also sent raw here.
+    ns, api = shared.ns, shared.api
+
+    def create(name: str, repo_type: str = "model", **fields) -> requests.Response:
+        body = {"name": name, "organization": ns, "type": repo_type, **fields}
+        return requests.post(f"{shared.endpoint}/api/repos/create", json=body)
+
+    def settings(name: str, **fields) -> requests.Response:
+        return requests.put(f"{shared.endpoint}/api/models/{ns}/{name}/settings", json=fields)
+
+    for name, fields, private in (
+        ("old-private", {"private": True}, True),
+        ("old-public", {"private": False}, False),
+        ("new-private", {"visibility": "private"}, True),
+        ("new-public", {"visibility": "public"}, False),
+        ("both", {"private": True, "visibility": "private"}, True),
+        ("unsaid", {}, False),
+    ):
+        assert create(name, **fields).status_code == 200, name
+        assert api.model_info(f"{ns}/{name}").private is private, name
+    assert create("demo", "space", sdk="static", visibility="protected").status_code == 200
+    assert api.space_info(f"{ns}/demo").private is True  # no app runs here: its files stay private
+
+    assert settings("old-private", visibility="public").json() == {"private": False}
+    assert settings("old-public", private=True).json() == {"private": True}
+    assert settings("new-private", gated=False).json() == {"private": True}  # unsaid: unchanged
+    for fields in ({"visibility": "protected"}, {"visibility": "secret"}, {"private": "yes"},
+                   {"private": True, "visibility": "public"}):
+        assert create("refused", **fields).status_code == 400, fields
+        assert settings("new-public", **fields).status_code == 400, fields
+    assert not api.repo_exists(f"{ns}/refused") and api.model_info(f"{ns}/new-public").private is False
+
+
 def test_delete_repo(shared):
     ns = shared.ns
     shared.api.create_repo(f"{ns}/gone", repo_type="dataset")
@@ -158,8 +194,11 @@ def test_delete_repo(shared):
 def test_whoami(shared, hub_with_token):
     assert shared.api.whoami(token="whatever")["name"] == "local"
     assert hub_with_token.api.whoami()["name"] == "local"
-    with pytest.raises(requests.HTTPError):
+    # 0.x re-raises a 401 here as a plain requests.HTTPError, 1.x as HfHubHTTPError (an httpx.HTTPError)
+    with pytest.raises((requests.HTTPError, HfHubHTTPError)) as exc:
         HfApi(endpoint=hub_with_token.endpoint, token="wrong").whoami()
+    assert exc.value.response.status_code == 401
+    assert exc.value.response.headers["X-Error-Message"] == "Invalid credentials in Authorization header"
 
 
 # --- uploads and downloads ----------------------------------------------------------------------
@@ -664,9 +703,19 @@ def test_paths_escaping_the_repo_are_refused(hub, tmp_path):
 
     with pytest.raises(ValueError):  # the client refuses the obvious one itself
         _commit(api, "alice/env", {"../x": b"x"})
-    for path in ("a/../../evil.txt", "a\\..\\evil.txt", "sub/./evil.txt"):  # the client lets these through
-        with pytest.raises(BadRequestError):
-            _commit(api, "alice/env", {path: b"pwned"})
+    # Through the client, each of these is refused: by the server (400), or by the client before it
+    # sends anything (huggingface_hub >= 1.0 rejects a ".." segment anywhere; 0.x only a leading one).
+    # Either way the server must refuse it too, so it is also sent raw.
+    for path in ("a/../../evil.txt", "a\\..\\evil.txt", "sub/./evil.txt"):
+        try:
+            operation = _add(path, b"pwned")
+        except ValueError as err:  # refused by the client
+            assert ".." in path.split("/") and "Invalid `path_in_repo`" in str(err), (path, err)
+        else:
+            with pytest.raises(BadRequestError):
+                api.create_commit("alice/env", [operation], commit_message="evil")
+        response = _raw_commit(hub.endpoint, "alice/env", path)
+        assert response.status_code == 400, (path, response.text)
     for path in ("../evil.txt", "/etc/evil.txt", "a/../../../evil.txt", "a//evil", "a\x00b", ".git/config", ".."):
         response = _raw_commit(hub.endpoint, "alice/env", path)
         assert response.status_code == 400, (path, response.text)

@@ -1,5 +1,6 @@
 """The HTTP routes of the loopback Hub server: the subset of the Hugging Face Hub API that
-``huggingface_hub`` (0.34/0.35) uses to create repos, commit, tag, list and download.
+``huggingface_hub`` (0.34/0.35, requests-based, and 1.x, httpx-based) uses to create repos, commit,
+tag, list and download.
 
 Requests are routed on the *raw* (still percent-encoded) path, split on ``/`` before decoding,
 because the client percent-encodes revisions and tree paths as single segments
@@ -10,6 +11,8 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
 * Errors carry ``X-Error-Code`` (``RepoNotFound``, ``RevisionNotFound``, ``EntryNotFound``) and
   ``X-Error-Message`` headers and a ``{"error": message}`` body, so the client raises its typed
   errors. A missing or private repo answers 401 to anonymous callers and 404 to authenticated ones.
+* Repo privacy comes as ``"private": bool`` (0.x clients) or ``"visibility"`` (1.x clients) in
+  ``/api/repos/create`` and ``PUT .../settings``; both are understood, and repo info reports ``private``.
 * ``/preupload`` always answers ``uploadMode: "regular"``: file contents come inline, base64, in
   the NDJSON commit payload, so no LFS or Xet endpoint exists here. It also returns the ``oid`` of
   files already present, which lets the client skip no-op commits as it does against the Hub.
@@ -431,10 +434,9 @@ class HubApp:
         if repo_type == "space" and sdk not in _SPACE_SDKS:
             raise HTTPError(400, f"Invalid space sdk {sdk!r}: expected one of {', '.join(_SPACE_SDKS)}.")
         repo_id = f"{organization or user}/{name}"
+        private = _requested_private(data, repo_type)
         try:
-            repo = self.store.create_repo(
-                repo_type, repo_id, author=user, private=bool(data.get("private", False)), sdk=sdk
-            )
+            repo = self.store.create_repo(repo_type, repo_id, author=user, private=bool(private), sdk=sdk)
         except RepoExistsError:
             # the Hub sends the url along, and `create_repo(exist_ok=True)` returns it
             existing = self.store.open(repo_type, repo_id)
@@ -521,8 +523,9 @@ class HubApp:
         data = self._body_json(ctx)
         if data.get("gated") not in (None, False, "false"):
             raise HTTPError(400, "Gated repos are not supported by the hub-envs server.")
-        if "private" in data and data["private"] is not None:
-            repo.set_private(bool(data["private"]))
+        private = _requested_private(data, repo_type)
+        if private is not None:
+            repo.set_private(private)
         return _json({"private": repo.meta.private})
 
     # -- tree and files ------------------------------------------------------------------------
@@ -814,6 +817,30 @@ class HubApp:
 
 
 # --- small helpers ----------------------------------------------------------------------------
+
+
+def _requested_private(data: dict, repo_type: str) -> bool | None:
+    """Whether a create-repo or settings body asks for a private repo; None if it does not say.
+
+    huggingface_hub 0.x sends ``"private": true/false``; 1.x sends ``"visibility": "public" |
+    "private" | "protected"`` (``protected``, Spaces only, keeps the files private while the app is
+    public; this server runs no apps, so it is private here). Both are accepted; if a body carries
+    both, they must agree.
+    """
+    private = data.get("private")
+    if private is not None and not isinstance(private, bool):
+        raise HTTPError(400, f"Invalid 'private' {private!r}: expected true or false.")
+    visibility = data.get("visibility")
+    if visibility is None:
+        return private
+    if visibility not in ("public", "private", "protected"):
+        raise HTTPError(400, f"Invalid 'visibility' {visibility!r}: expected 'public', 'private' or 'protected'.")
+    if visibility == "protected" and repo_type != "space":
+        raise HTTPError(400, "Only Spaces can be 'protected'. Set visibility to 'public' or 'private'.")
+    from_visibility = visibility != "public"
+    if private is not None and private != from_visibility:
+        raise HTTPError(400, f"'private' ({private}) and 'visibility' ({visibility!r}) disagree: send one of them.")
+    return from_visibility
 
 
 def format_date_now() -> str:

@@ -1,0 +1,186 @@
+"""Trust on first use: the local list of commits whose code the user agreed to run.
+
+Consent names one repo, one commit sha AND the content digest of that commit's manifest (the sha256
+over every file it lists). A commit sha alone is what the endpoint says it is: a hostile or rewritten
+endpoint could serve other, consistently re-hashed files under a trusted sha. With the digest bound
+in, consent covers exactly the bytes that were looked at, and nothing else runs without a new prompt.
+
+The list is ``trusted.json`` in :func:`hub_envs.paths.hub_envs_home` (outside the Hugging Face cache),
+written atomically under a file lock, so two ``hub-envs trust`` at once lose no entry. Entries written
+by hub-envs before content binding (sha only) are never honoured silently: ``load_env`` says so and
+``hub-envs trust`` records them again with their digest.
+
+Example:
+    >>> import os, tempfile
+    >>> os.environ["HUB_ENVS_HOME"] = tempfile.mkdtemp()
+    >>> from hub_envs.trust_list import read_trust_list, trust
+    >>> trust("user/pendulum", "a" * 40, content_digest="b" * 64)
+    >>> read_trust_list().covers("user/pendulum", "a" * 40, "b" * 64)
+    True
+    >>> read_trust_list().covers("user/pendulum", "a" * 40, "c" * 64)   # other content under the same sha
+    False
+
+From the shell: ``hub-envs trust user/pendulum-lerobot@<sha>``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Iterator
+
+from hub_envs.errors import ConfigError
+from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
+from hub_envs.repo_format import is_commit_sha
+
+TRUST_FILE = "trusted.json"
+FORMAT = 2
+_DIGEST = re.compile(r"[0-9a-f]{64}")
+
+
+def trust_file() -> Path:
+    return hub_envs_home() / TRUST_FILE
+
+
+@dataclass(frozen=True)
+class TrustEntry:
+    """Consent to run ``repo_id`` at commit ``sha`` whose manifest has ``content_digest``."""
+
+    repo_id: str
+    sha: str
+    content_digest: str
+    trusted_at: str
+
+
+@dataclass(frozen=True)
+class TrustList:
+    """The trust list as read at one moment: decisions use this copy, never a later re-read."""
+
+    entries: tuple[TrustEntry, ...]
+    path: Path
+
+    def covers(self, repo_id: str, sha: str, content_digest: str) -> bool:
+        return any(e.repo_id == repo_id and e.sha == sha and e.content_digest == content_digest for e in self.entries)
+
+    def previous(self, repo_id: str) -> list[TrustEntry]:
+        """The entries of ``repo_id``, oldest first."""
+        return sorted((e for e in self.entries if e.repo_id == repo_id), key=lambda e: e.trusted_at)
+
+
+def _parse(data: object, path: Path) -> list[TrustEntry]:
+    bad = ConfigError(f"The trust list {path} is not in the format hub-envs writes. Fix or delete it, then trust repos again "
+                      f"(hub-envs trust user/name@<sha>).")
+    if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("entries"), dict):
+        raise bad
+    out = []
+    for repo_id, shas in data["entries"].items():
+        if not isinstance(shas, dict):
+            raise bad
+        for sha, entry in shas.items():
+            if not (is_commit_sha(sha) and isinstance(entry, dict) and isinstance(entry.get("content_digest"), str)
+                    and _DIGEST.fullmatch(entry["content_digest"])):
+                raise bad
+            out.append(TrustEntry(str(repo_id), sha, entry["content_digest"], str(entry.get("trusted_at", ""))))
+    return out
+
+
+def _load(path: Path) -> list[TrustEntry]:
+    if not path.is_file():
+        return []
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        raise ConfigError(f"The trust list {path} is not valid JSON. Fix or delete it, then trust repos again.") from None
+    return _parse(data, path)
+
+
+def read_trust_list() -> TrustList:
+    """The trust list now (an empty one when there is no file yet)."""
+    path = trust_file()
+    return TrustList(tuple(_load(path)), path)
+
+
+def legacy_trusted(repo_id: str, sha: str) -> bool:
+    """Whether an older hub-envs (sha-only entries, kept under ``$HF_HOME/hub_envs``) trusted ``repo_id@sha``."""
+    path = legacy_hub_envs_home() / TRUST_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+        return False
+    entry = data.get(repo_id) if isinstance(data, dict) else None
+    return isinstance(entry, dict) and sha in entry
+
+
+@contextlib.contextmanager
+def _locked() -> Iterator[Path]:
+    path = trust_file()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.parent / f".{TRUST_FILE}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield path
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _write(path: Path, entries: list[TrustEntry]) -> None:
+    data: dict = {"format": FORMAT, "entries": {}}
+    for e in entries:
+        data["entries"].setdefault(e.repo_id, {})[e.sha] = {"content_digest": e.content_digest, "trusted_at": e.trusted_at}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".trusted-")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(data, f, indent=2, sort_keys=True)
+    os.replace(tmp, path)
+
+
+def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
+    """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub)."""
+    from hub_envs import hub_io
+    from hub_envs.repo_format import Manifest
+
+    return Manifest.from_json(hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json").content_digest
+
+
+def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: str | None = None) -> None:
+    """Record consent to run the code of ``repo_id`` at commit ``sha``, bound to its manifest's content digest.
+
+    ``content_digest`` defaults to the one the commit's manifest records (read from the local cache when
+    load_env already fetched it, which is what you looked at, else from the Hub).
+    """
+    from hub_envs import hub_io
+
+    repo_id, _ = hub_io.parse_repo_ref(repo_id)
+    if not is_commit_sha(sha):
+        raise ConfigError(
+            f"Trust is given to an exact commit, not {sha!r}. Resolve it first, e.g. "
+            f"`hub-envs trust {repo_id}@<40-hex sha>` (load_env prints the sha it resolved)."
+        )
+    digest = content_digest if content_digest is not None else manifest_digest(repo_id, sha, token=token)
+    if not _DIGEST.fullmatch(digest):
+        raise ConfigError(f"content_digest {digest!r} is not a sha256 hex digest.")
+    with _locked() as path:
+        entries = [e for e in _load(path) if not (e.repo_id == repo_id and e.sha == sha)]
+        entries.append(TrustEntry(repo_id, sha, digest, datetime.now(timezone.utc).isoformat()))
+        _write(path, entries)
+
+
+def untrust(repo_id: str, sha: str | None = None) -> int:
+    """Withdraw consent for one sha (or every sha when ``sha`` is None). Returns how many were removed."""
+    with _locked() as path:
+        entries = _load(path)
+        keep = [e for e in entries if not (e.repo_id == repo_id and (sha is None or e.sha == sha))]
+        _write(path, keep)
+    return len(entries) - len(keep)
+
+
+def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
+    """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
+    digest = content_digest if content_digest is not None else manifest_digest(repo_id, sha)
+    return read_trust_list().covers(repo_id, sha, digest)

@@ -1,0 +1,253 @@
+"""No code runs without consent, and consent for one commit never runs another: against a hostile repo
+AND a hostile endpoint (a rewriting proxy in front of the real loopback Hub, :mod:`lying_endpoint`).
+
+Each test reproduces one attack of the red-team findings with the real client, server, cache and
+loaders; the payload is env code that writes a marker file when imported, so "nothing ran" is a fact
+the test can check.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from hub_envs import env_from_dataset, errors, load_env, push_env, trust
+from hub_envs.hub_io import parse_repo_ref
+from hub_envs.load import UnpinnedRevisionWarning
+from hub_envs.paths import hub_envs_home
+from hub_envs.testing import hub_environment
+from helpers import TINY, copy_env
+from lying_endpoint import LyingEndpoint
+
+PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
+
+
+@pytest.fixture
+def marker(tmp_path, monkeypatch) -> Path:
+    path = tmp_path / "pwned-marker"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(path))
+    return path
+
+
+def _push(folder: Path, repo_id: str):
+    return push_env(folder, repo_id, episodes=1, progress=False)
+
+
+@pytest.fixture
+def two_commits(hub, tmp_path, marker):
+    """mallory/env: commit A (benign) and then commit B whose code writes the marker when imported."""
+    a = _push(TINY, "mallory/env")
+    b = _push(copy_env(tmp_path, name="evil", edits={"tiny.py": lambda s: PAYLOAD + s}), "mallory/env")
+    marker.unlink(missing_ok=True)  # push_env imported B's code on the publisher's side
+    return a.sha, b.sha
+
+
+def _swap(a: str, b: str):
+    """A proxy that serves commit ``b`` whenever ``a`` is asked for, and says it is ``a``."""
+
+    def path(method: str, p: str) -> str:
+        return p.replace(a, b)
+
+    def answer(method, p, status, headers, body):
+        headers = {k: (v.replace(b, a) if k.lower() == "x-repo-commit" else v) for k, v in headers.items()}
+        if p.startswith("/api/"):
+            body = body.replace(b.encode(), a.encode())
+        return status, headers, body
+
+    return path, answer
+
+
+# --- 1. a dataset names its env: data, never a path ------------------------------------------
+
+
+@pytest.mark.parametrize("named", ["./payload", "/ABS/payload", "~/payload", "mallory/env@main", "mallory/env\n"])
+def test_a_dataset_naming_a_local_folder_never_runs_its_code(hub, tmp_path, marker, monkeypatch, named):
+    sha = _push(TINY, "alice/tiny").sha
+    snapshot = load_env(f"alice/tiny@{sha}", trust_remote_code=True, check=False)
+    snapshot.unregister()
+    payload = copy_env(tmp_path, name="payload", edits={"tiny.py": lambda s: PAYLOAD + s})
+    marker.unlink(missing_ok=True)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    dataset = shutil.copytree(snapshot.path / "dataset", tmp_path / "dataset-copy")
+    info = json.loads((dataset / "meta" / "info.json").read_text())
+    info["hub_envs"]["env_meta"]["env_repo_id"] = named.replace("/ABS", str(tmp_path))
+    (dataset / "meta" / "info.json").write_text(json.dumps(info))
+    assert payload.is_dir()
+
+    with pytest.raises(errors.ReproductionError, match="not a Hub repo id"):
+        env_from_dataset(dataset)  # no consent given: nothing may run
+    assert not marker.exists()
+
+
+# --- 2. consent binds one commit and its content ------------------------------------------------
+
+
+def test_a_pinned_commit_served_as_another_is_refused(hub, tmp_path, marker, two_commits):
+    a, b = two_commits
+    path, _ = _swap(a, b)
+    with LyingEndpoint(hub.endpoint, rewrite_path=path) as lie, hub_environment(lie.endpoint, tmp_path / "victim"):
+        with pytest.raises(errors.IntegrityError, match=f"served commit {b} instead"):
+            load_env(f"mallory/env@{a}", trust_remote_code=True)
+    assert not marker.exists()
+
+
+def test_trust_in_a_commit_does_not_cover_other_content_served_under_its_id(hub, tmp_path, marker, two_commits):
+    a, b = two_commits
+    trust("mallory/env", a)  # reads A's manifest from the real Hub: consent is bound to A's content
+    path, answer = _swap(a, b)
+    with LyingEndpoint(hub.endpoint, rewrite_path=path, rewrite_answer=answer) as lie, \
+            hub_environment(lie.endpoint, tmp_path / "victim"):
+        os.environ["HUB_ENVS_HOME"] = str(hub_envs_home_of(hub))  # the trust list that holds A
+        with pytest.raises(errors.UntrustedCodeError, match="for other content"):
+            load_env(f"mallory/env@{a}")
+    assert not marker.exists()
+
+
+def hub_envs_home_of(hub) -> Path:
+    return hub.hf_home.parent / f"{hub.hf_home.name}.hub-envs"
+
+
+def test_trust_entries_of_an_older_hub_envs_are_not_honoured_silently(hub, tmp_path, marker, two_commits):
+    _, b = two_commits
+    legacy = hub.hf_home / "hub_envs" / "trusted.json"  # where hub-envs kept sha-only entries
+    legacy.parent.mkdir(parents=True)
+    legacy.write_text(json.dumps({"mallory/env": {b: "2026-01-01T00:00:00+00:00"}}))
+    with pytest.raises(errors.UntrustedCodeError, match="by its sha alone"):
+        load_env(f"mallory/env@{b}")
+    assert not marker.exists()
+    trust("mallory/env", b)  # the interactive re-confirmation records the content digest
+    load_env(f"mallory/env@{b}", check=False).unregister()
+    assert marker.exists()
+
+
+# --- 3 and 10. a header the client would turn into a path ------------------------------------
+
+
+def _relative(target: Path, start: Path) -> str:
+    return os.path.relpath(target, start)
+
+
+@pytest.mark.parametrize("header", ["ETag", "X-Linked-Etag", "X-Repo-Commit"])
+def test_a_hostile_header_is_refused_before_the_client_writes_anything(hub, tmp_path, marker, two_commits, header):
+    """The red-team's one-call consent bypass: a file whose ETag is a path to the trust list, whose body
+    trusts the payload commit. Refused on every huggingface_hub version in the test matrix."""
+    _, b = two_commits
+    victim = tmp_path / "victim"
+    blobs = victim / "hub" / "models--mallory--env" / "blobs"
+    trust_file = victim.parent / f"{victim.name}.hub-envs" / "trusted.json"
+    evil_list = json.dumps({"format": 2, "entries": {"mallory/env": {b: {"content_digest": "0" * 64, "trusted_at": "x"}}}}).encode()
+
+    def answer(method, p, status, headers, body):
+        if "/resolve/" in p and p.endswith("/tiny.py"):
+            value = f'"{_relative(trust_file, blobs)}"' if header != "X-Repo-Commit" else "../../../../escaped-commit"
+            headers = {**headers, header: value}
+            body = evil_list if method == "GET" else body
+        return status, headers, body
+
+    with LyingEndpoint(hub.endpoint, rewrite_answer=answer) as lie, hub_environment(lie.endpoint, victim):
+        with pytest.raises(errors.HostileResponseError, match=header):
+            load_env(f"mallory/env@{b}")
+    assert not trust_file.exists() and not marker.exists()
+    assert not list(tmp_path.rglob("escaped-commit"))
+
+
+def test_hub_envs_state_lives_outside_the_hf_cache(hub):
+    assert hub.hf_home not in hub_envs_home().parents and hub_envs_home() != hub.hf_home
+
+
+# --- 5. the content tag ------------------------------------------------------------------------
+
+
+def test_the_content_tag_pins_content(hub, tmp_path, marker, two_commits):
+    a, b = two_commits
+    tag = next(t.name for t in hub.api.list_repo_refs("mallory/env").tags if t.target_commit == a)
+    with _no_unpinned_warning():
+        load_env(f"mallory/env@{tag}", trust_remote_code=True, check=False).unregister()  # what the card pins
+    hub.api.delete_tag("mallory/env", tag=tag)
+    hub.api.create_tag("mallory/env", tag=tag, revision=b)  # moved onto other content
+    marker.unlink(missing_ok=True)
+    with pytest.raises(errors.IntegrityError, match=f"the tag {tag} names content"):
+        load_env(f"mallory/env@{tag}", trust_remote_code=True)
+    assert not marker.exists()
+
+
+class _no_unpinned_warning:
+    def __enter__(self):
+        import warnings
+
+        self._cm = warnings.catch_warnings(record=True)
+        self._rec = self._cm.__enter__()
+        warnings.simplefilter("always")
+
+    def __exit__(self, *exc):
+        self._cm.__exit__(*exc)
+        assert not [w for w in self._rec if issubclass(w.category, UnpinnedRevisionWarning)]
+
+
+# --- 6 and 10. a snapshot that failed is not left for anyone to run ----------------------------
+
+
+def test_planted_env_py_bytecode_is_removed_with_the_snapshot_and_never_runs_on_lerobots_path(hub, tmp_path, marker):
+    import importlib.util
+    import py_compile
+
+    from helpers import republish
+
+    sha = _push(TINY, "mallory/pyc").sha
+    evil = tmp_path / "env.py"
+    evil.write_text(PAYLOAD + "def make_env(*a, **k):\n    raise SystemExit('pwned')\n")
+
+    def plant(folder: Path) -> None:
+        cfile = Path(importlib.util.cache_from_source(str(folder / "env.py")))
+        py_compile.compile(str(evil), cfile=str(cfile), invalidation_mode=py_compile.PycInvalidationMode.UNCHECKED_HASH)
+
+    sha = republish(hub.api, "mallory/pyc", plant, fix_hashes=False)
+    marker.unlink(missing_ok=True)
+    with pytest.raises(errors.IntegrityError, match="unlisted"):
+        load_env(f"mallory/pyc@{sha}", trust_remote_code=True)
+    assert not (hub.hf_home / "hub" / "models--mallory--pyc" / "snapshots" / sha).exists()
+
+    from lerobot.envs.factory import make_env
+
+    envs = make_env(f"mallory/pyc@{sha}", n_envs=1, trust_remote_code=True)
+    next(iter(next(iter(envs.values())).values())).close()
+    assert not marker.exists()
+
+
+def test_a_cached_snapshot_linking_outside_its_blobs_or_holding_extra_files_is_refused_then_healed(hub, tmp_path, marker):
+    sha = _push(TINY, "alice/layout").sha
+    load_env(f"alice/layout@{sha}", trust_remote_code=True, check=False).unregister()
+    snap = hub.hf_home / "hub" / "models--alice--layout" / "snapshots" / sha
+    outside = tmp_path / "outside-tiny.py"
+    outside.write_bytes((snap / "tiny.py").read_bytes())  # the same bytes: sha256 alone would pass
+    (snap / "tiny.py").unlink()
+    (snap / "tiny.py").symlink_to(outside)
+    (snap / "notes.txt").write_text("not from any download")
+    with hub_environment(hub.endpoint, hub.hf_home, offline=True):
+        with pytest.raises(errors.IntegrityError) as e:
+            load_env(f"alice/layout@{sha}", trust_remote_code=True, check=False)
+    assert "a link outside the cache's blobs/" in str(e.value) and "notes.txt (not in the manifest)" in str(e.value)
+    assert not snap.exists()  # removed: the next online load downloads the commit afresh
+    load_env(f"alice/layout@{sha}", trust_remote_code=True, check=False).unregister()
+    assert (snap / "tiny.py").resolve().parent.name == "blobs"
+
+
+# --- 15. small ones --------------------------------------------------------------------------
+
+
+def test_the_trust_function_is_importable_from_the_package():
+    import hub_envs
+    import hub_envs.trust_list  # noqa: F401  (importing the module must not shadow the function)
+
+    assert callable(hub_envs.trust) and hub_envs.trust is hub_envs.trust_list.trust
+
+
+@pytest.mark.parametrize("ref", ["user/name\n", "user/name\x1b[2J", "user/naïve", "./user/name", "/abs/name", "~/x/y"])
+def test_repo_ids_are_repo_ids(ref):
+    with pytest.raises(errors.ConfigError):
+        parse_repo_ref(ref)
