@@ -34,14 +34,17 @@ Example:
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hub_envs.errors import ReproductionError
+from hub_envs._text import printable
+from hub_envs.errors import ReproductionError, UntrustedCodeError
 from hub_envs.rollout import iter_episodes
 
 __all__ = ["MetricResult", "BenchmarkResult", "BenchmarkRun", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
@@ -135,7 +138,40 @@ class BenchmarkResult:
 # --- policies ---------------------------------------------------------------------------------
 
 
-def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None = None) -> Callable[[Any, int], np.ndarray]:
+def _processor_classes(path: str) -> list[str]:
+    """The ``"class"`` entries of a checkpoint's ``policy_*processor.json``: what LeRobot's factory would import."""
+    import glob
+    import json
+
+    out = []
+    for file in sorted(glob.glob(os.path.join(path, "*processor*.json"))):
+        try:
+            steps = json.loads(Path(file).read_text(encoding="utf-8")).get("steps", [])
+        except (OSError, ValueError, AttributeError, RecursionError):
+            continue
+        out += [str(s["class"]) for s in steps if isinstance(s, dict) and isinstance(s.get("class"), str)]
+    return out
+
+
+def _check_policy_consent(repo_id: str, revision: str, path: str, trusted: Any, trust_policy_code: bool) -> None:
+    """A policy checkpoint is a second repo whose loading runs code (LeRobot's processor factory imports the
+    classes its JSON names): the same gate as the env's, with its own consent."""
+    from hub_envs.trust_list import snapshot_digest
+
+    if trust_policy_code or trusted.covers(repo_id, revision, snapshot_digest(Path(path))):
+        return
+    classes = _processor_classes(path)
+    raise UntrustedCodeError(
+        f"benchmark policy {repo_id}@{revision} is another repo than the env, and loading it can run code"
+        + (f" (LeRobot's processor factory would import {', '.join(printable(c) for c in classes)})" if classes else "")
+        + f"; nothing of it was loaded. Consent to the env does not cover it. Read it in {path}, then pass "
+        f"trust_policy_code=True (hub-envs reproduce --trust_policy_code=true) or trust this exact commit once:\n"
+        f"  hub-envs trust {repo_id}@{revision}"
+    )
+
+
+def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None = None,
+                       trust_policy_code: bool = False) -> Callable[[Any, int], np.ndarray]:
     """A LeRobot pretrained policy at a pinned commit, as the rollout engine's ``(obs, t) -> action``."""
     from hub_envs import hub_io
     from hub_envs.repo_format import is_commit_sha
@@ -157,16 +193,18 @@ def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None =
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     except ImportError as exc:  # pragma: no cover - lerobot is a dependency
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
+    from hub_envs.trust_list import read_trust_list
+
+    trusted = read_trust_list()  # before the download, as load_env does
     with hub_io.translate_hub_errors(repo_id, revision):
         path = snapshot_download(repo_id, revision=revision, token=token)
+    _check_policy_consent(repo_id, revision, path, trusted, trust_policy_code)
     torch.set_num_threads(1)  # see act(): identical results in every worker, no OpenMP pool across fork
     try:
         cfg = PreTrainedConfig.from_pretrained(path)
         cfg.device = "cpu"
         policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
         policy.eval()
-        import os
-
         if os.path.isfile(os.path.join(path, "policy_preprocessor.json")):
             pre, post = make_pre_post_processors(cfg, pretrained_path=path,
                                                  preprocessor_overrides={"device_processor": {"device": "cpu"}})
@@ -207,12 +245,12 @@ def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None =
     return act
 
 
-def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None) -> Any:
+def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None, trust_policy_code: bool = False) -> Any:
     kind = str(spec.get("type", "")).lower()
     if kind == "random":
         return None
     if kind in ("lerobot", "checkpoint", "pretrained"):
-        return _checkpoint_policy(spec, loaded, token=token)
+        return _checkpoint_policy(spec, loaded, token=token, trust_policy_code=trust_policy_code)
     raise ReproductionError(
         f"benchmark policy type {spec.get('type')!r} is not supported; hub-envs reproduces \"random\" and "
         f"\"lerobot\" (a LeRobot pretrained policy pinned as \"checkpoint\": \"user/policy@<sha>\")."
@@ -247,7 +285,7 @@ class BenchmarkRun:
     """
 
     def __init__(self, loaded: Any, benchmark: dict[str, Any], *, resamples: int = 1000, confidence: float = 0.95,
-                 seed: int = 0, token: str | None = None):
+                 seed: int = 0, token: str | None = None, trust_policy_code: bool = False):
         t0 = time.perf_counter()
         self.benchmark = benchmark
         self.name = str(benchmark.get("name", "benchmark"))
@@ -268,8 +306,8 @@ class BenchmarkRun:
             self.result.error = f"metric(s) {unknown} cannot be recomputed (hub-envs knows {sorted(METRICS)})"
         else:
             try:
-                self.policy = _policy_for(policy_spec, loaded, token)
-            except ReproductionError as exc:
+                self.policy = _policy_for(policy_spec, loaded, token, trust_policy_code)
+            except (ReproductionError, UntrustedCodeError) as exc:
                 self.result.error = str(exc)
         self._seconds = time.perf_counter() - t0
 
@@ -324,13 +362,15 @@ def reproduce_benchmark(
     seed: int = 0,
     progress: bool = True,
     token: str | None = None,
+    trust_policy_code: bool = False,
 ) -> BenchmarkResult:
     """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) and compare its metrics.
 
     An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
     than raising, so the other parts of a reproduction still report.
     """
-    run = BenchmarkRun(loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token)
+    run = BenchmarkRun(loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token,
+                       trust_policy_code=trust_policy_code)
     t = time.perf_counter()
     try:
         if run.runnable:

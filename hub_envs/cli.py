@@ -122,9 +122,9 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
     if sha is None or not hub_io.is_commit_sha(sha):
         raise ConfigError(f"Trust is given to an exact commit: hub-envs trust {repo_id}@<40-hex sha> "
                           f"(load_env and the card print the sha).")
-    digest = trust_list.manifest_digest(repo_id, sha)
+    digest = trust_list.commit_digest(repo_id, sha)
     trust_list.trust(repo_id, sha, content_digest=digest)
-    print(f"Trusted {repo_id}@{sha} (manifest content {digest[:16]}…): load_env will run its code at this commit, "
+    print(f"Trusted {repo_id}@{sha} (content {digest[:16]}…): hub-envs will run its code at this commit, "
           f"with exactly this content, without asking.")
     return 0
 

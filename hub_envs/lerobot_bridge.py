@@ -89,13 +89,14 @@ def _resolve_short_sha(repo_id: str, prefix: str) -> str:
 
 def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
     """Register hub-envs' choices, pre-load the env the flags name, and return (argv for LeRobot, LoadedEnv or None)."""
-    from hub_envs.lerobot_env import HUB_CHOICE, install_hooks, load_cached
+    from hub_envs.lerobot_env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent
 
     install_hooks()
     argv = list(argv)
     env_type = flag(argv, "env.type")
     top_trust = command in ("eval", "plugin") and _true(flag(argv, "trust_remote_code"))
     trust = _true(flag(argv, "env.trust_remote_code")) or top_trust
+    set_cli_consent(trust)  # the command line's consent, and only it: a --config_path file's value is ignored
     fingerprint = flag(argv, "env.fingerprint") or "error"
     check = flag(argv, "env.check")
     check = True if check is None else _true(check)
@@ -105,8 +106,6 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
         if not repo_id:
             raise ConfigError("--env.type=hub needs --env.repo_id=user/name (and --env.revision=<sha> to pin it).")
         loaded = load_cached(repo_id, flag(argv, "env.revision"), trust_remote_code=trust, fingerprint=fingerprint, check=check)
-        if top_trust and flag(argv, "env.trust_remote_code") is None:
-            argv.append("--env.trust_remote_code=true")  # LeRobot's own consent flag counts for the env too
     elif env_type and _PER_REPO_RE.match(env_type):
         m = _PER_REPO_RE.match(env_type)
         repo_id = flag(argv, "env.repo_id") or m["repo"]
@@ -280,6 +279,23 @@ def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
 # --- the commands -----------------------------------------------------------------------------
 
 
+def _forgets_cli_consent(command: Callable[[list[str]], int]) -> Callable[[list[str]], int]:
+    """The command line's consent lasts for that command only (``hub-envs train`` may run inside a Python process)."""
+    import functools
+
+    @functools.wraps(command)
+    def run(argv: list[str]) -> int:
+        from hub_envs.lerobot_env import set_cli_consent
+
+        try:
+            return command(argv)
+        finally:
+            set_cli_consent(None)
+
+    return run
+
+
+@_forgets_cli_consent
 def train_cli(argv: list[str]) -> int:
     """``hub-envs train <LeRobot's lerobot-train flags>``."""
     missing = missing_training_packages()
@@ -308,6 +324,7 @@ def train_cli(argv: list[str]) -> int:
     return 0
 
 
+@_forgets_cli_consent
 def eval_cli(argv: list[str]) -> int:
     """``hub-envs eval <LeRobot's lerobot-eval flags>``."""
     argv, _ = prepare_argv(argv, command="eval")

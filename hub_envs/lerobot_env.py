@@ -46,14 +46,27 @@ from hub_envs.registration import owner_of_choice
 
 HUB_CHOICE = "hub"
 
-#: (repo_id, revision, trust, fingerprint, check) -> LoadedEnv, so re-building a config does not re-run the checks.
+#: (repo_id, revision, fingerprint, check) -> LoadedEnv, so re-building a config does not re-run the checks.
+#: An entry exists only once load_env passed its trust gate for that exact commit in this process (its code
+#: is already imported here), so a config rebuilt later (decoded from train_config.json) reuses it.
 _CACHE: dict[tuple, LoadedEnv] = {}
+
+#: Consent given on the command line being parsed (hub-envs train / eval, LeRobot's CLIs through the plugin):
+#: while set, it is the only consent a hub env config gets; what a --config_path file says is ignored.
+_CLI_CONSENT: list[bool] = []
+
+
+def set_cli_consent(trust_remote_code: bool | None) -> None:
+    """Declare the consent of the command line LeRobot is about to parse (None: no command line, a Python call)."""
+    _CLI_CONSENT.clear()
+    if trust_remote_code is not None:
+        _CLI_CONSENT.append(bool(trust_remote_code))
 
 
 def load_cached(repo_id: str, revision: str | None = None, *, trust_remote_code: bool = False,
                 fingerprint: str = "error", check: bool = True) -> LoadedEnv:
     """:func:`hub_envs.load_env`, once per process for the same arguments."""
-    key = (repo_id, revision, bool(trust_remote_code), fingerprint, bool(check))
+    key = (repo_id, revision, fingerprint, bool(check))
     loaded = _CACHE.get(key)
     if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
         return loaded
@@ -64,7 +77,7 @@ def load_cached(repo_id: str, revision: str | None = None, *, trust_remote_code:
         raise UntrustedCodeError(f"{e}\nWith LeRobot's CLIs (hub-envs train / eval): add --env.trust_remote_code=true.") from None
     _CACHE[key] = loaded
     if not loaded.is_local:
-        _CACHE[(loaded.repo_id, loaded.revision, bool(trust_remote_code), fingerprint, bool(check))] = loaded
+        _CACHE[(loaded.repo_id, loaded.revision, fingerprint, bool(check))] = loaded
     return loaded
 
 
@@ -97,7 +110,9 @@ class HubEnv(EnvConfig):
     Fields (flags ``--env.<field>``):
         repo_id: ``user/name`` (``user/name@rev`` works too) or a local env folder.
         revision: a commit sha (pin it), tag or branch; replaced by the resolved sha once loaded.
-        trust_remote_code: consent to run the repo's code (or ``hub-envs trust user/name@sha`` once).
+        trust_remote_code: consent to run the repo's code (or ``hub-envs trust user/name@sha`` once). Only
+            from the command line (``--env.trust_remote_code=true``) or a Python call: never read from a
+            ``--config_path`` file, and always saved as ``false`` (a shared config cannot carry consent).
         overrides: values for the repo config's own fields, e.g. ``--env.overrides='{obs_type: pixels_agent_pos}'``.
         task, fps, episode_length: override the repo config's (default: the repo's).
         fingerprint: ``error`` / ``warn`` / ``off``, what a drifted golden rollout does at load.
@@ -118,7 +133,9 @@ class HubEnv(EnvConfig):
             raise ConfigError("--env.type=hub needs --env.repo_id=user/name (and --env.revision=<sha> to pin it).")
         if self.fingerprint not in ("error", "warn", "off"):
             raise ConfigError(f"--env.fingerprint={self.fingerprint!r}: use error, warn or off.")
-        loaded = load_cached(self.repo_id, self.revision, trust_remote_code=self.trust_remote_code,
+        consent = _CLI_CONSENT[0] if _CLI_CONSENT else bool(self.trust_remote_code)
+        self.trust_remote_code = False  # consent is not part of what a run's config describes, nor saved with it
+        loaded = load_cached(self.repo_id, self.revision, trust_remote_code=consent,
                              fingerprint=self.fingerprint, check=self.check)
         where = f"{loaded.repo_id}@{loaded.revision}"
         overrides = dict(self.overrides or {})
@@ -340,5 +357,5 @@ def install_hooks() -> None:
         setattr(lerobot_train, name, _DATASET_HOOKS[name])
 
 
-__all__ = ["HubEnv", "HUB_CHOICE", "TaskDescription", "install_hooks", "load_cached", "loaded_for", "make_env",
+__all__ = ["HubEnv", "HUB_CHOICE", "TaskDescription", "install_hooks", "load_cached", "loaded_for", "make_env", "set_cli_consent",
            "make_env_pre_post_processors", "make_vec_env", "make_dataset", "make_train_eval_datasets", "keep_declared_shapes"]

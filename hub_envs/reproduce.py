@@ -110,13 +110,14 @@ def _fingerprint(loaded: Any) -> dict[str, Any]:
 
 def _run_episodes(loaded: Any, *, replay: bool, benchmarks: bool, tolerance: float, workers: int,
                   episodes: list[int] | None, resamples: int, progress: bool, token: str | None,
-                  timings: dict[str, float]) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
+                  timings: dict[str, float], trust_policy_code: bool = False) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
     """The replay and the benchmark re-runs. Replayed episodes and random-policy benchmark episodes go
     through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own."""
     rep = Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance,
                  episodes=episodes) if replay else None
     try:
-        runs = [BenchmarkRun(loaded, b, resamples=resamples, token=token) for b in loaded.manifest.benchmarks] if benchmarks else []
+        runs = [BenchmarkRun(loaded, b, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
+                for b in loaded.manifest.benchmarks] if benchmarks else []
         time_limit = int(loaded.config.episode_length)  # load_env registers it as max_episode_steps
         longest = max([rep.max_steps] if rep is not None else [1])
         # a random-policy episode may join when a longer max_steps cannot change it: the env's time limit ends it first
@@ -175,6 +176,7 @@ def reproduce(
     progress: bool = True,
     write: bool = True,
     token: str | None = None,
+    trust_policy_code: bool = False,
 ) -> ReproduceReport:
     """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
 
@@ -189,6 +191,8 @@ def reproduce(
         episodes: replay only these episode indices (default: all).
         resamples: bootstrap resamples for the benchmark confidence intervals.
         progress: progress bars. write: write the report files.
+        trust_policy_code: consent to load the LeRobot policy checkpoints the benchmarks name (other repos than
+            the env: loading one can import code its processor config names). Or trust each with ``hub-envs trust``.
 
     Returns:
         A :class:`ReproduceReport`; ``report.reproduced`` is the verdict, ``report.paths`` the files.
@@ -230,7 +234,8 @@ def reproduce(
         t = time.perf_counter()
         replay_result, bench_results = _run_episodes(
             loaded, replay=replay and dataset_root is not None, benchmarks=benchmarks, tolerance=tolerance,
-            workers=workers, episodes=episodes, resamples=resamples, progress=progress, token=token, timings=timings)
+            workers=workers, episodes=episodes, resamples=resamples, progress=progress, token=token, timings=timings,
+            trust_policy_code=trust_policy_code)
         timings["episodes"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id, sha=loaded.revision, provenance=provenance, replay=replay_result,
@@ -259,6 +264,7 @@ class ReproduceArgs:
     repo_id: str | None = None
     revision: str | None = None
     trust_remote_code: bool = False
+    trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints the benchmarks name (other repos)
     workers: int = 0  # 0: up to 2 processes
     tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
     out: Path | None = None  # default reproduce-out/<user>/<name>/
@@ -273,7 +279,7 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
     report = reproduce(args.repo_id, revision=args.revision, trust_remote_code=args.trust_remote_code,
                        workers=args.workers or None, tolerance=args.tolerance, out=args.out, replay=args.replay,
-                       benchmarks=args.benchmarks, resamples=args.resamples)
+                       benchmarks=args.benchmarks, resamples=args.resamples, trust_policy_code=args.trust_policy_code)
     if args.json:
         print(report.to_json(), end="")
     else:

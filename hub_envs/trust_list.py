@@ -148,11 +148,38 @@ def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     return Manifest.from_json(hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json").content_digest
 
 
+def snapshot_digest(path: Path) -> str:
+    """The content digest of a downloaded snapshot that has no manifest (a policy checkpoint): sha256 over
+    the sha256 of every file it holds, as a manifest's ``content_digest`` is over the files it lists."""
+    from hub_envs.repo_format import content_digest, hash_files
+
+    files = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
+    return content_digest(hash_files(path, files))
+
+
+def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
+    """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of
+    the files of the commit (any other repo, e.g. a LeRobot policy a benchmark names)."""
+    from hub_envs import hub_io
+    from hub_envs.errors import EnvRepoNotFoundError
+
+    try:
+        return manifest_digest(repo_id, sha, token=token)
+    except EnvRepoNotFoundError as e:
+        if "has no hub_env.json" not in str(e):
+            raise
+    from huggingface_hub import snapshot_download
+
+    with hub_io.translate_hub_errors(repo_id, sha):
+        return snapshot_digest(Path(snapshot_download(repo_id, revision=sha, token=token)))
+
+
 def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: str | None = None) -> None:
     """Record consent to run the code of ``repo_id`` at commit ``sha``, bound to its manifest's content digest.
 
     ``content_digest`` defaults to the one the commit's manifest records (read from the local cache when
-    load_env already fetched it, which is what you looked at, else from the Hub).
+    load_env already fetched it, which is what you looked at, else from the Hub); for a repo without a
+    manifest (a policy checkpoint), to the digest of the commit's files (:func:`commit_digest`).
     """
     from hub_envs import hub_io
 
@@ -162,7 +189,7 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
             f"Trust is given to an exact commit, not {sha!r}. Resolve it first, e.g. "
             f"`hub-envs trust {repo_id}@<40-hex sha>` (load_env prints the sha it resolved)."
         )
-    digest = content_digest if content_digest is not None else manifest_digest(repo_id, sha, token=token)
+    digest = content_digest if content_digest is not None else commit_digest(repo_id, sha, token=token)
     if not _DIGEST.fullmatch(digest):
         raise ConfigError(f"content_digest {digest!r} is not a sha256 hex digest.")
     with _locked() as path:
@@ -182,5 +209,5 @@ def untrust(repo_id: str, sha: str | None = None) -> int:
 
 def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
     """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
-    digest = content_digest if content_digest is not None else manifest_digest(repo_id, sha)
+    digest = content_digest if content_digest is not None else commit_digest(repo_id, sha)
     return read_trust_list().covers(repo_id, sha, digest)

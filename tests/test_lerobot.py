@@ -312,6 +312,28 @@ def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_pa
     assert info["overall"]["n_episodes"] == 2 and "pendulum" in info["per_group"]
 
 
+def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, published, tmp_path):
+    """A shared train_config.json cannot carry consent: it is saved as false, and a file saying true is ignored."""
+    sha = published["pendulum-pixels"]
+    out = tmp_path / "train"
+    assert cli_main(["train", *_hub_args("pendulum-pixels", sha), *TINY_ACT, "--batch_size=4", "--num_workers=0",
+                     f"--{EVAL_FREQ}=0", "--steps=1", "--save_freq=1", f"--output_dir={out}"]) == 0
+    saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    assert saved["env"]["trust_remote_code"] is False and saved["env"]["revision"] == sha
+    saved["env"]["trust_remote_code"] = True  # what someone else's config file says
+    saved["output_dir"] = str(tmp_path / "again")
+    shared = tmp_path / "shared.json"
+    shared.write_text(json.dumps(saved))
+    # a fresh process: nothing of this repo was imported there, and its trust list is empty
+    run = subprocess.run([sys.executable, "-m", "hub_envs.cli", "train", f"--config_path={shared}"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 1, run.stdout[-2000:] + run.stderr[-3000:]
+    # LeRobot's parser reports it (draccus wraps errors raised while it builds a config): hub-envs' message inside
+    assert f"alice/pendulum-pixels@{sha} contains Python code that would run" in run.stderr
+    assert "nothing was imported" in run.stderr and "--env.trust_remote_code=true" in run.stderr
+    assert not (tmp_path / "again").exists()
+
+
 # --- 4. env processors ------------------------------------------------------------------------
 
 

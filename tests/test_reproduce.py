@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce
+from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.benchmark import bootstrap_ci, reproduce_benchmark
 from hub_envs.cli import main as cli_main
 from hub_envs.dataset import read_episode_frames
@@ -351,7 +351,7 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
             "tolerance": {"mean_return": 1e-9, "success_rate": 0.0}}
     # the publisher evaluates the policy once and declares the result in the manifest
     loaded = load_env(f"alice/tiny-policy-env@{pushed.sha}", trust_remote_code=True)
-    evaluated = reproduce_benchmark(loaded, spec, workers=1, progress=False)
+    evaluated = reproduce_benchmark(loaded, spec, workers=1, progress=False, trust_policy_code=True)
     loaded.unregister()
     assert evaluated.error is None
     returns = evaluated.reproduced_per_episode["return"]
@@ -364,6 +364,11 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
         (folder / "hub_env.json").write_text(json.dumps(manifest))
 
     declared = republish(hub.api, "alice/tiny-policy-env", declare)
+    # consent to the env does not cover the policy: another repo, whose loading can import code
+    report = reproduce("alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=1, write=False,
+                       progress=False, replay=False)
+    assert not report.reproduced and f"benchmark policy alice/tiny-policy@{policy_sha} is another repo" in report.benchmarks[1].error
+    trust("alice/tiny-policy", policy_sha)  # its own consent, bound to the files of that commit
     report = reproduce("alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=2, write=False, progress=False)
     assert report.reproduced, report.summary()
     assert [b.name for b in report.benchmarks] == ["random-policy", "tdmpc-untrained"]
@@ -374,6 +379,32 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
                        progress=False, replay=False)
     checkpoint = report.benchmarks[1]
     assert not checkpoint.passed and checkpoint.error is None and checkpoint.episodes_differing
+
+
+def test_a_policy_checkpoint_importing_code_never_loads_without_its_own_consent(hub, tmp_path, monkeypatch):
+    """The red-team's attack: a benchmark names a policy whose processor config makes LeRobot's factory import
+    and call ``subprocess.Popen``. Consent to the env (trust_remote_code) does not reach it."""
+    marker = tmp_path / "popen-ran"
+    folder = _tiny_lerobot_policy(tmp_path / "policy")
+    config = json.loads((folder / "policy_preprocessor.json").read_text())
+    config["steps"].insert(0, {"class": "subprocess.Popen", "config": {"args": ["touch", str(marker)]}})
+    (folder / "policy_preprocessor.json").write_text(json.dumps(config))
+    policy_sha = hub.api.upload_folder(repo_id=hub.api.create_repo("mallory/policy").repo_id, folder_path=str(folder)).oid
+    pushed = _push(TINY, "mallory/policy-env", episodes=2)
+
+    def declare(f: Path) -> None:
+        manifest = json.loads((f / "hub_env.json").read_text())
+        manifest["benchmarks"].append({"name": "evil", "policy": {"type": "lerobot", "checkpoint": f"mallory/policy@{policy_sha}"},
+                                       "episodes": 2, "seeds": [1, 2], "metrics": {"mean_return": 0.0}})
+        (f / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub.api, "mallory/policy-env", declare)
+    report = reproduce("mallory/policy-env", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False,
+                       replay=False)
+    error = report.benchmarks[-1].error
+    assert "subprocess.Popen" in error and f"hub-envs trust mallory/policy@{policy_sha}" in error
+    assert not marker.exists()
+    assert pushed.sha != sha
 
 
 _ENDS = ("return self._obs(), reward, False, False, self._info()",
