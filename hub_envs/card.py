@@ -72,8 +72,13 @@ def describe_space(space) -> str:
     return str(space)
 
 
-def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str) -> str:
-    """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet)."""
+def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str,
+                license: str | None = None) -> str:
+    """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet).
+
+    ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
+    claims none.
+    """
 
     config = manifest["config"]
     dataset = manifest["dataset"]
@@ -100,7 +105,7 @@ def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env,
         tags=TAGS + [manifest["name"]],
         model_name=repo_id,
         eval_results=eval_results or None,
-        license="apache-2.0",
+        license=license,
     )
     doc = env_documentation(env_class)
     seeds = dataset.get("seeds", [])
