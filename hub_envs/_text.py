@@ -3,24 +3,38 @@
 Repo-controlled strings (file names, manifest fields, URLs and headers from an endpoint) can hold
 terminal escape sequences or bidi overrides that rewrite what a user reads in an error message:
 
-    >>> from hub_envs._text import printable
-    >>> printable("evil\\x1b[2Jname\\u202e.py")
-    'evil\\\\x1b[2Jname\\\\u202e.py'
-    >>> printable("dynamics.py")
+    >>> from hub_envs._text import safe_text
+    >>> safe_text("dynamics.py")
     'dynamics.py'
 """
 
 from __future__ import annotations
 
-import unicodedata
+from typing import Any
+
+_NAMED_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t", "\\": "\\\\"}
 
 
-def printable(text: object) -> str:
-    """``text`` with every control, format (bidi) and separator character other than a plain space escaped."""
-    out = []
-    for ch in str(text):
-        if ch == " " or (ch.isprintable() and unicodedata.category(ch) not in ("Cf", "Zl", "Zp")):
-            out.append(ch)
-        else:
-            out.append(ch.encode("unicode_escape").decode("ascii"))
-    return "".join(out)
+def _escape_char(ch: str) -> str:
+    if ch in _NAMED_ESCAPES:
+        return _NAMED_ESCAPES[ch]
+    o = ord(ch)
+    return f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}"
+
+
+def safe_text(value: Any) -> str:
+    """``value`` as text that is safe to print on a terminal, escaped the way ``repr`` escapes a string:
+    every character ``str.isprintable`` rejects except the plain space (C0 and C1 controls, so ESC and
+    CSI; DEL; bidi overrides and other format characters; line separators; lone surrogates) becomes
+    ``\\x1b``, ``\\u202e``..., and a backslash becomes ``\\\\`` so an escape cannot be faked.
+
+    Use it wherever a message interpolates repo-controlled text (file names, manifest fields, the
+    dataset's metadata, text from the env's code).
+
+    >>> safe_text("tiny.py"), safe_text("a\\x1b[2Jb.py"), safe_text("gpj.\\u202eexe")
+    ('tiny.py', 'a\\\\x1b[2Jb.py', 'gpj.\\\\u202eexe')
+    """
+    text = value if isinstance(value, str) else str(value)
+    if text.isprintable() and "\\" not in text:
+        return text
+    return "".join(ch if ch == " " or (ch.isprintable() and ch != "\\") else _escape_char(ch) for ch in text)

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs._text import printable
+from hub_envs._text import safe_text
 from hub_envs.errors import ReproductionError, UntrustedCodeError
 from hub_envs.rollout import iter_episodes
 
@@ -163,7 +163,7 @@ def _check_policy_consent(repo_id: str, revision: str, path: str, trusted: Any, 
     classes = _processor_classes(path)
     raise UntrustedCodeError(
         f"benchmark policy {repo_id}@{revision} is another repo than the env, and loading it can run code"
-        + (f" (LeRobot's processor factory would import {', '.join(printable(c) for c in classes)})" if classes else "")
+        + (f" (LeRobot's processor factory would import {', '.join(safe_text(c) for c in classes)})" if classes else "")
         + f"; nothing of it was loaded. Consent to the env does not cover it. Read it in {path}, then pass "
         f"trust_policy_code=True (hub-envs reproduce --trust_policy_code=true) or trust this exact commit once:\n"
         f"  hub-envs trust {repo_id}@{revision}"

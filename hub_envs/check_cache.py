@@ -9,6 +9,8 @@ The key covers the commit and its content digest, the check settings, the name a
 EVERY installed distribution (the ``*.dist-info`` folders on ``sys.path``: numpy, gymnasium, the
 simulator, ... alike), hub-envs' own checking code, the interpreter and the platform (OS, kernel,
 libc, CPU architecture). Install, upgrade or remove any package and the checks run again. Only passing results are stored; failures always re-run.
+An entry that is not exactly what :func:`store` wrote (corrupt, truncated or hand-edited: it carries a
+digest of its own content) or that does not record a pass is ignored, and the checks run again.
 ``load_env(..., recheck=True)`` (or ``HUB_ENVS_RECHECK=1``) ignores the cache.
 
 Example:
@@ -88,23 +90,68 @@ def _path(key: str) -> Path:
     return hub_envs_home() / CACHE_DIR / f"{key}.json"
 
 
+def _body_digest(entry: dict[str, Any]) -> str:
+    """sha256 of an entry without its own ``digest`` field (canonical JSON)."""
+    body = {k: v for k, v in entry.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=False).encode()).hexdigest()
+
+
+def _valid(entry: Any, key: str) -> bool:
+    """An entry exactly as :func:`store` writes it, for ``key``, recording a passing check: anything
+    else (truncated, hand-edited, an older layout, a failing feature report) is a miss."""
+    if not isinstance(entry, dict) or entry.get("key") != key:
+        return False
+    if not (isinstance(entry.get("digest"), str) and entry["digest"] == _body_digest(entry)):
+        return False
+    if not (isinstance(entry.get("checked_at"), str) and isinstance(entry.get("fingerprint"), str)):
+        return False
+    if entry["fingerprint"].startswith("DRIFTED"):
+        return False
+    from hub_envs.features import FeatureReport
+
+    features = entry.get("features")
+    if not isinstance(features, dict) or not isinstance(features.get("rows"), list):
+        return False
+    if not all(isinstance(row, dict) and all(isinstance(v, str) for k, v in row.items() if k != "problems")
+               and row.get("problems", []) == [] for row in features["rows"]):
+        return False
+    try:
+        report = FeatureReport.from_dict(features)
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
+        return False
+    return report.ok and features.get("ok") is True
+
+
 def lookup(key: str) -> dict[str, Any] | None:
-    """The stored result for ``key``, or None (missing or unreadable entries are misses)."""
+    """The stored result for ``key``, or None.
+
+    Missing, unreadable, corrupt or hand-edited entries are misses (the checks run again and the entry
+    is rewritten): an entry counts only if it has exactly the shape :func:`store` writes, its own
+    digest matches its content, and it records a passing feature report.
+    """
     try:
         data = json.loads(_path(key).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
-    return data if isinstance(data, dict) and data.get("key") == key else None
+    try:
+        return data if _valid(data, key) else None
+    except (RecursionError, ValueError, TypeError):  # nested too deeply, NaN, ...: not what store writes
+        return None
 
 
 def store(key: str, result: dict[str, Any]) -> None:
     """Atomically record a passing result (best effort: a read-only home only costs speed)."""
     path = _path(key)
+    entry = {"key": key, "checked_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), **result}
+    try:
+        entry["digest"] = _body_digest(entry)
+    except (TypeError, ValueError):  # not JSON: never stored
+        return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".check-")
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump({"key": key, "checked_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), **result}, f)
+            json.dump(entry, f)
         os.replace(tmp, path)
     except OSError:
         pass

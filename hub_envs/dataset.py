@@ -48,7 +48,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
+import string
 import struct
 import uuid
 import zlib
@@ -56,7 +58,7 @@ from collections import deque
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
@@ -78,6 +80,7 @@ __all__ = [
     "rollout_to_frames",
     "dataset_features_from_config",
     "read_info",
+    "data_file",
     "read_episode_meta",
     "read_episode_frames",
     "dataset_fingerprint",
@@ -967,8 +970,54 @@ def dataset_fingerprint(root: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+#: The fields LeRobot fills into ``info.json``'s path templates, all of them integers but ``video_key``.
+_PATH_TEMPLATE_FIELDS = {"data_path": ("chunk_index", "file_index"),
+                         "video_path": ("video_key", "chunk_index", "file_index")}
+_INT_FORMAT_SPEC = re.compile(r"^0?[1-9]?[0-9]?d?$")  # '', 'd', '03d', '06d', '3' ...
+
+
+def _check_path_template(path: Path, key: str, template: Any) -> None:
+    """``info[key]`` must be a format string of LeRobot's named fields only (no attribute or index lookups,
+    no conversions, integer format specs) that stays inside the dataset root whatever the field values."""
+    from hub_envs.repo_format import safe_text
+
+    fields = _PATH_TEMPLATE_FIELDS[key]
+    fix = (f"Do not use this dataset; its publisher must re-publish it with push_env (which writes "
+           f"{key} = {DATA_PATH!r})." if key == "data_path" else
+           f"Do not use this dataset; its publisher must re-publish it with push_env (which writes no videos).")
+    if not isinstance(template, str) or not template:
+        raise DatasetError(f"{path}: {key} must be a non-empty path template string, got {safe_text(repr(template))}. {fix}")
+    try:
+        parts = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise DatasetError(f"{path}: {key} {safe_text(repr(template))} is not a valid path template ({exc}). {fix}") from None
+    literal = []
+    for text, name, spec, conversion in parts:
+        literal.append(text)
+        if name is None:
+            continue
+        if name not in fields or conversion is not None or "{" in (spec or ""):
+            raise DatasetError(
+                f"{path}: {key} {safe_text(repr(template))} uses the field {{{safe_text(name)}"
+                f"{'!' + conversion if conversion else ''}}}; only {', '.join('{' + f + '}' for f in fields)} are allowed "
+                f"(no attribute or index lookups, no conversions). {fix}")
+        if name != "video_key" and not _INT_FORMAT_SPEC.match(spec or ""):
+            raise DatasetError(f"{path}: {key} {safe_text(repr(template))}: {{{name}:{safe_text(spec)}}} is not an integer "
+                               f"format such as {{{name}:03d}}. {fix}")
+        literal.append("x")
+    shape = "".join(literal)
+    rel = PurePosixPath(shape)
+    if "\\" in shape or "\x00" in shape or rel.is_absolute() or any(p in ("", ".", "..") for p in shape.split("/")):
+        raise DatasetError(f"{path}: {key} {safe_text(repr(template))} leads outside the dataset folder (absolute, '..' "
+                           f"or empty path parts). {fix}")
+
+
 def read_info(root: str | os.PathLike) -> dict:
-    """``meta/info.json`` as a dict (features, fps, totals, ``hub_envs`` with the seeds)."""
+    """``meta/info.json`` as a dict (features, fps, totals, ``hub_envs`` with the seeds).
+
+    Its ``data_path`` and ``video_path`` templates are checked (named integer fields only, no way out
+    of ``root``), so a path built from them names a file of this dataset.
+    """
     path = Path(root) / INFO_PATH
     try:
         with open(path, encoding="utf-8") as f:
@@ -977,9 +1026,42 @@ def read_info(root: str | os.PathLike) -> dict:
         raise DatasetError(f"{path} does not exist: {root} is not a LeRobot dataset folder. Generate or download it first.") from exc
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{path} is unreadable or not JSON ({exc}). Regenerate the dataset.") from exc
+    except RecursionError:  # nested deeper than the parser goes: no info.json LeRobot writes
+        raise DatasetError(f"{path} is nested too deeply to be a LeRobot info.json (not JSON this reader accepts). "
+                           f"Regenerate the dataset, or re-publish the env with push_env.") from None
     if not isinstance(info, dict) or "features" not in info or "codebase_version" not in info:
         raise DatasetError(f"{path} lacks 'features' or 'codebase_version'; it is not a LeRobot v3.0 info.json.")
+    if "data_path" in info:
+        _check_path_template(path, "data_path", info["data_path"])
+    if info.get("video_path") is not None:
+        _check_path_template(path, "video_path", info["video_path"])
+        features = info["features"] if isinstance(info["features"], dict) else {}
+        for key, ft in features.items():  # LeRobot fills {video_key} with the feature's name
+            if isinstance(ft, dict) and ft.get("dtype") == "video" and (
+                    "/" in key or "\\" in key or "\x00" in key or key in ("", ".", "..")):
+                raise DatasetError(f"{path}: video feature {key!r} cannot name a folder of video_path (it holds '/', '\\' "
+                                   f"or is '.'/'..'). Do not use this dataset; its publisher must re-publish it.")
     return info
+
+
+def data_file(root: str | os.PathLike, info: Mapping, chunk_index: Any, file_index: Any) -> Path:
+    """The data file ``info["data_path"]`` names for ``(chunk_index, file_index)``, checked to lie inside ``root``.
+
+    ``info`` must come from :func:`read_info` (which checks the template); the indices come from the
+    episodes metadata and must be non-negative integers.
+    """
+    root = Path(root)
+    for name, value in (("data/chunk_index", chunk_index), ("data/file_index", file_index)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise DatasetError(f"{root / EPISODES_DIR}: {name} {value!r} is not a non-negative integer. "
+                               f"The dataset is corrupt; re-download it or re-publish the env with push_env.")
+    template = info.get("data_path", DATA_PATH)
+    _check_path_template(root / INFO_PATH, "data_path", template)
+    rel = template.format(chunk_index=int(chunk_index), file_index=int(file_index))
+    parts = rel.split("/")
+    if rel.startswith("/") or "\\" in rel or any(p in ("", ".", "..") for p in parts):  # cannot happen after the check
+        raise DatasetError(f"{root / INFO_PATH}: data_path resolves to {rel!r}, outside the dataset folder. Re-publish with push_env.")
+    return root.joinpath(*parts)
 
 
 def read_episode_meta(root: str | os.PathLike) -> list[dict]:
@@ -1025,7 +1107,7 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
     if not meta:
         raise DatasetError(f"Episode {episode_index} is not in {root} ({info.get('total_episodes')} episodes).")
     m = meta[0]
-    path = root / info.get("data_path", DATA_PATH).format(chunk_index=m["data/chunk_index"], file_index=m["data/file_index"])
+    path = data_file(root, info, m["data/chunk_index"], m["data/file_index"])
     selected = None if keys is None else set(keys)
     wanted = [k for k in features if features[k]["dtype"] != "video" and (selected is None or k in selected)]
     columns = wanted if "episode_index" in wanted else [*wanted, "episode_index"]

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs import hub_io
-from hub_envs._text import printable
+from hub_envs._text import safe_text
 from hub_envs.dataset import dataset_fingerprint, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
@@ -68,7 +68,7 @@ def _env_repo_id(value: Any, dataset_root: Path) -> str:
         repo_id, revision = "", None
     if not repo_id or revision is not None:
         raise ReproductionError(
-            f"{dataset_root}/meta/info.json names the env repo {printable(repr(value))}, which is not a Hub repo id "
+            f"{dataset_root}/meta/info.json names the env repo {safe_text(repr(value))}, which is not a Hub repo id "
             f"('user/name'). A dataset can only name an env on the Hub; load a local env folder yourself with load_env."
         )
     return repo_id

@@ -35,7 +35,7 @@ from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundEr
 from huggingface_hub.utils import validate_repo_id
 
 from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook
-from hub_envs._text import printable
+from hub_envs._text import safe_text
 from hub_envs.errors import (
     ConcurrentPushError,
     ConfigError,
@@ -100,7 +100,7 @@ _REVISION_API = re.compile(r"/api/(models|datasets|spaces)/[^/]+/[^/]+/revision/
 def _refuse(url: str, what: str) -> None:
 
     raise HostileResponseError(
-        f"The endpoint {printable(urlsplit(url).netloc)} answered {printable(url)} with {what}: no Hub sends that, and "
+        f"The endpoint {safe_text(urlsplit(url).netloc)} answered {safe_text(url)} with {what}: no Hub sends that, and "
         f"huggingface_hub would have used it as a file name in the cache. Refused before anything was written. "
         f"Check HF_ENDPOINT (and use https to a Hub you trust: plain http on a shared network can be rewritten)."
     )
@@ -280,7 +280,7 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
     if bad:
 
         raise IntegrityError(f"{where}: the cached snapshot {path} holds what no download of this commit puts there:\n  "
-                             + "\n  ".join(printable(b) for b in bad[:20])
+                             + "\n  ".join(safe_text(b) for b in bad[:20])
                              + "\nNot importing it. It was removed from the cache; load again to download the commit afresh.")
 
 

@@ -49,11 +49,12 @@ from hub_envs.errors import (
 from hub_envs.features import FeatureReport, check_features
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.provenance import describe_differences, package_versions, version_differences
-from hub_envs._text import printable
+from hub_envs._text import safe_text
 from hub_envs.repo_format import (
     DATASET_DIR,
     MANIFEST_FILE,
     EnvFolder,
+    check_names_belong_to,
     Manifest,
     content_digest,
     hash_files,
@@ -217,7 +218,7 @@ def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_re
         return "trust_remote_code=True"
     if trusted.covers(repo_id, sha, manifest.content_digest):
         return f"trust list ({trusted.path})"
-    code = sorted(printable(p) for p in manifest.files if is_code_file(p))
+    code = sorted(safe_text(p) for p in manifest.files if is_code_file(p))
     previous = [e for e in trusted.previous(repo_id) if e.sha != sha]
     changed = ""
     if any(e.sha == sha for e in trusted.previous(repo_id)):
@@ -233,8 +234,8 @@ def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_re
             try:
                 old = Manifest.read(prev_dir).files
                 diff = [p for p in sorted(set(old) | set(manifest.files)) if old.get(p) != manifest.files.get(p)]
-                code = [printable(p) for p in diff if is_code_file(p)]
-                other = [printable(p) for p in diff if not is_code_file(p)]
+                code = [safe_text(p) for p in diff if is_code_file(p)]
+                other = [safe_text(p) for p in diff if not is_code_file(p)]
                 changed = (f"\nYou trusted {previous[-1].sha[:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
                            f"{'; other files: ' + ', '.join(other[:8]) + (' …' if len(other) > 8 else '') if other else ''}.")
             except HubEnvsError:
@@ -272,6 +273,7 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
 
     def verify(s: hub_io.Snapshot) -> Manifest:
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
+        check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
         manifest.verify_files(s.path, where=where)
         hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest

@@ -48,6 +48,7 @@ from hub_envs.repo_format import (
     GIF_FILE,
     MANIFEST_FILE,
     Manifest,
+    check_publishable,
     content_digest,
     content_tag,
     hash_files,
@@ -154,6 +155,7 @@ def build_repo(
     timings["checks"] = time.perf_counter() - t
 
     # -- code --
+    check_publishable(loaded.local_folder)  # no symlink out of the folder, no compiled files
     for rel in list_files(loaded.local_folder):
         dest = staging / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -271,6 +273,7 @@ def push_env(
     env_dir = Path(env_dir)
     if not env_dir.is_dir():
         raise EnvFolderError(f"Env folder {env_dir} does not exist. Pass --env_dir=PATH to the folder with pyproject.toml.")
+    check_publishable(env_dir)  # before anything runs: a symlink out of the folder would publish its target
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     loaded = load_env(env_dir.resolve(), check=False)

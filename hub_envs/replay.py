@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs.dataset import read_episode_meta, read_info, rollout_to_frames
+from hub_envs.dataset import data_file, read_episode_meta, read_info, rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
 from hub_envs.rollout import iter_episodes, run_episodes
 from hub_envs.states import read_env_states
@@ -249,7 +249,6 @@ class _Frames:
         import pyarrow.parquet as pq
 
         features = info["features"]
-        data_path = info.get("data_path", "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet")
         self.features = features
         self.numeric: dict[int, dict[str, np.ndarray]] = {}
         self.images: dict[int, dict[str, Any]] = {}
@@ -258,7 +257,7 @@ class _Frames:
             by_file.setdefault((m["data/chunk_index"], m["data/file_index"]), []).append(m["episode_index"])
         lengths = {m["episode_index"]: int(m["length"]) for m in metas}
         for (chunk, file), episodes in by_file.items():
-            path = root / data_path.format(chunk_index=chunk, file_index=file)
+            path = data_file(root, info, chunk, file)  # info.json's data_path, checked to stay inside root
             try:
                 table = pq.read_table(path, columns=[*keys, "episode_index", "frame_index"])
             except (OSError, ValueError, KeyError) as exc:

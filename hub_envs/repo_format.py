@@ -40,6 +40,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+from hub_envs._text import safe_text
 from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
 
 FORMAT_VERSION = 1
@@ -82,11 +83,31 @@ def is_code_file(path: str) -> bool:
     return path.endswith(CODE_SUFFIXES)
 
 
+#: Compiled Python an env repo never holds: bytecode, which Python runs instead of the ``.py`` beside it.
+BYTECODE_SUFFIXES = (".pyc", ".pyo")
+#: Compiled files push_env refuses to publish from an env folder (hub-envs imports ``.py`` sources only).
+COMPILED_SUFFIXES = (".pyc", ".pyo", ".so", ".pyd")
+
+
+def is_bytecode_path(path: str) -> bool:
+    """True for ``.pyc``/``.pyo`` files and anything under a ``__pycache__/`` folder."""
+    return path.endswith(BYTECODE_SUFFIXES) or "__pycache__" in PurePosixPath(path).parts
+
+
 # --- paths and hashing ------------------------------------------------------------------------
 
 
+#: What a repo path may not contain: C0 controls, DEL, C1 controls (8-bit CSI/OSC...), Unicode line and
+#: paragraph separators, bidirectional overrides/isolates/marks (they reorder what a terminal shows) and
+#: lone surrogates (a non-UTF-8 file name read with surrogateescape). A fixed list, so both stacks agree.
+_UNSAFE_PATH_RE = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200e\u200f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
+#: The longest file or folder name (one path component) common file systems accept, in UTF-8 bytes.
+MAX_NAME_BYTES = 255
+
+
 def safe_relpath(path: str, *, where: str) -> str:
-    """Return ``path`` as a normalized POSIX path inside a repo, or raise if it could escape it."""
+    """Return ``path`` as a normalized POSIX path inside a repo, or raise if it could escape it, holds
+    control or bidi-override characters, or has a component longer than file systems allow."""
     if not isinstance(path, str) or not path or "\x00" in path or "\\" in path:
         raise ManifestError(f"{where}: {path!r} is not a valid repo path. Use forward-slash paths relative to the repo root.")
     p = PurePosixPath(path)
@@ -95,6 +116,18 @@ def safe_relpath(path: str, *, where: str) -> str:
             f"{where}: path {path!r} is absolute or escapes the repo. Only plain relative paths such as "
             f"'physics.py' or 'assets/robot.urdf' are allowed."
         )
+    if _UNSAFE_PATH_RE.search(path):
+        raise ManifestError(
+            f"{where}: path '{safe_text(path)}' contains control or bidirectional-override characters (shown escaped), "
+            f"which can disguise a file name on a terminal. Rename the file to plain printable characters and re-publish "
+            f"with push_env."
+        )
+    for part in p.parts:
+        if len(part.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+            raise ManifestError(
+                f"{where}: path '{safe_text(path[:80])}...' has a name longer than {MAX_NAME_BYTES} bytes, which file systems "
+                f"refuse. Shorten the file or folder name and re-publish with push_env."
+            )
     return path
 
 
@@ -140,6 +173,51 @@ def list_files(root: Path, *, skip: tuple[str, ...] = ()) -> list[str]:
     return sorted(out)
 
 
+def check_publishable(root: Path) -> None:
+    """Refuse to publish an env folder holding what must never reach the Hub.
+
+    * a symlink (to a file or a folder) whose target lies outside ``root``, or does not exist:
+      publishing follows links, so ``assets/calibration.yaml -> ~/.ssh/id_ed25519`` would upload the
+      key. Symlinks to files inside the folder are fine (their target's contents are published);
+    * compiled files (``.pyc``, ``.pyo``, ``.so``, ``.pyd``): hub-envs imports ``.py`` sources only,
+      and the manifest must list only what a reader can check.
+
+    ``__pycache__/`` folders (written by your own Python) and the other :data:`IGNORED_PARTS` are
+    skipped silently: they are never published.
+
+    Raises:
+        EnvFolderError: naming every offending file (and each link's target) and what to do.
+    """
+    root = Path(root).absolute()
+    real_root = root.resolve()
+    links: list[str] = []
+    compiled: list[str] = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if d not in IGNORED_PARTS)
+        for name in sorted(dirnames) + sorted(filenames):
+            path = Path(dirpath, name)
+            rel = path.relative_to(root).as_posix()
+            if path.is_symlink():
+                target = Path(os.path.realpath(path))
+                if not target.exists():
+                    links.append(f"  {safe_text(rel)} -> {safe_text(os.readlink(path))} (the target does not exist)")
+                    continue
+                if target != real_root and real_root not in target.parents:
+                    links.append(f"  {safe_text(rel)} -> {safe_text(target)} (outside the env folder; its contents would be published)")
+                    continue
+            if name in filenames and name.endswith(COMPILED_SUFFIXES):
+                compiled.append(f"  {safe_text(rel)}")
+    problems = []
+    if links:
+        problems.append("symlinks that lead outside the folder (nothing was published):\n" + "\n".join(links) +
+                        "\nIf a file belongs to the env, copy it into the folder in place of the link; otherwise remove the link.")
+    if compiled:
+        problems.append("compiled files, which hub-envs never publishes or imports (it runs .py sources only):\n" +
+                        "\n".join(compiled) + "\nDelete them (ship the .py source instead); __pycache__/ folders are skipped by themselves.")
+    if problems:
+        raise EnvFolderError(f"Cannot publish the env folder {safe_text(root)}: " + "\n".join(problems))
+
+
 def hash_files(root: Path, paths: list[str]) -> dict[str, str]:
     return {p: sha256_file(Path(root, p)) for p in sorted(paths)}
 
@@ -171,6 +249,50 @@ def content_tag(digest: str) -> str:
 
 # --- the manifest -----------------------------------------------------------------------------
 
+#: ``user/name`` (what the Hub accepts; the name part as huggingface_hub validates it, simplified).
+_REPO_ID_RE = re.compile(r"^[\w.-]+/[\w.-]+$")
+
+
+def _namespace(name: str) -> str | None:
+    """The ``namespace`` of ``namespace/rest`` (a repo id, gym id or draccus choice), or None."""
+    return name.split("/", 1)[0] if "/" in name else None
+
+
+def _check_namespaces(repo_id: str, gym_id: str, env_type: str, *, where: str, what: str) -> None:
+    owner = _namespace(repo_id)
+    for key, value in (("gym_id", gym_id), ("env_type", env_type)):
+        ns = _namespace(value)
+        if ns is None or owner is None or ns.casefold() != owner.casefold():
+            claimed = f"namespace '{safe_text(ns)}'" if ns is not None else "no namespace"
+            raise ManifestError(
+                f"{where}: {key} '{safe_text(value)}' ({claimed}) is not under the namespace of {what} "
+                f"'{safe_text(repo_id)}' ('{safe_text(owner)}'): load_env registers {key} under that name, so a repo could "
+                f"pass its env off as another user's. Do not load it; its publisher must re-publish with push_env, which "
+                f"names the env after the repo ({key} = '{safe_text(repo_id)}')."
+            )
+
+
+def check_names_belong_to(manifest: Manifest, repo_id: str) -> None:
+    """Refuse ``manifest`` (read from the Hub repo ``repo_id``) if a name it registers or claims is under
+    another namespace: its ``gym_id``, ``env_type`` (what load_env registers with gymnasium and draccus)
+    and ``repo_id`` must all be in ``repo_id``'s namespace (case-insensitively, as on the Hub).
+
+    ``Manifest.from_dict`` checks the manifest against its own ``repo_id`` field, which the publisher
+    writes; this checks it against the repo it was actually downloaded from. Call it in ``load_env``
+    right after reading a Hub snapshot's manifest, before the trust gate.
+
+    Raises:
+        ManifestError: naming both the claimed and the actual namespace.
+    """
+    where = f"{safe_text(repo_id)}: {MANIFEST_FILE}"
+    if manifest.repo_id is not None and (_namespace(manifest.repo_id) or "").casefold() != (_namespace(repo_id) or "").casefold():
+        raise ManifestError(
+            f"{where}: repo_id '{safe_text(manifest.repo_id)}' is under namespace '{safe_text(_namespace(manifest.repo_id))}', "
+            f"but the manifest was downloaded from '{safe_text(repo_id)}' (namespace '{safe_text(_namespace(repo_id))}'): "
+            f"it claims to be another user's env. Do not load it; its publisher must re-publish with push_env."
+        )
+    _check_namespaces(repo_id, manifest.gym_id, manifest.env_type, where=where, what="the repo it was downloaded from")
+
 
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
@@ -201,7 +323,7 @@ def _newer_format_message(data: dict, version: int, where: str) -> str:
 
     versions = data.get("versions")
     writer = versions.get("hub-envs") if isinstance(versions, dict) and isinstance(versions.get("hub-envs"), str) else None
-    by = f"hub-envs {writer}" if writer else "a newer hub-envs"
+    by = f"hub-envs {safe_text(writer)}" if writer else "a newer hub-envs"
     pin = f"'hub-envs>={writer}'" if writer and re.fullmatch(r"[0-9][0-9A-Za-z.+-]*", writer) else "hub-envs"
     return (f"{where}: format_version {version} was written by {by}; this hub-envs ({__version__}) reads format_version "
             f"{FORMAT_VERSION} and older. To read it, upgrade hub-envs: pip install -U {pin}")
@@ -280,6 +402,11 @@ class Manifest:
             if not GYM_ID_RE.match(data[key]):
                 raise ManifestError(f"{where}: {key} {data[key]!r} is not a valid name (letters, digits, '_', '-', '.', "
                                     f"':' and one optional 'namespace/'). {_REPUBLISH}")
+        repo_id = data.get("repo_id")
+        if repo_id is not None and not (isinstance(repo_id, str) and _REPO_ID_RE.match(repo_id)):
+            raise ManifestError(f"{where}: repo_id {safe_text(repr(repo_id))} is not a Hub repo id 'user/name'. {_REPUBLISH}")
+        if repo_id is not None:
+            _check_namespaces(repo_id, data["gym_id"], data["env_type"], where=where, what="its own repo_id")
         if "path" in data.get("dataset", {}):
             safe_relpath(data["dataset"]["path"], where=f"{where} dataset.path")
         files = data["files"]
@@ -287,6 +414,12 @@ class Manifest:
             raise ManifestError(f"{where}: field 'files' must map each repo path to its sha256. {_REPUBLISH}")
         for path, digest in files.items():
             safe_relpath(path, where=f"{where} files")
+            if is_bytecode_path(path):
+                raise ManifestError(
+                    f"{where}: files lists compiled bytecode '{safe_text(path)}'. Python would run it instead of the source "
+                    f"the manifest shows, so an env repo must hold .py sources only: delete the __pycache__ folders and "
+                    f".pyc/.pyo files and re-publish with push_env (which never publishes them)."
+                )
             if not isinstance(digest, str) or not _SHA256_RE.match(digest):
                 raise ManifestError(f"{where}: files[{path!r}] = {digest!r} is not a sha256 hex digest. {_REPUBLISH}")
         if not _SHA256_RE.match(data["content_digest"]):
@@ -339,13 +472,13 @@ class Manifest:
         for path, expected in sorted(self.files.items()):
             local = folder / path
             if not local.is_file():
-                problems.append(f"  missing   {path}")
+                problems.append(f"  missing   {safe_text(path)}")
             elif sha256_file(local) != expected:
-                problems.append(f"  tampered  {path} (sha256 differs from the manifest)")
+                problems.append(f"  tampered  {safe_text(path)} (sha256 differs from the manifest)")
         present = set(list_files(folder, skip=(MANIFEST_FILE,))) | set(executable_files(folder))
         for path in sorted(present - set(self.files)):
             if is_code_file(path) or path.endswith(EXECUTABLE_SUFFIXES):
-                problems.append(f"  unlisted  {path} (code not covered by the manifest)")
+                problems.append(f"  unlisted  {safe_text(path)} (code not covered by the manifest)")
         if problems:
             raise IntegrityError(
                 f"{where}: {len(problems)} file(s) do not match the manifest:\n" + "\n".join(problems) +

@@ -17,6 +17,7 @@ import pytest
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs import errors, load_env, push_env, trust
+from hub_envs.importing import module_key
 from hub_envs.registration import snapshot_registries
 from hub_envs.testing import hub_environment
 from helpers import copy_env, republish, TINY
@@ -154,7 +155,8 @@ def test_untrusted_load_imports_and_registers_nothing_and_tofu_is_keyed_by_sha(h
     assert "trust_remote_code=True" in str(e.value)
     assert not marker.exists()
     assert snapshot_registries() == before
-    assert not any(name.startswith("hub_envs_code.mallory") for name in list(__import__("sys").modules))
+    key = module_key("mallory/tiny", first.sha)
+    assert not any(name.startswith(f"hub_envs_code.{key}") for name in list(__import__("sys").modules))
 
     trust("mallory/tiny", first.sha)  # the function (hub_envs.trust), bound to the manifest it reads
     loaded = load_env(f"mallory/tiny@{first.sha}")

@@ -45,6 +45,15 @@ def _snapshot_origin(folder: Path):
     return name.replace("--", "/"), sha, repo_dir.parent
 
 
+def _safe(text: str) -> str:
+    """Repo-controlled text made safe to print: control and bidi characters as escapes."""
+    return ascii(str(text))[1:-1]
+
+
+def _is_bytecode(path: str) -> bool:
+    return path.endswith((".pyc", ".pyo")) or "__pycache__" in path.split("/")
+
+
 def _needed(files: dict) -> dict:
     return {p: h for p, h in files.items() if not p.startswith(_NOT_NEEDED)}
 
@@ -68,8 +77,12 @@ def _ensure_snapshot() -> dict:
         # the same commit into the same cache folder; HF_ENDPOINT / HF_TOKEN apply as usual
         snapshot_download(repo_id, revision=sha, cache_dir=cache_dir,
                           ignore_patterns=[p + "*" if p.endswith("/") else p for p in _NOT_NEEDED]
-                          + ["*.pyc", "*.pyo", "*.so", "*.pyd", "__pycache__/*"])
+                          + ["*.pyc", "*.pyo", "*.so", "*.pyd", "__pycache__/*", "*/__pycache__/*"])
     manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
+    compiled = sorted(p for p in manifest.get("files", {}) if _is_bytecode(p))
+    if compiled:  # Python would run these instead of the sources anyone reads
+        raise RuntimeError(f"{_HERE}: {_MANIFEST} lists compiled bytecode ({', '.join(_safe(p) for p in compiled)}); an env repo "
+                           f"holds .py sources only, so this one is not imported. Ask the repo's author to re-publish it with push_env.")
     bad = []
     for rel, expected in sorted(_needed(manifest.get("files", {})).items()):
         digest = hashlib.sha256((_HERE / rel).read_bytes()).hexdigest()
@@ -82,24 +95,41 @@ def _ensure_snapshot() -> dict:
             if name.endswith((".py", ".pyc", ".pyo", ".so", ".pyd")) and rel not in listed:
                 bad.append(f"{rel} (unlisted)")
     if bad:
-        raise RuntimeError(f"{_HERE}: {', '.join(bad)} differ from the sha256 in {_MANIFEST} or are code it does not list; not importing. "
+        raise RuntimeError(f"{_HERE}: {', '.join(_safe(b) for b in bad)} differ from the sha256 in {_MANIFEST} or are code it does not list; not importing. "
                            f"Delete this snapshot from the cache and download it again, or ask the repo's author.")
     return manifest
 
 
 def _source_only(folder: Path) -> None:
-    """Import the snapshot's modules from their verified .py sources only: no bytecode cache, no .so."""
+    """Import the snapshot's modules from their verified .py sources only: no bytecode cache, no .so.
+
+    Every folder gets a source-only finder: ``folder`` now, and each package folder below it (hidden
+    ones, ``dataset/`` and ``media/`` included) when the import system first finds it, before anything
+    is imported from it, so Python's default finders (which honour ``__pycache__``) never search one.
+    """
     import importlib.machinery
 
     class _SourceLoader(importlib.machinery.SourceFileLoader):
-        def path_stats(self, path):  # never trust or write a __pycache__ entry
-            raise OSError("source only")
+        def get_code(self, fullname):  # from the source alone: never read or write a __pycache__ entry
+            path = self.get_filename(fullname)
+            return self.source_to_code(self.get_data(path), path)
 
         def set_data(self, *args, **kwargs):
             pass
 
-    for d in [str(folder)] + [str(p) for p in folder.rglob("*") if p.is_dir() and "__pycache__" not in p.parts]:
-        sys.path_importer_cache[d] = importlib.machinery.FileFinder(d, (_SourceLoader, [".py"]))
+    class _SourceOnlyFinder(importlib.machinery.FileFinder):
+        def __init__(self, path):
+            super().__init__(path, (_SourceLoader, [".py"]))
+
+        def find_spec(self, fullname, target=None):
+            spec = super().find_spec(fullname, target)
+            if spec is not None and spec.submodule_search_locations:
+                for d in list(spec.submodule_search_locations):
+                    if not isinstance(sys.path_importer_cache.get(str(d)), _SourceOnlyFinder):
+                        sys.path_importer_cache[str(d)] = _SourceOnlyFinder(str(d))
+            return spec
+
+    sys.path_importer_cache[str(folder)] = _SourceOnlyFinder(str(folder))
 
 
 def _module_key(*parts: str) -> str:
