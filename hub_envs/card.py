@@ -1,4 +1,4 @@
-"""The env card (README.md), rendered from ``cards/env_card.md.j2`` with huggingface_hub's ModelCard.
+"""The env card (README.md), rendered from ``hub_envs/templates/env_card.md.j2`` with huggingface_hub's ModelCard.
 
 The YAML header is a :class:`huggingface_hub.ModelCardData`: tags, ``library_name``, and the
 random-policy benchmark as model-index evaluation results, so the Hub shows it as metadata.
@@ -24,9 +24,9 @@ TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"
 
 
 def template_path(name: str = "env_card.md.j2") -> Path:
-    path = Path(__file__).resolve().parent.parent / "cards" / name
+    path = Path(__file__).resolve().parent / "templates" / name  # package data: the wheel carries it
     if not path.is_file():
-        raise InvalidRepoFormatError(f"Card template {path} is missing. Reinstall hub-envs from its source tree (pip install -e .).")
+        raise InvalidRepoFormatError(f"Card template {path} is missing: this hub-envs install is incomplete. Reinstall hub-envs.")
     return path
 
 

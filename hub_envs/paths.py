@@ -1,4 +1,4 @@
-"""Where hub-envs keeps its own local state (the trust list, the check and bytecode caches).
+"""Where hub-envs keeps its own local state (the trust list, the check cache).
 
 ``$HUB_ENVS_HOME`` if set, else ``$XDG_STATE_HOME/hub-envs`` (``~/.local/state/hub-envs``): never
 inside the Hugging Face cache, whose file names a Hub endpoint chooses. Tests point ``HUB_ENVS_HOME``

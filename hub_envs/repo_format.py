@@ -18,7 +18,7 @@ file                   what it holds                                            
 ``dataset/``           the random-action dataset in LeRobot v3 format (meta/,       push_env
                        data/), each episode's reset seed recorded
 ``media/rollout.gif``  a few random-action rollouts, rendered                      push_env
-``README.md``          the env card, rendered from ``cards/`` templates            push_env
+``README.md``          the env card, rendered from ``templates/env_card.md.j2``           push_env
 =====================  ===========================================================  ====================
 
 A *local env folder* (what an author writes) is the first two rows only.
