@@ -24,7 +24,7 @@ NEW_CONSTRAINTS :=
 FALLBACK        :=
 endif
 
-.PHONY: install install-compat test demo bench train-long clean
+.PHONY: install install-compat lint test demo bench train-long clean
 
 install: $(VENV)/.install-stamp
 install-compat: $(VENV_COMPAT)/.install-stamp
@@ -42,12 +42,19 @@ endif
 $(VENV_COMPAT)/.install-stamp: pyproject.toml $(COMPAT) scripts/make-venv
 	sh scripts/make-venv $(VENV_COMPAT) "$(PYTHON_COMPAT)" "$(COMPAT)"
 
+SOURCES := hub_envs tests benchmarks envs plugins
+
+# ruff: lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and the formatter's verdict.
+lint: install
+	$(VENV)/bin/ruff check $(SOURCES)
+	$(VENV)/bin/ruff format --check $(SOURCES)
+
 # The whole suite in both venvs (one leg when .venv fell back to the compat stack); says which leg failed.
 ifeq ($(FALLBACK),)
-test: install install-compat
+test: install install-compat lint
 	sh scripts/test-legs venv=$(PY) venv-compat=$(PY_COMPAT)
 else
-test: install
+test: install lint
 	sh scripts/test-legs venv=$(PY)
 endif
 

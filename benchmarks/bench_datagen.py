@@ -127,8 +127,9 @@ def bench_hub_envs(image: bool, seeds: list[int], workers: int, out: Path) -> fl
 
 
 def bench_lerobot(image: bool, seeds: list[int], out: Path) -> float:
-    from hub_envs.dataset import rollout_to_frames
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from hub_envs.dataset import rollout_to_frames
 
     features, features_map = features_for(image)
     features = {k: {**ft, "shape": tuple(ft["shape"])} for k, ft in features.items()}  # LeRobot wants tuples
@@ -208,8 +209,14 @@ def print_table(results: dict, variants: list[str]) -> None:
     for v in variants:
         r = results[v]
         fps = r["frames_per_s"]
-        print(f"{v:8} " + " ".join(f"{fps[c]:>12.0f}" for c in cols) + f" {r['datagen_vs_lerobot']:>11.2f} {r['datagen_vs_raw']:>8.2f}")
-    print(f"datagen_vs_lerobot = {results['datagen_vs_lerobot']:.2f} (goal >= 3), datagen_vs_raw = {results['datagen_vs_raw']:.2f} (goal >= 0.33)")
+        print(
+            f"{v:8} "
+            + " ".join(f"{fps[c]:>12.0f}" for c in cols)
+            + f" {r['datagen_vs_lerobot']:>11.2f} {r['datagen_vs_raw']:>8.2f}"
+        )
+    print(
+        f"datagen_vs_lerobot = {results['datagen_vs_lerobot']:.2f} (goal >= 3), datagen_vs_raw = {results['datagen_vs_raw']:.2f} (goal >= 0.33)"
+    )
 
 
 def main() -> None:

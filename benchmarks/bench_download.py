@@ -57,8 +57,10 @@ def run(clients: int = 8, size_mb: int = 32, n_files: int = 4, repeats: int = 3,
             total_mb = clients * per_file * n_files / 2**20
             for rep in range(repeats):
                 barrier, queue = ctx.Barrier(clients + 1), ctx.Queue()
-                procs = [ctx.Process(target=_client, args=(barrier, queue, server.endpoint, str(tmp / f"c{rep}-{i}"), expected))
-                         for i in range(clients)]
+                procs = [
+                    ctx.Process(target=_client, args=(barrier, queue, server.endpoint, str(tmp / f"c{rep}-{i}"), expected))
+                    for i in range(clients)
+                ]
                 for p in procs:
                     p.start()
                 barrier.wait()
@@ -79,15 +81,20 @@ def run(clients: int = 8, size_mb: int = 32, n_files: int = 4, repeats: int = 3,
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     results = {
-        "clients": clients, "repo_mb": size_mb, "files": n_files, "repeats": repeats,
+        "clients": clients,
+        "repo_mb": size_mb,
+        "files": n_files,
+        "repeats": repeats,
         "per_repeat_mb_s": [round(r, 1) for r in rates],
         "server_download_mb_s": round(statistics.median(rates), 1),
         "server_errors": errors,
         "error_messages": messages[:5],
     }
     if verbose:
-        print(f"{clients} concurrent snapshot_downloads of {size_mb} MiB: {results['server_download_mb_s']} MiB/s, "
-              f"{errors} errors", flush=True)
+        print(
+            f"{clients} concurrent snapshot_downloads of {size_mb} MiB: {results['server_download_mb_s']} MiB/s, {errors} errors",
+            flush=True,
+        )
     return results
 
 

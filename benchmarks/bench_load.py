@@ -70,6 +70,7 @@ class FreshProcesses:
     def __init__(self) -> None:
         import gymnasium  # noqa: F401  - what both loaders import before any env
         import lerobot.envs.factory  # noqa: F401
+
         import hub_envs.load  # noqa: F401
         import hub_envs.testing  # noqa: F401
 
@@ -143,8 +144,12 @@ def wrapper_overhead(loaded, n_steps: int, repeats: int) -> dict:
     raw_env.close()
     hub_env.close()
     ratios = [h / r for h, r in zip(hub, raw)]
-    return {"raw_steps_per_s": round(statistics.median(raw)), "load_env_steps_per_s": round(statistics.median(hub)),
-            "ratio": round(float(np.median(ratios)), 3), "wrappers": _wrappers(loaded)}
+    return {
+        "raw_steps_per_s": round(statistics.median(raw)),
+        "load_env_steps_per_s": round(statistics.median(hub)),
+        "ratio": round(float(np.median(ratios)), 3),
+        "wrappers": _wrappers(loaded),
+    }
 
 
 def _wrappers(loaded) -> list[str]:
@@ -178,7 +183,7 @@ def cold_load(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> di
 
     ours, bare, stages = [], [], []
     for rep in range(repeats + 1):  # the first round warms up imports and is dropped
-        for which in (("ours", "bare") if rep % 2 == 0 else ("bare", "ours")):
+        for which in ("ours", "bare") if rep % 2 == 0 else ("bare", "ours"):
             home = tmp / f"cold-{repo.replace('/', '-')}-{rep}-{which}"
             with hub_environment(endpoint, home):
                 if which == "ours":
@@ -216,7 +221,7 @@ def warm_load(zygote: FreshProcesses, ref: str, endpoint: str, home: str, repeat
     ours, theirs, nocheck, stages = [], [], [], []
     for rep in range(repeats):
         calls = [("hub_envs", True), ("lerobot", True), ("hub_envs", False)]
-        for which, check in (calls if rep % 2 == 0 else calls[::-1]):
+        for which, check in calls if rep % 2 == 0 else calls[::-1]:
             result = zygote.sample(which, ref, endpoint, home, check)
             if which == "lerobot":
                 theirs.append(result["seconds"])
@@ -279,9 +284,11 @@ def run(repeats: int = 7, verbose: bool = True, profile: bool = False) -> dict:
                 results[f"warm_{name}"] = warm_load(zygote, ref, server.endpoint, str(home), repeats)
                 results[f"cold_{name}"] = cold_load(repo, sha, server.endpoint, tmp, repeats)
                 if verbose:
-                    print(f"{name}: wrapper {results[f'wrapper_{name}']['ratio']}, warm {results[f'warm_{name}']['ratio']} "
-                          f"(checks {results[f'warm_{name}']['check_share']:.0%}), cold {results[f'cold_{name}']['ratio']}",
-                          file=sys.stderr)
+                    print(
+                        f"{name}: wrapper {results[f'wrapper_{name}']['ratio']}, warm {results[f'warm_{name}']['ratio']} "
+                        f"(checks {results[f'warm_{name}']['check_share']:.0%}), cold {results[f'cold_{name}']['ratio']}",
+                        file=sys.stderr,
+                    )
     finally:
         zygote.close()
         shutil.rmtree(tmp, ignore_errors=True)

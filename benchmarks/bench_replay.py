@@ -131,8 +131,12 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
                     raw.append(_raw(loaded, seeds, actions))
                     replay.append(_replay(loaded))
                 r, p = statistics.median(raw), statistics.median(replay)
-                results[variant] = {"frames": sum(len(a) for a in actions), "raw_steps_per_s": round(r, 1),
-                                    "replay_steps_per_s": round(p, 1), "replay_vs_raw": round(p / r, 3)}
+                results[variant] = {
+                    "frames": sum(len(a) for a in actions),
+                    "raw_steps_per_s": round(r, 1),
+                    "replay_steps_per_s": round(p, 1),
+                    "replay_vs_raw": round(p / r, 3),
+                }
                 if profile and variant == "pendulum":
                     import cProfile
                     import pstats
@@ -151,9 +155,13 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
                     times[w].append(_reproduce(repo, w, tmp / f"out-{w}-{i}"))
                 ceiling.append(_pool_ceiling())
             t1, t2 = statistics.median(times[1]), statistics.median(times[2])
-            results["reproduce"] = {"variant": REPRODUCE_VARIANT, "episodes": REPRODUCE_EPISODES,
-                                    "seconds_w1": round(t1, 3), "seconds_w2": round(t2, 3),
-                                    "machine_2process_ceiling": round(statistics.median(ceiling), 3)}
+            results["reproduce"] = {
+                "variant": REPRODUCE_VARIANT,
+                "episodes": REPRODUCE_EPISODES,
+                "seconds_w1": round(t1, 3),
+                "seconds_w2": round(t2, 3),
+                "machine_2process_ceiling": round(statistics.median(ceiling), 3),
+            }
             results["reproduce_speedup_2workers"] = round(t1 / t2, 3)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -169,13 +177,19 @@ def print_table(results: dict) -> None:
     print(f"{'variant':15} {'frames':>7} {'raw':>10} {'replay':>10} {'ratio':>7}")
     for v in VARIANTS:
         r = results[v]
-        print(f"{v:15} {r['frames']:>7} {r['raw_steps_per_s']:>10.0f} {r['replay_steps_per_s']:>10.0f} {r['replay_vs_raw']:>7.2f}")
+        print(
+            f"{v:15} {r['frames']:>7} {r['raw_steps_per_s']:>10.0f} {r['replay_steps_per_s']:>10.0f} {r['replay_vs_raw']:>7.2f}"
+        )
     rp = results["reproduce"]
-    print(f"reproduce {rp['variant']} ({rp['episodes']} episodes): {rp['seconds_w1']:.2f}s on 1 worker, {rp['seconds_w2']:.2f}s on 2; "
-          f"pure CPU work on 2 processes gets {rp['machine_2process_ceiling']:.2f}x on this machine right now")
+    print(
+        f"reproduce {rp['variant']} ({rp['episodes']} episodes): {rp['seconds_w1']:.2f}s on 1 worker, {rp['seconds_w2']:.2f}s on 2; "
+        f"pure CPU work on 2 processes gets {rp['machine_2process_ceiling']:.2f}x on this machine right now"
+    )
     la = results["load_average_before"]
-    print(f"replay_vs_raw = {results['replay_vs_raw']:.2f} (goal >= 0.8), reproduce_speedup_2workers = "
-          f"{results['reproduce_speedup_2workers']:.2f} (goal >= 1.6); load average before: {la[0]:.2f}")
+    print(
+        f"replay_vs_raw = {results['replay_vs_raw']:.2f} (goal >= 0.8), reproduce_speedup_2workers = "
+        f"{results['reproduce_speedup_2workers']:.2f} (goal >= 1.6); load average before: {la[0]:.2f}"
+    )
 
 
 def main() -> None:

@@ -91,9 +91,7 @@ def _run(tmp: Path, repeats: int, n_files: int, size_mb: int) -> dict:
 
         big = os.urandom(size_mb * 1024 * 1024)
         seconds = _median_time(
-            lambda: api.create_commit(
-                "bench/repo", [CommitOperationAdd("big.bin", big + os.urandom(8))], commit_message="big"
-            ),
+            lambda: api.create_commit("bench/repo", [CommitOperationAdd("big.bin", big + os.urandom(8))], commit_message="big"),
             max(1, repeats // 2),
         )
         results["upload_mb_per_s"] = size_mb / seconds

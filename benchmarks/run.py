@@ -22,7 +22,7 @@ import platform
 import sys
 import time
 import traceback
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 OUT = Path(__file__).resolve().parent / "out" / "latest.json"
@@ -66,9 +66,13 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
 def run(only: list[str] | None = None) -> dict:
     started = time.perf_counter()
     out: dict = {
-        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
-                    "load_average_before": os.getloadavg()},
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            "load_average_before": os.getloadavg(),
+        },
         "details": {},
         "skipped": {},
     }
@@ -90,7 +94,7 @@ def run(only: list[str] | None = None) -> dict:
             traceback.print_exc()
             continue
         out["details"][name]["seconds"] = round(time.perf_counter() - t, 1)
-    for figure, (module, goal, _) in FIGURES.items():
+    for figure, (module, _goal, _) in FIGURES.items():
         value = out["details"].get(module, {}).get(figure)
         if value is not None:
             out[figure] = value
@@ -112,11 +116,23 @@ def table(out: dict) -> str:
     rows = ["| figure | value | goal | verdict | what |", "|---|---:|---|---|---|"]
     for figure, (module, goal, what) in FIGURES.items():
         value = out.get(figure)
-        shown = "—" if value is None else (f"{value:.0f}" if figure == "server_download_mb_s" else
-                                           f"{value:.0%}" if figure.endswith("share") else f"{value:g}")
+        shown = (
+            "—"
+            if value is None
+            else (
+                f"{value:.0f}"
+                if figure == "server_download_mb_s"
+                else f"{value:.0%}"
+                if figure.endswith("share")
+                else f"{value:g}"
+            )
+        )
         goal_text = f"{goal[0][0]} {goal[1]:g}" if goal else "—"
-        verdict = ("pass" if _verdict(value, goal) else "**fail**") if goal and value is not None else (
-            "not run" if value is None else "info")
+        verdict = (
+            ("pass" if _verdict(value, goal) else "**fail**")
+            if goal and value is not None
+            else ("not run" if value is None else "info")
+        )
         if value is None and module in out.get("skipped", {}):
             verdict = f"not run: {out['skipped'][module][:60]}"
         rows.append(f"| `{figure}` | {shown} | {goal_text} | {verdict} | {what} |")
@@ -132,8 +148,10 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2, default=str) + "\n")
     la = out["machine"]["load_average_before"]
-    print(f"\nBenchmarks, {out['date']} ({out['machine']['cpu_count']} CPUs, load average {la[0]:.2f} before, "
-          f"{out['seconds']:.0f} s)\n")
+    print(
+        f"\nBenchmarks, {out['date']} ({out['machine']['cpu_count']} CPUs, load average {la[0]:.2f} before, "
+        f"{out['seconds']:.0f} s)\n"
+    )
     print(table(out))
     print(f"\nWritten to {args.out}")
 

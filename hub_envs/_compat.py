@@ -87,7 +87,7 @@ def reset_http_sessions() -> None:
     """Drop the client's cached HTTP sessions (0.x ``reset_sessions``, 1.x ``close_session``)."""
     from huggingface_hub import utils
 
-    reset = getattr(utils, "close_session", None) or getattr(utils, "reset_sessions")
+    reset = getattr(utils, "close_session", None) or utils.reset_sessions
     reset()
 
 
@@ -111,6 +111,7 @@ def install_response_hook(hook) -> bool:
         return False
 
     if HF_HUB_MAJOR >= 1:
+
         def on_response(response) -> None:
             hook(str(response.request.url), response.headers, lambda: response.read())
 
@@ -122,6 +123,7 @@ def install_response_hook(hook) -> bool:
         factory._hub_envs_hooks = (*getattr(previous, "_hub_envs_hooks", ()), hook)
         huggingface_hub.set_client_factory(factory)  # also closes the current client
     else:
+
         def on_response(response, *args, **kwargs):
             hook(response.url, response.headers, lambda: response.content)
             return response
@@ -152,8 +154,10 @@ def env_config_choices() -> dict[str, Any]:
 
     choices = EnvConfig.get_known_choices()
     if choices is not getattr(EnvConfig, "_choice_registry", None):  # pragma: no cover - upstream change
-        raise RuntimeError("draccus' EnvConfig.get_known_choices() no longer returns the live registry; "
-                           "update hub_envs._compat.env_config_choices.")
+        raise RuntimeError(
+            "draccus' EnvConfig.get_known_choices() no longer returns the live registry; "
+            "update hub_envs._compat.env_config_choices."
+        )
     return choices
 
 

@@ -56,8 +56,14 @@ METRICS: dict[str, tuple[str, Callable[[Any], float]]] = {
 }
 
 
-def bootstrap_ci(values: Sequence[float], *, resamples: int = 1000, confidence: float = 0.95, seed: int = 0,
-                 statistic: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[float, float]:
+def bootstrap_ci(
+    values: Sequence[float],
+    *,
+    resamples: int = 1000,
+    confidence: float = 0.95,
+    seed: int = 0,
+    statistic: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> tuple[float, float]:
     """Percentile bootstrap confidence interval of the mean (or ``statistic`` over axis 1), seeded."""
     x = np.asarray(values, dtype=np.float64)
     if x.size == 0:
@@ -120,14 +126,22 @@ class BenchmarkResult:
     def summary(self) -> str:
         if self.error:
             return f"benchmark {self.name}: not reproduced: {self.error}"
-        parts = [f"{m.name} {m.published:.6g} -> {m.reproduced:.6g} [{m.ci_low:.6g}, {m.ci_high:.6g}] "
-                 f"{'PASS' if m.passed else 'FAIL'}" for m in self.metrics]
+        parts = [
+            f"{m.name} {m.published:.6g} -> {m.reproduced:.6g} [{m.ci_low:.6g}, {m.ci_high:.6g}] {'PASS' if m.passed else 'FAIL'}"
+            for m in self.metrics
+        ]
         return f"benchmark {self.name} ({self.policy.get('type')} policy, {len(self.seeds)} episodes): " + "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "name": self.name, "policy": self.policy, "seeds": self.seeds, "passed": self.passed, "error": self.error,
-            "confidence": self.confidence, "resamples": self.resamples, "seconds": self.seconds,
+            "name": self.name,
+            "policy": self.policy,
+            "seeds": self.seeds,
+            "passed": self.passed,
+            "error": self.error,
+            "confidence": self.confidence,
+            "resamples": self.resamples,
+            "seconds": self.seconds,
             "metrics": [m.to_dict() for m in self.metrics],
             "episodes_differing": self.episodes_differing,
             "published_per_episode": self.published_per_episode,
@@ -170,21 +184,22 @@ def _check_policy_consent(repo_id: str, revision: str, path: str, trusted: Any, 
     )
 
 
-def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None = None,
-                       trust_policy_code: bool = False) -> Callable[[Any, int], np.ndarray]:
+def _checkpoint_policy(
+    spec: dict[str, Any], loaded: Any, *, token: str | None = None, trust_policy_code: bool = False
+) -> Callable[[Any, int], np.ndarray]:
     """A LeRobot pretrained policy at a pinned commit, as the rollout engine's ``(obs, t) -> action``."""
     from hub_envs import hub_io
     from hub_envs.repo_format import is_commit_sha
 
     ref = spec.get("checkpoint") or spec.get("repo_id")
     if not isinstance(ref, str):
-        raise ReproductionError(f"benchmark policy {spec!r}: a checkpoint policy needs \"checkpoint\": \"user/policy@<sha>\".")
+        raise ReproductionError(f'benchmark policy {spec!r}: a checkpoint policy needs "checkpoint": "user/policy@<sha>".')
     repo_id, revision = hub_io.parse_repo_ref(ref)
     revision = spec.get("revision") or revision
     if not is_commit_sha(revision):
         raise ReproductionError(
             f"benchmark policy {ref!r} is not pinned to a commit: a benchmark result is only reproducible against the exact "
-            f"weights. Declare it as \"{repo_id}@<40-hex sha>\"."
+            f'weights. Declare it as "{repo_id}@<40-hex sha>".'
         )
     try:
         import torch
@@ -206,12 +221,15 @@ def _checkpoint_policy(spec: dict[str, Any], loaded: Any, *, token: str | None =
         policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
         policy.eval()
         if os.path.isfile(os.path.join(path, "policy_preprocessor.json")):
-            pre, post = make_pre_post_processors(cfg, pretrained_path=path,
-                                                 preprocessor_overrides={"device_processor": {"device": "cpu"}})
+            pre, post = make_pre_post_processors(
+                cfg, pretrained_path=path, preprocessor_overrides={"device_processor": {"device": "cpu"}}
+            )
         else:
             pre, post = make_pre_post_processors(cfg)
     except Exception as exc:
-        raise ReproductionError(f"benchmark policy {repo_id}@{revision}: cannot load it as a LeRobot policy: {type(exc).__name__}: {exc}") from exc
+        raise ReproductionError(
+            f"benchmark policy {repo_id}@{revision}: cannot load it as a LeRobot policy: {type(exc).__name__}: {exc}"
+        ) from exc
 
     features_map = dict(loaded.config.features_map)
     visual = {k for k, f in loaded.config.features.items() if "VISUAL" in str(getattr(f.type, "value", f.type)).upper()}
@@ -252,8 +270,8 @@ def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None, trust_poli
     if kind in ("lerobot", "checkpoint", "pretrained"):
         return _checkpoint_policy(spec, loaded, token=token, trust_policy_code=trust_policy_code)
     raise ReproductionError(
-        f"benchmark policy type {spec.get('type')!r} is not supported; hub-envs reproduces \"random\" and "
-        f"\"lerobot\" (a LeRobot pretrained policy pinned as \"checkpoint\": \"user/policy@<sha>\")."
+        f'benchmark policy type {spec.get("type")!r} is not supported; hub-envs reproduces "random" and '
+        f'"lerobot" (a LeRobot pretrained policy pinned as "checkpoint": "user/policy@<sha>").'
     )
 
 
@@ -284,15 +302,25 @@ class BenchmarkRun:
     in order and :meth:`finish` computes the metrics. :func:`reproduce_benchmark` does all three.
     """
 
-    def __init__(self, loaded: Any, benchmark: dict[str, Any], *, resamples: int = 1000, confidence: float = 0.95,
-                 seed: int = 0, token: str | None = None, trust_policy_code: bool = False):
+    def __init__(
+        self,
+        loaded: Any,
+        benchmark: dict[str, Any],
+        *,
+        resamples: int = 1000,
+        confidence: float = 0.95,
+        seed: int = 0,
+        token: str | None = None,
+        trust_policy_code: bool = False,
+    ):
         t0 = time.perf_counter()
         self.benchmark = benchmark
         self.name = str(benchmark.get("name", "benchmark"))
         policy_spec = dict(benchmark.get("policy") or {})
         self.seeds = [int(s) for s in benchmark.get("seeds", [])]
-        self.result = BenchmarkResult(name=self.name, policy=policy_spec, seeds=self.seeds, confidence=confidence,
-                                      resamples=resamples)
+        self.result = BenchmarkResult(
+            name=self.name, policy=policy_spec, seeds=self.seeds, confidence=confidence, resamples=resamples
+        )
         self.bootstrap_seed = seed
         self.metrics = dict(benchmark.get("metrics") or {})
         self.max_steps = int(benchmark.get("max_steps") or loaded.config.episode_length)
@@ -343,7 +371,9 @@ class BenchmarkRun:
                 passed = lo <= float(value) <= hi
             else:
                 passed = abs(reproduced - float(value)) <= float(tol)
-            result.metrics.append(MetricResult(m, float(value), reproduced, lo, hi, None if tol is None else float(tol), bool(passed)))
+            result.metrics.append(
+                MetricResult(m, float(value), reproduced, lo, hi, None if tol is None else float(tol), bool(passed))
+            )
         for key, values in self.per_episode.items():
             result.reproduced_per_episode[key] = [bool(v) for v in values] if key == "success" else [float(v) for v in values]
             if key in published:
@@ -369,13 +399,21 @@ def reproduce_benchmark(
     An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
     than raising, so the other parts of a reproduction still report.
     """
-    run = BenchmarkRun(loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token,
-                       trust_policy_code=trust_policy_code)
+    run = BenchmarkRun(
+        loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token, trust_policy_code=trust_policy_code
+    )
     t = time.perf_counter()
     try:
         if run.runnable:
-            for rollout in iter_episodes(loaded.make, run.seeds, max_steps=run.max_steps, policy=run.policy,
-                                         workers=workers, progress=progress, desc=f"Benchmark {run.name}"):
+            for rollout in iter_episodes(
+                loaded.make,
+                run.seeds,
+                max_steps=run.max_steps,
+                policy=run.policy,
+                workers=workers,
+                progress=progress,
+                desc=f"Benchmark {run.name}",
+            ):
                 run.consume(rollout)
     finally:
         episodes_seconds = time.perf_counter() - t

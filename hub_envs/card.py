@@ -67,13 +67,18 @@ def describe_space(space) -> str:
         return "Dict(" + ", ".join(f"{k}: {describe_space(v)}" for k, v in space.spaces.items()) + ")"
     if isinstance(space, spaces.Box):
         low, high = np.min(space.low), np.max(space.high)
-        bounds = f"[{low:.4g}, {high:.4g}]" if np.all(space.low == low) and np.all(space.high == high) else f" within [{low:.4g}, {high:.4g}]"
+        bounds = (
+            f"[{low:.4g}, {high:.4g}]"
+            if np.all(space.low == low) and np.all(space.high == high)
+            else f" within [{low:.4g}, {high:.4g}]"
+        )
         return f"Box{bounds} shape {tuple(space.shape)} {space.dtype}"
     return str(space)
 
 
-def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str,
-                license: str | None = None) -> str:
+def render_card(
+    *, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str, license: str | None = None
+) -> str:
     """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet).
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
@@ -86,19 +91,29 @@ def render_card(*, repo_id: str, manifest: dict[str, Any], env_class: type, env,
     features = []
     for name, feat in config.get("features", {}).items():
         key = config.get("features_map", {}).get(name, name)
-        features.append({
-            "name": name, "type": feat["type"], "shape": tuple(feat["shape"]), "key": key,
-            "dtype": ds_features.get(key, {}).get("dtype", "-"),
-        })
+        features.append(
+            {
+                "name": name,
+                "type": feat["type"],
+                "shape": tuple(feat["shape"]),
+                "key": key,
+                "dtype": ds_features.get(key, {}).get("dtype", "-"),
+            }
+        )
     benchmarks = list(manifest.get("benchmarks", []))
     eval_results = [
         EvalResult(
-            task_type="reinforcement-learning", task_name="reinforcement-learning",
-            dataset_type=repo_id, dataset_name=manifest["name"],
-            metric_type=metric, metric_name=f"{metric} ({b['policy']['type']} policy)", metric_value=float(value),
+            task_type="reinforcement-learning",
+            task_name="reinforcement-learning",
+            dataset_type=repo_id,
+            dataset_name=manifest["name"],
+            metric_type=metric,
+            metric_name=f"{metric} ({b['policy']['type']} policy)",
+            metric_value=float(value),
             verified=False,
         )
-        for b in benchmarks for metric, value in b["metrics"].items()
+        for b in benchmarks
+        for metric, value in b["metrics"].items()
     ]
     card_data = ModelCardData(
         library_name="hub-envs",

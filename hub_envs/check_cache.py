@@ -27,7 +27,7 @@ import os
 import platform
 import sys
 import tempfile
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -81,8 +81,12 @@ def environment_identity(requirements: tuple[str, ...] | list[str] = ()) -> dict
 
 
 def check_key(*, owner: str, content_digest: str, requirements, settings: dict[str, Any]) -> str:
-    payload = {"owner": owner, "content_digest": content_digest, "settings": settings,
-               "environment": environment_identity(requirements)}
+    payload = {
+        "owner": owner,
+        "content_digest": content_digest,
+        "settings": settings,
+        "environment": environment_identity(requirements),
+    }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -112,8 +116,12 @@ def _valid(entry: Any, key: str) -> bool:
     features = entry.get("features")
     if not isinstance(features, dict) or not isinstance(features.get("rows"), list):
         return False
-    if not all(isinstance(row, dict) and all(isinstance(v, str) for k, v in row.items() if k != "problems")
-               and row.get("problems", []) == [] for row in features["rows"]):
+    if not all(
+        isinstance(row, dict)
+        and all(isinstance(v, str) for k, v in row.items() if k != "problems")
+        and row.get("problems", []) == []
+        for row in features["rows"]
+    ):
         return False
     try:
         report = FeatureReport.from_dict(features)
@@ -142,7 +150,7 @@ def lookup(key: str) -> dict[str, Any] | None:
 def store(key: str, result: dict[str, Any]) -> None:
     """Atomically record a passing result (best effort: a read-only home only costs speed)."""
     path = _path(key)
-    entry = {"key": key, "checked_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), **result}
+    entry = {"key": key, "checked_at": datetime.now(UTC).isoformat(timespec="seconds"), **result}
     try:
         entry["digest"] = _body_digest(entry)
     except (TypeError, ValueError):  # not JSON: never stored

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import hashlib
 import warnings
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -60,7 +61,11 @@ def _episode_digest(ep: EpisodeRollout) -> str:
 
 def _first_difference(a: EpisodeRollout, b: EpisodeRollout) -> str:
     pairs = [(f"observation {k!r}", a.observations[k], b.observations.get(k)) for k in sorted(a.observations)]
-    pairs += [("reward", a.rewards, b.rewards), ("terminated", a.terminated, b.terminated), ("truncated", a.truncated, b.truncated)]
+    pairs += [
+        ("reward", a.rewards, b.rewards),
+        ("terminated", a.terminated, b.terminated),
+        ("truncated", a.truncated, b.truncated),
+    ]
     for name, x, y in pairs:
         if y is None or x.shape != y.shape:
             return f"{name}: shapes {getattr(x, 'shape', None)} vs {getattr(y, 'shape', None)}"
@@ -91,8 +96,9 @@ def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: 
     return {"algorithm": "sha256", "seeds": list(seeds), "steps": steps, "digest": overall, "episodes": digests}
 
 
-def verify_fingerprint(make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str,
-                       versions_note: str | Callable[[], str] = "") -> dict[str, Any]:
+def verify_fingerprint(
+    make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str, versions_note: str | Callable[[], str] = ""
+) -> dict[str, Any]:
     """Recompute a recorded fingerprint; raise :class:`FingerprintMismatchError` naming the drifting seeds.
 
     ``versions_note`` (or a callable returning it, called only on a mismatch) ends the message.

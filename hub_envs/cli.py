@@ -2,7 +2,7 @@
 
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
-    hub-envs serve --root=./hub-data --port=8000 [--token=T]
+    hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024]
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true]
     hub-envs trust user/pendulum-lerobot@<sha>
@@ -31,6 +31,8 @@ class ServeArgs:
     host: str = "127.0.0.1"
     port: int = 8000
     token: str | None = None
+    max_body_mb: float | None = None  # largest request body; default: $HUB_ENVS_SERVER_MAX_BODY_MB, else 2048
+    max_line_mb: float | None = None  # largest commit line (one base64 file); default: $HUB_ENVS_SERVER_MAX_LINE_MB, else 1024
 
 
 @dataclass
@@ -62,7 +64,14 @@ class LoadArgs:
 def serve(args: ServeArgs) -> int:
     from hub_envs.server import run
 
-    run(root=args.root, host=args.host, port=args.port, token=args.token)
+    run(
+        root=args.root,
+        host=args.host,
+        port=args.port,
+        token=args.token,
+        max_body_mb=args.max_body_mb,
+        max_line_mb=args.max_line_mb,
+    )
     return 0
 
 
@@ -72,8 +81,16 @@ def push(args: PushArgs) -> int:
 
     if args.env_dir is None or args.repo_id is None:
         raise ConfigError("push_env needs --env_dir=PATH and --repo_id=user/name.")
-    result = push_env(args.env_dir, args.repo_id, episodes=args.episodes, seed=args.seed, private=args.private,
-                      tag=args.tag, workers=args.workers or None, commit_message=args.commit_message)
+    result = push_env(
+        args.env_dir,
+        args.repo_id,
+        episodes=args.episodes,
+        seed=args.seed,
+        private=args.private,
+        tag=args.tag,
+        workers=args.workers or None,
+        commit_message=args.commit_message,
+    )
     print(result.summary())
     return 0
 
@@ -84,11 +101,27 @@ def load(args: LoadArgs) -> int:
 
     if args.repo_id is None:
         raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
-    loaded = load_env(args.repo_id, revision=args.revision, trust_remote_code=args.trust_remote_code,
-                      check=args.check, fingerprint=args.fingerprint)
+    loaded = load_env(
+        args.repo_id,
+        revision=args.revision,
+        trust_remote_code=args.trust_remote_code,
+        check=args.check,
+        fingerprint=args.fingerprint,
+    )
     if args.json:
-        print(json.dumps({"repo_id": loaded.repo_id, "revision": loaded.revision, "gym_id": loaded.gym_id,
-                          "env_type": loaded.env_type, "path": str(loaded.path), "report": loaded.report.to_dict()}, indent=2))
+        print(
+            json.dumps(
+                {
+                    "repo_id": loaded.repo_id,
+                    "revision": loaded.revision,
+                    "gym_id": loaded.gym_id,
+                    "env_type": loaded.env_type,
+                    "path": str(loaded.path),
+                    "report": loaded.report.to_dict(),
+                },
+                indent=2,
+            )
+        )
         return 0
     print(f"Loaded {loaded.repo_id} at {loaded.revision}")
     print(f"  gym id:      {loaded.gym_id}")
@@ -120,12 +153,15 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
         print(f"Removed {n} trust entr{'y' if n == 1 else 'ies'} for {repo_id}.")
         return 0
     if sha is None or not hub_io.is_commit_sha(sha):
-        raise ConfigError(f"Trust is given to an exact commit: hub-envs trust {repo_id}@<40-hex sha> "
-                          f"(load_env and the card print the sha).")
+        raise ConfigError(
+            f"Trust is given to an exact commit: hub-envs trust {repo_id}@<40-hex sha> (load_env and the card print the sha)."
+        )
     digest = trust_list.commit_digest(repo_id, sha)
     trust_list.trust(repo_id, sha, content_digest=digest)
-    print(f"Trusted {repo_id}@{sha} (content {digest[:16]}…): hub-envs will run its code at this commit, "
-          f"with exactly this content, without asking.")
+    print(
+        f"Trusted {repo_id}@{sha} (content {digest[:16]}…): hub-envs will run its code at this commit, "
+        f"with exactly this content, without asking."
+    )
     return 0
 
 
@@ -166,8 +202,10 @@ def _lazy_command(name: str):
 def _usage() -> str:
     width = max(map(len, SUMMARIES))
     lines = "\n".join(f"  {name:<{width}}  {SUMMARIES[name]}" for name in SUMMARIES)
-    return (f"usage: hub-envs <command> [--flag=value ...]\n\ncommands:\n{lines}\n\n"
-            f"Run `hub-envs <command> --help` for the flags of one command.")
+    return (
+        f"usage: hub-envs <command> [--flag=value ...]\n\ncommands:\n{lines}\n\n"
+        f"Run `hub-envs <command> --help` for the flags of one command."
+    )
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:

@@ -115,7 +115,20 @@ NEXT_FEATURES: dict[str, dict] = {
     "next.done": {"dtype": "bool", "shape": [1], "names": None},
     "next.success": {"dtype": "bool", "shape": [1], "names": None},
 }
-_NUMERIC_DTYPES = {"bool", "float16", "float32", "float64", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64"}
+_NUMERIC_DTYPES = {
+    "bool",
+    "float16",
+    "float32",
+    "float64",
+    "int8",
+    "int16",
+    "int32",
+    "int64",
+    "uint8",
+    "uint16",
+    "uint32",
+    "uint64",
+}
 # parquet writer options, fixed so the same rows give the same bytes
 _PARQUET_OPTS = dict(compression="snappy", use_dictionary=True, write_statistics=True, version="2.6")
 _FLUSH_ROWS = 65536
@@ -149,7 +162,9 @@ class EpisodeFrames:
         return cls(rollout.index, rollout.seed, rollout_to_frames(rollout, features_map, keys=keys))
 
 
-def rollout_to_frames(rollout: Any, features_map: Mapping[str, str], *, keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+def rollout_to_frames(
+    rollout: Any, features_map: Mapping[str, str], *, keys: Iterable[str] | None = None
+) -> dict[str, np.ndarray]:
     """Rename a rollout's env-side arrays to LeRobot keys and add ``next.reward/done/success``.
 
     ``features_map`` is LeRobot's ``EnvConfig.features_map`` (env key → dataset key), e.g.
@@ -429,7 +444,9 @@ def _normalize_features(features: Mapping[str, Mapping]) -> dict[str, dict]:
         dtype = ft["dtype"]
         shape = [int(d) for d in ft["shape"]]
         if dtype == "video":
-            raise ConfigError(f"Feature '{key}' has dtype 'video'; hub-envs writes camera frames as dtype 'image' (PNG in parquet).")
+            raise ConfigError(
+                f"Feature '{key}' has dtype 'video'; hub-envs writes camera frames as dtype 'image' (PNG in parquet)."
+            )
         if dtype == "image":
             if len(shape) != 3 or shape[2] not in _PNG_COLOR_TYPE:
                 raise ConfigError(f"Image feature '{key}' has shape {shape}; use [height, width, channels] with 1-4 channels.")
@@ -472,7 +489,9 @@ def _nested_list_array(flat: np.ndarray, shape: tuple[int, ...], n_rows: int, st
     sizes = [n_rows] + list(shape)
     for depth in range(len(shape), 0, -1):
         n_lists = int(np.prod(sizes[:depth]))
-        arr = pa.ListArray.from_arrays(pa.array(np.arange(0, n_lists * shape[depth - 1] + 1, shape[depth - 1], dtype=np.int32)), arr)
+        arr = pa.ListArray.from_arrays(
+            pa.array(np.arange(0, n_lists * shape[depth - 1] + 1, shape[depth - 1], dtype=np.int32)), arr
+        )
     return arr.cast(storage_type)
 
 
@@ -538,7 +557,9 @@ class _Writer:
             raise DatasetError(f"episodes must yield EpisodeFrames, got {type(ep).__name__} at position {self.n_pending}.")
         where = f"episode {ep.index}"
         if ep.index != self.n_pending:
-            raise DatasetError(f"{where} arrived in position {self.n_pending}: EpisodeFrames.index must count 0, 1, 2, ... in order.")
+            raise DatasetError(
+                f"{where} arrived in position {self.n_pending}: EpisodeFrames.index must count 0, 1, 2, ... in order."
+            )
         frames = dict(ep.frames)
         timestamp = frames.pop("timestamp", None)
         expected = [k for k in self.features if k not in DEFAULT_FEATURES]
@@ -563,17 +584,23 @@ class _Writer:
                 if arr.shape == (length,) and shape == (1,):
                     arr = arr.reshape(length, 1)
                 if arr.shape != (length, *shape):
-                    raise DatasetError(f"{where}: '{key}' has shape {arr.shape}, expected {(length, *shape)} (T, *feature shape).")
+                    raise DatasetError(
+                        f"{where}: '{key}' has shape {arr.shape}, expected {(length, *shape)} (T, *feature shape)."
+                    )
                 dtype = np.dtype(ft["dtype"])
                 if arr.dtype != dtype:
                     if not np.can_cast(arr.dtype, dtype, "same_kind") and not (arr.dtype == bool):
-                        raise DatasetError(f"{where}: '{key}' has dtype {arr.dtype}, which cannot be stored as {dtype} without losing meaning.")
+                        raise DatasetError(
+                            f"{where}: '{key}' has dtype {arr.dtype}, which cannot be stored as {dtype} without losing meaning."
+                        )
                     arr = arr.astype(dtype)
                 if dtype.kind == "f" and not np.isfinite(arr).all():
                     bad = int(np.flatnonzero(~np.isfinite(arr.reshape(length, -1)).all(axis=1))[0])
                     raise DatasetError(f"{where}: '{key}' is NaN or inf at frame {bad}. Only finite values can be written.")
             if arr.shape[0] != length:
-                raise DatasetError(f"{where}: '{key}' has {arr.shape[0]} frames but '{expected[0]}' has {length}; all arrays need the same length.")
+                raise DatasetError(
+                    f"{where}: '{key}' has {arr.shape[0]} frames but '{expected[0]}' has {length}; all arrays need the same length."
+                )
             cols[key] = arr
         if not length:
             raise DatasetError(f"{where} has no frames. Every episode needs at least one frame.")
@@ -600,7 +627,9 @@ class _Writer:
         if arr.ndim == 4 and arr.shape[1:] == (c, h, w) and arr.shape[1:] != (h, w, c):
             arr = arr.transpose(0, 2, 3, 1)
         if arr.ndim != 4 or arr.shape[1:] != (h, w, c):
-            raise DatasetError(f"{where}: image '{key}' has shape {arr.shape}, expected (T, {h}, {w}, {c}) or (T, {c}, {h}, {w}).")
+            raise DatasetError(
+                f"{where}: image '{key}' has shape {arr.shape}, expected (T, {h}, {w}, {c}) or (T, {c}, {h}, {w})."
+            )
         if arr.dtype != np.uint8:
             if arr.dtype.kind != "f":
                 raise DatasetError(f"{where}: image '{key}' has dtype {arr.dtype}; give uint8 in [0, 255] or floats in [0, 1].")
@@ -906,7 +935,9 @@ def write_lerobot_dataset(
         if isinstance(exc, (HubEnvsError, KeyboardInterrupt, SystemExit, GeneratorExit)):
             raise
         if isinstance(exc, OSError):
-            raise DatasetError(f"Writing the dataset at {root} failed: {exc}. Nothing was written; check disk space and permissions, then run again.") from exc
+            raise DatasetError(
+                f"Writing the dataset at {root} failed: {exc}. Nothing was written; check disk space and permissions, then run again."
+            ) from exc
         raise DatasetError(f"Writing the dataset at {root} failed: {type(exc).__name__}: {exc}. Nothing was written.") from exc
     finally:
         if pool is not None:
@@ -971,8 +1002,7 @@ def dataset_fingerprint(root: str | os.PathLike) -> str:
 
 
 #: The fields LeRobot fills into ``info.json``'s path templates, all of them integers but ``video_key``.
-_PATH_TEMPLATE_FIELDS = {"data_path": ("chunk_index", "file_index"),
-                         "video_path": ("video_key", "chunk_index", "file_index")}
+_PATH_TEMPLATE_FIELDS = {"data_path": ("chunk_index", "file_index"), "video_path": ("video_key", "chunk_index", "file_index")}
 _INT_FORMAT_SPEC = re.compile(r"^0?[1-9]?[0-9]?d?$")  # '', 'd', '03d', '06d', '3' ...
 
 
@@ -982,9 +1012,11 @@ def _check_path_template(path: Path, key: str, template: Any) -> None:
     from hub_envs.repo_format import safe_text
 
     fields = _PATH_TEMPLATE_FIELDS[key]
-    fix = (f"Do not use this dataset; its publisher must re-publish it with push_env (which writes "
-           f"{key} = {DATA_PATH!r})." if key == "data_path" else
-           f"Do not use this dataset; its publisher must re-publish it with push_env (which writes no videos).")
+    fix = (
+        f"Do not use this dataset; its publisher must re-publish it with push_env (which writes {key} = {DATA_PATH!r})."
+        if key == "data_path"
+        else "Do not use this dataset; its publisher must re-publish it with push_env (which writes no videos)."
+    )
     if not isinstance(template, str) or not template:
         raise DatasetError(f"{path}: {key} must be a non-empty path template string, got {safe_text(repr(template))}. {fix}")
     try:
@@ -1000,16 +1032,21 @@ def _check_path_template(path: Path, key: str, template: Any) -> None:
             raise DatasetError(
                 f"{path}: {key} {safe_text(repr(template))} uses the field {{{safe_text(name)}"
                 f"{'!' + conversion if conversion else ''}}}; only {', '.join('{' + f + '}' for f in fields)} are allowed "
-                f"(no attribute or index lookups, no conversions). {fix}")
+                f"(no attribute or index lookups, no conversions). {fix}"
+            )
         if name != "video_key" and not _INT_FORMAT_SPEC.match(spec or ""):
-            raise DatasetError(f"{path}: {key} {safe_text(repr(template))}: {{{name}:{safe_text(spec)}}} is not an integer "
-                               f"format such as {{{name}:03d}}. {fix}")
+            raise DatasetError(
+                f"{path}: {key} {safe_text(repr(template))}: {{{name}:{safe_text(spec)}}} is not an integer "
+                f"format such as {{{name}:03d}}. {fix}"
+            )
         literal.append("x")
     shape = "".join(literal)
     rel = PurePosixPath(shape)
     if "\\" in shape or "\x00" in shape or rel.is_absolute() or any(p in ("", ".", "..") for p in shape.split("/")):
-        raise DatasetError(f"{path}: {key} {safe_text(repr(template))} leads outside the dataset folder (absolute, '..' "
-                           f"or empty path parts). {fix}")
+        raise DatasetError(
+            f"{path}: {key} {safe_text(repr(template))} leads outside the dataset folder (absolute, '..' "
+            f"or empty path parts). {fix}"
+        )
 
 
 def read_info(root: str | os.PathLike) -> dict:
@@ -1023,12 +1060,16 @@ def read_info(root: str | os.PathLike) -> dict:
         with open(path, encoding="utf-8") as f:
             info = json.load(f)
     except FileNotFoundError as exc:
-        raise DatasetError(f"{path} does not exist: {root} is not a LeRobot dataset folder. Generate or download it first.") from exc
+        raise DatasetError(
+            f"{path} does not exist: {root} is not a LeRobot dataset folder. Generate or download it first."
+        ) from exc
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{path} is unreadable or not JSON ({exc}). Regenerate the dataset.") from exc
     except RecursionError:  # nested deeper than the parser goes: no info.json LeRobot writes
-        raise DatasetError(f"{path} is nested too deeply to be a LeRobot info.json (not JSON this reader accepts). "
-                           f"Regenerate the dataset, or re-publish the env with push_env.") from None
+        raise DatasetError(
+            f"{path} is nested too deeply to be a LeRobot info.json (not JSON this reader accepts). "
+            f"Regenerate the dataset, or re-publish the env with push_env."
+        ) from None
     if not isinstance(info, dict) or "features" not in info or "codebase_version" not in info:
         raise DatasetError(f"{path} lacks 'features' or 'codebase_version'; it is not a LeRobot v3.0 info.json.")
     if "data_path" in info:
@@ -1037,10 +1078,15 @@ def read_info(root: str | os.PathLike) -> dict:
         _check_path_template(path, "video_path", info["video_path"])
         features = info["features"] if isinstance(info["features"], dict) else {}
         for key, ft in features.items():  # LeRobot fills {video_key} with the feature's name
-            if isinstance(ft, dict) and ft.get("dtype") == "video" and (
-                    "/" in key or "\\" in key or "\x00" in key or key in ("", ".", "..")):
-                raise DatasetError(f"{path}: video feature {key!r} cannot name a folder of video_path (it holds '/', '\\' "
-                                   f"or is '.'/'..'). Do not use this dataset; its publisher must re-publish it.")
+            if (
+                isinstance(ft, dict)
+                and ft.get("dtype") == "video"
+                and ("/" in key or "\\" in key or "\x00" in key or key in ("", ".", ".."))
+            ):
+                raise DatasetError(
+                    f"{path}: video feature {key!r} cannot name a folder of video_path (it holds '/', '\\' "
+                    f"or is '.'/'..'). Do not use this dataset; its publisher must re-publish it."
+                )
     return info
 
 
@@ -1053,14 +1099,18 @@ def data_file(root: str | os.PathLike, info: Mapping, chunk_index: Any, file_ind
     root = Path(root)
     for name, value in (("data/chunk_index", chunk_index), ("data/file_index", file_index)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-            raise DatasetError(f"{root / EPISODES_DIR}: {name} {value!r} is not a non-negative integer. "
-                               f"The dataset is corrupt; re-download it or re-publish the env with push_env.")
+            raise DatasetError(
+                f"{root / EPISODES_DIR}: {name} {value!r} is not a non-negative integer. "
+                f"The dataset is corrupt; re-download it or re-publish the env with push_env."
+            )
     template = info.get("data_path", DATA_PATH)
     _check_path_template(root / INFO_PATH, "data_path", template)
     rel = template.format(chunk_index=int(chunk_index), file_index=int(file_index))
     parts = rel.split("/")
     if rel.startswith("/") or "\\" in rel or any(p in ("", ".", "..") for p in parts):  # cannot happen after the check
-        raise DatasetError(f"{root / INFO_PATH}: data_path resolves to {rel!r}, outside the dataset folder. Re-publish with push_env.")
+        raise DatasetError(
+            f"{root / INFO_PATH}: data_path resolves to {rel!r}, outside the dataset folder. Re-publish with push_env."
+        )
     return root.joinpath(*parts)
 
 
@@ -1138,6 +1188,7 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
                 flat = pc.list_flatten(flat)
             out[key] = flat.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(n, *shape)
     if n != m["length"]:
-        raise DatasetError(f"Episode {episode_index} has {n} rows in {path} but its metadata says {m['length']}. The dataset is corrupt; regenerate it.")
+        raise DatasetError(
+            f"Episode {episode_index} has {n} rows in {path} but its metadata says {m['length']}. The dataset is corrupt; regenerate it."
+        )
     return out
-

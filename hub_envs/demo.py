@@ -28,7 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--namespace", default="demo")
     args = parser.parse_args(argv)
 
-    env_dirs = [Path(d) for d in args.env_dirs] or [REPO_ROOT / "envs" / n for n in DEFAULT_ENVS if (REPO_ROOT / "envs" / n).is_dir()]
+    env_dirs = [Path(d) for d in args.env_dirs] or [
+        REPO_ROOT / "envs" / n for n in DEFAULT_ENVS if (REPO_ROOT / "envs" / n).is_dir()
+    ]
     if not env_dirs:
         env_dirs = [REPO_ROOT / "tests" / "fixtures" / "tiny_env"]
     if args.out.exists():
@@ -46,7 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         with hub_environment(server.endpoint, args.out / "publisher_home"):
             for env_dir in env_dirs:
                 repo_id = f"{args.namespace}/{env_dir.name}-lerobot"
-                print(f"\n=== push_env --env_dir={env_dir.relative_to(REPO_ROOT) if env_dir.is_relative_to(REPO_ROOT) else env_dir} --repo_id={repo_id} --episodes={args.episodes}")
+                print(
+                    f"\n=== push_env --env_dir={env_dir.relative_to(REPO_ROOT) if env_dir.is_relative_to(REPO_ROOT) else env_dir} --repo_id={repo_id} --episodes={args.episodes}"
+                )
                 t = time.perf_counter()
                 result = push_env(env_dir, repo_id, episodes=args.episodes)
                 print(result.summary())
@@ -56,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         # a different user, a fresh cache: load each back by repo id, pinned to the pushed sha
         with hub_environment(server.endpoint, args.out / "user_home"):
             for result in published:
-                print(f"\n=== load_env(\"{result.repo_id}@{result.sha}\", trust_remote_code=True)")
+                print(f'\n=== load_env("{result.repo_id}@{result.sha}", trust_remote_code=True)')
                 t = time.perf_counter()
                 loaded = load_env(f"{result.repo_id}@{result.sha}", trust_remote_code=True)
                 print(f"resolved sha {loaded.revision}; gym id {loaded.gym_id!r}; --env.type={loaded.env_type}")

@@ -7,8 +7,8 @@ property giving the env constructor's keyword arguments.
 Example:
     >>> from lerobot.envs.configs import PushtEnv
     >>> from hub_envs.envconfig import encode_config
-    >>> encode_config(PushtEnv())["features"]["agent_pos"]
-    {'type': 'STATE', 'shape': [2]}
+    >>> encode_config(PushtEnv())["features"]["agent_pos"] == {"type": "STATE", "shape": [2]}
+    True
 """
 
 from __future__ import annotations
@@ -52,7 +52,9 @@ def instantiate_config(config_class: type, *, where: str, **overrides) -> EnvCon
     except Exception as e:
         raise EnvCodeError(f"{where}: {config_class.__qualname__}.gym_kwargs raised {type(e).__name__}: {e}") from e
     if not isinstance(gym_kwargs, dict):
-        raise InvalidRepoFormatError(f"{where}: {config_class.__qualname__}.gym_kwargs must return a dict, got {type(gym_kwargs).__name__}.")
+        raise InvalidRepoFormatError(
+            f"{where}: {config_class.__qualname__}.gym_kwargs must return a dict, got {type(gym_kwargs).__name__}."
+        )
     if "max_episode_steps" in gym_kwargs:
         raise InvalidRepoFormatError(
             f"{where}: {config_class.__qualname__}.gym_kwargs contains 'max_episode_steps'; hub-envs sets it from "
@@ -71,5 +73,8 @@ def encode_config(cfg: EnvConfig) -> dict[str, Any]:
 
 def config_differences(recorded: dict[str, Any], actual: dict[str, Any]) -> list[str]:
     keys = sorted(set(recorded) | set(actual))
-    return [f"{k}: manifest {recorded.get(k, '<absent>')!r} vs code {actual.get(k, '<absent>')!r}"
-            for k in keys if recorded.get(k) != actual.get(k)]
+    return [
+        f"{k}: manifest {recorded.get(k, '<absent>')!r} vs code {actual.get(k, '<absent>')!r}"
+        for k in keys
+        if recorded.get(k) != actual.get(k)
+    ]

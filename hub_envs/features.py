@@ -28,7 +28,16 @@ import numpy as np
 from hub_envs.errors import EnvCodeError, FeatureMismatchError
 
 #: Keys every LeRobot dataset has, or hub-envs adds, that no env feature maps to.
-DATASET_BOOKKEEPING = {"timestamp", "frame_index", "episode_index", "index", "task_index", "next.reward", "next.done", "next.success"}
+DATASET_BOOKKEEPING = {
+    "timestamp",
+    "frame_index",
+    "episode_index",
+    "index",
+    "task_index",
+    "next.reward",
+    "next.done",
+    "next.success",
+}
 
 
 @dataclass
@@ -62,7 +71,9 @@ class FeatureReport:
 
     def table(self) -> str:
         header = ("feature", "lerobot key", "declared", "live", "dataset", "verdict")
-        body = [(r.feature, r.lerobot_key, r.declared, r.live, r.dataset, "ok" if r.ok else "; ".join(r.problems)) for r in self.rows]
+        body = [
+            (r.feature, r.lerobot_key, r.declared, r.live, r.dataset, "ok" if r.ok else "; ".join(r.problems)) for r in self.rows
+        ]
         widths = [max(len(str(x)) for x in col) for col in zip(header, *body)]
         widths[-1] = len(header[-1])  # the verdict column is free-form
         line = lambda cells: "  ".join(str(c).ljust(w) for c, w in zip(cells, widths)).rstrip()  # noqa: E731
@@ -79,8 +90,12 @@ class FeatureReport:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FeatureReport:
-        return cls(rows=[FeatureRow(**row) for row in data["rows"]], steps=int(data["steps"]), seed=int(data["seed"]),
-                   dataset_checked=bool(data["dataset_checked"]))
+        return cls(
+            rows=[FeatureRow(**row) for row in data["rows"]],
+            steps=int(data["steps"]),
+            seed=int(data["seed"]),
+            dataset_checked=bool(data["dataset_checked"]),
+        )
 
     def raise_if_mismatch(self, where: str) -> None:
         if self.ok:
@@ -136,8 +151,10 @@ def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[A
     try:
         obs, info = env.reset(seed=seed)
     except Exception as e:
-        raise EnvCodeError(f"{where}: env.reset(seed={seed}) raised {type(e).__name__}: {e}. Fix the env's reset "
-                           f"(reproduce with env.reset(seed={seed})) and re-publish with push_env.") from e
+        raise EnvCodeError(
+            f"{where}: env.reset(seed={seed}) raised {type(e).__name__}: {e}. Fix the env's reset "
+            f"(reproduce with env.reset(seed={seed})) and re-publish with push_env."
+        ) from e
     env.action_space.seed(seed)
     observations, actions, infos = [obs], [], [info]
     for i in range(steps):
@@ -145,8 +162,10 @@ def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[A
         try:
             obs, _, terminated, truncated, info = env.step(action)
         except Exception as e:
-            raise EnvCodeError(f"{where}: env.step at step {i} (seed {seed}) raised {type(e).__name__}: {e}. Fix the env's "
-                               f"step (reproduce with seeded random actions) and re-publish with push_env.") from e
+            raise EnvCodeError(
+                f"{where}: env.step at step {i} (seed {seed}) raised {type(e).__name__}: {e}. Fix the env's "
+                f"step (reproduce with seeded random actions) and re-publish with push_env."
+            ) from e
         actions.append(action)
         observations.append(obs)
         infos.append(info)
@@ -157,8 +176,9 @@ def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[A
     return observations, actions, infos
 
 
-def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0,
-                   where: str = "the env") -> FeatureReport:
+def check_features(
+    cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0, where: str = "the env"
+) -> FeatureReport:
     """Compare declared features, a live seeded rollout of ``env`` and the dataset's info.json features."""
     from lerobot.configs.types import FeatureType
 
@@ -167,8 +187,16 @@ def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: 
     rows: list[FeatureRow] = []
     live_keys = set(_flat_keys(observations[0])) if isinstance(observations[0], dict) else set()
     if not isinstance(observations[0], dict):
-        rows.append(FeatureRow("(observation)", "-", "dict", _describe(observations[0]), "-",
-                               ["observations must be dicts such as {'agent_pos': ...} (LeRobot's format)"]))
+        rows.append(
+            FeatureRow(
+                "(observation)",
+                "-",
+                "dict",
+                _describe(observations[0]),
+                "-",
+                ["observations must be dicts such as {'agent_pos': ...} (LeRobot's format)"],
+            )
+        )
     mapped_dataset_keys = set()
 
     for name, feat in cfg.features.items():
@@ -216,8 +244,11 @@ def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: 
                     outside = [i for i, v in enumerate(values) if not space.contains(v)]
                     if outside and not any("non-finite" in p for p in problems):
                         v = values[outside[0]]
-                        problems.append(f"outside observation_space at step {outside[0]} (min {v.min():.4g}, max {v.max():.4g})"
-                                        if v.size and v.shape == space.shape else f"outside observation_space at step {outside[0]}")
+                        problems.append(
+                            f"outside observation_space at step {outside[0]} (min {v.min():.4g}, max {v.max():.4g})"
+                            if v.size and v.shape == space.shape
+                            else f"outside observation_space at step {outside[0]}"
+                        )
         # -- dataset --
         if dataset_features is None:
             dataset = "-"
@@ -239,21 +270,46 @@ def check_features(cfg, env, dataset_features: dict[str, Any] | None, *, steps: 
 
     for extra in sorted(live_keys):
         value = np.asarray(_lookup(observations[0], extra))
-        rows.append(FeatureRow(extra, features_map.get(extra, "-"), "-", _describe(value), "-",
-                               [f"observation key {extra!r} is not declared in config.features"]))
+        rows.append(
+            FeatureRow(
+                extra,
+                features_map.get(extra, "-"),
+                "-",
+                _describe(value),
+                "-",
+                [f"observation key {extra!r} is not declared in config.features"],
+            )
+        )
     if dataset_features is not None:
         for extra in sorted(set(dataset_features) - mapped_dataset_keys - DATASET_BOOKKEEPING):
             spec = dataset_features[extra]
-            rows.append(FeatureRow("-", extra, "-", "-", f"{spec.get('dtype')} {tuple(spec.get('shape', ()))}",
-                                   [f"dataset feature {extra!r} is not declared in config.features"]))
+            rows.append(
+                FeatureRow(
+                    "-",
+                    extra,
+                    "-",
+                    "-",
+                    f"{spec.get('dtype')} {tuple(spec.get('shape', ()))}",
+                    [f"dataset feature {extra!r} is not declared in config.features"],
+                )
+            )
 
     bad_success = [i for i, info in enumerate(infos) if not isinstance(info.get("is_success"), (bool, np.bool_))]
     success_problems = []
     if bad_success:
         i = bad_success[0]
         got = infos[i].get("is_success", "missing")
-        success_problems.append(f"info['is_success'] must be a bool in every reset/step info; got {got!r} ({type(got).__name__}) at call {i}")
-    rows.append(FeatureRow("info.is_success", "next.success", "bool", "bool" if not bad_success else "wrong",
-                           "-" if dataset_features is None else ("bool" if "next.success" in dataset_features else "missing"),
-                           success_problems))
+        success_problems.append(
+            f"info['is_success'] must be a bool in every reset/step info; got {got!r} ({type(got).__name__}) at call {i}"
+        )
+    rows.append(
+        FeatureRow(
+            "info.is_success",
+            "next.success",
+            "bool",
+            "bool" if not bad_success else "wrong",
+            "-" if dataset_features is None else ("bool" if "next.success" in dataset_features else "missing"),
+            success_problems,
+        )
+    )
     return FeatureReport(rows=rows, steps=steps, seed=seed, dataset_checked=dataset_features is not None)

@@ -85,8 +85,9 @@ def _snapshot_origin(folder: Path) -> tuple[str, str] | None:
     return name.replace("--", "/"), sha
 
 
-def locate_dataset(path_or_repo_id: str | Path, *, revision: str | None = None,
-                   token: str | None = None) -> tuple[Path, tuple[str, str] | None]:
+def locate_dataset(
+    path_or_repo_id: str | Path, *, revision: str | None = None, token: str | None = None
+) -> tuple[Path, tuple[str, str] | None]:
     """The local dataset folder, and (env repo id, sha) when the folder is the bundled dataset of an env snapshot."""
     path = Path(str(path_or_repo_id)).expanduser()
     if path.is_dir():
@@ -94,7 +95,9 @@ def locate_dataset(path_or_repo_id: str | Path, *, revision: str | None = None,
         if (path / MANIFEST_FILE).is_file() and (path / DATASET_DIR / "meta" / "info.json").is_file():
             path = path / DATASET_DIR
         if not (path / "meta" / "info.json").is_file():
-            raise ReproductionError(f"{path} is neither a LeRobot dataset folder (meta/info.json) nor an env repo with a dataset/.")
+            raise ReproductionError(
+                f"{path} is neither a LeRobot dataset folder (meta/info.json) nor an env repo with a dataset/."
+            )
         origin = _snapshot_origin(path.parent) if path.name == DATASET_DIR and (path.parent / MANIFEST_FILE).is_file() else None
         return path, origin
     repo_id, at_rev = hub_io.parse_repo_ref(str(path_or_repo_id))
@@ -190,8 +193,7 @@ def env_from_dataset(
         sha = meta["env_sha"]
     else:
         sha = _find_commit(env_repo, digest, root, token)
-    loaded = load_env(f"{env_repo}@{sha}", trust_remote_code=trust_remote_code, check=check,
-                      fingerprint=fingerprint, token=token)  # type: ignore[arg-type]
+    loaded = load_env(f"{env_repo}@{sha}", trust_remote_code=trust_remote_code, check=check, fingerprint=fingerprint, token=token)  # type: ignore[arg-type]
     try:
         actual = code_digest_of(loaded.manifest.files)
         if actual != digest:
@@ -205,8 +207,9 @@ def env_from_dataset(
             diffs = config_differences(recorded, encode_config(loaded.config))
             if diffs:
                 raise ReproductionError(
-                    f"{env_repo}@{loaded.revision}: the dataset was recorded with other config values:\n  " + "\n  ".join(diffs) +
-                    "\nThe env cannot be rebuilt exactly from this commit."
+                    f"{env_repo}@{loaded.revision}: the dataset was recorded with other config values:\n  "
+                    + "\n  ".join(diffs)
+                    + "\nThe env cannot be rebuilt exactly from this commit."
                 )
     except HubEnvsError:
         loaded.unregister()

@@ -122,7 +122,9 @@ def check_hub_response(url: str, headers, read_body) -> None:
     if "/resolve/" in path:
         for name in ("X-Linked-Etag", "ETag"):
             value = headers.get(name)
-            if value is not None and not _HUB_ETAG.fullmatch(value.lstrip("W/").strip('"')):  # huggingface_hub's own normalization
+            if value is not None and not _HUB_ETAG.fullmatch(
+                value.lstrip("W/").strip('"')
+            ):  # huggingface_hub's own normalization
                 _refuse(url, f"{name} {value[:80]!r} (a file's ETag is its 40-hex git or 64-hex sha256 digest)")
     elif _REVISION_API.match(path):
         try:
@@ -188,7 +190,9 @@ def translate_hub_errors(repo_id: str, revision: str | None):
     except HfHubHTTPError as e:
         status = getattr(e.response, "status_code", "?")
         if status == 401:
-            raise HubError(f"{where}: the Hub at {constants.ENDPOINT} refused the token (401). Set HF_TOKEN to a token with access.") from e
+            raise HubError(
+                f"{where}: the Hub at {constants.ENDPOINT} refused the token (401). Set HF_TOKEN to a token with access."
+            ) from e
         raise HubError(f"{where}: the Hub at {constants.ENDPOINT} answered {status}: {e}. Retry, or check the server.") from e
     except NETWORK_ERRORS as e:
         raise HubError(
@@ -219,7 +223,12 @@ def resolve_snapshot(
     A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
     """
-    if revision is not None and not is_commit_sha(revision) and len(revision) == 40 and all(c in "0123456789abcdefABCDEF" for c in revision):
+    if (
+        revision is not None
+        and not is_commit_sha(revision)
+        and len(revision) == 40
+        and all(c in "0123456789abcdefABCDEF" for c in revision)
+    ):
         revision = revision.lower()
     if is_commit_sha(revision) and not force_download:
         cached = _cache_snapshot_dir(repo_id, revision, cache_dir)
@@ -233,7 +242,12 @@ def resolve_snapshot(
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
         path = snapshot_download(
-            repo_id, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download,
+            repo_id,
+            revision=sha,
+            repo_type=REPO_TYPE,
+            cache_dir=cache_dir,
+            token=token,
+            force_download=force_download,
         )
     _check_resolved(repo_id, revision, Path(path).name)
     return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
@@ -242,8 +256,10 @@ def resolve_snapshot(
 def _check_resolved(repo_id: str, requested: str | None, sha: str | None) -> None:
     """The Hub answered ``sha`` for ``requested``: a commit id, and the very one asked for when a sha was asked."""
     if not is_commit_sha(sha):
-        raise HostileResponseError(f"{repo_id}@{requested or 'main'}: the Hub at {constants.ENDPOINT} resolved it to {str(sha)[:80]!r}, "
-                                   f"which is not a commit id. Nothing was imported. Check HF_ENDPOINT.")
+        raise HostileResponseError(
+            f"{repo_id}@{requested or 'main'}: the Hub at {constants.ENDPOINT} resolved it to {str(sha)[:80]!r}, "
+            f"which is not a commit id. Nothing was imported. Check HF_ENDPOINT."
+        )
     if is_commit_sha(requested) and sha != requested:
         raise IntegrityError(
             f"{repo_id}@{requested}: the Hub at {constants.ENDPOINT} served commit {sha} instead of the one asked for. "
@@ -278,10 +294,11 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
             if name in filenames and rel not in listed and rel not in (MANIFEST_FILE, ".gitattributes"):
                 bad.append(f"{rel} (not in the manifest)")
     if bad:
-
-        raise IntegrityError(f"{where}: the cached snapshot {path} holds what no download of this commit puts there:\n  "
-                             + "\n  ".join(safe_text(b) for b in bad[:20])
-                             + "\nNot importing it. It was removed from the cache; load again to download the commit afresh.")
+        raise IntegrityError(
+            f"{where}: the cached snapshot {path} holds what no download of this commit puts there:\n  "
+            + "\n  ".join(safe_text(b) for b in bad[:20])
+            + "\nNot importing it. It was removed from the cache; load again to download the commit afresh."
+        )
 
 
 def drop_snapshot(path: Path) -> None:

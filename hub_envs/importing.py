@@ -182,9 +182,13 @@ def resolve_entry_point(package: types.ModuleType, entry_point: str, *, where: s
                 f"already taken: {safe_text(e)}. Remove its @EnvConfig.register_subclass decorator: hub-envs registers the config "
                 f"itself, under a name unique to the repo and commit."
             ) from e
-        raise EnvCodeError(f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {safe_text(e)}") from e
+        raise EnvCodeError(
+            f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {safe_text(e)}"
+        ) from e
     except Exception as e:  # the env's own code raised at import time
-        raise EnvCodeError(f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {safe_text(e)}") from e
+        raise EnvCodeError(
+            f"Importing {module_name} for entry point {entry_point!r} raised {type(e).__name__}: {safe_text(e)}"
+        ) from e
     obj = module
     for part in attr.split("."):
         try:

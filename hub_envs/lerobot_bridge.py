@@ -35,8 +35,9 @@ import datetime as dt
 import json
 import re
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from hub_envs._compat import missing_training_packages
 from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
@@ -52,7 +53,7 @@ _CONSUMED = ("repo_id", "revision", "trust_remote_code", "fingerprint", "check")
 def flag(argv: list[str], name: str) -> str | None:
     """The value of ``--name=value`` in ``argv`` (the last one wins), else None."""
     prefix = f"--{name}="
-    values = [a[len(prefix):] for a in argv if a.startswith(prefix)]
+    values = [a[len(prefix) :] for a in argv if a.startswith(prefix)]
     return values[-1] if values else None
 
 
@@ -116,8 +117,10 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
             raise ConfigError(f"--env.type={env_type} names commit {m['prefix']}..., but --env.revision={revision}.")
         loaded = load_cached(repo_id, revision, trust_remote_code=trust, fingerprint=fingerprint, check=check)
         if loaded.env_type != env_type:
-            raise ConfigError(f"{repo_id}@{loaded.revision} registers the choice {loaded.env_type!r}, not {env_type!r}. "
-                              f"Use --env.type={loaded.env_type}.")
+            raise ConfigError(
+                f"{repo_id}@{loaded.revision} registers the choice {loaded.env_type!r}, not {env_type!r}. "
+                f"Use --env.type={loaded.env_type}."
+            )
         argv = _drop(argv, tuple(f"env.{n}" for n in _CONSUMED))  # not fields of the repo's own config
     if command == "train" and loaded is not None and loaded.dataset_root is not None:
         ds_repo = flag(argv, "dataset.repo_id")
@@ -234,8 +237,11 @@ def _policy_training(policy_path: Path | None) -> dict[str, Any] | None:
     if train_config.is_file():
         data = json.loads(train_config.read_text(encoding="utf-8"))
         ds = data.get("dataset") or {}
-        return {"dataset": dataset_provenance(ds.get("repo_id"), ds.get("root"), ds.get("revision"), None),
-                "steps": data.get("steps"), "seed": data.get("seed")}
+        return {
+            "dataset": dataset_provenance(ds.get("repo_id"), ds.get("root"), ds.get("revision"), None),
+            "steps": data.get("steps"),
+            "seed": data.get("seed"),
+        }
     return None
 
 
@@ -249,7 +255,7 @@ def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
     return {
         "hub_envs_provenance": 1,
         "command": ["hub-envs", "train", *argv],
-        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "env": env,
         "dataset": dataset_provenance(cfg.dataset.repo_id, cfg.dataset.root, cfg.dataset.revision, env),
         "policy": {"type": cfg.policy.type if cfg.policy else None},
@@ -266,10 +272,13 @@ def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
     return {
         "hub_envs_provenance": 1,
         "command": ["hub-envs", "eval", *argv],
-        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "env": env,
-        "policy": {"type": cfg.policy.type if cfg.policy else None, "path": str(policy_path) if policy_path else None,
-                   "training": _policy_training(Path(policy_path) if policy_path else None)},
+        "policy": {
+            "type": cfg.policy.type if cfg.policy else None,
+            "path": str(policy_path) if policy_path else None,
+            "training": _policy_training(Path(policy_path) if policy_path else None),
+        },
         "eval": {"n_episodes": cfg.eval.n_episodes, "batch_size": cfg.eval.batch_size, "seed": cfg.seed},
         "output_dir": str(cfg.output_dir),
         "versions": _versions(),

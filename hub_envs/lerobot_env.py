@@ -63,16 +63,16 @@ def set_cli_consent(trust_remote_code: bool | None) -> None:
         _CLI_CONSENT.append(bool(trust_remote_code))
 
 
-def load_cached(repo_id: str, revision: str | None = None, *, trust_remote_code: bool = False,
-                fingerprint: str = "error", check: bool = True) -> LoadedEnv:
+def load_cached(
+    repo_id: str, revision: str | None = None, *, trust_remote_code: bool = False, fingerprint: str = "error", check: bool = True
+) -> LoadedEnv:
     """:func:`hub_envs.load_env`, once per process for the same arguments."""
     key = (repo_id, revision, fingerprint, bool(check))
     loaded = _CACHE.get(key)
     if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
         return loaded
     try:
-        loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code,
-                          fingerprint=fingerprint, check=check)
+        loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, fingerprint=fingerprint, check=check)
     except UntrustedCodeError as e:
         raise UntrustedCodeError(f"{e}\nWith LeRobot's CLIs (hub-envs train / eval): add --env.trust_remote_code=true.") from None
     _CACHE[key] = loaded
@@ -85,8 +85,10 @@ def _typed_overrides(config_class: type, overrides: dict[str, Any], *, where: st
     names = {f.name: f for f in dataclasses.fields(config_class) if f.init}
     unknown = sorted(set(overrides) - set(names))
     if unknown:
-        raise ConfigError(f"{where}: --env.overrides has {unknown}, which {config_class.__qualname__} does not have; "
-                          f"its fields are {sorted(names)}.")
+        raise ConfigError(
+            f"{where}: --env.overrides has {unknown}, which {config_class.__qualname__} does not have; "
+            f"its fields are {sorted(names)}."
+        )
     try:
         hints = typing.get_type_hints(config_class)
     except Exception:
@@ -135,8 +137,9 @@ class HubEnv(EnvConfig):
             raise ConfigError(f"--env.fingerprint={self.fingerprint!r}: use error, warn or off.")
         consent = _CLI_CONSENT[0] if _CLI_CONSENT else bool(self.trust_remote_code)
         self.trust_remote_code = False  # consent is not part of what a run's config describes, nor saved with it
-        loaded = load_cached(self.repo_id, self.revision, trust_remote_code=consent,
-                             fingerprint=self.fingerprint, check=self.check)
+        loaded = load_cached(
+            self.repo_id, self.revision, trust_remote_code=consent, fingerprint=self.fingerprint, check=self.check
+        )
         where = f"{loaded.repo_id}@{loaded.revision}"
         overrides = dict(self.overrides or {})
         for name in ("task", "fps", "episode_length"):
@@ -221,7 +224,9 @@ def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
     return None
 
 
-def make_vec_env(loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 1, use_async_envs: bool = False) -> gym.vector.VectorEnv:
+def make_vec_env(
+    loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 1, use_async_envs: bool = False
+) -> gym.vector.VectorEnv:
     """``n_envs`` copies of a loaded env, as LeRobot's eval loop expects them (see the module docstring)."""
     if n_envs < 1:
         raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
@@ -240,8 +245,9 @@ def make_vec_env(loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 
     return gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
 
 
-def make_env(cfg, n_envs: int = 1, use_async_envs: bool = False, hub_cache_dir: str | None = None,
-             trust_remote_code: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+def make_env(
+    cfg, n_envs: int = 1, use_async_envs: bool = False, hub_cache_dir: str | None = None, trust_remote_code: bool = False
+) -> dict[str, dict[int, gym.vector.VectorEnv]]:
     """LeRobot's ``make_env`` signature; hub env configs get :func:`make_vec_env`, others LeRobot's own.
 
     A hub env config was loaded through load_env's trust gate when it was built, so LeRobot's
@@ -251,8 +257,9 @@ def make_env(cfg, n_envs: int = 1, use_async_envs: bool = False, hub_cache_dir: 
     if found is None:
         from lerobot.envs import factory
 
-        return factory.make_env(cfg, n_envs=n_envs, use_async_envs=use_async_envs, hub_cache_dir=hub_cache_dir,
-                                trust_remote_code=trust_remote_code)
+        return factory.make_env(
+            cfg, n_envs=n_envs, use_async_envs=use_async_envs, hub_cache_dir=hub_cache_dir, trust_remote_code=trust_remote_code
+        )
     loaded, env_cfg = found
     return {loaded.manifest.name: {0: make_vec_env(loaded, env_cfg, n_envs, use_async_envs)}}
 
@@ -268,8 +275,10 @@ def make_env_pre_post_processors(env_cfg, policy_cfg):
         return pre, post  # LeRobot >= 0.5 already asked HubEnv.get_env_processors()
     loaded, cfg = found
     ours_pre, ours_post = loaded.processors(cfg)
-    return (PolicyProcessorPipeline(steps=[*pre.steps, *ours_pre.steps], name=ours_pre.name),
-            PolicyProcessorPipeline(steps=[*post.steps, *ours_post.steps], name=ours_post.name))
+    return (
+        PolicyProcessorPipeline(steps=[*pre.steps, *ours_pre.steps], name=ours_pre.name),
+        PolicyProcessorPipeline(steps=[*post.steps, *ours_post.steps], name=ours_post.name),
+    )
 
 
 def keep_declared_shapes(dataset):
@@ -287,9 +296,13 @@ def keep_declared_shapes(dataset):
 
     to_torch_base = hf_transform_to_torch()
 
-    keys = [k for k, ft in dataset.meta.features.items()
-            if tuple(ft.get("shape", ())) == (1,) and ft.get("dtype") not in ("image", "video", "string")
-            and (k == ACTION or k.startswith(OBS_PREFIX))]
+    keys = [
+        k
+        for k, ft in dataset.meta.features.items()
+        if tuple(ft.get("shape", ())) == (1,)
+        and ft.get("dtype") not in ("image", "video", "string")
+        and (k == ACTION or k.startswith(OBS_PREFIX))
+    ]
     hf = getattr(dataset, "hf_dataset", None)
     if not keys or hf is None:
         return dataset
@@ -320,8 +333,9 @@ def _written_by_hub_envs(meta) -> bool:
 
 def _fix_shapes(cfg, dataset):
     meta = getattr(dataset, "meta", None)
-    if dataset is not None and (loaded_for(getattr(cfg, "env", None)) is not None
-                                or (meta is not None and _written_by_hub_envs(meta))):
+    if dataset is not None and (
+        loaded_for(getattr(cfg, "env", None)) is not None or (meta is not None and _written_by_hub_envs(meta))
+    ):
         keep_declared_shapes(dataset)
     return dataset
 
@@ -357,5 +371,18 @@ def install_hooks() -> None:
         setattr(lerobot_train, name, _DATASET_HOOKS[name])
 
 
-__all__ = ["HubEnv", "HUB_CHOICE", "TaskDescription", "install_hooks", "load_cached", "loaded_for", "make_env", "set_cli_consent",
-           "make_env_pre_post_processors", "make_vec_env", "make_dataset", "make_train_eval_datasets", "keep_declared_shapes"]
+__all__ = [
+    "HubEnv",
+    "HUB_CHOICE",
+    "TaskDescription",
+    "install_hooks",
+    "load_cached",
+    "loaded_for",
+    "make_env",
+    "set_cli_consent",
+    "make_env_pre_post_processors",
+    "make_vec_env",
+    "make_dataset",
+    "make_train_eval_datasets",
+    "keep_declared_shapes",
+]

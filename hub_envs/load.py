@@ -30,9 +30,10 @@ from typing import Any, Literal
 import gymnasium as gym
 
 from hub_envs import check_cache, hub_io, registration, trust_list
+from hub_envs._text import safe_text
 from hub_envs.checks import verify_fingerprint
-from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.dataset import read_info
+from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.errors import (
     ConfigError,
     DatasetError,
@@ -49,13 +50,12 @@ from hub_envs.errors import (
 from hub_envs.features import FeatureReport, check_features
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.provenance import describe_differences, package_versions, version_differences
-from hub_envs._text import safe_text
 from hub_envs.repo_format import (
     DATASET_DIR,
     MANIFEST_FILE,
     EnvFolder,
-    check_names_belong_to,
     Manifest,
+    check_names_belong_to,
     content_digest,
     hash_files,
     is_code_file,
@@ -108,8 +108,21 @@ class LoadedEnv:
         report: the :class:`LoadReport`.
     """
 
-    def __init__(self, *, repo_id, revision, requested_revision, path, manifest, env_class, config_class, config,
-                 registration_, report, local_folder=None):
+    def __init__(
+        self,
+        *,
+        repo_id,
+        revision,
+        requested_revision,
+        path,
+        manifest,
+        env_class,
+        config_class,
+        config,
+        registration_,
+        report,
+        local_folder=None,
+    ):
         self.repo_id: str = repo_id
         self.revision: str = revision
         self.requested_revision: str | None = requested_revision
@@ -166,7 +179,9 @@ class LoadedEnv:
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
         if self.dataset_root is None:
-            raise InvalidRepoFormatError(f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env).")
+            raise InvalidRepoFormatError(
+                f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env)."
+            )
         return LeRobotDataset(self.repo_id, root=self.dataset_root, **kwargs)
 
     def processors(self, cfg=None):
@@ -210,8 +225,9 @@ def _local_manifest(folder: EnvFolder) -> Manifest:
     )
 
 
-def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_remote_code: bool,
-                trusted: trust_list.TrustList) -> str:
+def _trust_gate(
+    repo_id: str, sha: str, manifest: Manifest, path: Path, trust_remote_code: bool, trusted: trust_list.TrustList
+) -> str:
     """Consent for exactly this commit and content: the call's flag, or an entry of the trust list as it was
     read before anything was downloaded (``trusted``), never a re-read of a file a download could have written."""
     if trust_remote_code:
@@ -222,12 +238,16 @@ def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_re
     previous = [e for e in trusted.previous(repo_id) if e.sha != sha]
     changed = ""
     if any(e.sha == sha for e in trusted.previous(repo_id)):
-        changed = (f"\nYou trusted {repo_id}@{sha[:12]} for other content (manifest digest "
-                   f"{next(e.content_digest for e in trusted.previous(repo_id) if e.sha == sha)[:16]}…); the endpoint now serves "
-                   f"{manifest.content_digest[:16]}… under the same commit id. Do not trust it again unless you know why.")
+        changed = (
+            f"\nYou trusted {repo_id}@{sha[:12]} for other content (manifest digest "
+            f"{next(e.content_digest for e in trusted.previous(repo_id) if e.sha == sha)[:16]}…); the endpoint now serves "
+            f"{manifest.content_digest[:16]}… under the same commit id. Do not trust it again unless you know why."
+        )
     elif trust_list.legacy_trusted(repo_id, sha):
-        changed = ("\nAn older hub-envs trusted this commit by its sha alone; trust now also binds the content. "
-                   "Confirm it once more (command below).")
+        changed = (
+            "\nAn older hub-envs trusted this commit by its sha alone; trust now also binds the content. "
+            "Confirm it once more (command below)."
+        )
     elif previous:
         prev_dir = path.parent / previous[-1].sha
         if (prev_dir / MANIFEST_FILE).is_file():
@@ -236,8 +256,10 @@ def _trust_gate(repo_id: str, sha: str, manifest: Manifest, path: Path, trust_re
                 diff = [p for p in sorted(set(old) | set(manifest.files)) if old.get(p) != manifest.files.get(p)]
                 code = [safe_text(p) for p in diff if is_code_file(p)]
                 other = [safe_text(p) for p in diff if not is_code_file(p)]
-                changed = (f"\nYou trusted {previous[-1].sha[:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
-                           f"{'; other files: ' + ', '.join(other[:8]) + (' …' if len(other) > 8 else '') if other else ''}.")
+                changed = (
+                    f"\nYou trusted {previous[-1].sha[:12]} before; since then code changed in: {', '.join(code) or 'no code file'}"
+                    f"{'; other files: ' + ', '.join(other[:8]) + (' …' if len(other) > 8 else '') if other else ''}."
+                )
             except HubEnvsError:
                 pass
         else:
@@ -343,19 +365,26 @@ def load_env(
     report = LoadReport()
     local_folder = None
     if not isinstance(repo_id, (str, os.PathLike)) or not str(repo_id).strip():
-        raise ConfigError(f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}.")
+        raise ConfigError(
+            f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}."
+        )
     original, repo_id = repo_id, os.fspath(repo_id)
     path_candidate = Path(repo_id).expanduser()
     if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
-        raise EnvFolderError(f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
-                             f"or a Hub repo id such as 'user/name'.")
+        raise EnvFolderError(
+            f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
+            f"or a Hub repo id such as 'user/name'."
+        )
     explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
     use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.fullmatch(repo_id))
     if path_candidate.is_dir() and not use_local:
         # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
         # without consent, so it must never be picked by accident
-        warnings.warn(f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
-                      f"'./{repo_id}' to load the folder instead.", stacklevel=2)
+        warnings.warn(
+            f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
+            f"'./{repo_id}' to load the folder instead.",
+            stacklevel=2,
+        )
     if use_local:
         repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
         local_folder = path
@@ -378,7 +407,9 @@ def load_env(
         if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
             warnings.warn(
                 f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
-                f'load_env("{repo}@{sha}")', UnpinnedRevisionWarning, stacklevel=2,
+                f'load_env("{repo}@{sha}")',
+                UnpinnedRevisionWarning,
+                stacklevel=2,
             )
         report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
     where = f"{repo}@{sha}"
@@ -415,8 +446,9 @@ def load_env(
                 diffs = config_differences(manifest.config, encode_config(config))
                 if diffs:
                     raise InvalidRepoFormatError(
-                        f"{where}: the manifest's config values differ from the code's defaults:\n  " + "\n  ".join(diffs) +
-                        "\nRe-publish with push_env so the manifest matches the code."
+                        f"{where}: the manifest's config values differ from the code's defaults:\n  "
+                        + "\n  ".join(diffs)
+                        + "\nRe-publish with push_env so the manifest matches the code."
                     )
             qualifier = sha[:12] if not sha.startswith("local-") else sha
             reg = registration.register(
@@ -431,9 +463,17 @@ def load_env(
             )
             timings["import_register"] = time.perf_counter() - t
             loaded = LoadedEnv(
-                repo_id=repo, revision=sha, requested_revision=requested, path=path, manifest=manifest,
-                env_class=env_class, config_class=config_class, config=config, registration_=reg,
-                report=report, local_folder=local_folder,
+                repo_id=repo,
+                revision=sha,
+                requested_revision=requested,
+                path=path,
+                manifest=manifest,
+                env_class=env_class,
+                config_class=config_class,
+                config=config,
+                registration_=reg,
+                report=report,
+                local_folder=local_folder,
             )
             if check:
                 t = time.perf_counter()
@@ -479,9 +519,15 @@ def _raise_if_partly_cached(path: Path, where: str) -> None:
 def _checks_key(where: str, manifest: Manifest, *, steps: int, fingerprint: FingerprintPolicy) -> str:
     recorded = manifest.fingerprint
     return check_cache.check_key(
-        owner=where, content_digest=manifest.content_digest, requirements=manifest.requirements,
-        settings={"steps": steps, "seed": int(manifest.seeds.get("check", 0)), "fingerprint": fingerprint,
-                  "recorded": recorded.get("digest") if recorded else None},
+        owner=where,
+        content_digest=manifest.content_digest,
+        requirements=manifest.requirements,
+        settings={
+            "steps": steps,
+            "seed": int(manifest.seeds.get("check", 0)),
+            "fingerprint": fingerprint,
+            "recorded": recorded.get("digest") if recorded else None,
+        },
     )
 
 
@@ -490,7 +536,9 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
     recorded = loaded.manifest.fingerprint
     if cached is not None:
         loaded.report.features = FeatureReport.from_dict(cached["features"])
-        loaded.report.fingerprint = f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages; recheck=True re-runs)"
+        loaded.report.fingerprint = (
+            f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages; recheck=True re-runs)"
+        )
         return
     dataset_features = None
     dataset_dir = loaded.manifest.dataset.get("path") if loaded.manifest.dataset else None
@@ -511,8 +559,9 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
         ) from e
     handed_over = False  # the fingerprint's rollouts reuse this env (reset(seed) determines an episode) and close it
     try:
-        report = check_features(loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)),
-                                where=where)
+        report = check_features(
+            loaded.config, env, dataset_features, steps=steps, seed=int(loaded.manifest.seeds.get("check", 0)), where=where
+        )
         loaded.report.features = report
         report.raise_if_mismatch(where)
         if fingerprint == "off" or not recorded:
@@ -521,7 +570,9 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
             return
 
         def note() -> str:  # reading package versions costs milliseconds: only for the error message
-            return describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
+            return describe_differences(
+                version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements))
+            )
 
         handed_over = True
         try:

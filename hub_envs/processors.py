@@ -230,26 +230,34 @@ def parse_declarations(declarations: Any, *, where: str) -> list[ProcessorSpec]:
     for i, decl in enumerate(declarations):
         at = f"{where} processors[{i}]"
         if not isinstance(decl, dict):
-            raise ProcessorError(f"{at} must be a table like {{name = \"clip\", entry_point = \"clip_action\", stage = \"post\"}}, got {decl!r}.")
+            raise ProcessorError(
+                f'{at} must be a table like {{name = "clip", entry_point = "clip_action", stage = "post"}}, got {decl!r}.'
+            )
         unknown = sorted(set(decl) - set(FIELDS))
         if unknown:
             raise ProcessorError(f"{at}: unknown field(s) {unknown}; a processor has {list(FIELDS)}.")
         name = decl.get("name")
         if not isinstance(name, str) or not name.strip():
-            raise ProcessorError(f"{at}.name is missing or not a non-empty string; give every processor a label, e.g. name = \"clip\".")
+            raise ProcessorError(
+                f'{at}.name is missing or not a non-empty string; give every processor a label, e.g. name = "clip".'
+            )
         if name in seen:
             raise ProcessorError(f"{at}.name {name!r} is used twice; processor names must be unique.")
         seen.add(name)
         entry = decl.get("entry_point", name)
         if not isinstance(entry, str) or not entry:
-            raise ProcessorError(f"{at}.entry_point must be a string: a built-in ({', '.join(BUILTINS)}), a LeRobot processor name, or \"module:Class\".")
+            raise ProcessorError(
+                f'{at}.entry_point must be a string: a built-in ({", ".join(BUILTINS)}), a LeRobot processor name, or "module:Class".'
+            )
         if ":" in entry and not _ENTRY_RE.match(entry):
-            raise ProcessorError(f"{at}.entry_point {entry!r} is not of the form \"module:Class\".")
+            raise ProcessorError(f'{at}.entry_point {entry!r} is not of the form "module:Class".')
         if "stage" not in decl:
-            raise ProcessorError(f"{at}.stage is missing: \"pre\" (observation -> policy) or \"post\" (policy action -> env).")
+            raise ProcessorError(f'{at}.stage is missing: "pre" (observation -> policy) or "post" (policy action -> env).')
         stage = decl["stage"]
         if stage not in STAGES:
-            raise ProcessorError(f"{at}.stage = {stage!r} must be \"pre\" (observation -> policy) or \"post\" (policy action -> env).")
+            raise ProcessorError(
+                f'{at}.stage = {stage!r} must be "pre" (observation -> policy) or "post" (policy action -> env).'
+            )
         kwargs = decl.get("kwargs", {})
         if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
             raise ProcessorError(f"{at}.kwargs must be a table of keyword arguments, got {kwargs!r}.")
@@ -281,20 +289,22 @@ def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
         return ProcessorStepRegistry.get(entry)
     raise ProcessorError(
         f"{at}.entry_point {entry!r} is not a built-in ({', '.join(BUILTINS)}), a LeRobot processor step "
-        f"(lerobot.processor.ProcessorStepRegistry) or \"module:Class\" in the env's code."
+        f'(lerobot.processor.ProcessorStepRegistry) or "module:Class" in the env\'s code.'
     )
 
 
-def build_step(spec: ProcessorSpec, *, package: str | None = None, spaces: dict | None = None, where: str = "hub_env.json") -> ProcessorStep:
+def build_step(
+    spec: ProcessorSpec, *, package: str | None = None, spaces: dict | None = None, where: str = "hub_env.json"
+) -> ProcessorStep:
     """Instantiate one declared step (``spaces``: the env's ``action_space`` / ``observation_space``)."""
     at = f"{where} processors[{spec.index}]"
     cls = _step_class(spec, package=package, at=at)
     if not (isinstance(cls, type) and issubclass(cls, ProcessorStep)):
         raise ProcessorError(f"{at}.entry_point {spec.entry_point!r} is {cls!r}, not a lerobot.processor.ProcessorStep subclass.")
     if spec.stage == "post" and issubclass(cls, ObservationProcessorStep):
-        raise ProcessorError(f"{at}.stage is \"post\" but {cls.__name__} processes observations; use stage = \"pre\".")
+        raise ProcessorError(f'{at}.stage is "post" but {cls.__name__} processes observations; use stage = "pre".')
     if spec.stage == "pre" and issubclass(cls, (ActionProcessorStep, PolicyActionProcessorStep)):
-        raise ProcessorError(f"{at}.stage is \"pre\" but {cls.__name__} processes actions; use stage = \"post\".")
+        raise ProcessorError(f'{at}.stage is "pre" but {cls.__name__} processes actions; use stage = "post".')
     try:
         if hasattr(cls, "from_spaces"):
             return cls.from_spaces(**(spaces or {}), **spec.kwargs)
@@ -309,8 +319,10 @@ def build_pipelines(specs: list[ProcessorSpec], **kwargs) -> tuple[PolicyProcess
     """``(env_preprocessor, env_postprocessor)`` made of the declared steps, in declaration order."""
     pre = [build_step(s, **kwargs) for s in specs if s.stage == "pre"]
     post = [build_step(s, **kwargs) for s in specs if s.stage == "post"]
-    return (PolicyProcessorPipeline(steps=pre, name="hub_envs_env_preprocessor"),
-            PolicyProcessorPipeline(steps=post, name="hub_envs_env_postprocessor"))
+    return (
+        PolicyProcessorPipeline(steps=pre, name="hub_envs_env_preprocessor"),
+        PolicyProcessorPipeline(steps=post, name="hub_envs_env_postprocessor"),
+    )
 
 
 def policy_observation(env_observation: dict, task: str | None = "") -> dict:
@@ -323,8 +335,16 @@ def policy_observation(env_observation: dict, task: str | None = "") -> dict:
     return obs
 
 
-def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: PolicyProcessorPipeline, env, *, seed: int = 0,
-            task: str | None = "", where: str = "hub_env.json") -> None:
+def dry_run(
+    specs: list[ProcessorSpec],
+    pre: PolicyProcessorPipeline,
+    post: PolicyProcessorPipeline,
+    env,
+    *,
+    seed: int = 0,
+    task: str | None = "",
+    where: str = "hub_env.json",
+) -> None:
     """Run every step once on a live observation and a sampled action; a failure names the step."""
     obs, _ = env.reset(seed=seed)
     transition = pre.to_transition(policy_observation(obs, task))
@@ -332,9 +352,11 @@ def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: Poli
         try:
             transition = step(transition)
         except Exception as e:
-            raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage pre) failed on a live observation: "
-                                 f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
-                                 f"and re-publish with push_env.") from e
+            raise ProcessorError(
+                f"{where} processors[{spec.index}] ({spec.name!r}, stage pre) failed on a live observation: "
+                f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
+                f"and re-publish with push_env."
+            ) from e
     env.action_space.seed(seed)
     action = torch.as_tensor(np.asarray(env.action_space.sample(), dtype=np.float32)).reshape(1, -1)
     transition = post.to_transition({ACTION: action})
@@ -342,13 +364,17 @@ def dry_run(specs: list[ProcessorSpec], pre: PolicyProcessorPipeline, post: Poli
         try:
             transition = step(transition)
         except Exception as e:
-            raise ProcessorError(f"{where} processors[{spec.index}] ({spec.name!r}, stage post) failed on a sampled action: "
-                                 f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
-                                 f"and re-publish with push_env.") from e
+            raise ProcessorError(
+                f"{where} processors[{spec.index}] ({spec.name!r}, stage post) failed on a sampled action: "
+                f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
+                f"and re-publish with push_env."
+            ) from e
     out = post.to_output(transition)[ACTION]
     if not isinstance(out, torch.Tensor) or tuple(out.shape) != tuple(action.shape):
-        raise ProcessorError(f"{where}: the post processors turned a {tuple(action.shape)} action into {out!r}; "
-                             f"they must return a tensor of the same shape.")
+        raise ProcessorError(
+            f"{where}: the post processors turned a {tuple(action.shape)} action into {out!r}; "
+            f"they must return a tensor of the same shape."
+        )
 
 
 # --- with a loaded env ------------------------------------------------------------------------
@@ -391,8 +417,15 @@ def validate_for(loaded, *, dry: bool = True) -> list[ProcessorSpec]:
     if dry:
         env = loaded.make()
         try:
-            dry_run(specs, pre, post, env, seed=int(loaded.manifest.seeds.get("check", 0)),
-                    task=loaded.config.task if isinstance(loaded.config.task, str) else "", where=_source(loaded))
+            dry_run(
+                specs,
+                pre,
+                post,
+                env,
+                seed=int(loaded.manifest.seeds.get("check", 0)),
+                task=loaded.config.task if isinstance(loaded.config.task, str) else "",
+                where=_source(loaded),
+            )
         finally:
             env.close()
     return specs

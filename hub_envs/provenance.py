@@ -36,13 +36,20 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
 
 def version_differences(recorded: dict[str, str], current: dict[str, str]) -> dict[str, tuple[str, str]]:
     """``{package: (published, here)}`` for every package whose version differs."""
-    return {k: (recorded.get(k, "?"), current.get(k, "?")) for k in sorted(set(recorded) | set(current))
-            if recorded.get(k) != current.get(k) and k in recorded}
+    return {
+        k: (recorded.get(k, "?"), current.get(k, "?"))
+        for k in sorted(set(recorded) | set(current))
+        if recorded.get(k) != current.get(k) and k in recorded
+    }
 
 
 def describe_differences(diffs: dict[str, tuple[str, str]]) -> str:
     """The sentence a drift message ends with: which versions differ, or that none does (then the code or machine did)."""
     if not diffs:
-        return ("\nNo package version differs from the publisher's, so the env's code or assets, or the machine "
-                "(CPU, OS, libraries outside Python), changed.")
-    return "\nVersions differ from the publisher's: " + ", ".join(f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items())
+        return (
+            "\nNo package version differs from the publisher's, so the env's code or assets, or the machine "
+            "(CPU, OS, libraries outside Python), changed."
+        )
+    return "\nVersions differ from the publisher's: " + ", ".join(
+        f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items()
+    )

@@ -32,7 +32,13 @@ import numpy as np
 from hub_envs import hub_io
 from hub_envs.card import render_card
 from hub_envs.checks import check_determinism, golden_fingerprint, run_env_checker
-from hub_envs.dataset import dataset_features_from_config, dataset_fingerprint, rollout_to_frames, write_lerobot_dataset, EpisodeFrames
+from hub_envs.dataset import (
+    EpisodeFrames,
+    dataset_features_from_config,
+    dataset_fingerprint,
+    rollout_to_frames,
+    write_lerobot_dataset,
+)
 from hub_envs.envconfig import encode_config
 from hub_envs.errors import ConfigError, EnvFolderError
 from hub_envs.features import check_features
@@ -40,7 +46,6 @@ from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
 from hub_envs.media import write_rollout_gif
 from hub_envs.provenance import package_versions
-from hub_envs.repo_format import code_digest as code_digest_of_files
 from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
@@ -54,6 +59,7 @@ from hub_envs.repo_format import (
     hash_files,
     list_files,
 )
+from hub_envs.repo_format import code_digest as code_digest_of_files
 from hub_envs.rollout import iter_episodes
 from hub_envs.states import STATES_PATH, write_env_states
 
@@ -78,14 +84,17 @@ class PushResult:
 
     def summary(self) -> str:
         verb = "Published" if self.created_commit else "Unchanged; already published"
-        return (f"{verb} {self.repo_id} at commit {self.sha} (tags: {', '.join(self.tags)}).\n"
-                f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}")
+        return (
+            f"{verb} {self.repo_id} at commit {self.sha} (tags: {', '.join(self.tags)}).\n"
+            f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}"
+        )
 
 
 def _stage_printer(enabled: bool):
     def say(message: str) -> None:
         if enabled:
             print(message, file=sys.stderr, flush=True)
+
     return say
 
 
@@ -160,7 +169,9 @@ def build_repo(
         dest = staging / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(loaded.local_folder / rel, dest)
-    (staging / ENV_ENTRY_FILE).write_text(ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8")
+    (staging / ENV_ENTRY_FILE).write_text(
+        ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8"
+    )
     code_digest = code_digest_of_files(hash_files(staging, list_files(staging)))
 
     # -- dataset --
@@ -173,16 +184,28 @@ def build_repo(
     env_states: dict[int, Any] = {}  # env.get_state() before each action, for exact replay (hub_envs.states)
 
     def frames():
-        for rollout in iter_episodes(loaded.make, seeds, max_steps=int(cfg.episode_length), workers=workers,
-                                    progress=progress, desc=f"Generating {episodes} episodes", record_states=True):
+        for rollout in iter_episodes(
+            loaded.make,
+            seeds,
+            max_steps=int(cfg.episode_length),
+            workers=workers,
+            progress=progress,
+            desc=f"Generating {episodes} episodes",
+            record_states=True,
+        ):
             env_states[rollout.index] = rollout.states
             returns.append(float(np.sum(rollout.rewards)))
             successes.append(bool(np.any(rollout.is_success)))
             yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
 
     summary = write_lerobot_dataset(
-        staging / DATASET_DIR, repo_id=repo_id, fps=int(cfg.fps), features=features, episodes=frames(),
-        task=str(cfg.task), extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
+        staging / DATASET_DIR,
+        repo_id=repo_id,
+        fps=int(cfg.fps),
+        features=features,
+        episodes=frames(),
+        task=str(cfg.task),
+        extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
         progress=False,  # the rollout bar above already counts episodes
     )
     has_states = write_env_states(staging / DATASET_DIR, env_states)
@@ -198,7 +221,9 @@ def build_repo(
         # -- fingerprint, GIF --
         say("Recording the golden-rollout fingerprint, rendering the GIF and the card")
         fp = golden_fingerprint(loaded.make, seeds=seeds[:fingerprint_seeds], steps=min(32, int(cfg.episode_length)))
-        write_rollout_gif(loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length)))
+        write_rollout_gif(
+            loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length))
+        )
         manifest_dict: dict[str, Any] = {
             "format_version": 1,
             "repo_id": repo_id,
@@ -236,8 +261,13 @@ def build_repo(
         files = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE)))
         manifest_dict["content_digest"] = content_digest(files)
         (staging / CARD_FILE).write_text(
-            render_card(repo_id=repo_id, manifest=manifest_dict, env_class=loaded.env_class, env=env,
-                        content_tag=content_tag(manifest_dict["content_digest"])),
+            render_card(
+                repo_id=repo_id,
+                manifest=manifest_dict,
+                env_class=loaded.env_class,
+                env=env,
+                content_tag=content_tag(manifest_dict["content_digest"]),
+            ),
             encoding="utf-8",
         )
     finally:
@@ -281,8 +311,15 @@ def push_env(
         with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp:
             staging = Path(tmp) / "repo"
             staging.mkdir()
-            manifest = build_repo(loaded, staging, repo_id=repo_id, episodes=episodes, seed=seed,
-                                  workers=workers or _default_workers(), progress=progress)
+            manifest = build_repo(
+                loaded,
+                staging,
+                repo_id=repo_id,
+                episodes=episodes,
+                seed=seed,
+                workers=workers or _default_workers(),
+                progress=progress,
+            )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()
             _stage_printer(progress)(f"Publishing to {repo_id} at {hub_io.endpoint()}")
@@ -305,10 +342,19 @@ def push_env(
                         f"Tag {tag!r} of {repo_id} already names commit {hub_io.tag_target(repo_id, tag, token=token)}; this "
                         f"push would make a new commit. Choose another --tag (nothing was published)."
                     )
-                message = commit_message or f"push_env: {manifest.name} {manifest.version} ({manifest.dataset['episodes']} episodes, seed {seed})"
+                message = (
+                    commit_message
+                    or f"push_env: {manifest.name} {manifest.version} ({manifest.dataset['episodes']} episodes, seed {seed})"
+                )
                 sha = hub_io.publish_folder(
-                    staging, repo_id, parent_commit=head, remote_files=remote_files,
-                    message=message, description=f"content digest {manifest.content_digest}", private=private, token=token,
+                    staging,
+                    repo_id,
+                    parent_commit=head,
+                    remote_files=remote_files,
+                    message=message,
+                    description=f"content digest {manifest.content_digest}",
+                    private=private,
+                    token=token,
                 )
                 created = True
             tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
@@ -321,5 +367,6 @@ def push_env(
         loaded.unregister()
         forget_env_folder(module_key(loaded.repo_id, loaded.revision))  # push keeps nothing imported
     timings["total"] = time.perf_counter() - t0
-    return PushResult(repo_id=repo_id, sha=sha, created_commit=created, content_tag=tags[0], manifest=manifest,
-                      timings=timings, tags=tags)
+    return PushResult(
+        repo_id=repo_id, sha=sha, created_commit=created, content_tag=tags[0], manifest=manifest, timings=timings, tags=tags
+    )

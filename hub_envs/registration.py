@@ -18,8 +18,9 @@ Example:
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
@@ -113,7 +114,9 @@ def register(
             f"Pick another name or load in a fresh process."
         )
     if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
-        raise RegistrationConflictError(f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice.")
+        raise RegistrationConflictError(
+            f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice."
+        )
     # A config class registered under another name by its own module would make `cfg.type` ambiguous.
     other_names = [n for n, c in _choices().items() if c is config_class and n != env_type]
     for name in other_names:

@@ -77,8 +77,10 @@ class Divergence:
     def describe(self) -> str:
         where = f"episode {self.episode}" + (f" (seed {self.seed})" if self.seed is not None else "")
         at = f"[{', '.join(map(str, self.element))}]" if self.element else ""
-        text = (f"{where}, {self.feature}{at}: playback diverged by {self.max_abs_diff:.6g} "
-                f"at step {self.step} (dataset {_short(self.dataset)} vs replay {_short(self.replay)})")
+        text = (
+            f"{where}, {self.feature}{at}: playback diverged by {self.max_abs_diff:.6g} "
+            f"at step {self.step} (dataset {_short(self.dataset)} vs replay {_short(self.replay)})"
+        )
         return text + (f"; {self.note}" if self.note else "")
 
     def to_dict(self) -> dict[str, Any]:
@@ -144,7 +146,7 @@ class ReplayResult:
         if self.ok:
             return f"replay: all {n} episodes ({frames} frames) reproduce {how} ({', '.join(self.features)})"
         first = self.first_divergence
-        return (f"replay: {len(self.diverged)} of {n} episodes diverge; first: {first.describe()}")
+        return f"replay: {len(self.diverged)} of {n} episodes diverge; first: {first.describe()}"
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -168,6 +170,7 @@ class ReplayResult:
 
 def _short(value: Any, limit: int = 100) -> str:
     """A value for a message: floats with 9 significant digits (float32 round-trips), long lists cut."""
+
     def fmt(v: Any) -> str:
         if isinstance(v, float):
             return f"{v:.9g}"
@@ -182,7 +185,11 @@ def _short(value: Any, limit: int = 100) -> str:
 def _as_dataset_layout(replay: np.ndarray, data: np.ndarray, image: bool) -> np.ndarray:
     """Bring a replayed array to the dataset's layout and dtype (what the dataset writer does)."""
     if image:
-        if replay.ndim == 4 and replay.shape[1:] != data.shape[1:] and replay.shape[1:] == (data.shape[3], data.shape[1], data.shape[2]):
+        if (
+            replay.ndim == 4
+            and replay.shape[1:] != data.shape[1:]
+            and replay.shape[1:] == (data.shape[3], data.shape[1], data.shape[2])
+        ):
             replay = replay.transpose(0, 2, 3, 1)  # channel-first env images are stored channel-last
         if replay.dtype.kind == "f":
             replay = (replay * 255).astype(np.uint8)
@@ -277,14 +284,18 @@ class _Frames:
                 flat = col
                 for _ in range(len(ft["shape"]) if tuple(ft["shape"]) != (1,) else 0):
                     flat = pc.list_flatten(flat)
-                columns[key] = flat.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(len(table), *ft["shape"])
+                columns[key] = (
+                    flat.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(len(table), *ft["shape"])
+                )
             for ep in episodes:
                 if ep not in starts:
                     raise DatasetError(f"Episode {ep} has no rows in {path}. The dataset is corrupt; regenerate it.")
                 lo = starts[ep]
                 hi = lo + lengths[ep]
                 if hi > len(ep_col) or ep_col[hi - 1] != ep or (hi < len(ep_col) and ep_col[hi] == ep):
-                    raise DatasetError(f"Episode {ep} in {path} does not have the {lengths[ep]} rows its metadata says. The dataset is corrupt; regenerate it.")
+                    raise DatasetError(
+                        f"Episode {ep} in {path} does not have the {lengths[ep]} rows its metadata says. The dataset is corrupt; regenerate it."
+                    )
                 self.numeric[ep] = {k: v[lo:hi] for k, v in columns.items() if features[k]["dtype"] != "image"}
                 self.images[ep] = {k: v.slice(lo, hi - lo) for k, v in columns.items() if features[k]["dtype"] == "image"}
 
@@ -356,7 +367,9 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
         seeds.append(int(seed))
     action_key = features_map.get("action", "action")
     if action_key not in ds_features:
-        raise ReproductionError(f"{dataset_root}: the dataset has no '{action_key}' feature (features_map['action']); nothing to replay.")
+        raise ReproductionError(
+            f"{dataset_root}: the dataset has no '{action_key}' feature (features_map['action']); nothing to replay."
+        )
     features: dict[str, str | None] = {}
     skipped: dict[str, str] = {}
     mapped = {v: k for k, v in features_map.items() if k != "action"}
@@ -375,9 +388,15 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
     actions = [frames.numeric[m["episode_index"]][action_key] for m in metas]
     states = read_env_states(dataset_root)
     if states is not None:
-        missing = [m["episode_index"] for m in metas if m["episode_index"] not in states or len(states[m["episode_index"]]) != m["length"]]
+        missing = [
+            m["episode_index"]
+            for m in metas
+            if m["episode_index"] not in states or len(states[m["episode_index"]]) != m["length"]
+        ]
         if missing:
-            raise DatasetError(f"{dataset_root}: the recorded env states do not cover episodes {missing}. Re-publish the env with push_env.")
+            raise DatasetError(
+                f"{dataset_root}: the recorded env states do not cover episodes {missing}. Re-publish the env with push_env."
+            )
     return _Plan(Path(dataset_root), features, image_keys, skipped, action_key, metas, seeds, actions, states, frames)
 
 
@@ -398,8 +417,15 @@ def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
     return actions
 
 
-def _compare_episode(plan: _Plan, pos: int, rollout: Any, data: dict[str, np.ndarray], features_map: Mapping[str, str],
-                     tolerance: float, keep_curves: bool) -> EpisodeReplay:
+def _compare_episode(
+    plan: _Plan,
+    pos: int,
+    rollout: Any,
+    data: dict[str, np.ndarray],
+    features_map: Mapping[str, str],
+    tolerance: float,
+    keep_curves: bool,
+) -> EpisodeReplay:
     meta = plan.metas[pos]
     ep, seed, length = meta["episode_index"], plan.seeds[pos], int(meta["length"])
     replay = rollout_to_frames(rollout, features_map)
@@ -412,16 +438,39 @@ def _compare_episode(plan: _Plan, pos: int, rollout: Any, data: dict[str, np.nda
         if rep is None:
             if key == STATE_FEATURE:
                 continue  # the env has no get_state any more: nothing to compare the states with
-            result.divergences.append(Divergence(ep, seed, 0, key, plan.features.get(key), float("inf"), [], _value(dat[0], key in plan.image_keys) if len(dat) else None,
-                                                 "missing", note=f"the env's observation has no '{plan.features.get(key)}' any more"))
+            result.divergences.append(
+                Divergence(
+                    ep,
+                    seed,
+                    0,
+                    key,
+                    plan.features.get(key),
+                    float("inf"),
+                    [],
+                    _value(dat[0], key in plan.image_keys) if len(dat) else None,
+                    "missing",
+                    note=f"the env's observation has no '{plan.features.get(key)}' any more",
+                )
+            )
             continue
         image = key in plan.image_keys
         rep = _as_dataset_layout(np.asarray(rep), dat, image)
         n = min(len(rep), len(dat))
         if rep.shape[1:] != dat.shape[1:]:
-            result.divergences.append(Divergence(ep, seed, 0, key, plan.features.get(key), float("inf"), [],
-                                                 f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}",
-                                                 note="the feature's shape changed"))
+            result.divergences.append(
+                Divergence(
+                    ep,
+                    seed,
+                    0,
+                    key,
+                    plan.features.get(key),
+                    float("inf"),
+                    [],
+                    f"shape {dat.shape[1:]}",
+                    f"shape {rep.shape[1:]}",
+                    note="the feature's shape changed",
+                )
+            )
             continue
         errors = _step_errors(rep[:n], dat[:n])
         curves[key] = errors
@@ -435,10 +484,20 @@ def _compare_episode(plan: _Plan, pos: int, rollout: Any, data: dict[str, np.nda
                     note = f"the dataset's episode ends after step {length - 1}; the env did not end it there"
                 elif len(rep) < len(dat):
                     note = f"the env ended the episode after step {len(rep) - 1}; the dataset continues to step {length - 1}"
-            result.divergences.append(Divergence(
-                ep, seed, t, key, plan.features.get(key), float(errors[t]), _element(rep[t], dat[t]),
-                _value(dat[t], image), _value(rep[t], image), note=note,
-            ))
+            result.divergences.append(
+                Divergence(
+                    ep,
+                    seed,
+                    t,
+                    key,
+                    plan.features.get(key),
+                    float(errors[t]),
+                    _element(rep[t], dat[t]),
+                    _value(dat[t], image),
+                    _value(rep[t], image),
+                    note=note,
+                )
+            )
     result.divergences.sort(key=lambda d: (d.step, _feature_rank(d.feature)))
     if result.divergences and keep_curves:
         result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
@@ -460,8 +519,9 @@ def _reset_to(env: Any) -> Callable[[Any], Any] | None:
     return getattr(env.unwrapped, "reset_to", None)
 
 
-def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, features_map: Mapping[str, str],
-                          tolerance: float) -> dict[str, Any]:
+def _localize_with_states(
+    plan: _Plan, pos: int, env: Any, actions: np.ndarray, features_map: Mapping[str, str], tolerance: float
+) -> dict[str, Any]:
     """robomimic playback: from every recorded state, one step; where does the one-step error start?"""
     meta = plan.metas[pos]
     ep, length = meta["episode_index"], int(meta["length"])
@@ -475,7 +535,11 @@ def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, 
     for t in range(length):
         raw.reset_to(states[t])
         obs, reward, terminated, truncated, _info = raw.step(actions[t])
-        errs = {"next.reward": abs(float(np.float32(reward)) - float(data["next.reward"].reshape(-1)[t]))} if "next.reward" in data else {}
+        errs = (
+            {"next.reward": abs(float(np.float32(reward)) - float(data["next.reward"].reshape(-1)[t]))}
+            if "next.reward" in data
+            else {}
+        )
         if t + 1 < length:
             flat = _flatten(obs)
             for key in plan.features:
@@ -491,18 +555,31 @@ def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, 
         key = max(errs, key=errs.get) if errs else ""
         errors[t], worst[t] = (errs[key], key) if key else (0.0, "")
     bad = np.flatnonzero(errors > tolerance)
-    out: dict[str, Any] = {"method": "recorded states (reset_to(states[t]), step(actions[t]), compare with frame t+1)",
-                           "one_step_error": [float(x) for x in errors]}
+    out: dict[str, Any] = {
+        "method": "recorded states (reset_to(states[t]), step(actions[t]), compare with frame t+1)",
+        "one_step_error": [float(x) for x in errors],
+    }
     if len(bad):
         t = int(bad[0])
-        out.update(first_step=t, feature=worst[t], max_abs_diff=float(errors[t]), steps_with_error=int(len(bad)),
-                   message=(f"playback diverged by {errors[t]:.6g} at step {t} ({worst[t]}): from the recorded state, "
-                            f"the env's step {t} no longer gives the recorded outcome, so its dynamics changed there "
-                            f"({len(bad)} of {length} steps differ one step ahead)."))
+        out.update(
+            first_step=t,
+            feature=worst[t],
+            max_abs_diff=float(errors[t]),
+            steps_with_error=int(len(bad)),
+            message=(
+                f"playback diverged by {errors[t]:.6g} at step {t} ({worst[t]}): from the recorded state, "
+                f"the env's step {t} no longer gives the recorded outcome, so its dynamics changed there "
+                f"({len(bad)} of {length} steps differ one step ahead)."
+            ),
+        )
     else:
-        out.update(first_step=None, message=(
-            "from every recorded state, one step reproduces the data: the dynamics are unchanged, so the divergence "
-            "comes from the reset or from state that get_state/reset_to do not cover"))
+        out.update(
+            first_step=None,
+            message=(
+                "from every recorded state, one step reproduces the data: the dynamics are unchanged, so the divergence "
+                "comes from the reset or from state that get_state/reset_to do not cover"
+            ),
+        )
     return out
 
 
@@ -512,14 +589,18 @@ def _flatten(obs: Any) -> dict[str, Any]:
     return flatten_observation(obs)
 
 
-def _localize_from_replay_state(make_env: Callable[[], Any], plan: _Plan, pos: int, ep: EpisodeReplay,
-                                actions: np.ndarray, features_map: Mapping[str, str]) -> dict[str, Any]:
+def _localize_from_replay_state(
+    make_env: Callable[[], Any], plan: _Plan, pos: int, ep: EpisodeReplay, actions: np.ndarray, features_map: Mapping[str, str]
+) -> dict[str, Any]:
     """No recorded states: restore the replay's own state before the first diverging step in a fresh env."""
     j = _first_transition(ep)
     method = "replay state (reset_to(get_state()) before the first diverging step, in a fresh env)"
     if j < 0:
-        return {"method": method, "first_step": None,
-                "message": "the reset observation itself differs: env.reset(seed) changed, nothing to restore"}
+        return {
+            "method": method,
+            "first_step": None,
+            "message": "the reset observation itself differs: env.reset(seed) changed, nothing to restore",
+        }
     seed = plan.seeds[pos]
     first = run_episodes(make_env, [seed], max_steps=j + 2, policy=[actions[: j + 2]], record_states=True, progress=False)[0]
     if first.states is None or first.length <= j:
@@ -539,12 +620,22 @@ def _localize_from_replay_state(make_env: Callable[[], Any], plan: _Plan, pos: i
             if key in flat and not np.array_equal(np.asarray(flat[key]), arr[j + 1], equal_nan=True):
                 same = False
     if same:
-        return {"method": method, "first_step": j, "message": (
-            f"restoring the replay's own state before step {j} in a fresh env reproduces the diverging step: the "
-            f"env's transition at step {j} differs from the one that recorded the data (all earlier observations matched)")}
-    return {"method": method, "first_step": None, "message": (
-        f"restoring the replay's state before step {j} does NOT reproduce the replay: the env is non-deterministic "
-        f"or get_state/reset_to miss part of its state, so the divergence cannot be pinned to one transition")}
+        return {
+            "method": method,
+            "first_step": j,
+            "message": (
+                f"restoring the replay's own state before step {j} in a fresh env reproduces the diverging step: the "
+                f"env's transition at step {j} differs from the one that recorded the data (all earlier observations matched)"
+            ),
+        }
+    return {
+        "method": method,
+        "first_step": None,
+        "message": (
+            f"restoring the replay's state before step {j} does NOT reproduce the replay: the env is non-deterministic "
+            f"or get_state/reset_to miss part of its state, so the divergence cannot be pinned to one transition"
+        ),
+    }
 
 
 class _Done:
@@ -569,8 +660,16 @@ class Replay:
     Use it as a context manager (or call :meth:`close`) so the probe env is closed.
     """
 
-    def __init__(self, make_env: Callable[[], Any], dataset_root: str | Path, features_map: Mapping[str, str], *,
-                 tolerance: float = 0.0, episodes: list[int] | None = None, localize: bool = True):
+    def __init__(
+        self,
+        make_env: Callable[[], Any],
+        dataset_root: str | Path,
+        features_map: Mapping[str, str],
+        *,
+        tolerance: float = 0.0,
+        episodes: list[int] | None = None,
+        localize: bool = True,
+    ):
         if tolerance < 0 or not np.isfinite(tolerance):
             raise ReproductionError(f"tolerance={tolerance!r}: pass a finite value >= 0 (0 means bit-exact).")
         self._t0 = time.perf_counter()
@@ -584,7 +683,9 @@ class Replay:
         self.probe = make_env()
         try:
             space = self.probe.action_space
-            self.actions = [_env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)]
+            self.actions = [
+                _env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)
+            ]
             self.can_restore = _reset_to(self.probe) is not None
             self.record_states = plan.states is not None and getattr(self.probe.unwrapped, "get_state", None) is not None
             self.max_episode_steps = getattr(getattr(self.probe, "spec", None), "max_episode_steps", None)
@@ -653,27 +754,45 @@ class Replay:
             for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
                 try:
                     if plan.states is not None and self.record_states:
-                        ep.localization = _localize_with_states(plan, pos, self.probe, self.actions[pos], self.features_map, self.tolerance)
+                        ep.localization = _localize_with_states(
+                            plan, pos, self.probe, self.actions[pos], self.features_map, self.tolerance
+                        )
                     else:
-                        ep.localization = _localize_from_replay_state(self.make_env, plan, pos, ep, self.actions[pos], self.features_map)
+                        ep.localization = _localize_from_replay_state(
+                            self.make_env, plan, pos, ep, self.actions[pos], self.features_map
+                        )
                 except HubEnvsError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - localization is a diagnosis; report why it failed
-                    ep.localization = {"method": "reset_to", "first_step": None,
-                                       "message": f"localization failed: {type(exc).__name__}: {exc}"}
+                    ep.localization = {
+                        "method": "reset_to",
+                        "first_step": None,
+                        "message": f"localization failed: {type(exc).__name__}: {exc}",
+                    }
         self.close()
         if plan.states is None:
-            states_note = "not recorded in the dataset" + ("; divergences localized with the replay's own get_state/reset_to" if self.can_restore else "")
+            states_note = "not recorded in the dataset" + (
+                "; divergences localized with the replay's own get_state/reset_to" if self.can_restore else ""
+            )
         elif not self.record_states:
             states_note = "recorded, but the env has no get_state/reset_to any more: not compared"
         else:
-            states_note = "recorded: compared at every step as 'env_state'" + ("; divergences localized by state-restored playback" if self.can_restore else "")
+            states_note = "recorded: compared at every step as 'env_state'" + (
+                "; divergences localized by state-restored playback" if self.can_restore else ""
+            )
         features = dict(plan.features)
         if plan.states is not None and self.record_states:
             features[STATE_FEATURE] = None
         self._seconds += time.perf_counter() - t
-        return ReplayResult(episodes=results, tolerance=self.tolerance, features=features, skipped=plan.skipped,
-                            states=states_note, steps=self.steps, seconds=self._seconds + episodes_seconds)
+        return ReplayResult(
+            episodes=results,
+            tolerance=self.tolerance,
+            features=features,
+            skipped=plan.skipped,
+            states=states_note,
+            steps=self.steps,
+            seconds=self._seconds + episodes_seconds,
+        )
 
 
 def replay_dataset(
@@ -706,9 +825,16 @@ def replay_dataset(
     with Replay(make_env, dataset_root, features_map, tolerance=tolerance, episodes=episodes, localize=localize) as replay:
         t = time.perf_counter()
         consumed = 0.0
-        for rollout in iter_episodes(make_env, replay.seeds, max_steps=replay.max_steps, policy=replay.policy,
-                                     record_states=replay.record_states, workers=workers, progress=progress,
-                                     desc=f"Replaying {len(replay.seeds)} episodes"):
+        for rollout in iter_episodes(
+            make_env,
+            replay.seeds,
+            max_steps=replay.max_steps,
+            policy=replay.policy,
+            record_states=replay.record_states,
+            workers=workers,
+            progress=progress,
+            desc=f"Replaying {len(replay.seeds)} episodes",
+        ):
             c = time.perf_counter()
             replay.consume(rollout)
             consumed += time.perf_counter() - c

@@ -203,17 +203,25 @@ def check_publishable(root: Path) -> None:
                     links.append(f"  {safe_text(rel)} -> {safe_text(os.readlink(path))} (the target does not exist)")
                     continue
                 if target != real_root and real_root not in target.parents:
-                    links.append(f"  {safe_text(rel)} -> {safe_text(target)} (outside the env folder; its contents would be published)")
+                    links.append(
+                        f"  {safe_text(rel)} -> {safe_text(target)} (outside the env folder; its contents would be published)"
+                    )
                     continue
             if name in filenames and name.endswith(COMPILED_SUFFIXES):
                 compiled.append(f"  {safe_text(rel)}")
     problems = []
     if links:
-        problems.append("symlinks that lead outside the folder (nothing was published):\n" + "\n".join(links) +
-                        "\nIf a file belongs to the env, copy it into the folder in place of the link; otherwise remove the link.")
+        problems.append(
+            "symlinks that lead outside the folder (nothing was published):\n"
+            + "\n".join(links)
+            + "\nIf a file belongs to the env, copy it into the folder in place of the link; otherwise remove the link."
+        )
     if compiled:
-        problems.append("compiled files, which hub-envs never publishes or imports (it runs .py sources only):\n" +
-                        "\n".join(compiled) + "\nDelete them (ship the .py source instead); __pycache__/ folders are skipped by themselves.")
+        problems.append(
+            "compiled files, which hub-envs never publishes or imports (it runs .py sources only):\n"
+            + "\n".join(compiled)
+            + "\nDelete them (ship the .py source instead); __pycache__/ folders are skipped by themselves."
+        )
     if problems:
         raise EnvFolderError(f"Cannot publish the env folder {safe_text(root)}: " + "\n".join(problems))
 
@@ -238,8 +246,9 @@ def content_digest(files: dict[str, str]) -> str:
 def code_digest(files: dict[str, str]) -> str:
     """The digest of the env's code alone (all files but dataset, media, card and manifest): what the
     dataset's ``env_meta.code_digest`` names, since the dataset cannot name the commit it is part of."""
-    return content_digest({p: h for p, h in files.items()
-                           if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")})
+    return content_digest(
+        {p: h for p, h in files.items() if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")}
+    )
 
 
 def content_tag(digest: str) -> str:
@@ -309,8 +318,11 @@ def _check_fingerprint_and_seeds(data: dict, where: str) -> None:
             raise ManifestError(f"{where}: fingerprint.steps must be a positive int. {_REPUBLISH}")
         if not (isinstance(fp.get("digest"), str) and _SHA256_RE.match(fp["digest"])):
             raise ManifestError(f"{where}: fingerprint.digest must be a sha256 hex digest. {_REPUBLISH}")
-        if not (isinstance(episodes, list) and len(episodes) == len(seeds)
-                and all(isinstance(e, str) and _SHA256_RE.match(e) for e in episodes)):
+        if not (
+            isinstance(episodes, list)
+            and len(episodes) == len(seeds)
+            and all(isinstance(e, str) and _SHA256_RE.match(e) for e in episodes)
+        ):
             raise ManifestError(f"{where}: fingerprint.episodes must hold one sha256 per seed. {_REPUBLISH}")
     seeds = data.get("seeds") or {}
     if "check" in seeds and not (_is_int(seeds["check"]) and seeds["check"] >= 0):
@@ -325,8 +337,10 @@ def _newer_format_message(data: dict, version: int, where: str) -> str:
     writer = versions.get("hub-envs") if isinstance(versions, dict) and isinstance(versions.get("hub-envs"), str) else None
     by = f"hub-envs {safe_text(writer)}" if writer else "a newer hub-envs"
     pin = f"'hub-envs>={writer}'" if writer and re.fullmatch(r"[0-9][0-9A-Za-z.+-]*", writer) else "hub-envs"
-    return (f"{where}: format_version {version} was written by {by}; this hub-envs ({__version__}) reads format_version "
-            f"{FORMAT_VERSION} and older. To read it, upgrade hub-envs: pip install -U {pin}")
+    return (
+        f"{where}: format_version {version} was written by {by}; this hub-envs ({__version__}) reads format_version "
+        f"{FORMAT_VERSION} and older. To read it, upgrade hub-envs: pip install -U {pin}"
+    )
 
 
 @dataclass(frozen=True)
@@ -373,13 +387,17 @@ class Manifest:
     @classmethod
     def from_dict(cls, data: Any, *, where: str = MANIFEST_FILE) -> Manifest:
         if not isinstance(data, dict):
-            raise ManifestError(f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env.")
+            raise ManifestError(
+                f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env."
+            )
         version = data.get("format_version")
         if type(version) is int and version > FORMAT_VERSION:
             raise ManifestError(_newer_format_message(data, version, where))
         if type(version) is not int or version != FORMAT_VERSION:
-            raise ManifestError(f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); "
-                                f"re-publish it with push_env.")
+            raise ManifestError(
+                f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); "
+                f"re-publish it with push_env."
+            )
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -388,7 +406,17 @@ class Manifest:
         missing = [k for k in required if k not in data]
         if missing:
             raise ManifestError(f"{where}: missing field(s) {missing}. Re-publish with push_env, which writes them all.")
-        for key in ("name", "env_entry_point", "config_entry_point", "gym_id", "env_type", "content_digest", "version", "description", "code_digest"):
+        for key in (
+            "name",
+            "env_entry_point",
+            "config_entry_point",
+            "gym_id",
+            "env_type",
+            "content_digest",
+            "version",
+            "description",
+            "code_digest",
+        ):
             if key in data and not isinstance(data[key], str):
                 raise ManifestError(f"{where}: field {key!r} must be a string, got {type(data[key]).__name__}. {_REPUBLISH}")
         for key in ("config", "dataset", "fingerprint", "seeds", "versions"):
@@ -396,12 +424,16 @@ class Manifest:
                 raise ManifestError(f"{where}: field {key!r} must be an object, got {type(data[key]).__name__}. {_REPUBLISH}")
         for key in ("env_entry_point", "config_entry_point"):
             if not ENTRY_POINT_RE.match(data[key]):
-                raise ManifestError(f"{where}: {key} {data[key]!r} is not of the form 'module:Attribute' "
-                                    f"(e.g. 'pendulum_env:PendulumEnv'). {_REPUBLISH}")
+                raise ManifestError(
+                    f"{where}: {key} {data[key]!r} is not of the form 'module:Attribute' "
+                    f"(e.g. 'pendulum_env:PendulumEnv'). {_REPUBLISH}"
+                )
         for key in ("gym_id", "env_type"):
             if not GYM_ID_RE.match(data[key]):
-                raise ManifestError(f"{where}: {key} {data[key]!r} is not a valid name (letters, digits, '_', '-', '.', "
-                                    f"':' and one optional 'namespace/'). {_REPUBLISH}")
+                raise ManifestError(
+                    f"{where}: {key} {data[key]!r} is not a valid name (letters, digits, '_', '-', '.', "
+                    f"':' and one optional 'namespace/'). {_REPUBLISH}"
+                )
         repo_id = data.get("repo_id")
         if repo_id is not None and not (isinstance(repo_id, str) and _REPO_ID_RE.match(repo_id)):
             raise ManifestError(f"{where}: repo_id {safe_text(repr(repo_id))} is not a Hub repo id 'user/name'. {_REPUBLISH}")
@@ -426,7 +458,9 @@ class Manifest:
             raise ManifestError(f"{where}: content_digest {data['content_digest']!r} is not a sha256 hex digest. {_REPUBLISH}")
         reqs = data.get("requirements", [])
         if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
-            raise ManifestError(f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'. {_REPUBLISH}")
+            raise ManifestError(
+                f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'. {_REPUBLISH}"
+            )
         _check_fingerprint_and_seeds(data, where)
         for key in ("benchmarks", "processors"):
             val = data.get(key, [])
@@ -457,7 +491,9 @@ class Manifest:
         path = Path(folder, MANIFEST_FILE)
         where = where or str(path)
         if not path.is_file():
-            raise ManifestError(f"{where} is missing: this is not an env repo published by push_env. Publish it with `push_env --env_dir=...`.")
+            raise ManifestError(
+                f"{where} is missing: this is not an env repo published by push_env. Publish it with `push_env --env_dir=...`."
+            )
         try:
             return cls.from_json(path.read_text(encoding="utf-8"), where=where)
         except UnicodeDecodeError:
@@ -481,11 +517,14 @@ class Manifest:
                 problems.append(f"  unlisted  {safe_text(path)} (code not covered by the manifest)")
         if problems:
             raise IntegrityError(
-                f"{where}: {len(problems)} file(s) do not match the manifest:\n" + "\n".join(problems) +
-                "\nDo not run this code. If you publish this repo, re-publish with push_env; otherwise ask its author."
+                f"{where}: {len(problems)} file(s) do not match the manifest:\n"
+                + "\n".join(problems)
+                + "\nDo not run this code. If you publish this repo, re-publish with push_env; otherwise ask its author."
             )
         if content_digest(self.files) != self.content_digest:
-            raise IntegrityError(f"{where}: the manifest's content_digest does not match its file list. Re-publish with push_env.")
+            raise IntegrityError(
+                f"{where}: the manifest's content_digest does not match its file list. Re-publish with push_env."
+            )
 
 
 # --- a local env folder (what an author writes) -----------------------------------------------
@@ -524,20 +563,28 @@ class EnvFolder:
             raise EnvFolderError(f"{project_path} is not valid TOML ({e}). Fix the syntax.") from None
         for table in ("project", "tool"):
             if not isinstance(data.get(table, {}), dict):
-                raise EnvFolderError(f"{project_path}: [{table}] must be a table, e.g. [{table}] on a line of its own. Fix the file.")
+                raise EnvFolderError(
+                    f"{project_path}: [{table}] must be a table, e.g. [{table}] on a line of its own. Fix the file."
+                )
         project = data.get("project", {})
         tool = data.get("tool", {}).get("hub-envs")
         if not isinstance(tool, dict):
-            raise EnvFolderError(f"{project_path}: no [tool.hub-envs] table. Add env = \"module:EnvClass\" and config = \"module:ConfigClass\".")
+            raise EnvFolderError(
+                f'{project_path}: no [tool.hub-envs] table. Add env = "module:EnvClass" and config = "module:ConfigClass".'
+            )
         for key in ("env", "config"):
             if not isinstance(tool.get(key), str):
-                raise EnvFolderError(f"{project_path}: [tool.hub-envs] {key} is missing or not a string, e.g. {key} = \"my_env:My{'Env' if key == 'env' else 'EnvConfig'}\".")
+                raise EnvFolderError(
+                    f'{project_path}: [tool.hub-envs] {key} is missing or not a string, e.g. {key} = "my_env:My{"Env" if key == "env" else "EnvConfig"}".'
+                )
             if not ENTRY_POINT_RE.match(tool[key]):
-                raise EnvFolderError(f"{project_path}: [tool.hub-envs] {key} = {tool[key]!r} is not of the form 'module:Attribute', "
-                                     f"e.g. {key} = \"my_env:My{'Env' if key == 'env' else 'EnvConfig'}\" for a class in my_env.py.")
+                raise EnvFolderError(
+                    f"{project_path}: [tool.hub-envs] {key} = {tool[key]!r} is not of the form 'module:Attribute', "
+                    f'e.g. {key} = "my_env:My{"Env" if key == "env" else "EnvConfig"}" for a class in my_env.py.'
+                )
         name = project.get("name")
         if not isinstance(name, str) or not name:
-            raise EnvFolderError(f"{project_path}: [project] name is missing. Add name = \"my-env\".")
+            raise EnvFolderError(f'{project_path}: [project] name is missing. Add name = "my-env".')
         deps = project.get("dependencies", [])
         if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
             raise EnvFolderError(f"{project_path}: [project] dependencies must be a list of requirement strings.")

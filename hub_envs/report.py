@@ -99,7 +99,9 @@ class ReproduceReport:
         diffs = self.version_differences
         if not diffs:
             return "no package version differs from the publisher's"
-        return "versions differ from the publisher's: " + ", ".join(f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items())
+        return "versions differ from the publisher's: " + ", ".join(
+            f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items()
+        )
 
     # -- text --
 
@@ -115,7 +117,9 @@ class ReproduceReport:
                 if ep.localization:
                     lines.append(f"    localized: {ep.localization.get('message')}")
             if len(self.replay.diverged) > len(shown):
-                lines.append(f"    ... and {len(self.replay.diverged) - len(shown)} more diverged episodes (see the Markdown report)")
+                lines.append(
+                    f"    ... and {len(self.replay.diverged) - len(shown)} more diverged episodes (see the Markdown report)"
+                )
             if not self.replay.ok:
                 lines.append(f"    {self.versions_note()}")
         for b in self.benchmarks:
@@ -123,48 +127,64 @@ class ReproduceReport:
             if not b.passed and not b.error:
                 lines.append(f"    episodes whose result differs: {b.episodes_differing}; {self.versions_note()}")
         fp = self.fingerprint
-        lines.append(f"  golden-rollout fingerprint: {fp.get('status')}" + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else ""))
+        lines.append(
+            f"  golden-rollout fingerprint: {fp.get('status')}"
+            + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else "")
+        )
         lines.append(f"  stack: {self.versions_note()}")
         for note in self.notes:
             lines.append(f"  note: {note}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
-        return _jsonable({
-            "repo_id": self.repo_id,
-            "sha": self.sha,
-            "reproduced": self.reproduced,
-            "verdict": self.verdict(),
-            "checks": self.checks,
-            "settings": self.settings,
-            "replay": self.replay.to_dict() if self.replay is not None else None,
-            "benchmarks": [b.to_dict() for b in self.benchmarks],
-            "fingerprint": self.fingerprint,
-            "notes": self.notes,
-            "provenance": self.provenance,
-            "timings": self.timings,
-        })
+        return _jsonable(
+            {
+                "repo_id": self.repo_id,
+                "sha": self.sha,
+                "reproduced": self.reproduced,
+                "verdict": self.verdict(),
+                "checks": self.checks,
+                "settings": self.settings,
+                "replay": self.replay.to_dict() if self.replay is not None else None,
+                "benchmarks": [b.to_dict() for b in self.benchmarks],
+                "fingerprint": self.fingerprint,
+                "notes": self.notes,
+                "provenance": self.provenance,
+                "timings": self.timings,
+            }
+        )
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
     def to_markdown(self) -> str:
         p = self.provenance
-        out = [f"# Reproduction of `{self.repo_id}`", "",
-               f"**{self.verdict()}** at commit `{self.sha}` — " + ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in self.checks.items()), ""]
+        out = [
+            f"# Reproduction of `{self.repo_id}`",
+            "",
+            f"**{self.verdict()}** at commit `{self.sha}` — "
+            + ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in self.checks.items()),
+            "",
+        ]
         if self.replay is not None:
             r = self.replay
             how = "exactly" if r.tolerance == 0 else f"within an absolute tolerance of {r.tolerance:g}"
-            out += ["## Replay of the dataset", "",
-                    f"Every episode reset with its recorded seed, the recorded actions applied, and compared {how}: "
-                    f"{', '.join(f'`{k}`' for k in r.features)}. States: {r.states}.", ""]
+            out += [
+                "## Replay of the dataset",
+                "",
+                f"Every episode reset with its recorded seed, the recorded actions applied, and compared {how}: "
+                f"{', '.join(f'`{k}`' for k in r.features)}. States: {r.states}.",
+                "",
+            ]
             if r.skipped:
                 out += ["Not compared: " + "; ".join(f"`{k}` ({why})" for k, why in r.skipped.items()), ""]
             out += ["| episode | seed | frames | result | first divergence |", "|---|---|---|---|---|"]
             for e in r.episodes:
                 first = e.first
-                out.append(f"| {e.episode} | {e.seed} | {e.length} | {'ok' if e.ok else 'DIVERGED'} | "
-                           f"{'' if first is None else f'step {first.step}, `{first.feature}`, by {_fmt(first.max_abs_diff)}'} |")
+                out.append(
+                    f"| {e.episode} | {e.seed} | {e.length} | {'ok' if e.ok else 'DIVERGED'} | "
+                    f"{'' if first is None else f'step {first.step}, `{first.feature}`, by {_fmt(first.max_abs_diff)}'} |"
+                )
             out.append("")
             if not r.ok:
                 out += ["### Divergences", "", f"*Provenance: {self.versions_note()}.*", ""]
@@ -175,34 +195,58 @@ class ReproduceReport:
                         out.append(f"  - localized ({e.localization.get('method')}): {e.localization.get('message')}")
                 out.append("")
         if self.benchmarks:
-            out += ["## Benchmarks", "", "| benchmark | policy | metric | published | reproduced | 95% CI (bootstrap) | tolerance | result |",
-                    "|---|---|---|---|---|---|---|---|"]
+            out += [
+                "## Benchmarks",
+                "",
+                "| benchmark | policy | metric | published | reproduced | 95% CI (bootstrap) | tolerance | result |",
+                "|---|---|---|---|---|---|---|---|",
+            ]
             for b in self.benchmarks:
                 pol = b.policy.get("type", "?") + (f" `{b.policy.get('checkpoint')}`" if b.policy.get("checkpoint") else "")
                 if b.error:
                     out.append(f"| {b.name} | {pol} | – | – | – | – | – | NOT RUN: {b.error} |")
                 for m in b.metrics:
                     ci = f"[{_fmt(m.ci_low)}, {_fmt(m.ci_high)}]"
-                    out.append(f"| {b.name} | {pol} | {m.name} | {_fmt(m.published)} | {_fmt(m.reproduced)} | {ci} | "
-                               f"{'CI' if m.tolerance is None else _fmt(m.tolerance)} | {'pass' if m.passed else 'FAIL'} |")
+                    out.append(
+                        f"| {b.name} | {pol} | {m.name} | {_fmt(m.published)} | {_fmt(m.reproduced)} | {ci} | "
+                        f"{'CI' if m.tolerance is None else _fmt(m.tolerance)} | {'pass' if m.passed else 'FAIL'} |"
+                    )
             out.append("")
             for b in self.benchmarks:
                 if not b.passed and not b.error:
-                    out.append(f"- {b.name}: episodes whose per-episode result differs: {b.episodes_differing}. *{self.versions_note()}.*")
-            out += [f"Confidence intervals: {self.benchmarks[0].resamples} bootstrap resamples of the reproduced episodes (seeded).", ""]
+                    out.append(
+                        f"- {b.name}: episodes whose per-episode result differs: {b.episodes_differing}. *{self.versions_note()}.*"
+                    )
+            out += [
+                f"Confidence intervals: {self.benchmarks[0].resamples} bootstrap resamples of the reproduced episodes (seeded).",
+                "",
+            ]
         fp = self.fingerprint
-        out += ["## Golden-rollout fingerprint", "", f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""), ""]
+        out += [
+            "## Golden-rollout fingerprint",
+            "",
+            f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""),
+            "",
+        ]
         if self.notes:
             out += ["## Notes", ""] + [f"- {n}" for n in self.notes] + [""]
-        out += ["## Provenance", "", "| | |", "|---|---|",
-                f"| repo | `{self.repo_id}` |", f"| commit | `{self.sha}` |",
-                f"| content digest | `{p.get('content_digest', '-')}` |",
-                f"| code digest (this commit / the dataset's env_meta) | `{p.get('code_digest', '-')}` / `{p.get('dataset_code_digest', '-')}` |",
-                f"| dataset fingerprint (computed / published) | `{p.get('dataset_fingerprint', '-')}` / `{p.get('published_dataset_fingerprint', '-')}` |",
-                f"| dataset seeds | {_seeds_text(p.get('seeds', {}).get('dataset', []))} |",
-                f"| fingerprint seeds | {_seeds_text(p.get('seeds', {}).get('fingerprint', []))} |",
-                f"| generated | {p.get('generated_at', '-')} with hub-envs {p.get('hub_envs_version', '-')} |", "",
-                "| package | published with | here | |", "|---|---|---|---|"]
+        out += [
+            "## Provenance",
+            "",
+            "| | |",
+            "|---|---|",
+            f"| repo | `{self.repo_id}` |",
+            f"| commit | `{self.sha}` |",
+            f"| content digest | `{p.get('content_digest', '-')}` |",
+            f"| code digest (this commit / the dataset's env_meta) | `{p.get('code_digest', '-')}` / `{p.get('dataset_code_digest', '-')}` |",
+            f"| dataset fingerprint (computed / published) | `{p.get('dataset_fingerprint', '-')}` / `{p.get('published_dataset_fingerprint', '-')}` |",
+            f"| dataset seeds | {_seeds_text(p.get('seeds', {}).get('dataset', []))} |",
+            f"| fingerprint seeds | {_seeds_text(p.get('seeds', {}).get('fingerprint', []))} |",
+            f"| generated | {p.get('generated_at', '-')} with hub-envs {p.get('hub_envs_version', '-')} |",
+            "",
+            "| package | published with | here | |",
+            "|---|---|---|---|",
+        ]
         published = p.get("versions_published", {}) or {}
         here = p.get("versions_here", {}) or {}
         for name in sorted(set(published) | set(here)):

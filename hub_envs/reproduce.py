@@ -46,11 +46,18 @@ from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionE
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 from hub_envs.provenance import describe_differences, package_versions, version_differences
 from hub_envs.replay import Replay, ReplayResult
-from hub_envs.rollout import iter_episodes
 from hub_envs.report import ReproduceReport
+from hub_envs.rollout import iter_episodes
 
-__all__ = ["reproduce", "env_from_dataset", "ReproduceReport", "ReproduceArgs", "reproduce_cli", "CLI_COMMANDS",
-           "default_out_dir"]
+__all__ = [
+    "reproduce",
+    "env_from_dataset",
+    "ReproduceReport",
+    "ReproduceArgs",
+    "reproduce_cli",
+    "CLI_COMMANDS",
+    "default_out_dir",
+]
 
 DEFAULT_OUT = Path("reproduce-out")
 
@@ -77,13 +84,16 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         "content_digest": m.content_digest,
         "code_digest": code_digest_of(m.files),
         "published_dataset_fingerprint": m.dataset.get("fingerprint"),
-        "seeds": {"dataset": list(m.dataset.get("seeds", [])), "fingerprint": list(m.fingerprint.get("seeds", [])),
-                  "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks}},
+        "seeds": {
+            "dataset": list(m.dataset.get("seeds", [])),
+            "fingerprint": list(m.fingerprint.get("seeds", [])),
+            "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
+        },
         "versions_published": dict(m.versions),
         "versions_here": here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
         "hub_envs_version": __version__,
-        "generated_at": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+        "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
     }
     if dataset_root is not None:
         prov["dataset_fingerprint"] = dataset_fingerprint(dataset_root)
@@ -104,20 +114,43 @@ def _fingerprint(loaded: Any) -> dict[str, Any]:
         verify_fingerprint(loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=note)
     except FingerprintMismatchError as e:
         return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
-    return {"status": f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)", "ok": True,
-            "digest": recorded.get("digest")}
+    return {
+        "status": f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)",
+        "ok": True,
+        "digest": recorded.get("digest"),
+    }
 
 
-def _run_episodes(loaded: Any, *, replay: bool, benchmarks: bool, tolerance: float, workers: int,
-                  episodes: list[int] | None, resamples: int, progress: bool, token: str | None,
-                  timings: dict[str, float], trust_policy_code: bool = False) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
+def _run_episodes(
+    loaded: Any,
+    *,
+    replay: bool,
+    benchmarks: bool,
+    tolerance: float,
+    workers: int,
+    episodes: list[int] | None,
+    resamples: int,
+    progress: bool,
+    token: str | None,
+    timings: dict[str, float],
+    trust_policy_code: bool = False,
+) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
     """The replay and the benchmark re-runs. Replayed episodes and random-policy benchmark episodes go
     through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own."""
-    rep = Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance,
-                 episodes=episodes) if replay else None
+    rep = (
+        Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance, episodes=episodes)
+        if replay
+        else None
+    )
     try:
-        runs = [BenchmarkRun(loaded, b, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
-                for b in loaded.manifest.benchmarks] if benchmarks else []
+        runs = (
+            [
+                BenchmarkRun(loaded, b, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
+                for b in loaded.manifest.benchmarks
+            ]
+            if benchmarks
+            else []
+        )
         time_limit = int(loaded.config.episode_length)  # load_env registers it as max_episode_steps
         longest = max([rep.max_steps] if rep is not None else [1])
         # a random-policy episode may join when a longer max_steps cannot change it: the env's time limit ends it first
@@ -127,18 +160,34 @@ def _run_episodes(loaded: Any, *, replay: bool, benchmarks: bool, tolerance: flo
         policy = (rep.policy if rep is not None else []) + [None for r in joint for _ in r.seeds]
         owners = [(rep, None)] * (len(rep.seeds) if rep is not None else 0) + [(None, r) for r in joint for _ in r.seeds]
         n_replay = len(rep.seeds) if rep is not None else 0
-        desc = " and ".join(x for x in (f"replaying {n_replay} episodes" if rep is not None else "",
-                                         f"re-running {len(seeds) - n_replay} benchmark episodes" if joint else "") if x)
+        desc = " and ".join(
+            x
+            for x in (
+                f"replaying {n_replay} episodes" if rep is not None else "",
+                f"re-running {len(seeds) - n_replay} benchmark episodes" if joint else "",
+            )
+            if x
+        )
         t = time.perf_counter()
         if seeds:
-            for i, rollout in enumerate(iter_episodes(
-                    loaded.make, seeds, max_steps=longest, policy=policy if n_replay else None,
-                    record_states=rep.record_states if rep is not None else False, workers=workers,
-                    progress=progress, desc=desc[:1].upper() + desc[1:])):
+            for i, rollout in enumerate(
+                iter_episodes(
+                    loaded.make,
+                    seeds,
+                    max_steps=longest,
+                    policy=policy if n_replay else None,
+                    record_states=rep.record_states if rep is not None else False,
+                    workers=workers,
+                    progress=progress,
+                    desc=desc[:1].upper() + desc[1:],
+                )
+            ):
                 replay_owner, bench_owner = owners[i]
                 (replay_owner.consume if replay_owner is not None else bench_owner.consume)(rollout)
         joint_seconds = time.perf_counter() - t
-        steps_total = max(1, sum(len(a) for a in (rep.actions if rep is not None else [])) + sum(len(r.seeds) for r in joint) * time_limit)
+        steps_total = max(
+            1, sum(len(a) for a in (rep.actions if rep is not None else [])) + sum(len(r.seeds) for r in joint) * time_limit
+        )
         replay_share = (sum(len(a) for a in rep.actions) / steps_total) if rep is not None else 0.0
         replay_result = rep.finish(episodes_seconds=joint_seconds * replay_share) if rep is not None else None
         if replay_result is not None:
@@ -150,8 +199,15 @@ def _run_episodes(loaded: Any, *, replay: bool, benchmarks: bool, tolerance: flo
             else:  # a checkpoint policy (or an unusual max_steps): its own pass
                 t = time.perf_counter()
                 if r.runnable:
-                    for rollout in iter_episodes(loaded.make, r.seeds, max_steps=r.max_steps, policy=r.policy, workers=workers,
-                                                 progress=progress, desc=f"Benchmark {r.name}"):
+                    for rollout in iter_episodes(
+                        loaded.make,
+                        r.seeds,
+                        max_steps=r.max_steps,
+                        policy=r.policy,
+                        workers=workers,
+                        progress=progress,
+                        desc=f"Benchmark {r.name}",
+                    ):
                         r.consume(rollout)
                 results.append(r.finish(episodes_seconds=time.perf_counter() - t))
         timings["benchmarks"] = sum(b.seconds for b in results)
@@ -207,20 +263,26 @@ def reproduce(
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
-    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, check=True,
-                      fingerprint="off", token=token)
+    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, check=True, fingerprint="off", token=token)
     timings["load"] = time.perf_counter() - t
     try:
         dataset_root = loaded.dataset_root
         provenance = _provenance(loaded, dataset_root)
         notes: list[str] = []
         if dataset_root is not None:
-            if provenance.get("published_dataset_fingerprint") and provenance["dataset_fingerprint"] != provenance["published_dataset_fingerprint"]:
-                notes.append("the dataset's files differ from the fingerprint the manifest was published with: "
-                             "the dataset was changed after push_env wrote it")
+            if (
+                provenance.get("published_dataset_fingerprint")
+                and provenance["dataset_fingerprint"] != provenance["published_dataset_fingerprint"]
+            ):
+                notes.append(
+                    "the dataset's files differ from the fingerprint the manifest was published with: "
+                    "the dataset was changed after push_env wrote it"
+                )
             if provenance.get("dataset_code_digest") and provenance["dataset_code_digest"] != provenance["code_digest"]:
-                notes.append(f"the dataset was recorded by other code (code digest {str(provenance['dataset_code_digest'])[:16]}…) "
-                             f"than this commit holds ({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded")
+                notes.append(
+                    f"the dataset was recorded by other code (code digest {str(provenance['dataset_code_digest'])[:16]}…) "
+                    f"than this commit holds ({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded"
+                )
         timings["provenance"] = time.perf_counter() - t0 - timings["load"]
         t = time.perf_counter()
         fp = _fingerprint(loaded)
@@ -233,15 +295,35 @@ def reproduce(
             notes.append("the manifest declares no benchmark results")
         t = time.perf_counter()
         replay_result, bench_results = _run_episodes(
-            loaded, replay=replay and dataset_root is not None, benchmarks=benchmarks, tolerance=tolerance,
-            workers=workers, episodes=episodes, resamples=resamples, progress=progress, token=token, timings=timings,
-            trust_policy_code=trust_policy_code)
+            loaded,
+            replay=replay and dataset_root is not None,
+            benchmarks=benchmarks,
+            tolerance=tolerance,
+            workers=workers,
+            episodes=episodes,
+            resamples=resamples,
+            progress=progress,
+            token=token,
+            timings=timings,
+            trust_policy_code=trust_policy_code,
+        )
         timings["episodes"] = time.perf_counter() - t
         report = ReproduceReport(
-            repo_id=loaded.repo_id, sha=loaded.revision, provenance=provenance, replay=replay_result,
-            benchmarks=bench_results, fingerprint=fp, notes=notes,
-            settings={"tolerance": float(tolerance), "workers": workers, "resamples": resamples,
-                      "episodes": episodes, "replay": replay, "benchmarks": benchmarks},
+            repo_id=loaded.repo_id,
+            sha=loaded.revision,
+            provenance=provenance,
+            replay=replay_result,
+            benchmarks=bench_results,
+            fingerprint=fp,
+            notes=notes,
+            settings={
+                "tolerance": float(tolerance),
+                "workers": workers,
+                "resamples": resamples,
+                "episodes": episodes,
+                "replay": replay,
+                "benchmarks": benchmarks,
+            },
         )
         report.timings = {k: round(v, 4) for k, v in timings.items()}
         if write:
@@ -277,16 +359,28 @@ class ReproduceArgs:
 def reproduce_cli(args: ReproduceArgs) -> int:
     if args.repo_id is None:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
-    report = reproduce(args.repo_id, revision=args.revision, trust_remote_code=args.trust_remote_code,
-                       workers=args.workers or None, tolerance=args.tolerance, out=args.out, replay=args.replay,
-                       benchmarks=args.benchmarks, resamples=args.resamples, trust_policy_code=args.trust_policy_code)
+    report = reproduce(
+        args.repo_id,
+        revision=args.revision,
+        trust_remote_code=args.trust_remote_code,
+        workers=args.workers or None,
+        tolerance=args.tolerance,
+        out=args.out,
+        replay=args.replay,
+        benchmarks=args.benchmarks,
+        resamples=args.resamples,
+        trust_policy_code=args.trust_policy_code,
+    )
     if args.json:
         print(report.to_json(), end="")
     else:
         print(report.summary())
     where = report.paths
-    print(f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
-          + (f", {where['png']} (plot)" if where.get("png") else ""), file=sys.stderr if args.json else sys.stdout)
+    print(
+        f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
+        + (f", {where['png']} (plot)" if where.get("png") else ""),
+        file=sys.stderr if args.json else sys.stdout,
+    )
     return 0 if report.reproduced else 1
 
 

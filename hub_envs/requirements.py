@@ -33,7 +33,7 @@ def installed_version(name: str) -> str | None:
         if not line:
             break  # end of the headers
         if line.startswith("Version:"):
-            return line[len("Version:"):].strip()
+            return line[len("Version:") :].strip()
     return dist.version
 
 

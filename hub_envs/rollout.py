@@ -232,8 +232,12 @@ class _Runner:
             self.shared_actions = policy
         elif isinstance(policy, (list, tuple)) and policy and all(isinstance(p, np.ndarray) for p in policy):
             self.episode_actions = list(policy)  # disambiguated against the action space on first use
-        elif (isinstance(policy, (list, tuple)) and policy and all(p is None or isinstance(p, np.ndarray) for p in policy)
-              and any(p is None for p in policy)):
+        elif (
+            isinstance(policy, (list, tuple))
+            and policy
+            and all(p is None or isinstance(p, np.ndarray) for p in policy)
+            and any(p is None for p in policy)
+        ):
             self.episode_actions = list(policy)  # per episode: recorded actions, or None for seeded random actions
         else:
             try:
@@ -251,9 +255,7 @@ class _Runner:
             try:
                 self.env = self.make_env()
             except Exception as exc:
-                raise EnvCodeError(
-                    f"make_env() raised {_exc_text(exc)}. Fix the env constructor; nothing was recorded."
-                ) from exc
+                raise EnvCodeError(f"make_env() raised {_exc_text(exc)}. Fix the env constructor; nothing was recorded.") from exc
             if not hasattr(self.env, "reset") or not hasattr(self.env, "step") or not hasattr(self.env, "action_space"):
                 raise EnvCodeError(
                     f"make_env() returned {type(self.env).__name__}, which is not a gymnasium env "

@@ -74,8 +74,11 @@ def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | 
     episode = np.concatenate([np.full(len(arrays[i]), i, dtype=np.int64) for i in order])
     frame = np.concatenate([np.arange(len(arrays[i]), dtype=np.int64) for i in order])
     state_col = pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1), type=pa.float64()), width)
-    meta = {"shape": list(shape), "dtype": str(next(iter(arrays.values())).dtype),
-            "source": "env.get_state() before action t (hub-envs)"}
+    meta = {
+        "shape": list(shape),
+        "dtype": str(next(iter(arrays.values())).dtype),
+        "source": "env.get_state() before action t (hub-envs)",
+    }
     table = pa.table({"episode_index": episode, "frame_index": frame, "state": state_col})
     table = table.replace_schema_metadata({"hub_envs": json.dumps(meta, sort_keys=True)})
     path = Path(root) / STATES_PATH

@@ -36,13 +36,13 @@ import urllib.error
 import urllib.parse
 import urllib.request
 import weakref
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 __all__ = ["HubServer", "HubServerError", "hub_environment"]
 
 _LISTENING = re.compile(r"hub-envs server: serving .* at (http://\S+?:(\d+)) ")
-_LIVE_SERVERS: "weakref.WeakSet[HubServer]" = weakref.WeakSet()
+_LIVE_SERVERS: weakref.WeakSet[HubServer] = weakref.WeakSet()
 
 
 class HubServerError(RuntimeError):
@@ -101,7 +101,7 @@ class HubServer:
     def running(self) -> bool:
         return self.process is not None and self.process.poll() is None
 
-    def start(self) -> "HubServer":
+    def start(self) -> HubServer:
         """Start the server and wait until it answers. No-op if it is running."""
         if self.running:
             return self
@@ -118,9 +118,7 @@ class HubServer:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **self.extra_env}
         if self.page_size is not None:
             env["HUB_ENVS_SERVER_PAGE_SIZE"] = str(self.page_size)
-        self.process = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=self._log_file, stderr=subprocess.STDOUT, env=env
-        )
+        self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self._log_file, stderr=subprocess.STDOUT, env=env)
         _LIVE_SERVERS.add(self)
         try:
             self._wait_until_ready()
@@ -184,7 +182,7 @@ class HubServer:
             self.process.wait()
         self._close_log()
 
-    def restart(self) -> "HubServer":
+    def restart(self) -> HubServer:
         """Stop (if running) and start again with the same root, token and port."""
         self.stop()
         return self.start()
@@ -195,7 +193,7 @@ class HubServer:
             self._log_file = None
         _LIVE_SERVERS.discard(self)
 
-    def __enter__(self) -> "HubServer":
+    def __enter__(self) -> HubServer:
         return self
 
     def __exit__(self, *exc) -> None:

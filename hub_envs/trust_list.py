@@ -31,10 +31,10 @@ import json
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator
 
 from hub_envs.errors import ConfigError
 from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
@@ -75,8 +75,10 @@ class TrustList:
 
 
 def _parse(data: object, path: Path) -> list[TrustEntry]:
-    bad = ConfigError(f"The trust list {path} is not in the format hub-envs writes. Fix or delete it, then trust repos again "
-                      f"(hub-envs trust user/name@<sha>).")
+    bad = ConfigError(
+        f"The trust list {path} is not in the format hub-envs writes. Fix or delete it, then trust repos again "
+        f"(hub-envs trust user/name@<sha>)."
+    )
     if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("entries"), dict):
         raise bad
     out = []
@@ -84,8 +86,12 @@ def _parse(data: object, path: Path) -> list[TrustEntry]:
         if not isinstance(shas, dict):
             raise bad
         for sha, entry in shas.items():
-            if not (is_commit_sha(sha) and isinstance(entry, dict) and isinstance(entry.get("content_digest"), str)
-                    and _DIGEST.fullmatch(entry["content_digest"])):
+            if not (
+                is_commit_sha(sha)
+                and isinstance(entry, dict)
+                and isinstance(entry.get("content_digest"), str)
+                and _DIGEST.fullmatch(entry["content_digest"])
+            ):
                 raise bad
             out.append(TrustEntry(str(repo_id), sha, entry["content_digest"], str(entry.get("trusted_at", ""))))
     return out
@@ -145,7 +151,9 @@ def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     from hub_envs import hub_io
     from hub_envs.repo_format import Manifest
 
-    return Manifest.from_json(hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json").content_digest
+    return Manifest.from_json(
+        hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
+    ).content_digest
 
 
 def snapshot_digest(path: Path) -> str:
@@ -194,7 +202,7 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
         raise ConfigError(f"content_digest {digest!r} is not a sha256 hex digest.")
     with _locked() as path:
         entries = [e for e in _load(path) if not (e.repo_id == repo_id and e.sha == sha)]
-        entries.append(TrustEntry(repo_id, sha, digest, datetime.now(timezone.utc).isoformat()))
+        entries.append(TrustEntry(repo_id, sha, digest, datetime.now(UTC).isoformat()))
         _write(path, entries)
 
 

@@ -6,9 +6,9 @@ client environment pointed at it. Other fixtures are added below this block by o
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 from huggingface_hub import HfApi
@@ -30,9 +30,9 @@ class Hub:
     api: HfApi
 
 
-def _start_hub(tmp_path: Path, token: str | None, suffix: str = "") -> Iterator[Hub]:
+def _start_hub(tmp_path: Path, token: str | None, suffix: str = "", env: dict[str, str] | None = None) -> Iterator[Hub]:
     # distinct folders per variant: a test may use both `hub` and `hub_with_token`
-    server = HubServer(tmp_path / f"hub-data{suffix}", token=token)
+    server = HubServer(tmp_path / f"hub-data{suffix}", token=token, env=env)
     try:
         hf_home = tmp_path / f"hf_home{suffix}"
         with hub_environment(server.endpoint, hf_home, token=token):
@@ -64,6 +64,13 @@ def hub_with_token(tmp_path: Path) -> Iterator[Hub]:
 
 
 # --- other fixtures below ----------------------------------------------------------------------
+
+
+@pytest.fixture
+def hub_storing_bytecode(tmp_path: Path) -> Iterator[Hub]:
+    """Like ``hub``, but the server stores ``.pyc`` files in env repos as huggingface.co does (the loopback
+    server refuses them): for tests of what a client does with bytecode a hostile repo on the real Hub holds."""
+    yield from _start_hub(tmp_path, token=None, suffix="-bytecode", env={"HUB_ENVS_SERVER_ALLOW_BYTECODE": "1"})
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 import shutil
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from huggingface_hub import HfApi, snapshot_download
 
@@ -20,7 +20,9 @@ FIXTURES = Path(__file__).parent / "fixtures"
 TINY = FIXTURES / "tiny_env"
 
 
-def copy_env(tmp_path: Path, src: Path = TINY, name: str | None = None, edits: dict[str, Callable[[str], str]] | None = None) -> Path:
+def copy_env(
+    tmp_path: Path, src: Path = TINY, name: str | None = None, edits: dict[str, Callable[[str], str]] | None = None
+) -> Path:
     """A copy of an env folder, each ``edits[file](text)`` applied."""
     dest = tmp_path / (name or src.name)
     shutil.copytree(src, dest, ignore=shutil.ignore_patterns("__pycache__"))
@@ -30,7 +32,9 @@ def copy_env(tmp_path: Path, src: Path = TINY, name: str | None = None, edits: d
     return dest
 
 
-def republish(api: HfApi, repo_id: str, edit: Callable[[Path], None], *, fix_hashes: bool = True, message: str = "hand edit") -> str:
+def republish(
+    api: HfApi, repo_id: str, edit: Callable[[Path], None], *, fix_hashes: bool = True, message: str = "hand edit"
+) -> str:
     """Download main, apply ``edit(folder)``, (re)compute the manifest's hashes, upload as one commit."""
     src = Path(snapshot_download(repo_id, endpoint=api.endpoint, token=api.token))
     work = Path(str(src) + "-edit")

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import http.client
 import threading
+from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Callable
 from urllib.parse import urlsplit
 
 #: (method, path) -> new path
@@ -50,8 +50,12 @@ class LyingEndpoint:
                 data = answer.read()
                 head_length = answer.getheader("Content-Length") or "0"  # a HEAD answer names the file's size
                 status, out_headers, data = proxy.rewrite_answer(
-                    self.command, path, answer.status,
-                    {k: v for k, v in answer.getheaders() if k.lower() not in _HOP_BY_HOP}, data)
+                    self.command,
+                    path,
+                    answer.status,
+                    {k: v for k, v in answer.getheaders() if k.lower() not in _HOP_BY_HOP},
+                    data,
+                )
                 conn.close()
                 self.send_response(status)
                 for k, v in out_headers.items():
@@ -72,7 +76,7 @@ class LyingEndpoint:
         self.server.shutdown()
         self.server.server_close()
 
-    def __enter__(self) -> "LyingEndpoint":
+    def __enter__(self) -> LyingEndpoint:
         return self
 
     def __exit__(self, *exc) -> None:

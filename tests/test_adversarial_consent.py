@@ -14,14 +14,14 @@ import shutil
 from pathlib import Path
 
 import pytest
+from helpers import TINY, copy_env
+from lying_endpoint import LyingEndpoint
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, trust
 from hub_envs.hub_io import parse_repo_ref
 from hub_envs.load import UnpinnedRevisionWarning
 from hub_envs.paths import hub_envs_home
 from hub_envs.testing import hub_environment
-from helpers import TINY, copy_env
-from lying_endpoint import LyingEndpoint
 
 PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
 
@@ -100,8 +100,10 @@ def test_trust_in_a_commit_does_not_cover_other_content_served_under_its_id(hub,
     a, b = two_commits
     trust("mallory/env", a)  # reads A's manifest from the real Hub: consent is bound to A's content
     path, answer = _swap(a, b)
-    with LyingEndpoint(hub.endpoint, rewrite_path=path, rewrite_answer=answer) as lie, \
-            hub_environment(lie.endpoint, tmp_path / "victim"):
+    with (
+        LyingEndpoint(hub.endpoint, rewrite_path=path, rewrite_answer=answer) as lie,
+        hub_environment(lie.endpoint, tmp_path / "victim"),
+    ):
         os.environ["HUB_ENVS_HOME"] = str(hub_envs_home_of(hub))  # the trust list that holds A
         with pytest.raises(errors.UntrustedCodeError, match="for other content"):
             load_env(f"mallory/env@{a}")
@@ -140,7 +142,9 @@ def test_a_hostile_header_is_refused_before_the_client_writes_anything(hub, tmp_
     victim = tmp_path / "victim"
     blobs = victim / "hub" / "models--mallory--env" / "blobs"
     trust_file = victim.parent / f"{victim.name}.hub-envs" / "trusted.json"
-    evil_list = json.dumps({"format": 2, "entries": {"mallory/env": {b: {"content_digest": "0" * 64, "trusted_at": "x"}}}}).encode()
+    evil_list = json.dumps(
+        {"format": 2, "entries": {"mallory/env": {b: {"content_digest": "0" * 64, "trusted_at": "x"}}}}
+    ).encode()
 
     def answer(method, p, status, headers, body):
         if "/resolve/" in p and p.endswith("/tiny.py"):
@@ -192,7 +196,9 @@ class _no_unpinned_warning:
 # --- 6 and 10. a snapshot that failed is not left for anyone to run ----------------------------
 
 
-def test_planted_env_py_bytecode_is_removed_with_the_snapshot_and_never_runs_on_lerobots_path(hub, tmp_path, marker):
+def test_planted_env_py_bytecode_is_removed_with_the_snapshot_and_never_runs_on_lerobots_path(
+    hub_storing_bytecode, tmp_path, marker
+):
     import importlib.util
     import py_compile
 
@@ -206,11 +212,11 @@ def test_planted_env_py_bytecode_is_removed_with_the_snapshot_and_never_runs_on_
         cfile = Path(importlib.util.cache_from_source(str(folder / "env.py")))
         py_compile.compile(str(evil), cfile=str(cfile), invalidation_mode=py_compile.PycInvalidationMode.UNCHECKED_HASH)
 
-    sha = republish(hub.api, "mallory/pyc", plant, fix_hashes=False)
+    sha = republish(hub_storing_bytecode.api, "mallory/pyc", plant, fix_hashes=False)
     marker.unlink(missing_ok=True)
     with pytest.raises(errors.IntegrityError, match="unlisted"):
         load_env(f"mallory/pyc@{sha}", trust_remote_code=True)
-    assert not (hub.hf_home / "hub" / "models--mallory--pyc" / "snapshots" / sha).exists()
+    assert not (hub_storing_bytecode.hf_home / "hub" / "models--mallory--pyc" / "snapshots" / sha).exists()
 
     from lerobot.envs.factory import make_env
 

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import gymnasium as gym
 import pytest
+from helpers import TINY, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce
 from hub_envs.dataset import dataset_fingerprint, read_info
 from hub_envs.paths import hub_envs_home
 from hub_envs.repo_format import MANIFEST_FILE, Manifest, check_names_belong_to, content_digest, hash_files, list_files, safe_text
-from helpers import TINY, copy_env, republish
 
 PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
 
@@ -155,8 +155,12 @@ def test_an_extension_module_under_dataset_is_never_imported(hub, tmp_path, mark
     source = tmp_path / "helper.c"
     source.write_text(_EXTENSION_C)
     built = tmp_path / f"helper{sysconfig.get_config_var('EXT_SUFFIX')}"
-    subprocess.run(["cc", "-shared", "-fPIC", f"-I{sysconfig.get_paths()['include']}", str(source), "-o", str(built)],
-                   check=True, capture_output=True, timeout=120)
+    subprocess.run(
+        ["cc", "-shared", "-fPIC", f"-I{sysconfig.get_paths()['include']}", str(source), "-o", str(built)],
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
 
     def plant(folder: Path) -> None:
         _import_helper_from(folder)
@@ -266,7 +270,12 @@ def test_a_data_path_outside_the_verified_snapshot_is_refused(hub, tmp_path, mar
         shutil.copy(data, outside / "chunk-000" / "file-000.parquet")
         data.unlink()
         # dataset/ -> <sha> -> snapshots -> models--mallory--data-path -> hub -> hf_home -> their parent
-        _edit_info(folder, lambda i: i.__setitem__("data_path", "../../../../../../outside/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"))
+        _edit_info(
+            folder,
+            lambda i: i.__setitem__(
+                "data_path", "../../../../../../outside/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+            ),
+        )
         _edit_manifest(folder, lambda m: m["dataset"].__setitem__("fingerprint", dataset_fingerprint(folder / "dataset")))
 
     sha = republish(hub.api, "mallory/data-path", escape)
@@ -277,17 +286,20 @@ def test_a_data_path_outside_the_verified_snapshot_is_refused(hub, tmp_path, mar
     assert "re-publish" in message
 
 
-@pytest.mark.parametrize("key, template, says", [
-    ("data_path", "data/chunk-{chunk_index.__class__}/file-{file_index:03d}.parquet", "{chunk_index.__class__}"),
-    ("data_path", "data/chunk-{chunk_index:03d}/file-{file_index[0]}.parquet", "{file_index[0]}"),
-    ("data_path", "data/{chunk_index!r}/file-{file_index:03d}.parquet", "{chunk_index!r}"),
-    ("data_path", "data/{episode_chunk:03d}/file-{file_index:03d}.parquet", "{episode_chunk}"),
-    ("data_path", "data/chunk-{chunk_index:>30}/file-{file_index:03d}.parquet", "not an integer format"),
-    ("data_path", "/etc/{chunk_index}{file_index}", "outside the dataset folder"),
-    ("data_path", 5, "must be a non-empty path template string"),
-    ("video_path", "../videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4", "outside the dataset folder"),
-    ("video_path", "videos/{video_key.__init__.__globals__}/x.mp4", "{video_key.__init__.__globals__}"),
-])
+@pytest.mark.parametrize(
+    "key, template, says",
+    [
+        ("data_path", "data/chunk-{chunk_index.__class__}/file-{file_index:03d}.parquet", "{chunk_index.__class__}"),
+        ("data_path", "data/chunk-{chunk_index:03d}/file-{file_index[0]}.parquet", "{file_index[0]}"),
+        ("data_path", "data/{chunk_index!r}/file-{file_index:03d}.parquet", "{chunk_index!r}"),
+        ("data_path", "data/{episode_chunk:03d}/file-{file_index:03d}.parquet", "{episode_chunk}"),
+        ("data_path", "data/chunk-{chunk_index:>30}/file-{file_index:03d}.parquet", "not an integer format"),
+        ("data_path", "/etc/{chunk_index}{file_index}", "outside the dataset folder"),
+        ("data_path", 5, "must be a non-empty path template string"),
+        ("video_path", "../videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4", "outside the dataset folder"),
+        ("video_path", "videos/{video_key.__init__.__globals__}/x.mp4", "{video_key.__init__.__globals__}"),
+    ],
+)
 def test_a_data_path_template_is_named_integer_fields_inside_the_dataset(tmp_path, key, template, says):
     root = tmp_path / "ds"
     (root / "meta").mkdir(parents=True)
@@ -301,9 +313,12 @@ def test_a_data_path_template_is_named_integer_fields_inside_the_dataset(tmp_pat
 def test_a_lerobot_style_data_path_is_accepted(tmp_path):
     root = tmp_path / "ds"
     (root / "meta").mkdir(parents=True)
-    info = {"codebase_version": "v3.0", "features": {},
-            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-            "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"}
+    info = {
+        "codebase_version": "v3.0",
+        "features": {},
+        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+    }
     (root / "meta" / "info.json").write_text(json.dumps(info))
     assert read_info(root)["data_path"] == info["data_path"]
 
@@ -323,14 +338,23 @@ def test_a_planted_bytecode_cache_entry_never_runs(hub, tmp_path, marker):
     cache.mkdir(parents=True, exist_ok=True)
     for py in sorted(folder.glob("*.py")):
         source, path = py.read_bytes(), str(py)
-        key = hashlib.sha256(b"\0".join([importlib.util.MAGIC_NUMBER, str(sys.flags.optimize).encode(),
-                                         path.encode("utf-8", "surrogateescape"), source])).hexdigest()
+        key = hashlib.sha256(
+            b"\0".join(
+                [importlib.util.MAGIC_NUMBER, str(sys.flags.optimize).encode(), path.encode("utf-8", "surrogateescape"), source]
+            )
+        ).hexdigest()
         (cache / f"{key}.bin").write_bytes(marshal.dumps(compile(source + b"\n" + PAYLOAD.encode(), path, "exec")))
 
-    code = ("import sys; from hub_envs import load_env; "
-            "loaded = load_env(sys.argv[1], trust_remote_code=True); print(loaded.gym_id)")
-    done = subprocess.run([sys.executable, "-c", code, f"mallory/bytecode@{result.sha}"], env=dict(os.environ),
-                          capture_output=True, text=True, timeout=600)
+    code = (
+        "import sys; from hub_envs import load_env; loaded = load_env(sys.argv[1], trust_remote_code=True); print(loaded.gym_id)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, f"mallory/bytecode@{result.sha}"],
+        env=dict(os.environ),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip().startswith("mallory/bytecode-")
     assert not marker.exists()
@@ -339,8 +363,10 @@ def test_a_planted_bytecode_cache_entry_never_runs(hub, tmp_path, marker):
 # --- 5. a malformed check-cache entry --------------------------------------------------------------
 
 
-@pytest.mark.parametrize("how", ["no-features", "rows-not-list", "row-unknown-field", "not-an-object", "truncated",
-                                 "failing-report", "nested-too-deep"])
+@pytest.mark.parametrize(
+    "how",
+    ["no-features", "rows-not-list", "row-unknown-field", "not-an-object", "truncated", "failing-report", "nested-too-deep"],
+)
 def test_a_malformed_check_cache_entry_is_recomputed_never_a_pass(hub, tmp_path, how):
     result = _push(TINY, f"mallory/check-cache-{how}")
     ref = f"mallory/check-cache-{how}@{result.sha}"
@@ -389,17 +415,21 @@ def _assert_terminal_safe(message: str) -> None:
     assert not any(ch in message for ch in UNSAFE), repr(message)
 
 
-@pytest.mark.parametrize("name, shown", [
-    ("assets/\x9b2J\u202etxt.py.yaml", "assets/\\x9b2J\\u202etxt.py.yaml"),  # C1 CSI (8-bit terminals) and a bidi override
-    ("x\x1b]0;owned\x07.py", "x\\x1b]0;owned\\x07.py"),  # C0 ESC ... BEL: sets the terminal's title
-])
+@pytest.mark.parametrize(
+    "name, shown",
+    [
+        ("assets/\x9b2J\u202etxt.py.yaml", "assets/\\x9b2J\\u202etxt.py.yaml"),  # C1 CSI (8-bit terminals) and a bidi override
+        ("x\x1b]0;owned\x07.py", "x\\x1b]0;owned\\x07.py"),  # C0 ESC ... BEL: sets the terminal's title
+    ],
+)
 def test_escape_sequences_in_listed_file_names_are_refused_and_shown_escaped(hub, tmp_path, name, shown):
     """The manifest lists a file whose name holds terminal control sequences. (The name is only written
     into the manifest: the loopback server refuses to store such file names, which a manifest need not.)"""
     repo = f"mallory/escapes-{len(name)}"
     _push(TINY, repo)
-    sha = republish(hub.api, repo, lambda f: _edit_manifest(f, lambda m: m["files"].__setitem__(name, "0" * 64)),
-                    fix_hashes=False)
+    sha = republish(
+        hub.api, repo, lambda f: _edit_manifest(f, lambda m: m["files"].__setitem__(name, "0" * 64)), fix_hashes=False
+    )
     with pytest.raises(errors.ManifestError) as info:
         load_env(f"{repo}@{sha}", trust_remote_code=True)
     message = str(info.value)
@@ -426,8 +456,12 @@ def test_an_unlisted_file_with_escapes_in_its_name_is_reported_escaped(hub, tmp_
 def test_a_listed_name_longer_than_file_systems_allow_is_refused(hub, tmp_path):
     _push(TINY, "mallory/long-name")
     long = "assets/" + "a" * 300 + ".txt"
-    sha = republish(hub.api, "mallory/long-name", lambda f: _edit_manifest(f, lambda m: m["files"].__setitem__(long, "0" * 64)),
-                    fix_hashes=False)
+    sha = republish(
+        hub.api,
+        "mallory/long-name",
+        lambda f: _edit_manifest(f, lambda m: m["files"].__setitem__(long, "0" * 64)),
+        fix_hashes=False,
+    )
     with pytest.raises(errors.ManifestError, match=r"longer than 255 bytes.*Shorten"):
         load_env(f"mallory/long-name@{sha}", trust_remote_code=True)
 
@@ -476,8 +510,13 @@ def test_a_manifest_registering_names_under_another_namespace_is_refused(hub, tm
 
 def test_check_names_belong_to_compares_with_the_repo_actually_loaded(hub, tmp_path):
     result = _push(TINY, "mallory/spoof")
-    sha = republish(hub.api, "mallory/spoof", lambda f: _edit_manifest(
-        f, lambda m: m.update(repo_id="alice/pendulum", gym_id="alice/pendulum", env_type="alice/pendulum")))
+    sha = republish(
+        hub.api,
+        "mallory/spoof",
+        lambda f: _edit_manifest(
+            f, lambda m: m.update(repo_id="alice/pendulum", gym_id="alice/pendulum", env_type="alice/pendulum")
+        ),
+    )
     from huggingface_hub import snapshot_download
 
     manifest = Manifest.read(Path(snapshot_download("mallory/spoof", revision=sha, cache_dir=tmp_path / "dl")))
@@ -490,8 +529,13 @@ def test_check_names_belong_to_compares_with_the_repo_actually_loaded(hub, tmp_p
 
 def test_a_manifest_claiming_another_users_repo_id_too_is_refused_by_load_env(hub, tmp_path):
     _push(TINY, "mallory/spoof-all")
-    sha = republish(hub.api, "mallory/spoof-all", lambda f: _edit_manifest(
-        f, lambda m: m.update(repo_id="alice/pendulum", gym_id="alice/pendulum", env_type="alice/pendulum")))
+    sha = republish(
+        hub.api,
+        "mallory/spoof-all",
+        lambda f: _edit_manifest(
+            f, lambda m: m.update(repo_id="alice/pendulum", gym_id="alice/pendulum", env_type="alice/pendulum")
+        ),
+    )
     before = set(gym.registry)
     try:
         with pytest.raises(errors.ManifestError, match="alice/pendulum"):

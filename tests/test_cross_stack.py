@@ -28,8 +28,7 @@ pytestmark = pytest.mark.skipif(
 def _cli(python: str, args: list[str], *, endpoint: str, home: Path, cwd: Path) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("HF_", "HUGGING_FACE_", "HUB_ENVS_"))}
     env.update(HF_ENDPOINT=endpoint, HF_HOME=str(home), HF_HUB_DISABLE_TELEMETRY="1", HF_HUB_DISABLE_PROGRESS_BARS="1")
-    return subprocess.run([python, "-m", "hub_envs.cli", *args], env=env, cwd=cwd, capture_output=True, text=True,
-                          timeout=900)
+    return subprocess.run([python, "-m", "hub_envs.cli", *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=900)
 
 
 def _stack(python: str) -> str:
@@ -42,14 +41,24 @@ def test_a_repo_published_on_one_stack_reproduces_exactly_on_the_other(hub, tmp_
     assert _stack(pub) != _stack(rep), "both legs run the same stack: nothing crosses"
     repo = f"xs/hover-{'here' if pub == sys.executable else 'other'}"
 
-    pushed = _cli(pub, ["push", f"--env_dir={ENVS / 'hover'}", f"--repo_id={repo}", "--episodes=3", "--workers=1"],
-                  endpoint=hub.endpoint, home=tmp_path / "publisher-home", cwd=tmp_path)
+    pushed = _cli(
+        pub,
+        ["push", f"--env_dir={ENVS / 'hover'}", f"--repo_id={repo}", "--episodes=3", "--workers=1"],
+        endpoint=hub.endpoint,
+        home=tmp_path / "publisher-home",
+        cwd=tmp_path,
+    )
     assert pushed.returncode == 0, pushed.stdout[-3000:] + pushed.stderr[-3000:]
     sha = hub.api.repo_info(repo).sha
 
     out = tmp_path / "report"
-    run = _cli(rep, ["reproduce", f"--repo_id={repo}", f"--revision={sha}", "--trust_remote_code=true", "--workers=1",
-                     f"--out={out}"], endpoint=hub.endpoint, home=tmp_path / "reproducer-home", cwd=tmp_path)
+    run = _cli(
+        rep,
+        ["reproduce", f"--repo_id={repo}", f"--revision={sha}", "--trust_remote_code=true", "--workers=1", f"--out={out}"],
+        endpoint=hub.endpoint,
+        home=tmp_path / "reproducer-home",
+        cwd=tmp_path,
+    )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert run.stdout.startswith(f"REPRODUCED: {repo}@{sha}"), run.stdout[-3000:]
     assert "reproduce exactly" in run.stdout  # tolerance 0: every observation, reward and state bit for bit

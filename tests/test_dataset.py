@@ -41,7 +41,13 @@ class DictPendulum(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, image: bool = False, nan_at: tuple[int, int] | None = None, raise_at: int | None = None, raise_in_reset: bool = False):
+    def __init__(
+        self,
+        image: bool = False,
+        nan_at: tuple[int, int] | None = None,
+        raise_at: int | None = None,
+        raise_in_reset: bool = False,
+    ):
         self.inner = PendulumEnv()
         self.image, self.nan_at, self.raise_at, self.raise_in_reset = image, nan_at, raise_at, raise_in_reset
         spaces = {"agent_pos": self.inner.observation_space}
@@ -196,11 +202,19 @@ def test_workers_give_identical_rollouts(state_rollouts):
 
 
 def test_replaying_recorded_actions_reproduces_observations(state_rollouts):
-    replay = run_episodes(lambda: DictPendulum(), SEEDS, max_steps=100, policy=[r.actions for r in state_rollouts], progress=False)
+    replay = run_episodes(
+        lambda: DictPendulum(), SEEDS, max_steps=100, policy=[r.actions for r in state_rollouts], progress=False
+    )
     assert replay == [dataclasses.replace(r, states=None) for r in state_rollouts]
     # a callable policy gets (obs, step_index)
     seen = []
-    run_episodes(lambda: DictPendulum(), [3], max_steps=4, policy=lambda obs, t: seen.append((sorted(obs), t)) or np.zeros(1, np.float32), progress=False)
+    run_episodes(
+        lambda: DictPendulum(),
+        [3],
+        max_steps=4,
+        policy=lambda obs, t: seen.append((sorted(obs), t)) or np.zeros(1, np.float32),
+        progress=False,
+    )
     assert seen == [(["agent_pos"], t) for t in range(4)]
 
 
@@ -314,7 +328,13 @@ def test_image_dataset_matches_lerobot_own_writer(tmp_path, image_rollouts):
     ours = tmp_path / "ours"
     write(ours, image_rollouts, True)
     theirs = tmp_path / "theirs"
-    ref = LeRobotDataset.create("test/ref", fps=30, features={k: {**f, "shape": tuple(f["shape"])} for k, f in feats.items()}, root=theirs, use_videos=False)
+    ref = LeRobotDataset.create(
+        "test/ref",
+        fps=30,
+        features={k: {**f, "shape": tuple(f["shape"])} for k, f in feats.items()},
+        root=theirs,
+        use_videos=False,
+    )
     for r in image_rollouts:
         frames = rollout_to_frames(r, fmap)
         for t in range(r.length):
@@ -344,8 +364,11 @@ def test_image_dataset_matches_lerobot_own_writer(tmp_path, image_rollouts):
     ours_meta = pq.read_schema(ours / "meta/episodes/chunk-000/file-000.parquet")
     theirs_meta = pq.read_schema(theirs / "meta/episodes/chunk-000/file-000.parquet")
     assert ours_meta.names == [*theirs_meta.names, "seed"]
-    differing = {n: (str(ours_meta.field(n).type), str(theirs_meta.field(n).type)) for n in theirs_meta.names
-                 if ours_meta.field(n).type != theirs_meta.field(n).type}
+    differing = {
+        n: (str(ours_meta.field(n).type), str(theirs_meta.field(n).type))
+        for n in theirs_meta.names
+        if ours_meta.field(n).type != theirs_meta.field(n).type
+    }
     assert not differing, differing
     info_a, info_b = read_info(ours), read_info(theirs)
     assert {k for k in info_a if k != "hub_envs"} == set(info_b)  # the same keys (their order changed in LeRobot 0.5)
@@ -388,8 +411,15 @@ def test_failure_mid_write_leaves_nothing(tmp_path, state_rollouts):
     # an env failing during generation: the EnvCodeError comes through unchanged, nothing written
     rollouts = iter_episodes(lambda: DictPendulum(raise_at=3), SEEDS, max_steps=100, progress=False)
     with pytest.raises(EnvCodeError):
-        write_lerobot_dataset(root, repo_id="t/x", fps=30, features=feats, task=TASK, progress=False,
-                              episodes=(EpisodeFrames.from_rollout(r, fmap) for r in rollouts))
+        write_lerobot_dataset(
+            root,
+            repo_id="t/x",
+            fps=30,
+            features=feats,
+            task=TASK,
+            progress=False,
+            episodes=(EpisodeFrames.from_rollout(r, fmap) for r in rollouts),
+        )
     assert list(root.parent.iterdir()) == []
 
     # frames that do not match the features
@@ -398,7 +428,9 @@ def test_failure_mid_write_leaves_nothing(tmp_path, state_rollouts):
         write_lerobot_dataset(root, repo_id="t/x", fps=30, features=feats, episodes=[bad], task=TASK, progress=False)
     assert list(root.parent.iterdir()) == []
     with pytest.raises(ConfigError, match="video"):
-        write_lerobot_dataset(root, repo_id="t/x", fps=30, features={"cam": {"dtype": "video", "shape": [4, 4, 3]}}, episodes=[], task=TASK)
+        write_lerobot_dataset(
+            root, repo_id="t/x", fps=30, features={"cam": {"dtype": "video", "shape": [4, 4, 3]}}, episodes=[], task=TASK
+        )
 
 
 def test_existing_folder_needs_overwrite(tmp_path, state_rollouts):

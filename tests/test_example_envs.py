@@ -43,7 +43,12 @@ CONFIGS = {
     "hover-rpm-30": ("hover", {"act_type": "rpm", "fps": 30}, {"agent_pos": (72,)}, (4,)),
     "hover-rpm-48": ("hover", {"act_type": "rpm", "fps": 48}, {"agent_pos": (108,)}, (4,)),
     "reach-pixels": ("reach", {}, {"agent_pos": (14,), "pixels": (96, 96, 3)}, (7,)),
-    "reach-env_state": ("reach", {"obs_type": "environment_state_agent_pos"}, {"agent_pos": (14,), "environment_state": (3,)}, (7,)),
+    "reach-env_state": (
+        "reach",
+        {"obs_type": "environment_state_agent_pos"},
+        {"agent_pos": (14,), "environment_state": (3,)},
+        (7,),
+    ),
 }
 LEROBOT_KEY = {"agent_pos": OBS_STATE, "pixels": OBS_IMAGE, "environment_state": OBS_ENV_STATE}
 
@@ -155,7 +160,10 @@ def test_observations_and_actions_match_the_config_features(config_id, closing):
     for key, shape in expected_obs.items():
         feature = cfg.features[key]
         assert feature.shape == shape
-        assert feature.type is {"agent_pos": FeatureType.STATE, "pixels": FeatureType.VISUAL, "environment_state": FeatureType.ENV}[key]
+        assert (
+            feature.type
+            is {"agent_pos": FeatureType.STATE, "pixels": FeatureType.VISUAL, "environment_state": FeatureType.ENV}[key]
+        )
         assert cfg.features_map[key] == LEROBOT_KEY[key]
 
     assert isinstance(env.observation_space, gym.spaces.Dict)
@@ -220,7 +228,9 @@ def test_same_seed_same_rollout_and_different_seed_different(config_id, closing)
 
 
 def load_env_class(name: str):
-    return resolve_entry_point(import_env_folder(ENVS_DIR / name, key=f"test-example-{name}"), manifest(name)["tool"]["hub-envs"]["env"])
+    return resolve_entry_point(
+        import_env_folder(ENVS_DIR / name, key=f"test-example-{name}"), manifest(name)["tool"]["hub-envs"]["env"]
+    )
 
 
 def test_same_seed_same_rollout_in_a_new_process():
@@ -431,7 +441,13 @@ def test_hover_truncates_when_out_of_bounds_or_tilted(closing):
     closing(env)
     env.reset(seed=0)
     zero = np.zeros(1, dtype=np.float32)
-    for pos, rpy in [([1.6, 0, 1], (0, 0, 0)), ([0, -1.6, 1], (0, 0, 0)), ([0, 0, 2.1], (0, 0, 0)), ([0, 0, 1], (0.5, 0, 0)), ([0, 0, 1], (0, -0.5, 0))]:
+    for pos, rpy in [
+        ([1.6, 0, 1], (0, 0, 0)),
+        ([0, -1.6, 1], (0, 0, 0)),
+        ([0, 0, 2.1], (0, 0, 0)),
+        ([0, 0, 1], (0.5, 0, 0)),
+        ([0, 0, 1], (0, -0.5, 0)),
+    ]:
         env.reset_to(hover_state(env, pos, rpy))
         _, reward, terminated, truncated, info = env.step(zero)
         assert truncated is True and terminated is False, (pos, rpy)

@@ -29,11 +29,11 @@ from pathlib import Path
 
 import gymnasium as gym
 import pytest
+from helpers import TINY, copy_env
 from huggingface_hub import HfApi
 
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.testing import HubServer, hub_environment
-from helpers import TINY, copy_env
 
 
 class FaultyHub:
@@ -136,7 +136,9 @@ def test_a_failing_hub_api_is_a_clear_error_and_the_next_load_succeeds(faulty, t
 def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partial_snapshot(faulty, tmp_path):
     home = tmp_path / "home"
     ref = f"flt/base@{faulty.sha}"
-    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "action": "drop", "after_bytes": 64, "times": -1})
+    faulty.inject(
+        {"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "action": "drop", "after_bytes": 64, "times": -1}
+    )
     try:
         with hub_environment(faulty.endpoint, home):
             with pytest.raises(errors.HubError) as e:
@@ -247,4 +249,3 @@ def test_two_pushes_racing_on_one_repo_leave_a_consistent_history(faulty, tmp_pa
             loaded = load_env(f"flt/race@{sha}", trust_remote_code=True)
             assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
             loaded.unregister()
-

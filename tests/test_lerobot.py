@@ -17,16 +17,16 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from helpers import TINY, copy_env, republish
 from lerobot.configs.eval import EvalPipelineConfig
 from lerobot.configs.train import TrainPipelineConfig
 
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.cli import main as cli_main
-from hub_envs.load import UnpinnedRevisionWarning
 from hub_envs.lerobot_env import HubEnv, install_hooks, make_env, make_env_pre_post_processors
+from hub_envs.load import UnpinnedRevisionWarning
 from hub_envs.registration import snapshot_registries
 from hub_envs.testing import hub_environment
-from helpers import copy_env, republish, TINY
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = {"pendulum": ROOT / "envs" / "pendulum", "hover": ROOT / "envs" / "hover", "reach": ROOT / "envs" / "reach"}
@@ -52,7 +52,7 @@ class ScaleState(ObservationProcessorStep):
         return features
 '''
 
-PROCESSORS_TOML = '''
+PROCESSORS_TOML = """
 [[tool.hub-envs.processors]]
 name = "scale_state"
 entry_point = "obs_steps:ScaleState"
@@ -64,13 +64,23 @@ name = "clip"
 entry_point = "clip_action"
 stage = "post"
 kwargs = { low = [-0.2], high = [0.2] }
-'''
+"""
 
 #: A tiny ACT: seconds on a CPU.
-TINY_ACT = ["--policy.type=act", "--policy.push_to_hub=false", "--policy.device=cpu", "--policy.dim_model=32",
-            "--policy.n_heads=2", "--policy.dim_feedforward=64", "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1",
-            "--policy.chunk_size=10", "--policy.n_action_steps=10", "--policy.use_vae=false",
-            "--policy.pretrained_backbone_weights=null"]
+TINY_ACT = [
+    "--policy.type=act",
+    "--policy.push_to_hub=false",
+    "--policy.device=cpu",
+    "--policy.dim_model=32",
+    "--policy.n_heads=2",
+    "--policy.dim_feedforward=64",
+    "--policy.n_encoder_layers=1",
+    "--policy.n_decoder_layers=1",
+    "--policy.chunk_size=10",
+    "--policy.n_action_steps=10",
+    "--policy.use_vae=false",
+    "--policy.pretrained_backbone_weights=null",
+]
 
 
 #: lerobot-train's flag for in-training env evaluation (renamed in LeRobot 0.5).
@@ -79,10 +89,15 @@ EVAL_FREQ = _compat.train_eval_freq_flag()
 
 def _pendulum_pixels(tmp_path: Path) -> Path:
     """envs/pendulum observing pixels too (LeRobot's ACT needs an image), with two env processors."""
-    folder = copy_env(tmp_path, EXAMPLES["pendulum"], "pendulum_pixels", {
-        "config.py": lambda s: s.replace('obs_type: str = "state"', 'obs_type: str = "pixels_agent_pos"'),
-        "pyproject.toml": lambda s: s + PROCESSORS_TOML,
-    })
+    folder = copy_env(
+        tmp_path,
+        EXAMPLES["pendulum"],
+        "pendulum_pixels",
+        {
+            "config.py": lambda s: s.replace('obs_type: str = "state"', 'obs_type: str = "pixels_agent_pos"'),
+            "pyproject.toml": lambda s: s + PROCESSORS_TOML,
+        },
+    )
     (folder / "obs_steps.py").write_text(OBS_STEPS)
     return folder
 
@@ -113,7 +128,7 @@ def test_lerobot_make_env_loads_each_example_repo_pinned_to_its_sha(hub_module, 
         for name in ("tiny", *EXAMPLES):
             sha = published[name]
             envs = lerobot_make_env(f"alice/{name}@{sha}", n_envs=2, trust_remote_code=True)
-            (suite, tasks), = envs.items()
+            ((suite, tasks),) = envs.items()
             vec = tasks[0]
             assert isinstance(vec, gym.vector.SyncVectorEnv) and vec.num_envs == 2
             # env.py fetched the rest of its own commit (code, assets, manifest) into the same snapshot
@@ -180,7 +195,9 @@ def test_lerobot_make_env_reports_success_through_final_info_and_refuses_without
             _, _, terminated, truncated, info = vec.step(np.zeros((2, 1), dtype=np.float32))
             assert ("final_info" in info) == (t == 29)
         # LeRobot's rollout reads success from here (gymnasium 1.x, same-step autoreset)
-        assert truncated.all() and info["final_info"]["is_success"].dtype == bool and info["final_info"]["is_success"].shape == (2,)
+        assert (
+            truncated.all() and info["final_info"]["is_success"].dtype == bool and info["final_info"]["is_success"].shape == (2,)
+        )
         vec.close()
 
 
@@ -190,10 +207,14 @@ def test_lerobot_make_env_reports_success_through_final_info_and_refuses_without
 def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
     sha = published["pendulum"]
     with pytest.warns(UnpinnedRevisionWarning, match=sha):
-        cfg = draccus.parse(TrainPipelineConfig, args=[
-            *_hub_args("pendulum", "main", "--env.overrides={g: 9.81}", "--env.episode_length=50"),
-            "--dataset.repo_id=alice/pendulum", *TINY_ACT,
-        ])
+        cfg = draccus.parse(
+            TrainPipelineConfig,
+            args=[
+                *_hub_args("pendulum", "main", "--env.overrides={g: 9.81}", "--env.episode_length=50"),
+                "--dataset.repo_id=alice/pendulum",
+                *TINY_ACT,
+            ],
+        )
     assert isinstance(cfg.env, HubEnv) and cfg.env.type == "hub"
     assert cfg.env.revision == sha  # a branch is replaced by the commit it resolved to
     assert cfg.env.episode_length == 50 and cfg.env.env_config.g == 9.81 and cfg.env.fps == 30
@@ -206,15 +227,24 @@ def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
     # LeRobot's own make_env builds it from the gym registry, with the overridden time limit
     from lerobot.envs.factory import make_env as lerobot_make_env
 
-    (suite, tasks), = lerobot_make_env(cfg.env, n_envs=1).items()
+    ((suite, tasks),) = lerobot_make_env(cfg.env, n_envs=1).items()
     vec = tasks[0]
     assert vec.call("_max_episode_steps") == (50,)
     vec.close()
 
     # the per-repo choice load_env registers, with the repo config's own fields as flags
     loaded = cfg.env.loaded
-    ev = draccus.parse(EvalPipelineConfig, args=[f"--env.type={loaded.env_type}", "--env.g=5.0", "--env.episode_length=7",
-                                                 "--policy.type=act", "--eval.n_episodes=2", "--eval.batch_size=2"])
+    ev = draccus.parse(
+        EvalPipelineConfig,
+        args=[
+            f"--env.type={loaded.env_type}",
+            "--env.g=5.0",
+            "--env.episode_length=7",
+            "--policy.type=act",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=2",
+        ],
+    )
     assert type(ev.env) is loaded.config_class and ev.env.g == 5.0
     vec = make_env(ev.env, n_envs=2)["pendulum"][0]
     assert vec.call("_max_episode_steps") == (7, 7) and vec.call("task_description") == ("Pendulum-v1",) * 2
@@ -233,7 +263,11 @@ def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys
     assert "--env.repo_id=user/name" in capsys.readouterr().err
     assert cli_main(["eval", "--env.type=hub", "--env.repo_id=alice/tiny", f"--env.revision={published['tiny']}"]) == 1
     err = capsys.readouterr().err
-    assert "UntrustedCodeError" in err and "--env.trust_remote_code=true" in err and f"hub-envs trust alice/tiny@{published['tiny']}" in err
+    assert (
+        "UntrustedCodeError" in err
+        and "--env.trust_remote_code=true" in err
+        and f"hub-envs trust alice/tiny@{published['tiny']}" in err
+    )
     assert cli_main(["train", "--env.type=alice/tiny@0123456789ab", "--env.trust_remote_code=true"]) == 1
     assert "--env.revision=<the full 40-hex sha>" in capsys.readouterr().err
 
@@ -241,14 +275,27 @@ def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys
 # --- 3. train then eval through LeRobot's own scripts -----------------------------------------
 
 
-def _train_then_eval(out: Path, *, env_flags_train: list[str], env_flags_eval: list[str],
-                     train_eval: tuple[str, ...] = (f"--{EVAL_FREQ}=0",)) -> dict:
+def _train_then_eval(
+    out: Path, *, env_flags_train: list[str], env_flags_eval: list[str], train_eval: tuple[str, ...] = (f"--{EVAL_FREQ}=0",)
+) -> dict:
     common = [*TINY_ACT, "--batch_size=4", "--num_workers=0", "--log_freq=100", *train_eval]
     assert cli_main(["train", *env_flags_train, *common, "--steps=3", "--save_freq=3", f"--output_dir={out / 'train'}"]) == 0
     model = out / "train" / "checkpoints" / "last" / "pretrained_model"
     assert (model / "model.safetensors").is_file() and (model / "hub_envs_provenance.json").is_file()
-    assert cli_main(["eval", *env_flags_eval, f"--policy.path={model}", "--policy.device=cpu", "--eval.n_episodes=2",
-                     "--eval.batch_size=2", f"--output_dir={out / 'eval'}"]) == 0
+    assert (
+        cli_main(
+            [
+                "eval",
+                *env_flags_eval,
+                f"--policy.path={model}",
+                "--policy.device=cpu",
+                "--eval.n_episodes=2",
+                "--eval.batch_size=2",
+                f"--output_dir={out / 'eval'}",
+            ]
+        )
+        == 0
+    )
     info = json.loads((out / "eval" / "eval_info.json").read_text())
     sidecar = json.loads((out / "eval" / "hub_envs_provenance.json").read_text())
     assert info["provenance"] == sidecar
@@ -261,9 +308,12 @@ def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, pu
     loaded = load_env(f"alice/pendulum-pixels@{sha}", trust_remote_code=True)
     # train: no --dataset flag = the env repo's bundled random-action dataset, and LeRobot's in-training
     # eval (lerobot_train makes its env without trust_remote_code); eval: 30-step episodes
-    info = _train_then_eval(tmp_path, env_flags_train=_hub_args("pendulum-pixels", sha, "--env.episode_length=10"),
-                            env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"),
-                            train_eval=(f"--{EVAL_FREQ}=3", "--eval.n_episodes=1", "--eval.batch_size=1"))
+    info = _train_then_eval(
+        tmp_path,
+        env_flags_train=_hub_args("pendulum-pixels", sha, "--env.episode_length=10"),
+        env_flags_eval=_hub_args("pendulum-pixels", sha, "--env.episode_length=30"),
+        train_eval=(f"--{EVAL_FREQ}=3", "--eval.n_episodes=1", "--eval.batch_size=1"),
+    )
     assert (tmp_path / "train" / "eval" / "videos_step_000003" / "pendulum_0" / "eval_episode_0.mp4").is_file()
     prov = info["provenance"]
     assert prov["env"]["repo_id"] == "alice/pendulum-pixels" and prov["env"]["revision"] == sha
@@ -281,11 +331,15 @@ def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, publi
     sha = published["reach"]
     loaded = load_env(f"alice/reach@{sha}", trust_remote_code=True)
     # the per-repo choice (short sha) for training, the generic one for eval
-    info = _train_then_eval(tmp_path, env_flags_train=[f"--env.type={loaded.env_type}", "--env.trust_remote_code=true"],
-                            env_flags_eval=_hub_args("reach", sha, "--env.episode_length=15"))
+    info = _train_then_eval(
+        tmp_path,
+        env_flags_train=[f"--env.type={loaded.env_type}", "--env.trust_remote_code=true"],
+        env_flags_eval=_hub_args("reach", sha, "--env.episode_length=15"),
+    )
     prov = info["provenance"]
     assert prov["env"]["revision"] == sha and prov["env"]["processors"] == [
-        {"name": "clip_action", "entry_point": "clip_action", "stage": "post", "kwargs": {}}]
+        {"name": "clip_action", "entry_point": "clip_action", "stage": "post", "kwargs": {}}
+    ]
     assert prov["env"]["config"]["features"]["pixels"]["shape"] == [96, 96, 3]
     assert prov["policy"]["training"]["dataset"]["is_env_dataset"]
 
@@ -296,16 +350,39 @@ def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_pa
     every version, and with no flag at all from LeRobot 0.5 on (it imports ``lerobot_env_*`` distributions)."""
     plain = route == "the lerobot_env_hub plugin"
     if plain and not _compat.env_configs_create_envs():
-        pytest.skip(f"LeRobot {_compat.LEROBOT_VERSION} does not discover lerobot_env_* plugins (0.5 does); "
-                    "on 0.4 the --env.discover_packages_path route is the one")
+        pytest.skip(
+            f"LeRobot {_compat.LEROBOT_VERSION} does not discover lerobot_env_* plugins (0.5 does); "
+            "on 0.4 the --env.discover_packages_path route is the one"
+        )
     sha = published["pendulum-pixels"]
     train = tmp_path / "train"
-    assert cli_main(["train", *_hub_args("pendulum-pixels", sha), *TINY_ACT, "--batch_size=4", "--num_workers=0",
-                     f"--{EVAL_FREQ}=0", "--steps=1", "--save_freq=1", f"--output_dir={train}"]) == 0
+    assert (
+        cli_main(
+            [
+                "train",
+                *_hub_args("pendulum-pixels", sha),
+                *TINY_ACT,
+                "--batch_size=4",
+                "--num_workers=0",
+                f"--{EVAL_FREQ}=0",
+                "--steps=1",
+                "--save_freq=1",
+                f"--output_dir={train}",
+            ]
+        )
+        == 0
+    )
     flags = [] if plain else ["--env.discover_packages_path=hub_envs.lerobot_plugin"]
-    cmd = [str(Path(sys.executable).with_name("lerobot-eval")), *flags, *_hub_args("pendulum-pixels", sha, "--env.episode_length=8"),
-           f"--policy.path={train / 'checkpoints' / 'last' / 'pretrained_model'}", "--policy.device=cpu",
-           "--eval.n_episodes=2", "--eval.batch_size=2", f"--output_dir={tmp_path / 'eval'}"]
+    cmd = [
+        str(Path(sys.executable).with_name("lerobot-eval")),
+        *flags,
+        *_hub_args("pendulum-pixels", sha, "--env.episode_length=8"),
+        f"--policy.path={train / 'checkpoints' / 'last' / 'pretrained_model'}",
+        "--policy.device=cpu",
+        "--eval.n_episodes=2",
+        "--eval.batch_size=2",
+        f"--output_dir={tmp_path / 'eval'}",
+    ]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
@@ -316,8 +393,22 @@ def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, publ
     """A shared train_config.json cannot carry consent: it is saved as false, and a file saying true is ignored."""
     sha = published["pendulum-pixels"]
     out = tmp_path / "train"
-    assert cli_main(["train", *_hub_args("pendulum-pixels", sha), *TINY_ACT, "--batch_size=4", "--num_workers=0",
-                     f"--{EVAL_FREQ}=0", "--steps=1", "--save_freq=1", f"--output_dir={out}"]) == 0
+    assert (
+        cli_main(
+            [
+                "train",
+                *_hub_args("pendulum-pixels", sha),
+                *TINY_ACT,
+                "--batch_size=4",
+                "--num_workers=0",
+                f"--{EVAL_FREQ}=0",
+                "--steps=1",
+                "--save_freq=1",
+                f"--output_dir={out}",
+            ]
+        )
+        == 0
+    )
     saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
     assert saved["env"]["trust_remote_code"] is False and saved["env"]["revision"] == sha
     saved["env"]["trust_remote_code"] = True  # what someone else's config file says
@@ -325,8 +416,9 @@ def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, publ
     shared = tmp_path / "shared.json"
     shared.write_text(json.dumps(saved))
     # a fresh process: nothing of this repo was imported there, and its trust list is empty
-    run = subprocess.run([sys.executable, "-m", "hub_envs.cli", "train", f"--config_path={shared}"],
-                         capture_output=True, text=True, timeout=600)
+    run = subprocess.run(
+        [sys.executable, "-m", "hub_envs.cli", "train", f"--config_path={shared}"], capture_output=True, text=True, timeout=600
+    )
     assert run.returncode == 1, run.stdout[-2000:] + run.stderr[-3000:]
     # LeRobot's parser reports it (draccus wraps errors raised while it builds a config): hub-envs' message inside
     assert f"alice/pendulum-pixels@{sha} contains Python code that would run" in run.stderr
@@ -344,17 +436,31 @@ def test_a_processor_declared_by_the_repo_is_applied_between_env_and_policy(publ
     from lerobot.utils.constants import OBS_STATE
 
     sha = published["pendulum-pixels"]
-    cfg = draccus.parse(EvalPipelineConfig, args=[*_hub_args("pendulum-pixels", sha, "--env.episode_length=12"),
-                                                  "--eval.n_episodes=2", "--eval.batch_size=2"])
+    cfg = draccus.parse(
+        EvalPipelineConfig,
+        args=[*_hub_args("pendulum-pixels", sha, "--env.episode_length=12"), "--eval.n_episodes=2", "--eval.batch_size=2"],
+    )
     loaded = cfg.env.loaded
     pre, post = loaded.processors()
-    assert [type(s).__name__ for s in pre.steps] == ["ScaleState"] and [type(s).__name__ for s in post.steps] == ["ClipActionProcessorStep"]
+    assert [type(s).__name__ for s in pre.steps] == ["ScaleState"] and [type(s).__name__ for s in post.steps] == [
+        "ClipActionProcessorStep"
+    ]
     card = (loaded.path / "README.md").read_text()
     assert "## Env processors" in card and "| `clip` | post | `clip_action` |" in card  # the card tells users too
 
     torch.manual_seed(0)
-    policy_cfg = ACTConfig(device="cpu", dim_model=32, n_heads=2, dim_feedforward=64, n_encoder_layers=1, n_decoder_layers=1,
-                           chunk_size=4, n_action_steps=4, use_vae=False, pretrained_backbone_weights=None)
+    policy_cfg = ACTConfig(
+        device="cpu",
+        dim_model=32,
+        n_heads=2,
+        dim_feedforward=64,
+        n_encoder_layers=1,
+        n_decoder_layers=1,
+        chunk_size=4,
+        n_action_steps=4,
+        use_vae=False,
+        pretrained_backbone_weights=None,
+    )
     policy = make_policy(policy_cfg, env_cfg=cfg.env)
     preprocessor, postprocessor = make_pre_post_processors(policy_cfg, dataset_stats=loaded.open_dataset().meta.stats)
     seen, policy_actions = [], []
@@ -399,12 +505,13 @@ def test_a_malformed_processor_declaration_is_a_clear_error(hub_module, tmp_path
         'name = "c"\nentry_point = "no_such_step"\nstage = "post"': r"processors\[0\]\.entry_point 'no_such_step' is not a built-in",
         'name = "c"\nentry_point = "clip_action"\nstage = "pre"': r"processors\[0\]\.stage is \"pre\" but ClipActionProcessorStep processes actions",
         'name = "c"\nentry_point = "clip_action"\nstage = "post"\nkwargs = { lo = 1 }': r"processors\[0\]\.kwargs \{'lo': 1\} do not fit ClipActionProcessorStep",
-        'name = "c"\nentry_point = "flatten_state"\nstage = "pre"\nkwargs = { keys = ["observation.nope"] }':
-            r"processors\[0\] \('c', stage pre\) failed on a live observation: KeyError",
+        'name = "c"\nentry_point = "flatten_state"\nstage = "pre"\nkwargs = { keys = ["observation.nope"] }': r"processors\[0\] \('c', stage pre\) failed on a live observation: KeyError",
         'name = "c"\nentry_point = "clip_action"\nstage = "post"\ncolor = "red"': r"processors\[0\]: unknown field\(s\) \['color'\]",
     }
     for i, (decl, message) in enumerate(cases.items()):
-        folder = copy_env(tmp_path, TINY, f"bad{i}", {"pyproject.toml": lambda s, d=decl: s + f"\n[[tool.hub-envs.processors]]\n{d}\n"})
+        folder = copy_env(
+            tmp_path, TINY, f"bad{i}", {"pyproject.toml": lambda s, d=decl: s + f"\n[[tool.hub-envs.processors]]\n{d}\n"}
+        )
         before = snapshot_registries()
         with pytest.raises(errors.ProcessorError, match=message) as info:
             if "live observation" in message:
@@ -424,7 +531,9 @@ def test_a_malformed_processor_declaration_is_a_clear_error(hub_module, tmp_path
 
     sha = republish(hub_module.api, "alice/tiny-proc", bad_manifest)
     before = snapshot_registries()
-    with pytest.raises(errors.ProcessorError, match=rf"alice/tiny-proc@{sha}: hub_env.json processors\[0\]\.kwargs must be a table"):
+    with pytest.raises(
+        errors.ProcessorError, match=rf"alice/tiny-proc@{sha}: hub_env.json processors\[0\]\.kwargs must be a table"
+    ):
         load_env(f"alice/tiny-proc@{sha}", trust_remote_code=True)
     assert snapshot_registries() == before
 
@@ -434,11 +543,18 @@ def test_declared_steps_can_be_builtins_or_lerobot_registry_steps():
 
     from hub_envs.processors import build_pipelines, parse_declarations
 
-    specs = parse_declarations([
-        {"name": "flatten", "entry_point": "flatten_state", "stage": "pre",
-         "kwargs": {"keys": ["observation.robot_state", "observation.state"]}},
-        {"name": "resize", "entry_point": "image_crop_resize_processor", "stage": "pre", "kwargs": {"resize_size": [16, 16]}},
-    ], where="hub_env.json")
+    specs = parse_declarations(
+        [
+            {
+                "name": "flatten",
+                "entry_point": "flatten_state",
+                "stage": "pre",
+                "kwargs": {"keys": ["observation.robot_state", "observation.state"]},
+            },
+            {"name": "resize", "entry_point": "image_crop_resize_processor", "stage": "pre", "kwargs": {"resize_size": [16, 16]}},
+        ],
+        where="hub_env.json",
+    )
     pre, post = build_pipelines(specs)
     assert not post.steps
     rng = np.random.default_rng(0)
@@ -448,8 +564,15 @@ def test_declared_steps_can_be_builtins_or_lerobot_registry_steps():
         "pixels": rng.integers(0, 255, (2, 32, 32, 3), dtype=np.uint8),
     }
     out = pre(preprocess_observation(env_obs))
-    expected = np.concatenate([env_obs["robot_state"]["eef"]["pos"], env_obs["robot_state"]["eef"]["quat"],
-                               env_obs["robot_state"]["gripper"]["qpos"], env_obs["agent_pos"]], axis=1)
+    expected = np.concatenate(
+        [
+            env_obs["robot_state"]["eef"]["pos"],
+            env_obs["robot_state"]["eef"]["quat"],
+            env_obs["robot_state"]["gripper"]["qpos"],
+            env_obs["agent_pos"],
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(out["observation.state"].numpy(), expected, rtol=1e-6)
     assert "observation.robot_state" not in out
     assert tuple(out["observation.image"].shape) == (2, 3, 16, 16)

@@ -17,6 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from helpers import TINY, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.benchmark import bootstrap_ci, reproduce_benchmark
@@ -24,7 +25,6 @@ from hub_envs.cli import main as cli_main
 from hub_envs.dataset import read_episode_frames
 from hub_envs.registration import snapshot_registries
 from hub_envs.replay import replay_dataset
-from helpers import TINY, copy_env, republish
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"
 
@@ -47,7 +47,9 @@ def _edit_dataset_value(folder: Path, key: str, episode: int, frame: int, elemen
     """Change one recorded value in the dataset's parquet, keeping its schema (and LeRobot's metadata)."""
     path = next((folder / "dataset" / "data").rglob("*.parquet"))
     table = pq.read_table(path)
-    rows = np.flatnonzero((table.column("episode_index").to_numpy() == episode) & (table.column("frame_index").to_numpy() == frame))
+    rows = np.flatnonzero(
+        (table.column("episode_index").to_numpy() == episode) & (table.column("frame_index").to_numpy() == frame)
+    )
     assert len(rows) == 1
     values = table.column(key).to_pylist()
     values[int(rows[0])][element] += delta
@@ -72,7 +74,12 @@ def _comparable(report) -> dict:
 
 
 def _reach_small(tmp_path: Path) -> Path:
-    return copy_env(tmp_path, ENVS / "reach", "reach", edits={"config.py": lambda s: s.replace("episode_length: int = 100", "episode_length: int = 12")})
+    return copy_env(
+        tmp_path,
+        ENVS / "reach",
+        "reach",
+        edits={"config.py": lambda s: s.replace("episode_length: int = 100", "episode_length: int = 12")},
+    )
 
 
 @pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
@@ -82,7 +89,9 @@ def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_pat
     folder = _reach_small(tmp_path) if name == "reach" else ENVS / name
     pushed = _push(folder, f"alice/{name}")
     before = snapshot_registries()
-    report = reproduce(f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    report = reproduce(
+        f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False
+    )
     assert snapshot_registries() == before  # reproduce leaves no registration behind
     assert report.reproduced, report.summary()
     assert report.sha == pushed.sha
@@ -178,19 +187,33 @@ def test_a_perturbed_env_is_caught_by_the_fingerprint_replay_and_benchmark(hub, 
     assert report.provenance["version_differences"]["numpy"][0] == "1.26.0"
     assert any("other code" in n for n in report.notes)
     summary = report.summary()
-    assert "episode 0 (seed 0), next.reward: playback diverged by" in summary and "at step 0" in summary and "numpy 1.26.0 (published)" in summary
+    assert (
+        "episode 0 (seed 0), next.reward: playback diverged by" in summary
+        and "at step 0" in summary
+        and "numpy 1.26.0 (published)" in summary
+    )
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert "**NOT REPRODUCED**" in markdown and "| numpy | 1.26.0 |" in markdown and "**differs**" in markdown
 
     # the CLI: exit 1, says where the reports are
-    code = cli_main(["reproduce", "--repo_id=alice/tiny", f"--revision={sha}", "--trust_remote_code=true",
-                     f"--out={tmp_path / 'cli'}", "--workers=1"])
+    code = cli_main(
+        [
+            "reproduce",
+            "--repo_id=alice/tiny",
+            f"--revision={sha}",
+            "--trust_remote_code=true",
+            f"--out={tmp_path / 'cli'}",
+            "--workers=1",
+        ]
+    )
     out = capsys.readouterr().out
     assert code == 1
     assert "NOT REPRODUCED" in out and f"Reports: {tmp_path / 'cli' / 'report.md'}" in out
     assert json.loads((tmp_path / "cli" / "report.json").read_text())["replay"]["first_divergence"]["feature"] == "next.reward"
     # and the published revision still reproduces, exit 0
-    assert cli_main(["reproduce", f"--repo_id=alice/tiny@{pushed.sha}", "--trust_remote_code=true", f"--out={tmp_path / 'ok'}"]) == 0
+    assert (
+        cli_main(["reproduce", f"--repo_id=alice/tiny@{pushed.sha}", "--trust_remote_code=true", f"--out={tmp_path / 'ok'}"]) == 0
+    )
     # a hub-envs error is exit 1 with the message
     assert cli_main(["reproduce", "--repo_id=nobody/nothing", "--trust_remote_code=true", f"--out={tmp_path / 'x'}"]) == 1
     assert "EnvRepoNotFoundError" in capsys.readouterr().err
@@ -217,7 +240,11 @@ def test_results_are_identical_with_1_and_2_workers(hub, tmp_path):
 
 def test_a_modified_dataset_is_detected_at_its_episode_step_and_feature(hub, tmp_path):
     _push(TINY, "alice/tiny-data", episodes=3)
-    sha = republish(hub.api, "alice/tiny-data", lambda f: _edit_dataset_value(f, "observation.state", episode=1, frame=7, element=1, delta=0.25))
+    sha = republish(
+        hub.api,
+        "alice/tiny-data",
+        lambda f: _edit_dataset_value(f, "observation.state", episode=1, frame=7, element=1, delta=0.25),
+    )
     report = reproduce("alice/tiny-data", revision=sha, trust_remote_code=True, workers=2, out=tmp_path / "out", progress=False)
     assert not report.reproduced and report.checks["replay"] is False
     replay = report.replay
@@ -234,7 +261,9 @@ def test_a_modified_dataset_is_detected_at_its_episode_step_and_feature(hub, tmp
     assert report.checks["benchmark random-policy"] and report.checks["fingerprint"]
     assert any("dataset's files differ" in n for n in report.notes)
     # a declared tolerance above the change accepts it
-    loose = reproduce("alice/tiny-data", revision=sha, trust_remote_code=True, tolerance=0.3, write=False, progress=False, benchmarks=False)
+    loose = reproduce(
+        "alice/tiny-data", revision=sha, trust_remote_code=True, tolerance=0.3, write=False, progress=False, benchmarks=False
+    )
     assert loose.replay.ok and loose.replay.tolerance == 0.3
 
 
@@ -243,7 +272,9 @@ def test_a_modified_dataset_is_detected_at_its_episode_step_and_feature(hub, tmp
 
 def test_env_from_dataset_rebuilds_the_env_that_recorded_the_data(hub, tmp_path):
     v1 = _push(TINY, "alice/tiny-meta", episodes=2)
-    v2 = _push(copy_env(tmp_path, edits={"dynamics.py": lambda s: s.replace("GAIN = 1.0", "GAIN = 2.0")}), "alice/tiny-meta", episodes=2)
+    v2 = _push(
+        copy_env(tmp_path, edits={"dynamics.py": lambda s: s.replace("GAIN = 1.0", "GAIN = 2.0")}), "alice/tiny-meta", episodes=2
+    )
     assert v2.sha != v1.sha and v2.manifest.code_digest != v1.manifest.code_digest
 
     # the bundled dataset of a snapshot: that snapshot's commit
@@ -308,7 +339,9 @@ def test_benchmark_policies_hub_envs_cannot_run_are_reported_not_raised(hub):
         base = dict(loaded.manifest.benchmarks[0])
         ok = reproduce_benchmark(loaded, base, progress=False)
         assert ok.passed and [m.name for m in ok.metrics] == ["mean_return", "success_rate"]
-        unpinned = reproduce_benchmark(loaded, {**base, "policy": {"type": "lerobot", "checkpoint": "alice/policy@main"}}, progress=False)
+        unpinned = reproduce_benchmark(
+            loaded, {**base, "policy": {"type": "lerobot", "checkpoint": "alice/policy@main"}}, progress=False
+        )
         assert not unpinned.passed and "not pinned to a commit" in unpinned.error
         unknown = reproduce_benchmark(loaded, {**base, "policy": {"type": "scripted"}}, progress=False)
         assert not unknown.passed and "'scripted' is not supported" in unknown.error
@@ -329,10 +362,20 @@ def _tiny_lerobot_policy(folder: Path) -> Path:
     cfg = TDMPCConfig(
         input_features={"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(2,))},
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(1,))},
-        device="cpu", latent_dim=8, mlp_dim=16, q_ensemble_size=2, horizon=2, cem_iterations=2,
-        n_gaussian_samples=16, n_pi_samples=4, n_elites=4,
-        normalization_mapping={"STATE": NormalizationMode.IDENTITY, "ACTION": NormalizationMode.MIN_MAX,
-                               "VISUAL": NormalizationMode.IDENTITY},
+        device="cpu",
+        latent_dim=8,
+        mlp_dim=16,
+        q_ensemble_size=2,
+        horizon=2,
+        cem_iterations=2,
+        n_gaussian_samples=16,
+        n_pi_samples=4,
+        n_elites=4,
+        normalization_mapping={
+            "STATE": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.MIN_MAX,
+            "VISUAL": NormalizationMode.IDENTITY,
+        },
     )
     torch.manual_seed(0)
     get_policy_class("tdmpc")(cfg).save_pretrained(folder)
@@ -343,19 +386,28 @@ def _tiny_lerobot_policy(folder: Path) -> Path:
 
 
 def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_path):
-    policy_sha = hub.api.upload_folder(repo_id=hub.api.create_repo("alice/tiny-policy").repo_id,
-                                       folder_path=str(_tiny_lerobot_policy(tmp_path / "policy"))).oid
+    policy_sha = hub.api.upload_folder(
+        repo_id=hub.api.create_repo("alice/tiny-policy").repo_id, folder_path=str(_tiny_lerobot_policy(tmp_path / "policy"))
+    ).oid
     pushed = _push(TINY, "alice/tiny-policy-env", episodes=3)
-    spec = {"name": "tdmpc-untrained", "policy": {"type": "lerobot", "checkpoint": f"alice/tiny-policy@{policy_sha}"},
-            "episodes": 3, "seeds": [100, 101, 102], "metrics": {"mean_return": 0.0, "success_rate": 0.0},
-            "tolerance": {"mean_return": 1e-9, "success_rate": 0.0}}
+    spec = {
+        "name": "tdmpc-untrained",
+        "policy": {"type": "lerobot", "checkpoint": f"alice/tiny-policy@{policy_sha}"},
+        "episodes": 3,
+        "seeds": [100, 101, 102],
+        "metrics": {"mean_return": 0.0, "success_rate": 0.0},
+        "tolerance": {"mean_return": 1e-9, "success_rate": 0.0},
+    }
     # the publisher evaluates the policy once and declares the result in the manifest
     loaded = load_env(f"alice/tiny-policy-env@{pushed.sha}", trust_remote_code=True)
     evaluated = reproduce_benchmark(loaded, spec, workers=1, progress=False, trust_policy_code=True)
     loaded.unregister()
     assert evaluated.error is None
     returns = evaluated.reproduced_per_episode["return"]
-    spec["metrics"] = {"mean_return": float(np.mean(returns)), "success_rate": float(np.mean(evaluated.reproduced_per_episode["success"]))}
+    spec["metrics"] = {
+        "mean_return": float(np.mean(returns)),
+        "success_rate": float(np.mean(evaluated.reproduced_per_episode["success"])),
+    }
     spec["per_episode"] = {"return": returns, "success": evaluated.reproduced_per_episode["success"]}
 
     def declare(folder: Path) -> None:
@@ -365,9 +417,12 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
 
     declared = republish(hub.api, "alice/tiny-policy-env", declare)
     # consent to the env does not cover the policy: another repo, whose loading can import code
-    report = reproduce("alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=1, write=False,
-                       progress=False, replay=False)
-    assert not report.reproduced and f"benchmark policy alice/tiny-policy@{policy_sha} is another repo" in report.benchmarks[1].error
+    report = reproduce(
+        "alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=1, write=False, progress=False, replay=False
+    )
+    assert (
+        not report.reproduced and f"benchmark policy alice/tiny-policy@{policy_sha} is another repo" in report.benchmarks[1].error
+    )
     trust("alice/tiny-policy", policy_sha)  # its own consent, bound to the files of that commit
     report = reproduce("alice/tiny-policy-env", revision=declared, trust_remote_code=True, workers=2, write=False, progress=False)
     assert report.reproduced, report.summary()
@@ -375,8 +430,9 @@ def test_a_declared_lerobot_policy_checkpoint_benchmark_is_reproduced(hub, tmp_p
     assert report.benchmarks[1].reproduced_per_episode["return"] == returns  # bit-identical, on 2 workers
 
     perturbed = republish(hub.api, "alice/tiny-policy-env", _perturb_gain)
-    report = reproduce("alice/tiny-policy-env", revision=perturbed, trust_remote_code=True, workers=1, write=False,
-                       progress=False, replay=False)
+    report = reproduce(
+        "alice/tiny-policy-env", revision=perturbed, trust_remote_code=True, workers=1, write=False, progress=False, replay=False
+    )
     checkpoint = report.benchmarks[1]
     assert not checkpoint.passed and checkpoint.error is None and checkpoint.episodes_differing
 
@@ -394,21 +450,31 @@ def test_a_policy_checkpoint_importing_code_never_loads_without_its_own_consent(
 
     def declare(f: Path) -> None:
         manifest = json.loads((f / "hub_env.json").read_text())
-        manifest["benchmarks"].append({"name": "evil", "policy": {"type": "lerobot", "checkpoint": f"mallory/policy@{policy_sha}"},
-                                       "episodes": 2, "seeds": [1, 2], "metrics": {"mean_return": 0.0}})
+        manifest["benchmarks"].append(
+            {
+                "name": "evil",
+                "policy": {"type": "lerobot", "checkpoint": f"mallory/policy@{policy_sha}"},
+                "episodes": 2,
+                "seeds": [1, 2],
+                "metrics": {"mean_return": 0.0},
+            }
+        )
         (f / "hub_env.json").write_text(json.dumps(manifest))
 
     sha = republish(hub.api, "mallory/policy-env", declare)
-    report = reproduce("mallory/policy-env", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False,
-                       replay=False)
+    report = reproduce(
+        "mallory/policy-env", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, replay=False
+    )
     error = report.benchmarks[-1].error
     assert "subprocess.Popen" in error and f"hub-envs trust mallory/policy@{policy_sha}" in error
     assert not marker.exists()
     assert pushed.sha != sha
 
 
-_ENDS = ("return self._obs(), reward, False, False, self._info()",
-         "return self._obs(), reward, bool(abs(self.pos[0]) > 0.5), False, self._info()")
+_ENDS = (
+    "return self._obs(), reward, False, False, self._info()",
+    "return self._obs(), reward, bool(abs(self.pos[0]) > 0.5), False, self._info()",
+)
 
 
 def test_an_episode_end_that_moved_is_named_in_both_directions(hub, tmp_path):
@@ -418,7 +484,9 @@ def test_an_episode_end_that_moved_is_named_in_both_directions(hub, tmp_path):
     # data recorded by code that ends episodes (|pos| > 0.5); a later commit no longer ends them
     _push(copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace(*_ENDS)}), "alice/tiny-ends", episodes=6)
     sha = republish(hub.api, "alice/tiny-ends", lambda f: (f / "tiny.py").write_text(original))
-    report = reproduce("alice/tiny-ends", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    report = reproduce(
+        "alice/tiny-ends", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False
+    )
     ended = [e for e in report.replay.episodes if e.length < 30]
     assert ended, "some episode should have ended early"
     for e in ended:
@@ -430,7 +498,9 @@ def test_an_episode_end_that_moved_is_named_in_both_directions(hub, tmp_path):
     # data recorded by code that never ends episodes; a later commit ends them
     _push(TINY, "alice/tiny-ends-later", episodes=6)
     sha = republish(hub.api, "alice/tiny-ends-later", lambda f: (f / "tiny.py").write_text(original.replace(*_ENDS)))
-    report = reproduce("alice/tiny-ends-later", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    report = reproduce(
+        "alice/tiny-ends-later", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False
+    )
     dataset = report_dataset(report)
     for e in report.replay.episodes:
         rewards = read_episode_frames(dataset, e.episode)["next.reward"][:, 0]
@@ -451,7 +521,9 @@ def test_without_recorded_states_the_replay_state_localizes_the_divergence(hub):
         _perturb_gain(folder)
 
     sha = republish(hub.api, "alice/tiny-nostates", old_style_and_perturbed)
-    report = reproduce("alice/tiny-nostates", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False)
+    report = reproduce(
+        "alice/tiny-nostates", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False, benchmarks=False
+    )
     replay = report.replay
     assert "env_state" not in replay.features and replay.states.startswith("not recorded")
     first = replay.first_divergence

@@ -14,13 +14,13 @@ import draccus
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import TINY, copy_env, republish
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs import errors, load_env, push_env, trust
 from hub_envs.importing import module_key
 from hub_envs.registration import snapshot_registries
 from hub_envs.testing import hub_environment
-from helpers import copy_env, republish, TINY
 
 
 @dataclass
@@ -90,8 +90,16 @@ def test_pushing_unchanged_content_twice_makes_one_commit(hub):
 def test_one_commit_holds_everything_and_is_tagged(hub):
     result = _push(TINY, "alice/tiny-files", tag="v1")
     files = set(hub.api.list_repo_files("alice/tiny-files", revision=result.sha))
-    assert {"env.py", "hub_env.json", "README.md", "tiny.py", "dynamics.py", "pyproject.toml",
-            "media/rollout.gif", "dataset/meta/info.json"} <= files
+    assert {
+        "env.py",
+        "hub_env.json",
+        "README.md",
+        "tiny.py",
+        "dynamics.py",
+        "pyproject.toml",
+        "media/rollout.gif",
+        "dataset/meta/info.json",
+    } <= files
     refs = hub.api.list_repo_refs("alice/tiny-files")
     assert {t.name: t.target_commit for t in refs.tags} == {result.content_tag: result.sha, "v1": result.sha}
     card = hub.api.model_info("alice/tiny-files", revision=result.sha).card_data
@@ -135,10 +143,7 @@ def test_offline_load_from_cache(hub, monkeypatch):
             load_env("alice/tiny-offline@main", trust_remote_code=True)
 
 
-MARKER_CODE = (
-    "import os, pathlib\n"
-    "pathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('imported')\n"
-)
+MARKER_CODE = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('imported')\n"
 
 
 def test_untrusted_load_imports_and_registers_nothing_and_tofu_is_keyed_by_sha(hub, tmp_path, monkeypatch):
@@ -163,7 +168,10 @@ def test_untrusted_load_imports_and_registers_nothing_and_tofu_is_keyed_by_sha(h
     assert marker.exists() and loaded.report.trust.startswith("trust list")
     loaded.unregister()
 
-    second = _push(copy_env(tmp_path, src=folder, name="v2", edits={"dynamics.py": lambda s: s.replace("DT = 0.05", "DT = 0.1")}), "mallory/tiny")
+    second = _push(
+        copy_env(tmp_path, src=folder, name="v2", edits={"dynamics.py": lambda s: s.replace("DT = 0.05", "DT = 0.1")}),
+        "mallory/tiny",
+    )
     with pytest.raises(errors.UntrustedCodeError, match="dynamics.py"):
         load_env(f"mallory/tiny@{second.sha}")
 
@@ -198,7 +206,7 @@ def test_a_missing_requirement_is_reported_with_the_pip_line(hub):
 
 
 def test_push_refuses_declared_shapes_that_disagree_with_rollouts(hub, tmp_path):
-    folder = copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace('shape=(2,))', 'shape=(3,))')})
+    folder = copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace("shape=(2,))", "shape=(3,))")})
     before = snapshot_registries()
     with pytest.raises(errors.FeatureMismatchError) as e:
         _push(folder, "alice/tiny-badshape")
@@ -212,7 +220,7 @@ def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hu
     _push(TINY, "alice/tiny-lies")
 
     def lie_in_code_and_dataset(folder):
-        code = (folder / "tiny.py").read_text().replace('shape=(2,))', 'shape=(3,))').replace('shape=(1,))', 'shape=(2,))')
+        code = (folder / "tiny.py").read_text().replace("shape=(2,))", "shape=(3,))").replace("shape=(1,))", "shape=(2,))")
         (folder / "tiny.py").write_text(code)
         manifest = json.loads((folder / "hub_env.json").read_text())
         manifest["config"]["features"]["agent_pos"]["shape"] = [3]

@@ -13,8 +13,8 @@ import json
 import os
 import re
 import threading
-from dataclasses import dataclass
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -24,10 +24,10 @@ from huggingface_hub import (
     CommitOperationCopy,
     HfApi,
     HfFileSystem,
+    constants,
     hf_hub_download,
     snapshot_download,
 )
-from huggingface_hub import constants
 from huggingface_hub.errors import (
     BadRequestError,
     EntryNotFoundError,
@@ -171,8 +171,12 @@ def test_private_flag_is_understood_as_either_client_version_sends_it(shared):
     assert settings("old-private", visibility="public").json() == {"private": False}
     assert settings("old-public", private=True).json() == {"private": True}
     assert settings("new-private", gated=False).json() == {"private": True}  # unsaid: unchanged
-    for fields in ({"visibility": "protected"}, {"visibility": "secret"}, {"private": "yes"},
-                   {"private": True, "visibility": "public"}):
+    for fields in (
+        {"visibility": "protected"},
+        {"visibility": "secret"},
+        {"private": "yes"},
+        {"private": True, "visibility": "public"},
+    ):
         assert create("refused", **fields).status_code == 400, fields
         assert settings("new-public", **fields).status_code == 400, fields
     assert not api.repo_exists(f"{ns}/refused") and api.model_info(f"{ns}/new-public").private is False
@@ -431,12 +435,12 @@ def test_racing_commits_on_the_same_parent_leave_one_winner(shared):
         barrier = threading.Barrier(n)
         results: dict[int, object] = {}
 
-        def worker(i: int) -> None:
+        def worker(i: int, barrier=barrier, results=results, repo_type=repo_type, parent=parent) -> None:
             barrier.wait()
             try:
                 results[i] = _commit(api, f"{ns}/env", {f"f{i}.txt": b"x" * (1000 + i)}, repo_type, parent_commit=parent)
-            except HfHubHTTPError as err:
-                results[i] = err
+            except HfHubHTTPError as exc:
+                results[i] = exc
 
         threads = [threading.Thread(target=worker, args=(i,)) for i in range(n)]
         for t in threads:
@@ -448,7 +452,7 @@ def test_racing_commits_on_the_same_parent_leave_one_winner(shared):
         losers = [r for r in results.values() if not isinstance(r, str)]
         assert len(winners) == 1 and len(losers) == n - 1
         assert all(err.response.status_code == 412 for err in losers)
-        (i, sha), = winners.items()
+        ((i, sha),) = winners.items()
         commits = api.list_repo_commits(f"{ns}/env", repo_type=repo_type)
         assert [c.commit_id for c in commits] == [sha, parent]
         assert sorted(api.list_repo_files(f"{ns}/env", repo_type=repo_type)) == [".gitattributes", f"f{i}.txt"]
@@ -590,7 +594,8 @@ def test_tree_is_paged_recursive_and_expandable(small_pages):
         top = {e.path: type(e).__name__ for e in api.list_repo_tree(f"{ns}/env", repo_type=repo_type)}
         assert top == {".gitattributes": "RepoFile", "d": "RepoFolder", **{f"top{i}.txt": "RepoFile" for i in range(4)}}
         assert {e.path for e in api.list_repo_tree(f"{ns}/env", "d", repo_type=repo_type)} == {
-            "d/e", *(f"d/sub{i}.txt" for i in range(4))
+            "d/e",
+            *(f"d/sub{i}.txt" for i in range(4)),
         }
         api.create_branch(f"{ns}/env", branch="feature/x", repo_type=repo_type)  # an encoded "/" in paged URLs
         in_d = {e.path for e in api.list_repo_tree(f"{ns}/env", "d", recursive=True, revision="feature/x", repo_type=repo_type)}
@@ -619,7 +624,10 @@ def test_hf_file_system_ls_info_glob_and_partial_reads(shared):
     payload = bytes(i % 251 for i in range(200_000))
     _commit(api, f"{ns}/data", {"data/big.bin": payload, "data/x.csv": b"a,b\n", "README.md": b"---\nx: 1\n---\n"}, "dataset")
     fs = HfFileSystem()
-    assert set(fs.ls(f"datasets/{ns}/data/data", detail=False)) == {f"datasets/{ns}/data/data/big.bin", f"datasets/{ns}/data/data/x.csv"}
+    assert set(fs.ls(f"datasets/{ns}/data/data", detail=False)) == {
+        f"datasets/{ns}/data/data/big.bin",
+        f"datasets/{ns}/data/data/x.csv",
+    }
     assert fs.info(f"datasets/{ns}/data/data/big.bin")["size"] == len(payload)
     assert fs.glob(f"datasets/{ns}/data/**/*.csv") == [f"datasets/{ns}/data/data/x.csv"]
     # small blocks: each read below is a Range request; a server ignoring Range would return wrong bytes

@@ -178,7 +178,11 @@ class HoverEnv(gym.Env):
         distance = float(np.linalg.norm(TARGET_POS - pos))
         reward = max(0.0, 2.0 - distance**4)
         truncated = bool(
-            abs(pos[0]) > XY_LIMIT or abs(pos[1]) > XY_LIMIT or pos[2] > Z_LIMIT or abs(roll) > TILT_LIMIT or abs(pitch) > TILT_LIMIT
+            abs(pos[0]) > XY_LIMIT
+            or abs(pos[1]) > XY_LIMIT
+            or pos[2] > Z_LIMIT
+            or abs(roll) > TILT_LIMIT
+            or abs(pitch) > TILT_LIMIT
         )
         return self._get_obs(), float(reward), False, truncated, self._get_info()
 

@@ -84,9 +84,7 @@ class PendulumEnv(gym.Env):
             )
         }
         if obs_type == "pixels_agent_pos":
-            obs_spaces["pixels"] = spaces.Box(
-                low=0, high=255, shape=(observation_height, observation_width, 3), dtype=np.uint8
-            )
+            obs_spaces["pixels"] = spaces.Box(low=0, high=255, shape=(observation_height, observation_width, 3), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs_spaces)
         self.action_space = spaces.Box(low=-1.0, high=1.0, shape=(1,), dtype=np.float32)
 
@@ -125,7 +123,9 @@ class PendulumEnv(gym.Env):
         """Restore a state from :meth:`get_state` and return its observation."""
         state = np.asarray(state, dtype=np.float64)
         if state.shape != (STATE_SIZE,):
-            raise ValueError(f"PendulumEnv.reset_to expects a state of shape ({STATE_SIZE},) [theta, theta_dot], got {state.shape}.")
+            raise ValueError(
+                f"PendulumEnv.reset_to expects a state of shape ({STATE_SIZE},) [theta, theta_dot], got {state.shape}."
+            )
         self._dynamics.state = state.copy()
         self._dynamics.last_u = None
         return self._get_obs()

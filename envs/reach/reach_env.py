@@ -109,12 +109,16 @@ class ReachEnv(gym.Env):
         ball = p.createVisualShape(p.GEOM_SPHERE, radius=TARGET_RADIUS, rgbaColor=[0.1, 0.85, 0.1, 1.0], physicsClientId=c)
         self._ball = p.createMultiBody(baseMass=0, baseVisualShapeIndex=ball, basePosition=[0.5, 0, 0.3], physicsClientId=c)
         # a dark green disc on the floor under the ball: a depth cue for the single camera
-        disc = p.createVisualShape(p.GEOM_CYLINDER, radius=TARGET_RADIUS, length=0.002, rgbaColor=[0.05, 0.35, 0.05, 1.0], physicsClientId=c)
+        disc = p.createVisualShape(
+            p.GEOM_CYLINDER, radius=TARGET_RADIUS, length=0.002, rgbaColor=[0.05, 0.35, 0.05, 1.0], physicsClientId=c
+        )
         self._disc = p.createMultiBody(baseMass=0, baseVisualShapeIndex=disc, basePosition=[0.5, 0, 0.001], physicsClientId=c)
         self._view = p.computeViewMatrix(
             cameraEyePosition=[1.0, -1.2, 1.0], cameraTargetPosition=[0.4, 0.0, 0.33], cameraUpVector=[0, 0, 1], physicsClientId=c
         )
-        self._proj = p.computeProjectionMatrixFOV(fov=50, aspect=self.width / self.height, nearVal=0.05, farVal=10.0, physicsClientId=c)
+        self._proj = p.computeProjectionMatrixFOV(
+            fov=50, aspect=self.width / self.height, nearVal=0.05, farVal=10.0, physicsClientId=c
+        )
 
         obs_spaces = {
             "agent_pos": spaces.Box(
@@ -158,7 +162,12 @@ class ReachEnv(gym.Env):
         targets = np.clip(q + MAX_JOINT_DELTA * a, self.arm.lower, self.arm.upper)
         c = self._client
         p.setJointMotorControlArray(
-            self.arm.body, self.arm.joints, p.POSITION_CONTROL, targetPositions=targets.tolist(), forces=self.arm.max_force, physicsClientId=c
+            self.arm.body,
+            self.arm.joints,
+            p.POSITION_CONTROL,
+            targetPositions=targets.tolist(),
+            forces=self.arm.max_force,
+            physicsClientId=c,
         )
         for _ in range(self.physics_steps_per_control):
             p.stepSimulation(physicsClientId=c)
@@ -195,7 +204,9 @@ class ReachEnv(gym.Env):
         """Restore a state from :meth:`get_state` and return its observation."""
         state = np.asarray(state, dtype=np.float64)
         if state.shape != (STATE_SIZE,):
-            raise ValueError(f"ReachEnv.reset_to expects a state of shape ({STATE_SIZE},) [q (7), q_dot (7), target (3)], got {state.shape}.")
+            raise ValueError(
+                f"ReachEnv.reset_to expects a state of shape ({STATE_SIZE},) [q (7), q_dot (7), target (3)], got {state.shape}."
+            )
         self._restore(state)
         return self._get_obs()
 

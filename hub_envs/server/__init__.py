@@ -36,7 +36,14 @@ from hub_envs.server.app import create_app
 __all__ = ["create_app", "run"]
 
 
-def run(root: str | os.PathLike, host: str = "127.0.0.1", port: int = 8000, token: str | None = None) -> None:
+def run(
+    root: str | os.PathLike,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    token: str | None = None,
+    max_body_mb: float | None = None,
+    max_line_mb: float | None = None,
+) -> None:
     """Serve the repos under ``root`` on ``http://host:port`` until interrupted (SIGINT/SIGTERM).
 
     ``port=0`` picks a free port. Once listening, one line goes to stderr::
@@ -51,6 +58,11 @@ def run(root: str | os.PathLike, host: str = "127.0.0.1", port: int = 8000, toke
         port: TCP port; 0 picks a free one (read it from the line above).
         token: if set, writes and reads of private repos need ``Authorization: Bearer <token>``
             (clients: ``HF_TOKEN=<token>``).
+        max_body_mb: largest request body in MiB (default 2048, or env ``HUB_ENVS_SERVER_MAX_BODY_MB``);
+            a commit carries all its files in its body. Larger: 413.
+        max_line_mb: largest line of a commit body in MiB (default 1024, or env
+            ``HUB_ENVS_SERVER_MAX_LINE_MB``); a line carries one file in base64 (4/3 of its size) and
+            is held in memory while it is stored. Larger: 413.
     """
     import uvicorn
 
@@ -58,8 +70,8 @@ def run(root: str | os.PathLike, host: str = "127.0.0.1", port: int = 8000, toke
 
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     try:
-        app = create_app(root, token=token)
-    except StoreError as err:
+        app = create_app(root, token=token, max_body_mb=max_body_mb, max_line_mb=max_line_mb)
+    except (StoreError, ValueError) as err:
         raise SystemExit(f"hub-envs serve: {err}") from None
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY on accepted sockets only if proto says TCP,

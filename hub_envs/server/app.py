@@ -20,7 +20,24 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
 * ``/resolve`` answers HEAD and GET with ``X-Repo-Commit``, ``ETag`` (the git blob sha1),
   ``Content-Length`` and ``Accept-Ranges``, and serves single ``Range`` requests with 206.
 * Lists (tree, commits) are paged with a ``Link: <...>; rel="next"`` header.
-* Paths that could escape a repo (``..``, absolute, ``\\``, NUL, percent-encoded variants) get 400.
+* Paths that could escape a repo (``..``, absolute, ``\\``, NUL, percent-encoded variants) get 400,
+  as do control characters (C0, DEL, C1) and names over 255 bytes.
+
+Limits (a hostile client must not be able to take the server down):
+
+* Writes are authenticated before any request body is read.
+* Request bodies are capped (``max_body_mb``, env ``HUB_ENVS_SERVER_MAX_BODY_MB``, default 2048), and
+  so is each NDJSON line of a commit (``max_line_mb``, env ``HUB_ENVS_SERVER_MAX_LINE_MB``, default
+  1024: one line carries one file, base64) and every JSON body (32 MiB); over a cap: 413. Commit
+  bodies are read incrementally; their lines are parsed, decoded and stored in a worker thread, a
+  large file's base64 in 1 MiB pieces, so other requests keep being served during a big upload.
+* README metadata (``cardData``) is parsed with limits: at most 64 KiB of front matter, no YAML
+  aliases, nesting at most 64 deep. A card over a limit is left out of that repo's info (and
+  logged); it never fails the listing or another repo's routes.
+* A 500 answers a generic message; the details go to the server's log only.
+* In env repos (those with a ``hub_env.json`` manifest at the root), commits may not add compiled
+  Python bytecode (``__pycache__/``, ``.pyc``, ``.pyo``): Python would run it instead of the sources.
+  (huggingface.co stores it; ``HUB_ENVS_SERVER_ALLOW_BYTECODE=1`` does too, to test clients.)
 
 Example:
     >>> import tempfile
@@ -43,22 +60,27 @@ from __future__ import annotations
 
 import base64
 import binascii
+import datetime
 import hashlib
 import hmac
 import html
 import json
 import logging
+import math
 import mimetypes
 import os
 import re
+import threading
+from collections import OrderedDict
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 from urllib.parse import parse_qs, quote, unquote, urlencode
 
 import yaml
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
@@ -97,6 +119,24 @@ _PLURAL = {"models": "model", "datasets": "dataset", "spaces": "space"}
 _URL_PREFIX = {"model": "", "dataset": "datasets/", "space": "spaces/"}
 _SPACE_SDKS = ("gradio", "streamlit", "docker", "static")
 _INVALID_CREDENTIALS = "Invalid credentials in Authorization header"
+_INTERNAL_ERROR = "Internal server error: the request failed on the server (the details are in the server's log)."
+
+MiB = 1024 * 1024
+#: Default caps (MiB) of a request body and of one NDJSON line of a commit. A line carries one file,
+#: base64-encoded (4/3 of its size), so 1024 admits files up to 768 MiB; a commit body carries all of
+#: its files. push_env's largest files (dataset shards, videos, the rollout GIF) are tens of MiB.
+DEFAULT_MAX_BODY_MB = 2048.0
+DEFAULT_MAX_LINE_MB = 1024.0
+_MAX_JSON_BODY = 32 * MiB  # the JSON bodies of the other routes (preupload, paths-info, validate-yaml...)
+_BODY_SETTING = "--max_body_mb / HUB_ENVS_SERVER_MAX_BODY_MB"
+_LINE_SETTING = "--max_line_mb / HUB_ENVS_SERVER_MAX_LINE_MB"
+_B64_PIECE = MiB  # base64 decoded this much at a time: the GIL is released between pieces
+_BIG_LINE = MiB  # lines over this size get the fast path of _parse_line
+# The README front matter (cardData): parsed with these limits, or left out.
+_CARD_MAX_BYTES = 64 * 1024
+_CARD_MAX_DEPTH = 64
+_CARD_CACHE_SIZE = 1024
+_ENV_MANIFEST = "hub_env.json"  # hub_envs.repo_format.MANIFEST_FILE: what makes a repo an env repo
 
 
 class HTTPError(Exception):
@@ -164,6 +204,9 @@ class HubApp:
         page_size: int | None = None,
         user: str | None = None,
         fsync: bool | None = None,
+        max_body_mb: float | None = None,
+        max_line_mb: float | None = None,
+        allow_bytecode: bool | None = None,
     ):
         if fsync is None:
             fsync = os.environ.get("HUB_ENVS_SERVER_FSYNC", "1").lower() not in ("0", "false", "no")
@@ -176,6 +219,13 @@ class HubApp:
         self.tree_page_size = page_size or TREE_PAGE_SIZE
         self.commits_page_size = page_size or COMMITS_PAGE_SIZE
         self.user = user or os.environ.get("HUB_ENVS_SERVER_USER") or DEFAULT_USER
+        self.max_body = _limit_bytes(max_body_mb, "HUB_ENVS_SERVER_MAX_BODY_MB", DEFAULT_MAX_BODY_MB, "max_body_mb")
+        self.max_line = _limit_bytes(max_line_mb, "HUB_ENVS_SERVER_MAX_LINE_MB", DEFAULT_MAX_LINE_MB, "max_line_mb")
+        if allow_bytecode is None:
+            allow_bytecode = os.environ.get("HUB_ENVS_SERVER_ALLOW_BYTECODE", "").lower() in ("1", "true", "yes")
+        self.allow_bytecode = allow_bytecode  # as huggingface.co does: to test clients against it
+        self._cards: OrderedDict[str, dict | None] = OrderedDict()  # README sha256 -> cardData
+        self._cards_guard = threading.Lock()
 
     # -- entry point ---------------------------------------------------------------------------
 
@@ -192,9 +242,11 @@ class HubApp:
             return _error_response(err)
         except StoreError as err:
             return _error_response(self._store_error(err, request))
-        except Exception as err:  # a bug: log it, answer 500 with its message
+        except ClientDisconnect:  # the client went away mid-body: nobody reads this answer
+            return _error_response(HTTPError(400, "Client disconnected before sending the whole request body."))
+        except Exception:  # a bug: log it, answer 500 without its details (paths, internals)
             logger.exception("Internal error on %s %s", method, request.url.path)
-            return _error_response(HTTPError(500, f"Internal server error: {type(err).__name__}: {err}"))
+            return _error_response(HTTPError(500, _INTERNAL_ERROR))
 
     def _caller(self, request: Request) -> str | None:
         if self.token is None:
@@ -221,22 +273,23 @@ class HubApp:
             return HTTPError(412, message)
         if isinstance(err, (InvalidPathError, InvalidNameError, InvalidOperationError)):
             return HTTPError(400, message)
-        return HTTPError(500, message)
+        logger.error("Store error on %s %s: %s", request.method, request.url.path, message)
+        return HTTPError(500, _INTERNAL_ERROR)
 
     # -- routing -------------------------------------------------------------------------------
 
     async def _route(self, ctx: Ctx) -> Response:
-        segs, method = ctx.segs, ctx.method
+        segs = ctx.segs
         if segs and segs[0] == "api":
             rest = segs[1:]
             if rest == ["whoami-v2"]:
                 return await self._call(ctx, {"GET": self.whoami})
             if rest == ["validate-yaml"]:
-                return await self._call(ctx, {"POST": self.validate_yaml}, body=True)
+                return await self._call(ctx, {"POST": self.validate_yaml}, body=True, write=True)
             if rest == ["repos", "create"]:
-                return await self._call(ctx, {"POST": self.create_repo}, body=True)
+                return await self._call(ctx, {"POST": self.create_repo}, body=True, write=True)
             if rest == ["repos", "delete"]:
-                return await self._call(ctx, {"DELETE": self.delete_repo}, body=True)
+                return await self._call(ctx, {"DELETE": self.delete_repo}, body=True, write=True)
             if len(rest) == 1 and rest[0] in _PLURAL:
                 return await self._call(ctx, {"GET": lambda c: self.list_repos(c, _PLURAL[rest[0]])})
             if len(rest) >= 3 and rest[0] in _PLURAL:
@@ -264,26 +317,20 @@ class HubApp:
             path = "/".join(rest[2:])
             return await self._call(ctx, {"GET": lambda c: self.tree(c, repo_type, repo_id, arg, path)})
         if action == "paths-info" and arg is not None:
-            return await self._call(
-                ctx, {"POST": lambda c: self.paths_info(c, repo_type, repo_id, arg)}, body=True
-            )
+            return await self._call(ctx, {"POST": lambda c: self.paths_info(c, repo_type, repo_id, arg)}, body=True)
         if action == "refs" and arg is None:
             return await self._call(ctx, {"GET": lambda c: self.list_refs(c, repo_type, repo_id)})
         if action == "commits" and arg is not None:
             revision = "/".join(rest[1:])
             return await self._call(ctx, {"GET": lambda c: self.list_commits(c, repo_type, repo_id, revision)})
         if action == "preupload" and arg is not None:
-            return await self._call(
-                ctx, {"POST": lambda c: self.preupload(c, repo_type, repo_id, arg)}, body=True
-            )
+            return await self._call(ctx, {"POST": lambda c: self.preupload(c, repo_type, repo_id, arg)}, body=True, write=True)
         if action == "commit" and arg is not None:
             if ctx.method != "POST":
                 raise HTTPError(405, "Method not allowed: use POST to commit.")
-            try:
-                return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
-            except (HTTPError, StoreError):
-                await _drain(ctx.request)  # read the rest, so the client gets the error, not a reset
-                raise
+            # An error answered before the whole body is read is fine: the server (uvicorn) reads
+            # and discards the rest, so the client still gets the answer.
+            return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
         if action == "branch" and arg is not None:
             branch = "/".join(rest[1:])
             return await self._call(
@@ -293,6 +340,7 @@ class HubApp:
                     "DELETE": lambda c: self.delete_branch(c, repo_type, repo_id, branch),
                 },
                 body=True,
+                write=True,
             )
         if action == "tag" and arg is not None:
             name = "/".join(rest[1:])
@@ -303,21 +351,47 @@ class HubApp:
                     "DELETE": lambda c: self.delete_tag(c, repo_type, repo_id, name),
                 },
                 body=True,
+                write=True,
             )
         if action == "settings" and arg is None:
-            return await self._call(ctx, {"PUT": lambda c: self.settings(c, repo_type, repo_id)}, body=True)
+            return await self._call(ctx, {"PUT": lambda c: self.settings(c, repo_type, repo_id)}, body=True, write=True)
         raise HTTPError(404, f"Unknown API route /{'/'.join(ctx.segs)}.")
 
-    async def _call(self, ctx: Ctx, handlers: dict[str, Callable], body: bool = False) -> Response:
+    async def _call(self, ctx: Ctx, handlers: dict[str, Callable], body: bool = False, write: bool = False) -> Response:
+        """Run the handler of ``ctx.method`` in a worker thread; ``write``: authenticate first;
+        ``body``: read the (JSON) request body into ``ctx.body`` first, capped."""
         handler = handlers.get(ctx.method)
         if handler is None and ctx.method == "HEAD":
             handler = handlers.get("GET")  # HEAD is GET without the body (uvicorn drops it)
         if handler is None:
             allowed = ", ".join(sorted(handlers))
             raise HTTPError(405, f"Method {ctx.method} not allowed here (allowed: {allowed}).", headers={"Allow": allowed})
+        if write:
+            self._require_write(ctx)  # before reading a single byte of the body
         if body:
-            ctx.body = await ctx.request.body()
+            ctx.body = await self._read_body(ctx)
         return await run_in_threadpool(handler, ctx)
+
+    def _json_body_limit(self) -> tuple[int, str]:
+        if self.max_body < _MAX_JSON_BODY:
+            return self.max_body, f"the request body limit of this server ({_BODY_SETTING})"
+        return _MAX_JSON_BODY, "the limit of JSON request bodies on this server"
+
+    def _check_declared_length(self, ctx: Ctx, limit: int, what: str) -> None:
+        """413 at once if ``Content-Length`` announces more than ``limit``: nothing is read."""
+        declared = ctx.request.headers.get("content-length", "").strip()
+        if declared.isdigit() and (len(declared) > 18 or int(declared) > limit):
+            raise _too_large(limit, what)
+
+    async def _read_body(self, ctx: Ctx) -> bytes:
+        limit, what = self._json_body_limit()
+        self._check_declared_length(ctx, limit, what)
+        body = bytearray()
+        async for chunk in ctx.request.stream():
+            body += chunk
+            if len(body) > limit:
+                raise _too_large(limit, what)
+        return bytes(body)
 
     # -- helpers -------------------------------------------------------------------------------
 
@@ -346,6 +420,8 @@ class HubApp:
             data = json.loads(raw)
         except ValueError as err:
             raise HTTPError(400, f"Request body is not valid JSON: {err}.") from None
+        except RecursionError:
+            raise HTTPError(400, "Request body is not valid JSON: nested too deeply.") from None
         if not isinstance(data, dict):
             raise HTTPError(400, "Request body must be a JSON object.")
         return data
@@ -376,13 +452,35 @@ class HubApp:
             headers["Link"] = f'<{ctx.base_url}{raw_path}?{urlencode(query)}>; rel="next"'
         return page, headers
 
-    @staticmethod
-    def _card_data(repo: Repo, commit: Commit) -> dict | None:
+    def _card_data(self, repo: Repo, commit: Commit) -> dict | None:
+        """The README's metadata as JSON-ready data, or None: no README, no metadata, or metadata
+        over the limits or invalid (logged). Cached by README content."""
         entry = commit.files.get("README.md")
-        if entry is None or entry.size > 1_000_000:
+        if entry is None:
             return None
-        meta = _front_matter(repo.read_blob(entry).decode("utf-8", "replace"))
-        return meta if isinstance(meta, dict) else None
+        with self._cards_guard:
+            if entry.sha256 in self._cards:
+                self._cards.move_to_end(entry.sha256)
+                return self._cards[entry.sha256]
+        card = None
+        try:
+            with repo.open_blob(entry) as f:  # the front matter must fit in the first bytes
+                head = f.read(_CARD_MAX_BYTES + 1024)
+            meta = _front_matter(head.decode("utf-8", "replace"), truncated=entry.size > len(head))
+            card = _jsonable(meta) if isinstance(meta, dict) else None
+        except Exception as err:  # over a limit, invalid, or a bug: no cardData for this repo
+            logger.warning(
+                "Ignoring the README metadata of %s %s (README %s): %s",
+                repo.repo_type,
+                repo.repo_id,
+                entry.oid[:12],
+                _short_error(err),
+            )
+        with self._cards_guard:
+            self._cards[entry.sha256] = card
+            while len(self._cards) > _CARD_CACHE_SIZE:
+                self._cards.popitem(last=False)
+        return card
 
     # -- account -------------------------------------------------------------------------------
 
@@ -411,8 +509,10 @@ class HubApp:
 
     def validate_yaml(self, ctx: Ctx) -> Response:
         content = self._body_json(ctx).get("content", "")
+        if not isinstance(content, str):
+            raise HTTPError(400, "'content' must be a string (the README text).")
         try:
-            meta = _front_matter(str(content), strict=True)
+            meta = _front_matter(content, strict=True)
         except ValueError as err:
             return _json({"errors": [{"message": str(err)}], "warnings": []}, status=400)
         if not meta:
@@ -430,9 +530,11 @@ class HubApp:
             raise HTTPError(400, "Missing repo 'name'.")
         if repo_type not in REPO_TYPES:
             raise HTTPError(400, f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
-        sdk = data.get("sdk")
+        sdk = data.get("sdk") if repo_type == "space" else None  # only Spaces have an sdk
         if repo_type == "space" and sdk not in _SPACE_SDKS:
             raise HTTPError(400, f"Invalid space sdk {sdk!r}: expected one of {', '.join(_SPACE_SDKS)}.")
+        if organization is not None and not isinstance(organization, str):
+            raise HTTPError(400, "'organization' must be a string.")
         repo_id = f"{organization or user}/{name}"
         private = _requested_private(data, repo_type)
         try:
@@ -451,7 +553,11 @@ class HubApp:
         name, organization = data.get("name"), data.get("organization")
         if not isinstance(name, str) or not name:
             raise HTTPError(400, "Missing repo 'name'.")
+        if organization is not None and not isinstance(organization, str):
+            raise HTTPError(400, "'organization' must be a string.")
         repo_type = data.get("type") or "model"
+        if repo_type not in REPO_TYPES:
+            raise HTTPError(400, f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
         self.store.delete_repo(repo_type, f"{organization or user}/{name}")
         return _json({})
 
@@ -468,10 +574,12 @@ class HubApp:
                 continue
             try:
                 repo = self.store.open(repo_type, meta.repo_id)
-                head = repo.head()
+                out.append(self._info(ctx, repo, repo.head(), siblings=False))
             except StoreError:
                 continue
-            out.append(self._info(ctx, repo, head, siblings=False))
+            except Exception:  # one broken repo must not break the listing
+                logger.exception("Leaving %s %s out of the listing", repo_type, meta.repo_id)
+                continue
         try:
             limit = int(ctx.query("limit") or 0)
         except ValueError:
@@ -504,8 +612,7 @@ class HubApp:
             info["sdk"] = meta.sdk
         if siblings:
             info["siblings"] = [
-                {"rfilename": p, **({"size": e.size, "blobId": e.oid} if blobs else {})}
-                for p, e in sorted(commit.files.items())
+                {"rfilename": p, **({"size": e.size, "blobId": e.oid} if blobs else {})} for p, e in sorted(commit.files.items())
             ]
         return info
 
@@ -596,9 +703,7 @@ class HubApp:
         commit = repo.resolve(revision)
         entry = commit.files.get(path)
         if entry is None:
-            raise HTTPError(
-                404, f"Entry not found: {path} at {revision}", "EntryNotFound", {"X-Repo-Commit": commit.id}
-            )
+            raise HTTPError(404, f"Entry not found: {path} at {revision}", "EntryNotFound", {"X-Repo-Commit": commit.id})
         name = path.rsplit("/", 1)[-1]
         ascii_name = re.sub(r'[^\x20-\x7e]|"', "_", name)
         headers = {
@@ -647,9 +752,7 @@ class HubApp:
         refs = repo.refs()
         return _json(
             {
-                "branches": [
-                    {"name": n, "ref": f"refs/heads/{n}", "targetCommit": s} for n, s in sorted(refs.branches.items())
-                ],
+                "branches": [{"name": n, "ref": f"refs/heads/{n}", "targetCommit": s} for n, s in sorted(refs.branches.items())],
                 "converts": [],
                 "tags": [{"name": n, "ref": f"refs/tags/{n}", "targetCommit": s} for n, s in sorted(refs.tags.items())],
                 "pullRequests": [],
@@ -680,7 +783,10 @@ class HubApp:
         data = self._body_json(ctx)
         if data.get("emptyBranch"):
             raise HTTPError(400, "Empty (orphan) branches are not supported by the hub-envs server.")
-        repo.create_branch(branch, data.get("startingPoint"))
+        start = data.get("startingPoint")
+        if start is not None and (not isinstance(start, str) or not start):
+            raise HTTPError(400, f"Invalid 'startingPoint' {start!r}: expected a branch, tag or commit id (a string).")
+        repo.create_branch(branch, start)
         return _json({})
 
     def delete_branch(self, ctx: Ctx, repo_type: str, repo_id: str, branch: str) -> Response:
@@ -711,6 +817,8 @@ class HubApp:
         files = self._body_json(ctx).get("files")
         if not isinstance(files, list):
             raise HTTPError(400, "'files' must be a list of {path, sample, size}.")
+        if len(files) > 100_000:
+            raise HTTPError(400, "Too many files in one preupload request (at most 100000).")
         out = []
         for f in files:
             path = f.get("path") if isinstance(f, dict) else None
@@ -730,78 +838,42 @@ class HubApp:
 
     async def commit(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
         """POST /api/<type>s/<id>/commit/<branch>: an NDJSON stream, header line first, then one
-        ``file`` / ``lfsFile`` / ``deletedFile`` / ``deletedFolder`` line per operation."""
+        ``file`` / ``lfsFile`` / ``deletedFile`` / ``deletedFolder`` line per operation.
+
+        The caller is authenticated and ``Content-Length`` checked before any of the body is read.
+        The body is then read here, on the event loop, only to cut it into lines (each capped); the
+        lines are parsed, decoded and their blobs written in a worker thread.
+        """
+        self._require_write(ctx)
+        self._check_declared_length(ctx, self.max_body, f"the request body limit of this server ({_BODY_SETTING})")
         repo = await run_in_threadpool(self._open, ctx, repo_type, repo_id, True)
         if ctx.flag("create_pr"):
             raise HTTPError(400, "Pull requests (create_pr=True) are not supported by the hub-envs server.")
         branch = revision[len("refs/heads/") :] if revision.startswith("refs/heads/") else revision
-        header: dict | None = None
-        operations: list = []
-        async for line in _ndjson_lines(ctx.request):
-            try:
-                item = json.loads(line)
-                key, value = item["key"], item["value"]
-            except (ValueError, KeyError, TypeError):
-                raise HTTPError(400, "Malformed commit payload: each line must be {\"key\": ..., \"value\": ...}.") from None
-            if header is None:
-                if key != "header" or not isinstance(value, dict):
-                    raise HTTPError(400, "Malformed commit payload: the first line must be the 'header'.")
-                header = value
-                parent = header.get("parentCommit")
-                if parent is not None:
-                    if not isinstance(parent, str) or not re.fullmatch(r"[0-9a-fA-F]{5,40}", parent):
-                        raise HTTPError(400, f"Invalid parentCommit {parent!r}: expected 5 to 40 hex digits.")
-                    head = await run_in_threadpool(repo.resolve, branch)
-                    if not head.id.startswith(parent.lower()):  # fail before writing any blob
-                        raise ParentMismatchError(
-                            "The branch was updated since you opened this page. Please refresh and try again."
-                        )
-                continue
-            if not isinstance(value, dict) or not isinstance(value.get("path"), str):
-                raise HTTPError(400, f"Malformed commit payload: a {key!r} line needs a 'path'.")
-            path = value["path"]
-            if key == "file":
-                validate_path(path)
-                content = value.get("content", "")
-                encoding = value.get("encoding", "utf-8")
-                try:
-                    data = base64.b64decode(content, validate=True) if encoding == "base64" else str(content).encode()
-                except (binascii.Error, ValueError):
-                    raise HTTPError(400, f"Malformed commit payload: the content of {path!r} is not valid base64.") from None
-                entry = await run_in_threadpool(repo.write_blob, data)
-                operations.append(AddFile(path, entry))
-            elif key == "lfsFile":
-                validate_path(path)
-                oid = str(value.get("oid", ""))
-                if value.get("algo", "sha256") != "sha256" or not repo.has_blob(oid):
-                    raise HTTPError(
-                        400,
-                        f"LFS object {oid} for {path!r} is not on this server: the hub-envs server takes file "
-                        "contents inline (preupload answers uploadMode 'regular').",
-                    )
-                operations.append(AddFile(path, await run_in_threadpool(repo.blob_entry, oid)))
-            elif key == "deletedFile":
-                operations.append(DeleteFile(path))
-            elif key == "deletedFolder":
-                operations.append(DeleteFolder(path.rstrip("/")))
-            else:
-                raise HTTPError(
-                    400, f"Malformed commit payload: unknown key {key!r} (expected file, lfsFile, deletedFile, deletedFolder)."
-                )
+        builder = _CommitBuilder(repo, branch)
+        async for lines in _ndjson_lines(ctx.request, self.max_body, self.max_line):
+            await run_in_threadpool(builder.feed, lines)
+        header = builder.header
         if header is None:
             raise HTTPError(400, "Malformed commit payload: empty body; send a 'header' line then the operations.")
         title = header.get("summary")
         if not isinstance(title, str) or not title.strip():
             raise HTTPError(400, "The commit summary (commit_message) cannot be empty.")
         description = header.get("description") or ""
+        if not isinstance(description, str):
+            raise HTTPError(400, "The commit description must be a string.")
+        for text in (title, description):
+            if not _is_unicode(text):
+                raise HTTPError(400, "The commit summary and description must be valid Unicode (no lone surrogates).")
         commit = await run_in_threadpool(
             lambda: repo.commit(
                 branch,
-                operations,
+                builder.operations,
                 title=title,
-                message=str(description),
+                message=description,
                 author=ctx.user or self.user,
                 parent=header.get("parentCommit"),
+                check=None if self.allow_bytecode else _refuse_bytecode_in_env_repos,
             )
         )
         return _json(
@@ -814,6 +886,248 @@ class HubApp:
                 "pullRequestUrl": None,
             }
         )
+
+
+class _CommitBuilder:
+    """The lines of one commit payload, applied in order in a worker thread: the header (and its
+    ``parentCommit`` check, before any blob is written), then each operation, its blob stored."""
+
+    def __init__(self, repo: Repo, branch: str):
+        self.repo = repo
+        self.branch = branch
+        self.header: dict | None = None
+        self.operations: list = []
+
+    def feed(self, lines: list[bytearray]) -> None:
+        while lines:
+            line = lines.pop(0)  # dropped once parsed: a big line is not kept alive by the list
+            item, content = _parse_line(line)
+            del line
+            self._apply(item, content)
+
+    def _apply(self, item: Any, content: memoryview | None) -> None:
+        if not isinstance(item, dict) or "key" not in item or "value" not in item:
+            raise HTTPError(400, 'Malformed commit payload: each line must be {"key": ..., "value": ...}.')
+        key, value = item["key"], item["value"]
+        if self.header is None:
+            if key != "header" or not isinstance(value, dict):
+                raise HTTPError(400, "Malformed commit payload: the first line must be the 'header'.")
+            parent = value.get("parentCommit")
+            if parent is not None:
+                if not isinstance(parent, str) or not re.fullmatch(r"[0-9a-fA-F]{5,40}", parent):
+                    raise HTTPError(400, f"Invalid parentCommit {parent!r}: expected 5 to 40 hex digits.")
+                if not self.repo.resolve(self.branch).id.startswith(parent.lower()):  # before any blob
+                    raise ParentMismatchError("The branch was updated since you opened this page. Please refresh and try again.")
+            self.header = value
+            return
+        if not isinstance(value, dict) or not isinstance(value.get("path"), str):
+            raise HTTPError(400, f"Malformed commit payload: a {str(key)[:50]!r} line needs a 'path'.")
+        path = value["path"]
+        if key == "file":
+            validate_path(path)
+            self.operations.append(AddFile(path, self._store_file(path, value, content)))
+        elif key == "lfsFile":
+            validate_path(path)
+            oid = value.get("oid", "")
+            if not isinstance(oid, str) or value.get("algo", "sha256") != "sha256" or not self.repo.has_blob(oid):
+                raise HTTPError(
+                    400,
+                    f"LFS object {str(oid)[:64]} for {path!r} is not on this server: the hub-envs server takes file "
+                    "contents inline (preupload answers uploadMode 'regular').",
+                )
+            self.operations.append(AddFile(path, self.repo.blob_entry(oid)))
+        elif key == "deletedFile":
+            self.operations.append(DeleteFile(path))
+        elif key == "deletedFolder":
+            self.operations.append(DeleteFolder(path.rstrip("/")))
+        else:
+            raise HTTPError(
+                400,
+                f"Malformed commit payload: unknown key {str(key)[:50]!r} (expected file, lfsFile, deletedFile, deletedFolder).",
+            )
+
+    def _store_file(self, path: str, value: dict, content: memoryview | None):
+        encoding = value.get("encoding", "utf-8")
+        if content is None:
+            text = value.pop("content", "")
+            if not isinstance(text, str):
+                raise HTTPError(400, f"Malformed commit payload: the content of {path!r} must be a string.")
+            if encoding != "base64":
+                if not _is_unicode(text):
+                    raise HTTPError(400, f"Malformed commit payload: the content of {path!r} is not valid Unicode.")
+                return self.repo.write_blob(text.encode("utf-8"))
+            try:
+                content = memoryview(text.encode("ascii"))
+            except UnicodeEncodeError:
+                content = None
+            del text
+            if content is None:
+                raise HTTPError(400, f"Malformed commit payload: the content of {path!r} is not valid base64.")
+        size, pieces = _b64_pieces(content)
+        if size is None:
+            raise HTTPError(400, f"Malformed commit payload: the content of {path!r} is not valid base64.")
+        try:
+            return self.repo.write_blob_chunks(pieces, size)
+        except (binascii.Error, ValueError):
+            raise HTTPError(400, f"Malformed commit payload: the content of {path!r} is not valid base64.") from None
+
+
+# --- commit payloads ----------------------------------------------------------------------------
+
+
+def _too_large(limit: int, what: str) -> HTTPError:
+    return HTTPError(413, f"Request too large: over {_format_size(limit)}, {what}.")
+
+
+def _format_size(n: int) -> str:
+    return f"{n / MiB:g} MiB" if n >= MiB else f"{n} bytes"
+
+
+async def _ndjson_lines(request: Request, max_body: int, max_line: int) -> AsyncIterator[list[bytearray]]:
+    """The non-blank lines of an NDJSON body, as they arrive: one list per chunk that ends lines.
+
+    Only cuts lines (a search in each new chunk, never in what is buffered already), so it is cheap
+    on the event loop. 413 as soon as the body passes ``max_body`` or a line passes ``max_line``.
+    """
+    line = bytearray()
+    total = 0
+    async for chunk in request.stream():
+        total += len(chunk)
+        if total > max_body:
+            raise _too_large(max_body, f"the request body limit of this server ({_BODY_SETTING})")
+        done: list[bytearray] = []
+        start = 0
+        while True:
+            i = chunk.find(b"\n", start)
+            if i < 0:
+                break
+            line += chunk[start:i]
+            if len(line) > max_line:
+                raise _too_large(max_line, f"the limit of one commit line, i.e. one file in base64 ({_LINE_SETTING})")
+            if line and not line.isspace():
+                done.append(line)
+            line = bytearray()
+            start = i + 1
+        line += chunk[start:]
+        if len(line) > max_line:
+            raise _too_large(max_line, f"the limit of one commit line, i.e. one file in base64 ({_LINE_SETTING})")
+        if done:
+            yield done
+    if line and not line.isspace():
+        yield [line]
+
+
+def _loads_line(data) -> Any:
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise HTTPError(400, "Malformed commit payload: a line is nested too deeply.") from None
+    except (ValueError, TypeError):  # JSONDecodeError, UnicodeDecodeError
+        raise HTTPError(400, 'Malformed commit payload: each line must be {"key": ..., "value": ...}.') from None
+
+
+_AFTER_CONTENT_KEY = re.compile(rb'\s*:\s*"')
+_PLACEHOLDER = "\x00hub-envs:content"
+_FIND_WINDOW = 8 * MiB
+
+
+def _find(buf: bytearray, sub: bytes, start: int, end: int | None = None) -> int:
+    """``buf.find(sub, start, end)`` a window at a time, so the GIL is released between windows."""
+    end = len(buf) if end is None else end
+    while start < end:
+        stop = min(start + _FIND_WINDOW + len(sub) - 1, end)
+        i = buf.find(sub, start, stop)
+        if i >= 0:
+            return i
+        start += _FIND_WINDOW
+    return -1
+
+
+def _parse_line(line: bytearray) -> tuple[Any, memoryview | None]:
+    """One commit line as JSON; for a large line, also the base64 content of its file, apart.
+
+    A line of at most 1 MiB is parsed whole. A larger one must be a ``file`` line with base64
+    content (the only line the client makes large): ``json.loads`` on hundreds of MiB would hold
+    the GIL, stalling every other request, for seconds, and copy the content twice. So its
+    ``"content": "..."`` string is cut out, the small rest parsed (with a placeholder in its
+    place, which must land at ``value.content`` and nowhere else), and the content returned as a
+    view of the line, to be decoded in pieces.
+    """
+    if len(line) <= _BIG_LINE:
+        return _loads_line(line), None
+    pos = 0
+    for _ in range(4):  # the first few '"content"' in the line
+        i = _find(line, b'"content"', pos)
+        if i < 0:
+            break
+        pos = i + 1
+        match = _AFTER_CONTENT_KEY.match(line, i + len(b'"content"'))
+        if not match:
+            continue
+        start = match.end()
+        end = _find(line, b'"', start)
+        if end < 0:
+            break
+        if len(line) - (end - start) > _BIG_LINE:
+            continue  # the rest of the line is large too: not the layout of a file line
+        content: memoryview | bytes = memoryview(line)[start:end]
+        if _find(line, b"\\", start, end) >= 0:  # some JSON encoders write "/" as "\/"; base64 has no other escape
+            content = bytes(content).replace(b"\\/", b"/")
+            if b"\\" in content:
+                continue
+        rest = bytes(line[:start]) + b"\\u0000hub-envs:content" + bytes(line[end:])
+        item = _loads_line(rest)
+        value = item.get("value") if isinstance(item, dict) else None
+        if (
+            isinstance(value, dict)
+            and item.get("key") == "file"
+            and value.get("encoding") == "base64"
+            and value.get("content") == _PLACEHOLDER
+            and _count_strings(item, _PLACEHOLDER) == 1
+        ):
+            del value["content"]
+            return item, memoryview(content)
+    raise HTTPError(
+        400,
+        f"Malformed commit payload: a line over {_format_size(_BIG_LINE)} must be a 'file' line with its content "
+        'in base64 ({"key": "file", "value": {"content": "<base64>", "path": ..., "encoding": "base64"}}), '
+        "as huggingface_hub sends it.",
+    )
+
+
+def _count_strings(obj: Any, needle: str) -> int:
+    count, stack = 0, [obj]
+    while stack:
+        o = stack.pop()
+        if isinstance(o, str):
+            count += o == needle
+        elif isinstance(o, dict):
+            stack.extend(o.keys())
+            stack.extend(o.values())
+        elif isinstance(o, list):
+            stack.extend(o)
+    return count
+
+
+def _b64_pieces(encoded: memoryview) -> tuple[int | None, Iterator[bytes]]:
+    """``(size, pieces)``: the decoded size of strict base64 ``encoded`` and its decoded pieces,
+    1 MiB of input at a time (``binascii.Error`` from the iterator if invalid); size None if the
+    length cannot be base64."""
+    n = len(encoded)
+    if n % 4:
+        return None, iter(())
+    pad = 0
+    if n:
+        pad = (encoded[-1] == 0x3D) + (encoded[-1] == 0x3D and encoded[-2] == 0x3D)
+
+    def pieces() -> Iterator[bytes]:
+        for i in range(0, n, _B64_PIECE):
+            piece = encoded[i : i + _B64_PIECE].tobytes()
+            if i + _B64_PIECE < n and b"=" in piece:
+                raise binascii.Error("Padding before the end")
+            yield binascii.a2b_base64(piece, strict_mode=True)
+
+    return n // 4 * 3 - pad, pieces()
 
 
 # --- small helpers ----------------------------------------------------------------------------
@@ -855,20 +1169,121 @@ def _folders(files) -> set[str]:
     return out
 
 
-def _front_matter(text: str, strict: bool = False):
-    """The YAML metadata block at the top of a README (``---`` ... ``---``), or None."""
+def _is_unicode(text: str) -> bool:
+    """False for text holding lone surrogates (JSON's ``"\\ud800"``), which cannot be UTF-8."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _short_error(err: BaseException) -> str:
+    return f"{type(err).__name__}: {str(err)[:300]}"
+
+
+def _limit_bytes(value: float | None, env: str, default: float, name: str) -> int:
+    """A size limit given in MiB: ``value``, else the environment variable ``env``, else ``default``."""
+    if value is None:
+        raw = os.environ.get(env, "").strip()
+        try:
+            value = float(raw) if raw else default
+        except ValueError:
+            raise ValueError(f"{env}={raw!r}: expected a number of MiB, such as 512.") from None
+    value = float(value)
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive number of MiB, got {value}.")
+    return max(1, int(value * MiB))
+
+
+def _is_bytecode(path: str) -> bool:
+    """``.pyc``/``.pyo`` files and anything under a ``__pycache__/`` folder (any case, and with the
+    trailing dots and spaces Windows drops from names)."""
+    parts = [part.rstrip(" .").lower() for part in path.split("/")]
+    return "__pycache__" in parts[:-1] or parts[-1].endswith((".pyc", ".pyo"))
+
+
+def _refuse_bytecode_in_env_repos(files) -> None:
+    """The ``check`` of commits (see :meth:`Repo.commit`): no bytecode in an env repo's tree.
+
+    An env repo (one with a ``hub_env.json`` manifest at its root) is loaded by importing its
+    ``.py`` files; a ``__pycache__/*.pyc`` beside them would run instead of the sources that the
+    manifest hashes and the card shows, so it can only be planted. Other repos may hold any file.
+    """
+    if _ENV_MANIFEST not in files:
+        return
+    planted = sorted(p for p in files if _is_bytecode(p))
+    if planted:
+        more = f" (and {len(planted) - 1} more)" if len(planted) > 1 else ""
+        raise InvalidOperationError(
+            f"Refused: {planted[0]!r}{more} is compiled Python bytecode (under __pycache__/, or .pyc/.pyo) in an "
+            f"env repo (one with {_ENV_MANIFEST}). Python would run it instead of the .py sources, so an env repo "
+            "holds sources only: leave bytecode out of the commit (or delete it in the same commit)."
+        )
+
+
+class _CardLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader with limits for README metadata: no aliases (``*name``: a few hundred
+    bytes of aliases expand to gigabytes once written as JSON, the "billion laughs"), and nesting
+    at most ``_CARD_MAX_DEPTH`` deep (the composer recurses once per level)."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(
+                None, None, "YAML aliases (*name) are not allowed in card metadata", self.peek_event().start_mark
+            )
+        if self._depth >= _CARD_MAX_DEPTH:
+            raise yaml.composer.ComposerError(
+                None, None, f"card metadata nested more than {_CARD_MAX_DEPTH} levels deep", self.peek_event().start_mark
+            )
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+_FRONT_MATTER_RE = re.compile(r"^---[ \t]*\r?\n(.*?)(?:\r?\n)?^---[ \t]*$", flags=re.S | re.M)
+
+
+def _front_matter(text: str, strict: bool = False, truncated: bool = False):
+    """The YAML metadata block at the top of a README (``---`` ... ``---``), or None.
+
+    Parsed with limits: at most ``_CARD_MAX_BYTES`` (UTF-8) of YAML, no aliases, bounded nesting.
+    ``strict``: raise ValueError (with a message for the user) instead of returning None when the
+    block is malformed or over a limit. ``truncated``: ``text`` is only the start of the README.
+    """
     if not text.startswith("---"):
         return None
-    match = re.match(r"^---[ \t]*\r?\n(.*?)(?:\r?\n)?^---[ \t]*$", text, flags=re.S | re.M)
+    window = text[: _CARD_MAX_BYTES + 1024]
+    match = _FRONT_MATTER_RE.match(window)
     if not match:
+        if not strict:
+            return None
+        if truncated or len(text) > len(window):
+            raise ValueError(
+                f"The YAML metadata block is not closed within its first {_CARD_MAX_BYTES // 1024} KiB: close it "
+                "with a line '---', and keep the metadata under that size."
+            )
+        raise ValueError("The YAML metadata block is not closed: add a line with '---' after it.")
+    block = match.group(1)
+    if len(block.encode("utf-8", "replace")) > _CARD_MAX_BYTES:
         if strict:
-            raise ValueError("The YAML metadata block is not closed: add a line with '---' after it.")
+            raise ValueError(f"The YAML metadata block is larger than {_CARD_MAX_BYTES // 1024} KiB.")
         return None
     try:
-        meta = yaml.safe_load(match.group(1))
+        meta = yaml.load(block, Loader=_CardLoader)  # noqa: S506 - a SafeLoader, with limits
     except yaml.YAMLError as err:
         if strict:
             raise ValueError(f"Invalid YAML in the metadata block: {err}") from None
+        return None
+    except (ValueError, TypeError, OverflowError, RecursionError) as err:  # e.g. a date such as 2024-02-30
+        if strict:
+            raise ValueError(f"Invalid value in the metadata block: {_short_error(err)}") from None
         return None
     if meta is not None and not isinstance(meta, dict):
         if strict:
@@ -877,48 +1292,62 @@ def _front_matter(text: str, strict: bool = False):
     return meta
 
 
+def _jsonable(obj: Any) -> Any:
+    """YAML data as JSON data, as the Hub reports ``cardData``: dates as ISO strings, sets as lists,
+    binary as base64, keys as strings, NaN and infinities as null. (Depth is bounded by the loader.)"""
+    if isinstance(obj, dict):
+        return {_json_key(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (set, frozenset)):
+        return [_jsonable(v) for v in sorted(obj, key=repr)]
+    if obj is None or isinstance(obj, (str, bool, int)):
+        return obj
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, (datetime.date, datetime.datetime)):
+        return obj.isoformat()
+    if isinstance(obj, bytes):
+        return base64.b64encode(obj).decode("ascii")
+    return str(obj)
+
+
+def _json_key(key: Any) -> str:
+    if isinstance(key, str):
+        return key
+    if key is None or isinstance(key, (bool, int, float)):
+        return json.dumps(key)
+    value = _jsonable(key)
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+_RANGE_RE = re.compile(r"\s*bytes=(\d*)-(\d*)\s*")
+_RANGE_MAX_DIGITS = 18  # more digits than any file size: read as "beyond the end", never int()-ed
+
+
+def _range_int(digits: str) -> int:
+    return int(digits) if len(digits) <= _RANGE_MAX_DIGITS else 10**_RANGE_MAX_DIGITS
+
+
 def _parse_range(header: str, size: int):
-    """``(start, end)`` inclusive for a single ``bytes=`` range, ``"unsatisfiable"``, or None to ignore it."""
-    match = re.fullmatch(r"\s*bytes=(\d*)-(\d*)\s*", header)
+    """``(start, end)`` inclusive for a single ``bytes=`` range, ``"unsatisfiable"``, or None to ignore it
+    (RFC 9110 14.2: then the whole file is sent with 200)."""
+    match = _RANGE_RE.fullmatch(header)
     if not match or (not match.group(1) and not match.group(2)):
         return None  # malformed or multi-range: ignored, the whole file is sent (RFC 9110 allows it)
-    first, last = match.group(1), match.group(2)
-    if first:
-        start = int(first)
-        end = min(int(last), size - 1) if last else size - 1
-        if last and int(last) < start:
-            return None
-        if start >= size:
+    first = _range_int(match.group(1)) if match.group(1) else None
+    last = _range_int(match.group(2)) if match.group(2) else None
+    if first is not None:
+        if last is not None and last < first:
+            return None  # invalid range-spec: ignored
+        if first >= size:
             return "unsatisfiable"
-        return start, end
-    suffix = int(last)
-    if suffix == 0:
+        return first, size - 1 if last is None else min(last, size - 1)
+    if last == 0:
         return "unsatisfiable"
-    return max(size - suffix, 0), size - 1
-
-
-async def _drain(request: Request) -> None:
-    try:
-        async for _ in request.stream():
-            pass
-    except Exception:  # already consumed, or the client went away
-        pass
-
-
-async def _ndjson_lines(request: Request):
-    buffer = bytearray()
-    async for chunk in request.stream():
-        buffer.extend(chunk)
-        while True:
-            i = buffer.find(b"\n")
-            if i < 0:
-                break
-            line = bytes(buffer[:i]).strip()
-            del buffer[: i + 1]
-            if line:
-                yield line
-    if bytes(buffer).strip():
-        yield bytes(buffer).strip()
+    if size == 0:
+        return None  # a suffix of an empty file is the empty file itself: 200, no Content-Range to express
+    return max(size - last, 0), size - 1
 
 
 def create_app(
@@ -928,6 +1357,9 @@ def create_app(
     page_size: int | None = None,
     user: str | None = None,
     fsync: bool | None = None,
+    max_body_mb: float | None = None,
+    max_line_mb: float | None = None,
+    allow_bytecode: bool | None = None,
 ) -> Starlette:
     """A Starlette app serving the repos stored under ``root``.
 
@@ -939,8 +1371,25 @@ def create_app(
         user: the account name callers act as (default ``local``; env ``HUB_ENVS_SERVER_USER``):
             ``whoami`` returns it, and ``create_repo`` without a namespace creates repos under it.
         fsync: fsync files before moving them into place (default on; env ``HUB_ENVS_SERVER_FSYNC=0``).
+        max_body_mb: largest request body, in MiB (default 2048; env ``HUB_ENVS_SERVER_MAX_BODY_MB``):
+            a commit carries all its files in its body. Over it: 413.
+        max_line_mb: largest line of a commit body, in MiB (default 1024; env
+            ``HUB_ENVS_SERVER_MAX_LINE_MB``): a line carries one file, base64 (4/3 of its size), and
+            is held in memory while it is decoded. Over it: 413.
+        allow_bytecode: store compiled Python bytecode in env repos too, as huggingface.co does
+            (default off; env ``HUB_ENVS_SERVER_ALLOW_BYTECODE=1``): for tests of what clients do
+            with a repo the real Hub would serve.
     """
-    hub = HubApp(root, token, page_size=page_size, user=user, fsync=fsync)
+    hub = HubApp(
+        root,
+        token,
+        page_size=page_size,
+        user=user,
+        fsync=fsync,
+        max_body_mb=max_body_mb,
+        max_line_mb=max_line_mb,
+        allow_bytecode=allow_bytecode,
+    )
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
     app = Starlette(routes=[Route("/{path:path}", hub.endpoint, methods=methods)])
     app.state.hub = hub

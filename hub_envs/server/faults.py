@@ -70,14 +70,16 @@ class _Rules:
             action = rule.get("action", "status")
             if action not in ACTIONS:
                 raise ValueError(f"{ENV_VAR}: unknown action {action!r} (expected one of {ACTIONS}).")
-            out.append({
-                "match": re.compile(rule.get("match", "")),
-                "action": action,
-                "times": int(rule.get("times", 1)),
-                "skip": int(rule.get("skip", 0)),
-                "status": int(rule.get("status", 500)),
-                "after_bytes": int(rule.get("after_bytes", 0)),
-            })
+            out.append(
+                {
+                    "match": re.compile(rule.get("match", "")),
+                    "action": action,
+                    "times": int(rule.get("times", 1)),
+                    "skip": int(rule.get("skip", 0)),
+                    "status": int(rule.get("status", 500)),
+                    "after_bytes": int(rule.get("after_bytes", 0)),
+                }
+            )
         return out
 
     def take(self, request_line: str) -> dict[str, Any] | None:
@@ -123,9 +125,17 @@ class FaultMiddleware:
             while (await receive()).get("more_body"):  # drain the request body
                 pass
             body = json.dumps({"error": f"Injected fault ({ENV_VAR})"}).encode()
-            await send({"type": "http.response.start", "status": rule["status"],
-                        "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                                    (b"x-error-message", b"Injected fault")]})
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": rule["status"],
+                    "headers": [
+                        (b"content-type", b"application/json"),
+                        (b"content-length", str(len(body)).encode()),
+                        (b"x-error-message", b"Injected fault"),
+                    ],
+                }
+            )
             await send({"type": "http.response.body", "body": body})
             return
         if rule["action"] == "exit":

@@ -50,10 +50,10 @@ import shutil
 import threading
 import uuid
 from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator, Mapping, Sequence, Union
 
 FORMAT = "hub-envs-store 1"
 REPO_TYPES = ("model", "dataset", "space")
@@ -62,16 +62,57 @@ _HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _NAME_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9._-]{0,95})$")
 _RESERVED_NAMESPACES = {"api", "models", "datasets", "spaces", "resolve", "tree", "blob"}
 _MAX_PATH_LEN = 1024
+_MAX_SEGMENT_BYTES = 255  # NAME_MAX of ext4, APFS, NTFS...: a longer name cannot be checked out
+_CONTROL_RE = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 # What the Hub commits as ".gitattributes" when it creates a repo (abridged to the common patterns).
 DEFAULT_GITATTRIBUTES = "".join(
     f"{pattern} filter=lfs diff=lfs merge=lfs -text\n"
     for pattern in (
-        "*.7z", "*.arrow", "*.bin", "*.bz2", "*.ckpt", "*.ftz", "*.gz", "*.h5", "*.joblib", "*.lfs.*",
-        "*.lz4", "*.mds", "*.mlmodel", "*.model", "*.msgpack", "*.npy", "*.npz", "*.onnx", "*.ot",
-        "*.parquet", "*.pb", "*.pickle", "*.pkl", "*.pt", "*.pth", "*.rar", "*.safetensors",
-        "saved_model/**/*", "*.tar.*", "*.tar", "*.tflite", "*.tgz", "*.wasm", "*.xz", "*.zip",
-        "*.zst", "*tfevents*", "*.mp3", "*.wav", "*.png", "*.jpg", "*.jpeg", "*.webp", "*.mp4",
+        "*.7z",
+        "*.arrow",
+        "*.bin",
+        "*.bz2",
+        "*.ckpt",
+        "*.ftz",
+        "*.gz",
+        "*.h5",
+        "*.joblib",
+        "*.lfs.*",
+        "*.lz4",
+        "*.mds",
+        "*.mlmodel",
+        "*.model",
+        "*.msgpack",
+        "*.npy",
+        "*.npz",
+        "*.onnx",
+        "*.ot",
+        "*.parquet",
+        "*.pb",
+        "*.pickle",
+        "*.pkl",
+        "*.pt",
+        "*.pth",
+        "*.rar",
+        "*.safetensors",
+        "saved_model/**/*",
+        "*.tar.*",
+        "*.tar",
+        "*.tflite",
+        "*.tgz",
+        "*.wasm",
+        "*.xz",
+        "*.zip",
+        "*.zst",
+        "*tfevents*",
+        "*.mp3",
+        "*.wav",
+        "*.png",
+        "*.jpg",
+        "*.jpeg",
+        "*.webp",
+        "*.mp4",
     )
 ).encode()
 
@@ -124,17 +165,19 @@ class InvalidOperationError(StoreError, ValueError):
 
 def git_blob_oid(data: bytes) -> str:
     """The git blob sha1 of ``data``: what the Hub uses as ETag and ``oid`` for a regular file."""
-    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+    digest = hashlib.sha1(b"blob %d\0" % len(data))
+    digest.update(data)  # not `header + data`: that would copy a large file once more
+    return digest.hexdigest()
 
 
 def format_date(dt: datetime) -> str:
     """``2024-05-01T12:00:00.123Z``: the only date format huggingface_hub's ``parse_datetime`` expects."""
-    dt = dt.astimezone(timezone.utc)
+    dt = dt.astimezone(UTC)
     return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 1000:03d}Z"
 
 
 def now() -> datetime:
-    return datetime.now(timezone.utc)
+    return datetime.now(UTC)
 
 
 def validate_repo_type(repo_type: str) -> str:
@@ -164,15 +207,23 @@ def validate_repo_id(repo_id: str) -> tuple[str, str]:
 def validate_path(path: str) -> str:
     """Check a path inside a repo (``a/b.txt``); raise :class:`InvalidPathError` if it could escape.
 
-    Refused: empty, absolute, backslashes, NUL and control characters, empty / ``.`` / ``..``
-    segments, a ``.git`` segment, and over-long paths.
+    Refused: empty, absolute, backslashes, control characters (C0, DEL and C1: U+0000-U+001F,
+    U+007F-U+009F), text that is not valid Unicode (lone surrogates), empty / ``.`` / ``..``
+    segments, a ``.git`` segment, segments over 255 bytes (UTF-8; what file systems store), and
+    over-long paths.
     """
     if not isinstance(path, str) or not path:
         raise InvalidPathError("Invalid path: empty.")
     if len(path) > _MAX_PATH_LEN:
         raise InvalidPathError(f"Invalid path: longer than {_MAX_PATH_LEN} characters.")
-    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in path):
-        raise InvalidPathError(f"Invalid path {path!r}: contains a control character (NUL, newline...).")
+    if _CONTROL_RE.search(path):
+        raise InvalidPathError(
+            f"Invalid path {path!r}: contains a control character (C0 such as NUL or newline, DEL, or C1 U+0080-U+009F)."
+        )
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InvalidPathError(f"Invalid path {path!r}: not valid Unicode (lone surrogate).") from None
     if "\\" in path:
         raise InvalidPathError(f"Invalid path {path!r}: backslashes are not allowed; use '/'.")
     if path.startswith("/"):
@@ -182,6 +233,10 @@ def validate_path(path: str) -> str:
             raise InvalidPathError(f"Invalid path {path!r}: empty, '.' and '..' segments are not allowed.")
         if segment == ".git":
             raise InvalidPathError(f"Invalid path {path!r}: '.git' is reserved.")
+        if len(segment.encode("utf-8")) > _MAX_SEGMENT_BYTES:
+            raise InvalidPathError(
+                f"Invalid path {path[:80]!r}...: a file or folder name is longer than {_MAX_SEGMENT_BYTES} bytes (UTF-8)."
+            )
     return path
 
 
@@ -196,7 +251,7 @@ def validate_ref_name(name: str, kind: str = "branch") -> str:
         or "//" in name
         or "@{" in name
         or name == "@"
-        or any(ord(c) < 0x21 or ord(c) == 0x7F or c in "~^:?*[\\" for c in name)
+        or any(ord(c) < 0x21 or 0x7F <= ord(c) <= 0x9F or 0xD800 <= ord(c) <= 0xDFFF or c in "~^:?*[\\" for c in name)
         or any(seg.startswith(".") for seg in name.split("/"))
     )
     if bad:
@@ -247,7 +302,7 @@ class Commit:
         ).encode()
 
     @classmethod
-    def from_json(cls, data: bytes) -> "Commit":
+    def from_json(cls, data: bytes) -> Commit:
         d = json.loads(data)
         return cls(
             id=d["id"],
@@ -286,7 +341,7 @@ class RepoMeta:
         ).encode()
 
     @classmethod
-    def from_json(cls, data: bytes) -> "RepoMeta":
+    def from_json(cls, data: bytes) -> RepoMeta:
         d = json.loads(data)
         return cls(d["type"], d["id"], bool(d["private"]), d["createdAt"], d["author"], d.get("sdk"))
 
@@ -304,7 +359,7 @@ class Refs:
         return json.dumps({"branches": self.branches, "tags": tags}, indent=1, sort_keys=True).encode()
 
     @classmethod
-    def from_json(cls, data: bytes) -> "Refs":
+    def from_json(cls, data: bytes) -> Refs:
         d = json.loads(data)
         tags = {name: t["target"] for name, t in d.get("tags", {}).items()}
         messages = {name: t["message"] for name, t in d.get("tags", {}).items() if t.get("message")}
@@ -334,7 +389,7 @@ class DeleteFolder:
     path: str
 
 
-Operation = Union[AddFile, DeleteFile, DeleteFolder]
+Operation = AddFile | DeleteFile | DeleteFolder
 
 
 # --- git object hashing -----------------------------------------------------------------------
@@ -359,8 +414,7 @@ def _tree_oids(files: Mapping[str, FileEntry]) -> dict[str, str]:
                 oid = oids[f"{folder}/{name}" if folder else name]
             entries.append((name + "/" if mode == "40000" else name, name, mode, oid))
         body = b"".join(
-            mode.encode() + b" " + name.encode() + b"\0" + bytes.fromhex(oid)
-            for _, name, mode, oid in sorted(entries)
+            mode.encode() + b" " + name.encode() + b"\0" + bytes.fromhex(oid) for _, name, mode, oid in sorted(entries)
         )
         oids[folder] = hashlib.sha1(b"tree %d\0" % len(body) + body).hexdigest()
     return oids
@@ -393,9 +447,7 @@ class HubStore:
         self.root.mkdir(parents=True, exist_ok=True)
         fmt = self.root / "FORMAT"
         if not fmt.exists() and any(p.name not in ("tmp", "trash", "repos", "LOCK") for p in self.root.iterdir()):
-            raise StoreError(
-                f"{self.root} is not empty and is not a hub-envs store (no FORMAT file): pass an empty folder."
-            )
+            raise StoreError(f"{self.root} is not empty and is not a hub-envs store (no FORMAT file): pass an empty folder.")
         self._lock_file = _lock_exclusively(self.root / "LOCK")
         if fmt.exists():
             found = fmt.read_text().strip()
@@ -410,7 +462,7 @@ class HubStore:
         self._locks: dict[tuple[str, str], threading.Lock] = {}
         self._locks_guard = threading.Lock()
         self._create_lock = threading.Lock()
-        self._commit_cache: OrderedDict[tuple[str, str], Commit] = OrderedDict()
+        self._commit_cache: OrderedDict[tuple[tuple[str, str], str], Commit] = OrderedDict()
         self._cache_guard = threading.Lock()
 
     # -- helpers --
@@ -438,26 +490,32 @@ class HubStore:
             return self._locks.setdefault(key, threading.Lock())
 
     def cached_commit(self, key: tuple[str, str], sha: str, load) -> Commit:
+        """The commit ``sha`` of the repo ``key`` (type, lower-cased id), from the cache or ``load()``.
+
+        Keyed by the repo type too: a model and a dataset may share an id, and one repo must never
+        see another's commits (their file names, or a 500 on blobs it does not hold).
+        """
+        cache_key = (key, sha)
         with self._cache_guard:
-            commit = self._commit_cache.get((key[1], sha))
+            commit = self._commit_cache.get(cache_key)
             if commit is not None:
-                self._commit_cache.move_to_end((key[1], sha))
+                self._commit_cache.move_to_end(cache_key)
                 return commit
         commit = load()
         with self._cache_guard:
-            self._commit_cache[(key[1], sha)] = commit
+            self._commit_cache[cache_key] = commit
             while len(self._commit_cache) > 512:
                 self._commit_cache.popitem(last=False)
         return commit
 
     def _forget(self, key: tuple[str, str]) -> None:
         with self._cache_guard:
-            for k in [k for k in self._commit_cache if k[0] == key[1]]:
+            for k in [k for k in self._commit_cache if k[0] == key]:
                 del self._commit_cache[k]
 
     # -- repos --
 
-    def open(self, repo_type: str, repo_id: str) -> "Repo":
+    def open(self, repo_type: str, repo_id: str) -> Repo:
         """The repo ``repo_id`` of type ``repo_type``; :class:`RepoNotFoundError` if it does not exist."""
         key = self._key(repo_type, repo_id)
         path = self._repo_dir(key)
@@ -467,9 +525,7 @@ class HubStore:
             raise RepoNotFoundError(f"Repository {repo_type} {repo_id!r} not found.") from None
         return Repo(self, key, path, meta)
 
-    def create_repo(
-        self, repo_type: str, repo_id: str, *, author: str, private: bool = False, sdk: str | None = None
-    ) -> "Repo":
+    def create_repo(self, repo_type: str, repo_id: str, *, author: str, private: bool = False, sdk: str | None = None) -> Repo:
         """Create a repo with one commit ("initial commit", adding ``.gitattributes``) on ``main``.
 
         Raises :class:`RepoExistsError` if it exists (under any casing), :class:`InvalidNameError`
@@ -574,6 +630,41 @@ class Repo:
             path.parent.mkdir(exist_ok=True)
             self.store.write_atomic(path, data)
         return FileEntry(oid=git_blob_oid(data), sha256=sha256, size=len(data))
+
+    def write_blob_chunks(self, chunks: Iterable[bytes], size: int) -> FileEntry:
+        """Store a blob that arrives in pieces (``size`` bytes in all), without holding it whole.
+
+        The pieces go to a scratch file, hashed on the way; the file then moves to its address.
+        :class:`InvalidOperationError` if the pieces do not add up to ``size``; exceptions raised
+        by ``chunks`` propagate (nothing is stored then).
+        """
+        sha256 = hashlib.sha256()
+        sha1 = hashlib.sha1(b"blob %d\0" % size)
+        tmp = self.store.root / "tmp" / f"{uuid.uuid4().hex}.blob"
+        written = 0
+        try:
+            with open(tmp, "wb") as f:
+                for chunk in chunks:
+                    sha256.update(chunk)
+                    sha1.update(chunk)
+                    f.write(chunk)
+                    written += len(chunk)
+                if written != size:
+                    raise InvalidOperationError(f"Blob size mismatch: {written} bytes received, {size} announced.")
+                if self.store.fsync:
+                    f.flush()
+                    os.fsync(f.fileno())
+            digest = sha256.hexdigest()
+            path = self._blob_path(digest)
+            if path.exists():
+                tmp.unlink()
+            else:
+                path.parent.mkdir(exist_ok=True)
+                os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        return FileEntry(oid=sha1.hexdigest(), sha256=digest, size=size)
 
     def has_blob(self, sha256: str) -> bool:
         return bool(re.fullmatch(r"[0-9a-f]{64}", sha256)) and self._blob_path(sha256).is_file()
@@ -721,9 +812,7 @@ class Repo:
             if not remaining:
                 break
             parent_files = self.load_commit(current.parents[0]).files if current.parents else {}
-            changed = {
-                p for p in set(current.files) | set(parent_files) if current.files.get(p) != parent_files.get(p)
-            }
+            changed = {p for p in set(current.files) | set(parent_files) if current.files.get(p) != parent_files.get(p)}
             touched = set(changed)
             for p in changed:
                 parts = p.split("/")
@@ -745,6 +834,7 @@ class Repo:
         message: str = "",
         author: str,
         parent: str | None = None,
+        check: Callable[[Mapping[str, FileEntry]], None] | None = None,
     ) -> Commit:
         """Apply ``operations`` on top of ``branch`` and move the branch to the new commit.
 
@@ -753,6 +843,8 @@ class Repo:
             operations: :class:`AddFile` (its blob already written), :class:`DeleteFile`, :class:`DeleteFolder`.
             parent: if given (5 to 40 hex), the branch must still point at this commit, else
                 :class:`ParentMismatchError` — the optimistic-concurrency check of ``parent_commit``.
+            check: called with the new tree (path -> entry) under the repo lock, before anything is
+                written; it raises (e.g. :class:`InvalidOperationError`) to refuse the commit.
 
         An empty ``operations`` makes an empty commit, as git (and the Hub's commit endpoint) does.
         """
@@ -766,9 +858,7 @@ class Repo:
                 raise RevisionNotFoundError(f"Invalid rev id: {branch}")
             head_sha = refs.branches[branch]
             if parent is not None and not head_sha.startswith(parent.lower()):
-                raise ParentMismatchError(
-                    "The branch was updated since you opened this page. Please refresh and try again."
-                )
+                raise ParentMismatchError("The branch was updated since you opened this page. Please refresh and try again.")
             head = self.load_commit(head_sha)
             files = dict(head.files)
             for op in operations:
@@ -777,16 +867,12 @@ class Repo:
                     files[op.path] = op.entry
                 elif isinstance(op, DeleteFile):
                     if files.pop(op.path, None) is None:
-                        raise EntryNotFoundError(
-                            f"Cannot delete {op.path}: A file with this name doesn't exist on {branch!r}."
-                        )
+                        raise EntryNotFoundError(f"Cannot delete {op.path}: A file with this name doesn't exist on {branch!r}.")
                 elif isinstance(op, DeleteFolder):
                     prefix = op.path.rstrip("/") + "/"
                     doomed = [p for p in files if p.startswith(prefix)]
                     if not doomed:
-                        raise EntryNotFoundError(
-                            f"Cannot delete folder {op.path}: no file under it on {branch!r}."
-                        )
+                        raise EntryNotFoundError(f"Cannot delete folder {op.path}: no file under it on {branch!r}.")
                     for p in doomed:
                         del files[p]
                 else:  # pragma: no cover - programming error
@@ -794,6 +880,8 @@ class Repo:
             clash = _file_folder_clash(files)
             if clash:
                 raise InvalidOperationError(clash)
+            if check is not None:
+                check(files)
             commit = self._new_commit(files, (head_sha,), title, message, author, now())
             self._write_commit(commit)
             refs.branches[branch] = commit.id  # the ref moves last: a crash before this changes nothing
@@ -810,4 +898,3 @@ def _file_folder_clash(files: Mapping[str, FileEntry]) -> str | None:
             if prefix in files:
                 return f"Cannot have both a file {prefix!r} and a file {path!r} under a folder of the same name."
     return None
-
