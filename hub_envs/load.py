@@ -209,7 +209,7 @@ class LoadedEnv:
 def _local_manifest(folder: EnvFolder) -> Manifest:
     """The manifest a local folder would be published with (minus the generated parts)."""
     files = hash_files(folder.root, list(folder.files))
-    slug = folder.root.name
+    slug = re.sub(r"[^A-Za-z0-9_.-]", "_", folder.root.name) or "env"  # a gym id and a draccus choice name
     return Manifest(
         name=folder.name,
         version=folder.version,

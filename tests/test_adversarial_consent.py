@@ -257,3 +257,17 @@ def test_the_trust_function_is_importable_from_the_package():
 def test_repo_ids_are_repo_ids(ref):
     with pytest.raises(errors.ConfigError):
         parse_repo_ref(ref)
+
+
+def test_a_local_folder_with_an_at_sign_in_its_name_loads(tmp_path, monkeypatch):
+    import gymnasium as gym
+
+    folder = copy_env(tmp_path, name="my@env")
+    monkeypatch.chdir(tmp_path)
+    loaded = load_env("./my@env")  # a path: your own code, no consent needed, and no raw gymnasium error
+    try:
+        assert loaded.is_local and "@" not in loaded.gym_id.split("/")[1]
+        gym.make(loaded.gym_id).reset(seed=0)
+    finally:
+        loaded.unregister()
+    assert folder.is_dir()
