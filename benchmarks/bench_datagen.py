@@ -34,8 +34,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
-from hub_envs.dataset import EpisodeFrames, write_lerobot_dataset
-from hub_envs.rollout import iter_episodes
+from hub_envs.dataset.writer import EpisodeFrames, write_lerobot_dataset
+from hub_envs.harness.rollout import iter_episodes
 
 FPS = 30
 TASK = "Swing the pendulum up."
@@ -129,7 +129,7 @@ def bench_hub_envs(image: bool, seeds: list[int], workers: int, out: Path) -> fl
 def bench_lerobot(image: bool, seeds: list[int], out: Path) -> float:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from hub_envs.dataset import rollout_to_frames
+    from hub_envs.dataset.writer import rollout_to_frames
 
     features, features_map = features_for(image)
     features = {k: {**ft, "shape": tuple(ft["shape"])} for k, ft in features.items()}  # LeRobot wants tuples

@@ -8,10 +8,10 @@ Measured side by side in each repeat (medians over ``repeats``):
 
 * ``raw``: ``env = loaded.make()``; per episode ``reset(seed)`` then ``step(a)`` for the recorded
   actions; nothing kept, nothing compared (the limit).
-* ``replay``: :func:`hub_envs.replay.replay_dataset` on 1 worker: read the dataset, replay every
+* ``replay``: :func:`hub_envs.harness.replay.replay_dataset` on 1 worker: read the dataset, replay every
   episode through the rollout engine, compare every observation, reward, done/success flag and
   recorded state exactly. steps/s = replayed env steps / wall time.
-* ``reproduce_w1`` / ``reproduce_w2``: the whole :func:`hub_envs.reproduce` (load, fingerprint,
+* ``reproduce_w1`` / ``reproduce_w2``: the whole :func:`hub_envs.reproduction` (load, fingerprint,
   replay, benchmark re-run, reports) on ``hover`` with 1 and 2 worker processes.
 
 Figures: ``replay_vs_raw`` = min over variants of replay / raw (goal >= 0.8);
@@ -64,7 +64,7 @@ def _raw(loaded, seeds: list[int], actions: list) -> float:
 
 
 def _replay(loaded) -> float:
-    from hub_envs.replay import replay_dataset
+    from hub_envs.harness.replay import replay_dataset
 
     t = time.perf_counter()
     result = replay_dataset(loaded.make, loaded.dataset_root, loaded.config.features_map, workers=1, progress=False)
@@ -108,7 +108,7 @@ def _reproduce(repo: str, workers: int, out: Path) -> float:
 def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
     """Push the example envs to a loopback Hub, then measure; return the figures."""
     from hub_envs import load_env, push_env
-    from hub_envs.dataset import read_episode_frames, read_episode_meta
+    from hub_envs.dataset.reader import read_episode_frames, read_episode_meta
     from hub_envs.testing import HubServer, hub_environment
 
     results: dict = {"cpu_count": os.cpu_count(), "repeats": repeats, "load_average_before": os.getloadavg()}

@@ -35,6 +35,7 @@ MODULES: dict[str, dict] = {
     "bench_datagen": {"repeats": 3},
     "bench_replay": {"repeats": 3},
     "bench_server": {"repeats": 3, "n_files": 100, "size_mb": 16},
+    "bench_push": {"repeats": 3},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -60,6 +61,10 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "cli_help_vs_python": ("bench_startup", None, "hub-envs --help ÷ python -c pass"),
     "server_download_mb_s": ("bench_download", None, "MiB/s to 8 concurrent snapshot_downloads"),
     "server_errors": ("bench_download", (EQ, 0), "failed or corrupt downloads among them"),
+    "push_build_s_pendulum": ("bench_push", None, "seconds: push's local work (checks, dataset, card), pendulum, 10 eps"),
+    "push_build_s_hover": ("bench_push", None, "  same, hover"),
+    "push_env_constructions_pendulum": ("bench_push", None, "env objects built during that push, pendulum"),
+    "push_env_constructions_hover": ("bench_push", None, "  same, hover"),
 }
 
 

@@ -26,17 +26,18 @@ _EXPORTS = {
     "untrust": "hub_envs.trust_list",
     "is_trusted": "hub_envs.trust_list",
     "Manifest": "hub_envs.repo_format",
-    "reproduce": "hub_envs.reproduce",
-    "env_from_dataset": "hub_envs.reproduce",
+    "reproduce": "hub_envs.reproduction",
+    "env_from_dataset": "hub_envs.from_dataset",
 }
 
 __all__ = sorted(_EXPORTS) + ["errors", "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover
+    from hub_envs.from_dataset import env_from_dataset  # noqa: F401
     from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401
-    from hub_envs.reproduce import env_from_dataset, reproduce  # noqa: F401
+    from hub_envs.reproduction import reproduce  # noqa: F401
     from hub_envs.trust_list import is_trusted, trust, untrust  # noqa: F401
 
 

@@ -188,6 +188,41 @@ def lerobot_dataset_io():
     return module
 
 
+def lerobot_dataset_layout() -> dict[str, Any]:
+    """The v3.0 layout constants of the installed lerobot, under the names :mod:`hub_envs.dataset.layout` uses.
+
+    hub-envs keeps its own copy (the file format is a contract its writer and reader must not change
+    silently with an upgrade); ``tests/test_dataset.py`` compares the two on every stack. ``CODEBASE_VERSION``
+    lives in ``lerobot_dataset`` up to 0.4 and ``dataset_metadata`` from 0.5; ``DEFAULT_FEATURES`` in
+    ``datasets.utils`` up to 0.4 and ``utils.constants`` from 0.5.
+    """
+    from lerobot.datasets import utils
+
+    try:
+        from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
+    except ImportError:
+        from lerobot.datasets.lerobot_dataset import CODEBASE_VERSION
+    try:
+        from lerobot.utils.constants import DEFAULT_FEATURES
+    except ImportError:
+        from lerobot.datasets.utils import DEFAULT_FEATURES
+    return {
+        "CODEBASE_VERSION": CODEBASE_VERSION,
+        "DEFAULT_CHUNK_SIZE": utils.DEFAULT_CHUNK_SIZE,
+        "DEFAULT_DATA_FILE_SIZE_IN_MB": utils.DEFAULT_DATA_FILE_SIZE_IN_MB,
+        "DEFAULT_VIDEO_FILE_SIZE_IN_MB": utils.DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+        "INFO_PATH": utils.INFO_PATH,
+        "STATS_PATH": utils.STATS_PATH,
+        "TASKS_PATH": utils.DEFAULT_TASKS_PATH,
+        "EPISODES_DIR": utils.EPISODES_DIR,
+        "DATA_DIR": utils.DATA_DIR,
+        "CHUNK_FILE_PATTERN": utils.CHUNK_FILE_PATTERN,
+        "EPISODES_PATH": utils.DEFAULT_EPISODES_PATH,
+        "DATA_PATH": utils.DEFAULT_DATA_PATH,
+        "DEFAULT_FEATURES": {k: {**v, "shape": list(v["shape"])} for k, v in DEFAULT_FEATURES.items()},
+    }
+
+
 def tasks_index_name() -> str | None:
     """The name of ``meta/tasks.parquet``'s index (the task strings) as the installed LeRobot writes it:
     unnamed in 0.4 (stored as ``__index_level_0__``), ``"task"`` from 0.5. Both read back the same."""

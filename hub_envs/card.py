@@ -14,11 +14,11 @@ from __future__ import annotations
 import inspect
 import re
 from pathlib import Path
-from typing import Any
 
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from hub_envs.errors import InvalidRepoFormatError
+from hub_envs.repo_format import Manifest
 
 TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"]
 
@@ -76,17 +76,17 @@ def describe_space(space) -> str:
     return str(space)
 
 
-def render_card(
-    *, repo_id: str, manifest: dict[str, Any], env_class: type, env, content_tag: str, license: str | None = None
-) -> str:
-    """Render README.md for a repo about to be published (``manifest`` as a dict, files not final yet).
+def render_card(manifest: Manifest, *, env_class: type, env, content_tag: str, license: str | None = None) -> str:
+    """Render README.md for a repo about to be published, from its manifest (``files`` not final yet: the
+    card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
     claims none.
     """
 
-    config = manifest["config"]
-    dataset = manifest["dataset"]
+    repo_id = manifest.repo_id
+    config = manifest.config
+    dataset = manifest.dataset
     ds_features = dataset.get("features", {})
     features = []
     for name, feat in config.get("features", {}).items():
@@ -100,13 +100,13 @@ def render_card(
                 "dtype": ds_features.get(key, {}).get("dtype", "-"),
             }
         )
-    benchmarks = list(manifest.get("benchmarks", []))
+    benchmarks = list(manifest.benchmarks)
     eval_results = [
         EvalResult(
             task_type="reinforcement-learning",
             task_name="reinforcement-learning",
             dataset_type=repo_id,
-            dataset_name=manifest["name"],
+            dataset_name=manifest.name,
             metric_type=metric,
             metric_name=f"{metric} ({b['policy']['type']} policy)",
             metric_value=float(value),
@@ -117,7 +117,7 @@ def render_card(
     ]
     card_data = ModelCardData(
         library_name="hub-envs",
-        tags=TAGS + [manifest["name"]],
+        tags=TAGS + [manifest.name],
         model_name=repo_id,
         eval_results=eval_results or None,
         license=license,
@@ -128,17 +128,17 @@ def render_card(
     card = ModelCard.from_template(
         card_data,
         template_path=str(template_path()),
-        title=f"{manifest['name']} — a hub-envs environment",
-        description=manifest.get("description") or "A gymnasium environment in LeRobot's format, shared with hub-envs.",
+        title=f"{manifest.name} — a hub-envs environment",
+        description=manifest.description or "A gymnasium environment in LeRobot's format, shared with hub-envs.",
         gif_path="media/rollout.gif",
         gif_caption="Random-action rollouts",
         repo_id=repo_id,
         content_tag=content_tag,
-        content_digest=manifest["content_digest"],
+        content_digest=manifest.content_digest,
         task=config.get("task"),
         fps=config.get("fps"),
         episode_length=config.get("episode_length"),
-        requirements_text=", ".join(f"`{r}`" for r in manifest.get("requirements", [])) or "none beyond hub-envs",
+        requirements_text=", ".join(f"`{r}`" for r in manifest.requirements) or "none beyond hub-envs",
         features=features,
         observation_space=describe_space(env.observation_space),
         action_space=describe_space(env.action_space),
@@ -147,8 +147,8 @@ def render_card(
         dataset=dataset,
         seeds_text=seeds_text,
         benchmarks=benchmarks,
-        fingerprint_digest=manifest.get("fingerprint", {}).get("digest", "-"),
-        versions=manifest.get("versions", {}),
-        processors=list(manifest.get("processors", [])),
+        fingerprint_digest=manifest.fingerprint.get("digest", "-"),
+        versions=manifest.versions,
+        processors=list(manifest.processors),
     )
     return str(card)

@@ -62,7 +62,16 @@ class LoadArgs:
 
 
 def serve(args: ServeArgs) -> int:
-    from hub_envs.server import run
+    from hub_envs.errors import MissingRequirementsError
+
+    try:
+        from hub_envs.server import run
+    except ModuleNotFoundError as exc:
+        if exc.name not in ("starlette", "uvicorn"):
+            raise
+        raise MissingRequirementsError(
+            f"hub-envs serve needs {exc.name}, which is not installed. Install the server extra: pip install 'hub-envs[server]'"
+        ) from None
 
     run(
         root=args.root,
@@ -177,9 +186,9 @@ RAW_COMMANDS = {
 #: Commands whose modules import lerobot and torch: imported only when the command runs, never for
 #: ``--help`` or the light commands above (each module has a ``CLI_COMMANDS`` table).
 LAZY_COMMANDS = {
-    "reproduce": "hub_envs.reproduce",
-    "train": "hub_envs.lerobot_bridge",
-    "eval": "hub_envs.lerobot_bridge",
+    "reproduce": "hub_envs.reproduction",
+    "train": "hub_envs.lerobot.bridge",
+    "eval": "hub_envs.lerobot.bridge",
 }
 SUMMARIES = {
     "serve": "run the loopback Hub-protocol server",

@@ -125,3 +125,15 @@ class HostileResponseError(HubError, IntegrityError):
 
 class ConcurrentPushError(HubError):
     """The repo's main moved while push_env was preparing its commit (another push landed first); nothing was written."""
+
+
+# --- warnings ---------------------------------------------------------------------------------
+
+
+class HubEnvsWarning(UserWarning):
+    """Base class of every warning hub-envs gives on purpose."""
+
+
+class StatesNotRecordedWarning(HubEnvsWarning):
+    """The env has ``get_state()`` but what it returns cannot be recorded, so the dataset has no simulator
+    states and a replay cannot restore a step (see :mod:`hub_envs.dataset.states`)."""

@@ -24,14 +24,12 @@ Example:
 
 from __future__ import annotations
 
-import json
-import re
 from pathlib import Path
 from typing import Any
 
 from hub_envs import hub_io
 from hub_envs._text import safe_text
-from hub_envs.dataset import dataset_fingerprint, read_info
+from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
 from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
@@ -74,17 +72,6 @@ def _env_repo_id(value: Any, dataset_root: Path) -> str:
     return repo_id
 
 
-def _snapshot_origin(folder: Path) -> tuple[str, str] | None:
-    """(repo_id, sha) when ``folder`` is a huggingface_hub cache snapshot of a model repo."""
-    sha, snapshots, repo_dir = folder.name, folder.parent, folder.parent.parent
-    if snapshots.name != "snapshots" or not re.fullmatch(r"[0-9a-f]{40}", sha):
-        return None
-    kind, _, name = repo_dir.name.partition("--")
-    if kind != "models" or not name:
-        return None
-    return name.replace("--", "/"), sha
-
-
 def locate_dataset(
     path_or_repo_id: str | Path, *, revision: str | None = None, token: str | None = None
 ) -> tuple[Path, tuple[str, str] | None]:
@@ -98,7 +85,9 @@ def locate_dataset(
             raise ReproductionError(
                 f"{path} is neither a LeRobot dataset folder (meta/info.json) nor an env repo with a dataset/."
             )
-        origin = _snapshot_origin(path.parent) if path.name == DATASET_DIR and (path.parent / MANIFEST_FILE).is_file() else None
+        origin = (
+            hub_io.snapshot_origin(path.parent) if path.name == DATASET_DIR and (path.parent / MANIFEST_FILE).is_file() else None
+        )
         return path, origin
     repo_id, at_rev = hub_io.parse_repo_ref(str(path_or_repo_id))
     revision = revision or at_rev
@@ -215,8 +204,3 @@ def env_from_dataset(
         loaded.unregister()
         raise
     return loaded
-
-
-def env_meta_json(dataset_root: str | Path) -> str:
-    """``env_meta`` as pretty JSON (for printing)."""
-    return json.dumps(read_env_meta(dataset_root), indent=2, sort_keys=True)

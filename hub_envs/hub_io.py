@@ -159,9 +159,37 @@ def api(token: str | None = None) -> HfApi:
     return HfApi(endpoint=constants.ENDPOINT, token=token)
 
 
-def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) -> Path:
+def cache_snapshots_dir(repo_id: str, cache_dir: str | Path | None = None) -> Path:
+    """The ``snapshots/`` folder of ``repo_id`` in the HF cache (huggingface_hub's own naming; may not exist).
+
+    The one place hub-envs names a cache path: everything else asks ``snapshot_download`` /
+    ``try_to_load_from_cache`` or goes through here.
+    """
+    from huggingface_hub.file_download import repo_folder_name
+
     cache = Path(cache_dir or constants.HF_HUB_CACHE)
-    return cache / f"models--{repo_id.replace('/', '--')}" / "snapshots" / sha
+    return cache / repo_folder_name(repo_id=repo_id, repo_type=REPO_TYPE) / "snapshots"
+
+
+def snapshot_origin(folder: Path) -> tuple[str, str] | None:
+    """(repo_id, sha) when ``folder`` is a snapshot folder of a model repo in an HF cache, else None.
+
+    >>> snapshot_origin(Path("/c/models--alice--tiny/snapshots/" + "a" * 40))
+    ('alice/tiny', 'aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa')
+    >>> snapshot_origin(Path("/tmp/tiny")) is None
+    True
+    """
+    sha, snapshots, repo_dir = folder.name, folder.parent, folder.parent.parent
+    if snapshots.name != "snapshots" or not is_commit_sha(sha):
+        return None
+    kind, _, name = repo_dir.name.partition("--")
+    if kind != "models" or not name:
+        return None
+    return name.replace("--", "/"), sha
+
+
+def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) -> Path:
+    return cache_snapshots_dir(repo_id, cache_dir) / sha
 
 
 @contextlib.contextmanager
@@ -422,9 +450,3 @@ def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None
         return []
     with translate_hub_errors(repo_id, sha):
         return api(token).list_repo_files(repo_id, revision=sha, repo_type=REPO_TYPE)
-
-
-def hf_token() -> str | None:
-    from huggingface_hub import get_token
-
-    return os.environ.get("HF_TOKEN") or get_token()

@@ -32,7 +32,6 @@ from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationCo
 from hub_envs.repo_format import ENTRY_POINT_RE, safe_text
 
 ROOT_PACKAGE = "hub_envs_code"
-_ENTRY_POINT_RE = ENTRY_POINT_RE
 
 
 def module_key(*parts: str) -> str:
@@ -149,7 +148,7 @@ def forget_env_folder(key: str) -> None:
 
 def parse_entry_point(entry_point: str, *, where: str = "the manifest") -> tuple[str, str]:
     """Split ``"module:Attr"`` into its parts, or raise a precise error."""
-    m = _ENTRY_POINT_RE.match(entry_point or "")
+    m = ENTRY_POINT_RE.match(entry_point or "")
     if not m:
         raise InvalidRepoFormatError(
             f"Entry point {entry_point!r} in {where} is not of the form 'module:Attribute' "

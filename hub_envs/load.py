@@ -31,8 +31,7 @@ import gymnasium as gym
 
 from hub_envs import check_cache, hub_io, registration, trust_list
 from hub_envs._text import safe_text
-from hub_envs.checks import verify_fingerprint
-from hub_envs.dataset import read_info
+from hub_envs.dataset.reader import read_info
 from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.errors import (
     ConfigError,
@@ -47,9 +46,10 @@ from hub_envs.errors import (
     RegistrationConflictError,
     UntrustedCodeError,
 )
-from hub_envs.features import FeatureReport, check_features
+from hub_envs.harness.checks import verify_fingerprint
+from hub_envs.harness.features import FeatureReport, check_features
+from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
-from hub_envs.provenance import describe_differences, package_versions, version_differences
 from hub_envs.repo_format import (
     DATASET_DIR,
     MANIFEST_FILE,

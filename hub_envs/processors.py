@@ -58,6 +58,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from hub_envs._compat import processor_step_names
 from hub_envs.errors import HubEnvsError, ProcessorError
+from hub_envs.harness.benchmark import policy_observation
 
 STAGES = ("pre", "post")
 FIELDS = ("name", "entry_point", "kwargs", "stage")
@@ -323,16 +324,6 @@ def build_pipelines(specs: list[ProcessorSpec], **kwargs) -> tuple[PolicyProcess
         PolicyProcessorPipeline(steps=pre, name="hub_envs_env_preprocessor"),
         PolicyProcessorPipeline(steps=post, name="hub_envs_env_postprocessor"),
     )
-
-
-def policy_observation(env_observation: dict, task: str | None = "") -> dict:
-    """What LeRobot's eval loop gives the env preprocessor for one (unbatched) env observation."""
-    from lerobot.envs.utils import preprocess_observation
-
-    batched = {k: (np.asarray(v)[None] if not isinstance(v, dict) else v) for k, v in env_observation.items()}
-    obs = preprocess_observation(batched)
-    obs["task"] = [task or ""]
-    return obs
 
 
 def dry_run(

@@ -23,7 +23,8 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,21 +32,24 @@ import numpy as np
 
 from hub_envs import hub_io
 from hub_envs.card import render_card
-from hub_envs.checks import check_determinism, golden_fingerprint, run_env_checker
-from hub_envs.dataset import (
+from hub_envs.dataset.reader import dataset_fingerprint, read_info
+from hub_envs.dataset.states import STATES_PATH, unrecordable_reason, write_env_states
+from hub_envs.dataset.writer import (
+    DatasetSummary,
     EpisodeFrames,
     dataset_features_from_config,
-    dataset_fingerprint,
     rollout_to_frames,
     write_lerobot_dataset,
 )
 from hub_envs.envconfig import encode_config
-from hub_envs.errors import ConfigError, EnvFolderError
-from hub_envs.features import check_features
+from hub_envs.errors import ConfigError, EnvFolderError, StatesNotRecordedWarning
+from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
+from hub_envs.harness.features import check_features
+from hub_envs.harness.media import write_rollout_gif
+from hub_envs.harness.provenance import package_versions
+from hub_envs.harness.rollout import iter_episodes
 from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
-from hub_envs.media import write_rollout_gif
-from hub_envs.provenance import package_versions
 from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
@@ -60,8 +64,6 @@ from hub_envs.repo_format import (
     list_files,
 )
 from hub_envs.repo_format import code_digest as code_digest_of_files
-from hub_envs.rollout import iter_episodes
-from hub_envs.states import STATES_PATH, write_env_states
 
 ENTRY_TEMPLATE = Path(__file__).resolve().parent / "templates" / "env_entry.py"
 
@@ -114,6 +116,11 @@ def _random_benchmark(returns: list[float], successes: list[bool], seeds: list[i
     }
 
 
+def _has_get_state(loaded: LoadedEnv) -> bool:
+    """Whether the env offers the simulator-state contract (:class:`hub_envs.dataset.states.SupportsSimulatorState`)."""
+    return callable(getattr(loaded.env_class, "get_state", None))
+
+
 def env_meta(loaded: LoadedEnv, repo_id: str, code_digest: str) -> dict[str, Any]:
     """robomimic-style env_meta stored in the dataset: enough to rebuild exactly the env the data came from.
 
@@ -130,6 +137,162 @@ def env_meta(loaded: LoadedEnv, repo_id: str, code_digest: str) -> dict[str, Any
     }
 
 
+@dataclass
+class _DatasetRun:
+    """What the one rollout pass of a push produced besides the dataset files."""
+
+    summary: DatasetSummary
+    digest: str  # dataset fingerprint, recorded simulator states included
+    has_states: bool
+    returns: list[float]
+    successes: list[bool]
+    golden: dict[str, Any]  # the golden-rollout fingerprint, from the first episodes
+
+
+def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int, where: str) -> Any:
+    """Stage 1: gymnasium's checker, the live half of the three-way feature check, determinism.
+
+    Returns the env it checked (open): the dataset half of the feature check and the card reuse it.
+    """
+    cfg = loaded.config
+    check_determinism(loaded.make, seed=seed, steps=min(determinism_steps, int(cfg.episode_length)), where=where)
+    raw = loaded.env_class(**cfg.gym_kwargs)  # no spec: gymnasium's checker would re-make a spec'd env per render mode
+    try:
+        run_env_checker(raw, where=where)
+    finally:
+        raw.close()
+    env = loaded.make()
+    try:
+        check_features(cfg, env, None, seed=seed, where=where).raise_if_mismatch(where)
+    except BaseException:
+        env.close()
+        raise
+    return env
+
+
+def _write_code(loaded: LoadedEnv, staging: Path, repo_id: str) -> str:
+    """Stage 2: the env's own files and the generated ``env.py``; returns the code digest."""
+    check_publishable(loaded.local_folder)  # no symlink out of the folder, no compiled files
+    for rel in list_files(loaded.local_folder):
+        dest = staging / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(loaded.local_folder / rel, dest)
+    (staging / ENV_ENTRY_FILE).write_text(
+        ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8"
+    )
+    return code_digest_of_files(hash_files(staging, list_files(staging)))
+
+
+def _generate_dataset(
+    loaded: LoadedEnv,
+    staging: Path,
+    *,
+    repo_id: str,
+    seeds: list[int],
+    workers: int,
+    code_digest: str,
+    fingerprint_seeds: int,
+    where: str,
+    progress: bool,
+) -> _DatasetRun:
+    """Stage 3, the one rollout pass: the dataset, its simulator states, the random-policy returns and the
+    golden-rollout fingerprint (its seeds are the first dataset episodes; no second rollout of them)."""
+    cfg = loaded.config
+    returns: list[float] = []
+    successes: list[bool] = []
+    env_states: dict[int, Any] = {}  # env.get_state() before each action, for exact replay (hub_envs.dataset.states)
+    states_problem: list[str] = []
+    first: list[Any] = []  # the fingerprint's episodes
+
+    def frames():
+        for rollout in iter_episodes(
+            loaded.make,
+            seeds,
+            max_steps=int(cfg.episode_length),
+            workers=workers,
+            progress=progress,
+            desc=f"Generating {len(seeds)} episodes",
+            record_states=True,
+        ):
+            env_states[rollout.index] = rollout.states
+            if rollout.states_problem and not states_problem:
+                states_problem.append(f"episode {rollout.index}: {rollout.states_problem}")
+            returns.append(float(np.sum(rollout.rewards)))
+            successes.append(bool(np.any(rollout.is_success)))
+            if rollout.index < fingerprint_seeds:
+                first.append(episode_prefix(rollout, FINGERPRINT_STEPS))
+            yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
+
+    summary = write_lerobot_dataset(
+        staging / DATASET_DIR,
+        repo_id=repo_id,
+        fps=int(cfg.fps),
+        features=dataset_features_from_config(cfg),
+        episodes=frames(),
+        task=str(cfg.task),
+        extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
+        progress=False,  # the rollout bar above already counts episodes
+    )
+    has_states = write_env_states(staging / DATASET_DIR, env_states)
+    if _has_get_state(loaded) and not has_states:
+        reason = states_problem[0] if states_problem else unrecordable_reason(env_states)
+        warnings.warn(
+            f"{where}: no simulator states recorded: {reason}. Replays of this dataset cannot restore a step with "
+            "reset_to(); return one numeric array of a fixed shape from get_state() (hub_envs.dataset.states).",
+            StatesNotRecordedWarning,
+            stacklevel=4,
+        )
+    return _DatasetRun(
+        summary=summary,
+        digest=dataset_fingerprint(staging / DATASET_DIR) if has_states else summary.fingerprint,
+        has_states=has_states,
+        returns=returns,
+        successes=successes,
+        golden=fingerprint_of(first, steps=min(FINGERPRINT_STEPS, int(cfg.episode_length))),
+    )
+
+
+def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _DatasetRun, seed: int) -> Manifest:
+    """Stage 4: the manifest of what was built, but ``files`` and ``content_digest`` (they cover the card too)."""
+    summary = run.summary
+    seeds = list(summary.seeds)
+    return Manifest(
+        repo_id=repo_id,
+        name=loaded.manifest.name,
+        version=loaded.manifest.version,
+        description=loaded.manifest.description,
+        env_entry_point=loaded.manifest.env_entry_point,
+        config_entry_point=loaded.manifest.config_entry_point,
+        gym_id=repo_id,
+        env_type=repo_id,
+        requirements=tuple(loaded.manifest.requirements),
+        config=encode_config(loaded.config),
+        dataset={
+            "path": DATASET_DIR,
+            "fingerprint": run.digest,
+            "env_states": STATES_PATH if run.has_states else None,
+            "episodes": summary.episodes,
+            "frames": summary.frames,
+            "fps": summary.fps,
+            "seeds": seeds,
+            "return_mean": summary.return_mean,
+            "return_std": summary.return_std,
+            "return_min": summary.return_min,
+            "return_max": summary.return_max,
+            "success_rate": summary.success_rate,
+            "features": dataset_features_from_config(loaded.config),
+        },
+        fingerprint=run.golden,
+        code_digest=code_digest,
+        seeds={"dataset": seeds, "check": seed, "fingerprint": run.golden["seeds"]},
+        versions=package_versions(loaded.manifest.requirements),
+        benchmarks=(_random_benchmark(run.returns, run.successes, seeds),),
+        processors=tuple(loaded.manifest.processors),
+        files={},
+        content_digest="",
+    )
+
+
 def build_repo(
     loaded: LoadedEnv,
     staging: Path,
@@ -142,138 +305,47 @@ def build_repo(
     fingerprint_seeds: int = 3,
     progress: bool = True,
 ) -> Manifest:
-    """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``."""
+    """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
+
+    The stages, in order: check the env (:func:`_check_env`), copy the code (:func:`_write_code`), the one
+    rollout pass (:func:`_generate_dataset`: dataset, states, returns, fingerprint), the dataset half of the
+    feature check, the GIF, the manifest and the card. Returns the manifest it wrote (validated as load_env
+    validates it).
+    """
     where = f"{loaded.local_folder} (for {repo_id})"
     cfg = loaded.config
-    timings: dict[str, float] = {}
-
     say = _stage_printer(progress)
-    say(f"Checking {loaded.local_folder.name}: gymnasium check_env, three-way features, determinism")
-    t = time.perf_counter()
-    raw = loaded.env_class(**cfg.gym_kwargs)
+    say(f"Checking {loaded.local_folder.name}: determinism, gymnasium check_env, three-way features")
+    env = _check_env(loaded, seed=seed, determinism_steps=determinism_steps, where=where)
     try:
-        run_env_checker(raw, where=where)
-    finally:
-        raw.close()
-    env = loaded.make()
-    try:
-        check_features(cfg, env, None, seed=seed, where=where).raise_if_mismatch(where)
-    finally:
-        env.close()
-    check_determinism(loaded.make, seed=seed, steps=min(determinism_steps, int(cfg.episode_length)), where=where)
-    timings["checks"] = time.perf_counter() - t
-
-    # -- code --
-    check_publishable(loaded.local_folder)  # no symlink out of the folder, no compiled files
-    for rel in list_files(loaded.local_folder):
-        dest = staging / rel
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(loaded.local_folder / rel, dest)
-    (staging / ENV_ENTRY_FILE).write_text(
-        ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8"
-    )
-    code_digest = code_digest_of_files(hash_files(staging, list_files(staging)))
-
-    # -- dataset --
-    say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps, {workers} worker(s)")
-    t = time.perf_counter()
-    seeds = [seed + i for i in range(episodes)]
-    features = dataset_features_from_config(cfg)
-    returns: list[float] = []
-    successes: list[bool] = []
-    env_states: dict[int, Any] = {}  # env.get_state() before each action, for exact replay (hub_envs.states)
-
-    def frames():
-        for rollout in iter_episodes(
-            loaded.make,
-            seeds,
-            max_steps=int(cfg.episode_length),
+        code_digest = _write_code(loaded, staging, repo_id)
+        say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps, {workers} worker(s)")
+        run = _generate_dataset(
+            loaded,
+            staging,
+            repo_id=repo_id,
+            seeds=[seed + i for i in range(episodes)],
             workers=workers,
+            code_digest=code_digest,
+            fingerprint_seeds=fingerprint_seeds,
+            where=where,
             progress=progress,
-            desc=f"Generating {episodes} episodes",
-            record_states=True,
-        ):
-            env_states[rollout.index] = rollout.states
-            returns.append(float(np.sum(rollout.rewards)))
-            successes.append(bool(np.any(rollout.is_success)))
-            yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
-
-    summary = write_lerobot_dataset(
-        staging / DATASET_DIR,
-        repo_id=repo_id,
-        fps=int(cfg.fps),
-        features=features,
-        episodes=frames(),
-        task=str(cfg.task),
-        extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
-        progress=False,  # the rollout bar above already counts episodes
-    )
-    has_states = write_env_states(staging / DATASET_DIR, env_states)
-    dataset_digest = dataset_fingerprint(staging / DATASET_DIR) if has_states else summary.fingerprint
-    timings["dataset"] = time.perf_counter() - t
-
-    env = loaded.make()
-    try:
-        import json
-
-        info = json.loads((staging / DATASET_DIR / "meta" / "info.json").read_text())
-        check_features(cfg, env, info["features"], seed=seed, where=where).raise_if_mismatch(where)
-        # -- fingerprint, GIF --
-        say("Recording the golden-rollout fingerprint, rendering the GIF and the card")
-        fp = golden_fingerprint(loaded.make, seeds=seeds[:fingerprint_seeds], steps=min(32, int(cfg.episode_length)))
+        )
+        check_features(cfg, env, read_info(staging / DATASET_DIR)["features"], seed=seed, where=where).raise_if_mismatch(where)
+        say("Rendering the GIF and the card")
+        seeds = list(run.summary.seeds)
         write_rollout_gif(
             loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length))
         )
-        manifest_dict: dict[str, Any] = {
-            "format_version": 1,
-            "repo_id": repo_id,
-            "name": loaded.manifest.name,
-            "version": loaded.manifest.version,
-            "description": loaded.manifest.description,
-            "env_entry_point": loaded.manifest.env_entry_point,
-            "config_entry_point": loaded.manifest.config_entry_point,
-            "gym_id": repo_id,
-            "env_type": repo_id,
-            "requirements": list(loaded.manifest.requirements),
-            "config": encode_config(cfg),
-            "dataset": {
-                "path": DATASET_DIR,
-                "fingerprint": dataset_digest,
-                "env_states": STATES_PATH if has_states else None,
-                "episodes": summary.episodes,
-                "frames": summary.frames,
-                "fps": summary.fps,
-                "seeds": list(summary.seeds),
-                "return_mean": summary.return_mean,
-                "return_std": summary.return_std,
-                "return_min": summary.return_min,
-                "return_max": summary.return_max,
-                "success_rate": summary.success_rate,
-                "features": features,
-            },
-            "fingerprint": fp,
-            "code_digest": code_digest,
-            "seeds": {"dataset": seeds, "check": seed, "fingerprint": fp["seeds"]},
-            "versions": package_versions(loaded.manifest.requirements),
-            "benchmarks": [_random_benchmark(returns, successes, seeds)],
-            "processors": list(loaded.manifest.processors),
-        }
-        files = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE)))
-        manifest_dict["content_digest"] = content_digest(files)
-        (staging / CARD_FILE).write_text(
-            render_card(
-                repo_id=repo_id,
-                manifest=manifest_dict,
-                env_class=loaded.env_class,
-                env=env,
-                content_tag=content_tag(manifest_dict["content_digest"]),
-            ),
-            encoding="utf-8",
+        manifest = _draft_manifest(loaded, repo_id=repo_id, code_digest=code_digest, run=run, seed=seed)
+        manifest = replace(
+            manifest, content_digest=content_digest(hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE))))
         )
+        card = render_card(manifest, env_class=loaded.env_class, env=env, content_tag=content_tag(manifest.content_digest))
+        (staging / CARD_FILE).write_text(card, encoding="utf-8")
     finally:
         env.close()
-    manifest_dict["files"] = hash_files(staging, list_files(staging, skip=(MANIFEST_FILE,)))
-    manifest = Manifest.from_dict(manifest_dict)
+    manifest = replace(manifest, files=hash_files(staging, list_files(staging, skip=(MANIFEST_FILE,)))).validated(where=where)
     (staging / MANIFEST_FILE).write_text(manifest.to_json(), encoding="utf-8")
     return manifest
 

@@ -23,6 +23,13 @@ file                   what it holds                                            
 
 A *local env folder* (what an author writes) is the first two rows only.
 
+**Format versions.** ``hub_env.json`` is :class:`Manifest`; its fields and their types are the schema (validation
+is driven by the dataclass). A field is only ever added with a new ``format_version``. A reader accepts the
+versions up to its own and refuses a newer one with the hub-envs version that wrote it and the pip line
+that reads it (ignoring a field it does not know, e.g. a new integrity check, would be unsafe); an unknown
+field at a known version is a hand-edited manifest and is refused too. Older versions keep loading: a new
+field gets a default that means what the older format meant.
+
 Example:
     >>> from hub_envs.repo_format import Manifest, MANIFEST_FILE
     >>> MANIFEST_FILE
@@ -36,7 +43,7 @@ import json
 import os
 import re
 import tomllib
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -329,6 +336,80 @@ def _check_fingerprint_and_seeds(data: dict, where: str) -> None:
         raise ManifestError(f"{where}: seeds.check must be a non-negative int, got {seeds['check']!r}. {_REPUBLISH}")
 
 
+def _json_kind(annotation: Any) -> tuple[type, ...]:
+    """The JSON value types a manifest field of this (resolved) annotation may hold."""
+    import types
+    import typing
+
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        return tuple(k for arg in typing.get_args(annotation) for k in _json_kind(arg))
+    base = origin or annotation
+    if base is type(None):
+        return (type(None),)
+    return {str: (str,), int: (int,), dict: (dict,), tuple: (list,), list: (list,)}.get(base, (object,))
+
+
+def _check_field_types(cls: type, data: dict, where: str) -> None:
+    """Unknown, missing and mistyped fields, driven by the dataclass's own fields and annotations."""
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        writer = data.get("versions", {}).get("hub-envs") if isinstance(data.get("versions"), dict) else None
+        by = f"hub-envs {safe_text(str(writer))}" if writer else "an unknown writer"
+        raise ManifestError(
+            f"{where}: unknown field(s) {[safe_text(u) for u in unknown]} for format_version {FORMAT_VERSION} (written by "
+            f"{by}). Fields are only ever added with a new format_version, so this manifest was edited by hand or "
+            f"written by a hub-envs that did not follow the format. {_REPUBLISH}"
+        )
+    missing = [name for name, f in known.items() if f.default is MISSING and f.default_factory is MISSING and name not in data]
+    if missing:
+        raise ManifestError(f"{where}: missing field(s) {missing}. Re-publish with push_env, which writes them all.")
+    for name, value in data.items():
+        kinds = _json_kind(hints[name])
+        ok = isinstance(value, kinds) and not (isinstance(value, bool) and bool not in kinds and int in kinds)
+        if not ok:
+            wanted = _FIELD_SHAPES.get(name) or " or ".join(_JSON_NAMES.get(k, k.__name__) for k in kinds)
+            raise ManifestError(f"{where}: field {name!r} must be {wanted}, got {type(value).__name__}. {_REPUBLISH}")
+
+
+#: What to tell an author about a field whose type is wrong, where the type name alone says too little.
+_FIELD_SHAPES = {"requirements": "a list of requirement strings such as 'pybullet>=3.2'"}
+_JSON_NAMES = {str: "a string", int: "an integer", dict: "an object", list: "a list", type(None): "null"}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_benchmark(entry: dict, where: str) -> None:
+    """A ``benchmarks`` entry (what push_env writes and ``hub-envs reproduce`` re-runs), checked before it is used."""
+    name, policy, episodes = entry.get("name"), entry.get("policy"), entry.get("episodes")
+    if not (isinstance(name, str) and name):
+        raise ManifestError(f"{where}: 'name' must be a non-empty string. {_REPUBLISH}")
+    if not (isinstance(policy, dict) and isinstance(policy.get("type"), str)):
+        raise ManifestError(f"{where}: 'policy' must be an object with a string 'type' (e.g. \"random\"). {_REPUBLISH}")
+    if not (_is_int(episodes) and episodes > 0):
+        raise ManifestError(f"{where}: 'episodes' must be a positive int. {_REPUBLISH}")
+    seeds = entry.get("seeds")
+    if not (isinstance(seeds, list) and len(seeds) == episodes and all(_is_int(x) and x >= 0 for x in seeds)):
+        raise ManifestError(f"{where}: 'seeds' must list one non-negative int per episode ({episodes}). {_REPUBLISH}")
+    metrics = entry.get("metrics")
+    if not (isinstance(metrics, dict) and metrics and all(isinstance(k, str) and _is_number(v) for k, v in metrics.items())):
+        raise ManifestError(f"{where}: 'metrics' must map metric names to numbers. {_REPUBLISH}")
+    tolerance = entry.get("tolerance", {})
+    if not (isinstance(tolerance, dict) and all(k in metrics and _is_number(v) and v >= 0 for k, v in tolerance.items())):
+        raise ManifestError(f"{where}: 'tolerance' must map metrics it names to non-negative numbers. {_REPUBLISH}")
+    per_episode = entry.get("per_episode", {})
+    if not (isinstance(per_episode, dict) and all(isinstance(v, list) and len(v) == episodes for v in per_episode.values())):
+        raise ManifestError(f"{where}: 'per_episode' must map names to lists of one value per episode. {_REPUBLISH}")
+    if "max_steps" in entry and not (_is_int(entry["max_steps"]) and entry["max_steps"] > 0):
+        raise ManifestError(f"{where}: 'max_steps' must be a positive int. {_REPUBLISH}")
+
+
 def _newer_format_message(data: dict, version: int, where: str) -> str:
     """A manifest from a newer hub-envs: name the version that wrote it, and the upgrade that reads it."""
     from hub_envs import __version__
@@ -373,6 +454,10 @@ class Manifest:
 
     # -- (de)serialization --
 
+    def validated(self, *, where: str = MANIFEST_FILE) -> Manifest:
+        """This manifest checked as every reader checks it, so what push_env publishes is what load_env accepts."""
+        return type(self).from_dict(self.to_dict(), where=where)
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["requirements"] = list(self.requirements)
@@ -398,30 +483,7 @@ class Manifest:
                 f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); "
                 f"re-publish it with push_env."
             )
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ManifestError(f"{where}: unknown field(s) {unknown}. Fix the manifest or upgrade hub-envs.")
-        required = ("name", "env_entry_point", "config_entry_point", "gym_id", "env_type", "files", "content_digest")
-        missing = [k for k in required if k not in data]
-        if missing:
-            raise ManifestError(f"{where}: missing field(s) {missing}. Re-publish with push_env, which writes them all.")
-        for key in (
-            "name",
-            "env_entry_point",
-            "config_entry_point",
-            "gym_id",
-            "env_type",
-            "content_digest",
-            "version",
-            "description",
-            "code_digest",
-        ):
-            if key in data and not isinstance(data[key], str):
-                raise ManifestError(f"{where}: field {key!r} must be a string, got {type(data[key]).__name__}. {_REPUBLISH}")
-        for key in ("config", "dataset", "fingerprint", "seeds", "versions"):
-            if key in data and not isinstance(data[key], dict):
-                raise ManifestError(f"{where}: field {key!r} must be an object, got {type(data[key]).__name__}. {_REPUBLISH}")
+        _check_field_types(cls, data, where)
         for key in ("env_entry_point", "config_entry_point"):
             if not ENTRY_POINT_RE.match(data[key]):
                 raise ManifestError(
@@ -457,7 +519,7 @@ class Manifest:
         if not _SHA256_RE.match(data["content_digest"]):
             raise ManifestError(f"{where}: content_digest {data['content_digest']!r} is not a sha256 hex digest. {_REPUBLISH}")
         reqs = data.get("requirements", [])
-        if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
+        if not all(isinstance(r, str) for r in reqs):
             raise ManifestError(
                 f"{where}: 'requirements' must be a list of requirement strings such as 'pybullet>=3.2'. {_REPUBLISH}"
             )
@@ -466,6 +528,8 @@ class Manifest:
             val = data.get(key, [])
             if not isinstance(val, list) or not all(isinstance(v, dict) for v in val):
                 raise ManifestError(f"{where}: {key!r} must be a list of objects. {_REPUBLISH}")
+        for i, entry in enumerate(data.get("benchmarks", [])):
+            _check_benchmark(entry, f"{where} benchmarks[{i}]")
         try:  # what to_json will write: strict JSON (no NaN/Infinity), string keys
             json.dumps(data, allow_nan=False, sort_keys=True)
         except (TypeError, ValueError) as e:

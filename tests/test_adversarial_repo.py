@@ -24,7 +24,7 @@ import pytest
 from helpers import TINY, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce
-from hub_envs.dataset import dataset_fingerprint, read_info
+from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.paths import hub_envs_home
 from hub_envs.repo_format import MANIFEST_FILE, Manifest, check_names_belong_to, content_digest, hash_files, list_files, safe_text
 

@@ -16,18 +16,11 @@ import numpy as np
 import pytest
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
-from hub_envs.dataset import (
-    EpisodeFrames,
-    dataset_features_from_config,
-    dataset_fingerprint,
-    read_episode_frames,
-    read_episode_meta,
-    read_info,
-    rollout_to_frames,
-    write_lerobot_dataset,
-)
+from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_episode_meta, read_info
+from hub_envs.dataset.stats import STATS_NOTE
+from hub_envs.dataset.writer import EpisodeFrames, dataset_features_from_config, rollout_to_frames, write_lerobot_dataset
 from hub_envs.errors import ConfigError, DatasetError, EnvCodeError
-from hub_envs.rollout import EpisodeRollout, iter_episodes, run_episodes
+from hub_envs.harness.rollout import EpisodeRollout, iter_episodes, run_episodes
 
 IMG = 16
 TASK = "Swing the pendulum up."
@@ -372,6 +365,7 @@ def test_image_dataset_matches_lerobot_own_writer(tmp_path, image_rollouts):
     assert not differing, differing
     info_a, info_b = read_info(ours), read_info(theirs)
     assert {k for k in info_a if k != "hub_envs"} == set(info_b)  # the same keys (their order changed in LeRobot 0.5)
+    assert info_a["hub_envs"]["stats"] == STATS_NOTE  # where our stats differ from LeRobot's, on purpose, said
     assert info_a["features"] == json.loads(json.dumps(info_b["features"]))
     sa, sb = (json.loads((p / "meta/stats.json").read_text()) for p in (ours, theirs))
     assert sa.keys() == sb.keys()
@@ -381,6 +375,15 @@ def test_image_dataset_matches_lerobot_own_writer(tmp_path, image_rollouts):
     np.testing.assert_allclose(np.ravel(sa["observation.image"]["mean"]), pixels.reshape(-1, 3).mean(0) / 255, rtol=1e-9)
     # decoding without LeRobot gives the recorded pixels
     np.testing.assert_array_equal(read_episode_frames(ours, 1)["observation.image"], image_rollouts[1].observations["pixels"])
+
+
+def test_layout_is_the_installed_lerobots():
+    """Our copy of LeRobot's v3.0 layout constants equals the installed lerobot's, name by name."""
+    from hub_envs import _compat
+    from hub_envs.dataset import layout
+
+    theirs = _compat.lerobot_dataset_layout()
+    assert {name: getattr(layout, name) for name in theirs} == theirs
 
 
 def test_same_inputs_give_byte_identical_folders(tmp_path, image_rollouts):

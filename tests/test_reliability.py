@@ -332,8 +332,20 @@ CASES: list[Case] = [
     repo_case(
         "manifest-unknown-field",
         E.ManifestError,
-        ("hub_env.json", "unknown field(s) ['surprise']", "upgrade hub-envs"),
+        ("hub_env.json", "unknown field(s) ['surprise'] for format_version 1", "edited by hand", "push_env"),
         manifest=setitem("surprise", 1),
+    ),
+    repo_case(
+        "manifest-bad-benchmark",
+        E.ManifestError,
+        ("hub_env.json", "benchmarks[0]: 'metrics' must map metric names to numbers", "push_env"),
+        manifest=lambda m: m["benchmarks"][0]["metrics"].__setitem__("mean_return", "high"),
+    ),
+    repo_case(
+        "manifest-benchmark-seeds",
+        E.ManifestError,
+        ("hub_env.json", "benchmarks[0]: 'seeds' must list one non-negative int per episode", "push_env"),
+        manifest=lambda m: m["benchmarks"][0].__setitem__("seeds", [0]),
     ),
     repo_case(
         "manifest-missing-field",
@@ -344,7 +356,7 @@ CASES: list[Case] = [
     repo_case(
         "manifest-wrong-type",
         E.ManifestError,
-        ("hub_env.json", "'gym_id' must be a string", "Re-publish"),
+        ("hub_env.json", "'gym_id' must be a string", "push_env"),
         manifest=setitem("gym_id", 5),
     ),
     repo_case(
@@ -705,8 +717,8 @@ CASES: list[Case] = [
     _push_case("push-zero-episodes", E.ConfigError, ("--episodes must be at least 1",), episodes=0),
     _push_case(
         "push-nan-observation",
-        E.EnvCheckError,
-        ("not within the observation space", "check_env(env)"),
+        E.EnvCodeError,  # the determinism check, the first to run, finds it
+        ("observation 'agent_pos' contains NaN or inf at step 0", "returned by env.reset", "Fix the env"),
         edits={"tiny.py": lambda s: s.replace(OBS, "np.array([self.pos[0], np.nan], dtype=np.float32)")},
     ),
     _push_case(
@@ -854,6 +866,24 @@ finite_json = st.recursive(
 
 
 @st.composite
+def benchmark_entries(draw):
+    """Benchmark entries as push_env writes them (repo_format._check_benchmark's shape), with any values."""
+    episodes = draw(st.integers(1, 4))
+    metrics = draw(
+        st.dictionaries(st.text(min_size=1, max_size=8), st.floats(allow_nan=False, allow_infinity=False), min_size=1, max_size=3)
+    )
+    return {
+        "name": draw(st.text(min_size=1, max_size=8)),
+        "policy": {"type": draw(st.sampled_from(["random", "lerobot"]))},
+        "episodes": episodes,
+        "seeds": draw(st.lists(st.integers(0, 2**31), min_size=episodes, max_size=episodes)),
+        "metrics": metrics,
+        "tolerance": {k: draw(st.floats(0, 1)) for k in metrics},
+        "per_episode": {"return": draw(st.lists(st.floats(-1, 1), min_size=episodes, max_size=episodes))},
+    }
+
+
+@st.composite
 def valid_manifests(draw) -> dict:
     entry = st.builds(lambda m, a: f"{m}:{a}", identifiers, identifiers)
     return {
@@ -870,7 +900,7 @@ def valid_manifests(draw) -> dict:
         ),
         "config": draw(st.dictionaries(st.text(max_size=10), finite_json, max_size=4)),
         "dataset": {"path": draw(rel_paths), "episodes": draw(st.integers(0, 100))},
-        "benchmarks": draw(st.lists(st.dictionaries(st.text(max_size=8), finite_json, max_size=3), max_size=2)),
+        "benchmarks": draw(st.lists(benchmark_entries(), max_size=2)),
         "versions": draw(st.dictionaries(st.text(max_size=8), st.text(max_size=8), max_size=3)),
     }
 

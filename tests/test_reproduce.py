@@ -20,11 +20,11 @@ import pytest
 from helpers import TINY, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
-from hub_envs.benchmark import bootstrap_ci, reproduce_benchmark
 from hub_envs.cli import main as cli_main
-from hub_envs.dataset import read_episode_frames
+from hub_envs.dataset.reader import read_episode_frames
+from hub_envs.harness.benchmark import bootstrap_ci, reproduce_benchmark
+from hub_envs.harness.replay import replay_dataset
 from hub_envs.registration import snapshot_registries
-from hub_envs.replay import replay_dataset
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"
 
@@ -537,7 +537,7 @@ def test_the_engine_runs_replayed_and_random_episodes_in_one_pass():
     """What reproduce relies on to share one worker pool: per-episode None = the seeded random policy."""
     import gymnasium as gym
 
-    from hub_envs.rollout import run_episodes
+    from hub_envs.harness.rollout import run_episodes
 
     make = lambda: gym.make("Pendulum-v1")  # noqa: E731
     random = run_episodes(make, [0, 1, 2], max_steps=40, progress=False)

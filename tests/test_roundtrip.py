@@ -216,6 +216,23 @@ def test_push_refuses_declared_shapes_that_disagree_with_rollouts(hub, tmp_path)
         load_env("alice/tiny-badshape", trust_remote_code=True)
 
 
+@pytest.mark.parametrize(
+    ("get_state", "reason"),
+    [
+        ("return {'pos': self.pos.copy()}", "returned a dict, not a numeric array"),
+        ("return np.zeros(2 + (abs(self.pos[0]) > 0.05))", "returned a value unlike step 0's"),
+    ],
+    ids=["dict", "shape-changes"],
+)
+def test_push_warns_when_get_state_cannot_be_recorded(hub, tmp_path, get_state, reason):
+    """The simulator-state contract (hub_envs.dataset.states): a get_state() that breaks it is named at push."""
+    old = "return np.concatenate([self.pos, self.vel]).astype(np.float64)"
+    folder = copy_env(tmp_path, edits={"tiny.py": lambda s: s.replace(old, get_state)})
+    with pytest.warns(errors.StatesNotRecordedWarning, match=reason):
+        result = _push(folder, f"alice/tiny-state-{len(reason)}")
+    assert result.manifest.dataset["env_states"] is None  # published without states, and said so
+
+
 def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hub):
     _push(TINY, "alice/tiny-lies")
 

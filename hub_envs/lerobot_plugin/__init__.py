@@ -6,7 +6,7 @@
 
 LeRobot's ``parser.wrap`` imports this package before it parses the other flags. Importing it
 registers the ``hub`` env choice, routes ``lerobot_train`` / ``lerobot_eval`` env creation and env
-processors for hub env configs through :mod:`hub_envs.lerobot_env`, and, for a per-repo choice
+processors for hub env configs through :mod:`hub_envs.lerobot.env`, and, for a per-repo choice
 (``--env.type=user/name@<sha12>``), loads that repo so the choice exists (trust it with
 ``hub-envs trust user/name@<sha>`` or LeRobot's ``--trust_remote_code=true``).
 ``hub-envs train`` / ``hub-envs eval`` do the same and also write provenance next to the results.
@@ -16,6 +16,6 @@ from __future__ import annotations
 
 import sys
 
-from hub_envs.lerobot_bridge import prepare_argv
+from hub_envs.lerobot.bridge import prepare_argv
 
 prepare_argv(sys.argv[1:], command="plugin")

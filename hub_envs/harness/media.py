@@ -1,7 +1,7 @@
 """Pictures of an env: a GIF of a few random-action rollouts, from ``env.render()``.
 
 Example:
-    >>> from hub_envs.media import write_rollout_gif
+    >>> from hub_envs.harness.media import write_rollout_gif
     >>> write_rollout_gif(lambda: loaded.make(), "rollout.gif", seeds=[0, 1], fps=30)   # doctest: +SKIP
 """
 
@@ -25,10 +25,11 @@ def _downscale(frame: np.ndarray) -> np.ndarray:
 
 
 def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: int, every: int = 1) -> list[np.ndarray]:
+    """Rendered frames of seeded random-action rollouts, one env reset with each seed in turn."""
     frames = []
-    for seed in seeds:
-        env = make_env()
-        try:
+    env = make_env()
+    try:
+        for seed in seeds:
             env.reset(seed=seed)
             env.action_space.seed(seed)
             for step in range(max_steps):
@@ -43,8 +44,8 @@ def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: 
                 _, _, terminated, truncated, _ = env.step(env.action_space.sample())
                 if terminated or truncated:
                     break
-        finally:
-            env.close()
+    finally:
+        env.close()
     return frames
 
 

@@ -1,7 +1,7 @@
 """Provenance: the versions of everything a result depends on, recorded and compared.
 
 Example:
-    >>> from hub_envs.provenance import package_versions
+    >>> from hub_envs.harness.provenance import package_versions
     >>> sorted(package_versions())[:3]
     ['draccus', 'gymnasium', 'hub-envs']
 """

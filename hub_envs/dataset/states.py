@@ -1,4 +1,4 @@
-"""Simulator states recorded beside a dataset: ``env.get_state()`` before every action.
+"""Simulator states: the contract an env may offer (:class:`SupportsSimulatorState`), recorded beside a dataset.
 
 A LeRobot dataset holds what a policy sees (observations, actions, rewards), not everything the
 simulator's continuation depends on. When the env has ``get_state()`` / ``reset_to(state)``,
@@ -13,12 +13,22 @@ which LeRobot's reader ignores and hub-envs' dataset fingerprint covers::
     frame_index    int64
     state          fixed_size_list<float64>[prod(state shape)]
 
+**What a state may be** (the contract, as robomimic's ``EnvBase.get_state`` / ``reset_to``): a numeric numpy
+array (bool, int, uint or float) of one fixed shape, at least 1-D, the same for every step and episode,
+holding everything the simulator's continuation depends on, and taking it changes nothing (push records
+states in the same rollouts its golden fingerprint comes from); ``reset_to(state)`` restores it so that the
+next ``step(action)`` gives what it gave when the state was taken. Values are stored as float64, so
+integers beyond 2**53 lose precision. Both methods are optional: without them a replay still compares
+every step, but cannot restore step ``t`` to tell a change in the dynamics at ``t`` from an error carried
+over. A ``get_state`` whose values cannot be recorded (a dict, a scalar, shapes that change) gives a
+:class:`~hub_envs.errors.StatesNotRecordedWarning` at push naming why, never a silent "no states".
+
 The state shape and dtype are in the schema metadata (key ``hub_envs``). Written with fixed
 parquet options, so the same states give the same bytes.
 
 Example:
     >>> import tempfile, numpy as np
-    >>> from hub_envs.states import read_env_states, write_env_states
+    >>> from hub_envs.dataset.states import read_env_states, write_env_states
     >>> root = tempfile.mkdtemp()
     >>> write_env_states(root, {0: np.zeros((3, 2)), 1: np.ones((2, 2))})
     True
@@ -32,42 +42,96 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from hub_envs.dataset.layout import STATES_PATH
 from hub_envs.errors import DatasetError
 
-__all__ = ["STATES_PATH", "write_env_states", "read_env_states", "has_env_states"]
+__all__ = ["STATES_PATH", "SupportsSimulatorState", "unrecordable_reason", "write_env_states", "read_env_states"]
 
-STATES_PATH = "meta/env_states.parquet"
 _PARQUET_OPTS = dict(compression="snappy", use_dictionary=False, write_statistics=False, version="2.6")
 
 
-def _as_state_array(states) -> np.ndarray | None:
+@runtime_checkable
+class SupportsSimulatorState(Protocol):
+    """An env (or a wrapper in front of it) whose full simulator state can be taken and restored.
+
+    >>> import numpy as np
+    >>> class Ball:
+    ...     x = np.zeros(2)
+    ...     def get_state(self): return self.x.copy()
+    ...     def reset_to(self, state): self.x = np.array(state); return {}
+    >>> isinstance(Ball(), SupportsSimulatorState)
+    True
+    """
+
+    def get_state(self) -> np.ndarray:
+        """Everything the continuation depends on, as a numeric array of a fixed shape (module docstring)."""
+        ...
+
+    def reset_to(self, state: np.ndarray) -> Any:
+        """Restore ``state`` (as ``get_state`` returned it); the next ``step`` continues from there."""
+        ...
+
+
+def _as_state_array(states: Any) -> np.ndarray | None:
     if states is None:
         return None
     arr = np.asarray(states)
-    if arr.ndim < 1 or arr.dtype.kind not in "fiub":
+    if arr.ndim < 2 or arr.dtype.kind not in "fiub":  # (T, *state shape), the state itself at least 1-D
         return None
     return arr
+
+
+def unrecordable_reason(states: Mapping[int, Any]) -> str | None:
+    """Why ``{episode_index: (T, *state shape) states}`` (as rollouts record them) cannot be written, or None.
+
+    >>> import numpy as np
+    >>> unrecordable_reason({0: np.zeros((3, 2)), 1: np.zeros((3, 2))}) is None
+    True
+    >>> unrecordable_reason({0: np.zeros((3, 2)), 1: np.zeros((3, 4))})
+    'get_state() returned arrays of different shapes ((2,) and (4,))'
+    """
+    if not states:
+        return "no episodes were recorded"
+    shapes = set()
+    for ep, value in states.items():
+        if value is None:
+            return f"episode {ep} recorded no states"
+        arr = np.asarray(value, dtype=object) if not isinstance(value, np.ndarray) else value
+        if arr.dtype.kind not in "fiub":
+            return f"get_state() returned {_describe_state(value)}, not a numeric array (episode {ep})"
+        if arr.ndim < 2:
+            return f"get_state() returned a scalar (episode {ep}); return a 1-D array instead"
+        shapes.add(tuple(arr.shape[1:]))
+    if len(shapes) > 1:
+        a, b = sorted(shapes)[:2]
+        return f"get_state() returned arrays of different shapes ({a} and {b})"
+    return None
+
+
+def _describe_state(value: Any) -> str:
+    first = value[0] if isinstance(value, (list, tuple, np.ndarray)) and len(value) else value
+    return f"a {type(first).__name__}" if not isinstance(first, np.ndarray) else f"a {first.dtype} array"
 
 
 def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | None]) -> bool:
     """Write ``{episode_index: (T, *state_shape) array}`` to ``root/meta/env_states.parquet``.
 
-    Returns False (and writes nothing) when any episode has no states or the states are not numeric
-    arrays of one shape: states are all-or-nothing, a replay must be able to rely on them.
+    Returns False (and writes nothing) when :func:`unrecordable_reason` finds a reason: states are
+    all-or-nothing, a replay must be able to rely on them.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    if unrecordable_reason(states) is not None:
+        return False
     arrays = {int(k): _as_state_array(v) for k, v in states.items()}
-    if not arrays or any(a is None for a in arrays.values()):
+    if any(a is None for a in arrays.values()):
         return False
-    shapes = {a.shape[1:] for a in arrays.values()}
-    if len(shapes) != 1:
-        return False
-    shape = shapes.pop()
+    shape = next(iter(arrays.values())).shape[1:]
     width = int(np.prod(shape)) if shape else 1
     order = sorted(arrays)
     flat = np.concatenate([arrays[i].reshape(len(arrays[i]), width).astype(np.float64) for i in order])
@@ -85,10 +149,6 @@ def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | 
     path.parent.mkdir(parents=True, exist_ok=True)
     pq.write_table(table, path, **_PARQUET_OPTS)
     return True
-
-
-def has_env_states(root: str | os.PathLike) -> bool:
-    return (Path(root) / STATES_PATH).is_file()
 
 
 def read_env_states(root: str | os.PathLike) -> dict[int, np.ndarray] | None:

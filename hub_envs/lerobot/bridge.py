@@ -5,8 +5,8 @@ LeRobot 0.4 auto-imports only plugins named ``lerobot_robot_*`` / ``camera_*`` /
 from another package must be registered before LeRobot's draccus parsing runs. These commands do exactly
 that, then hand the same flags to LeRobot:
 
-1. import :mod:`hub_envs.lerobot_env`, which registers the generic ``hub`` choice, and
-   :func:`~hub_envs.lerobot_env.install_hooks` (env creation and env processors for hub env configs);
+1. import :mod:`hub_envs.lerobot.env`, which registers the generic ``hub`` choice, and
+   :func:`~hub_envs.lerobot.env.install_hooks` (env creation and env processors for hub env configs);
 2. for ``--env.type=hub``, load the repo named by ``--env.repo_id`` / ``--env.revision`` now, so a
    wrong id or an untrusted commit is one clear error before LeRobot starts; for a per-repo choice
    (``--env.type=user/name@<sha12>``, what load_env registers), load that repo (from the choice name,
@@ -67,11 +67,9 @@ def _true(value: str | None) -> bool:
 
 def _resolve_short_sha(repo_id: str, prefix: str) -> str:
     """The full sha of ``repo_id`` starting with ``prefix``: from the local cache, else the Hub's commit list."""
-    from huggingface_hub import constants
-
     from hub_envs import hub_io
 
-    snapshots = Path(constants.HF_HUB_CACHE) / f"models--{repo_id.replace('/', '--')}" / "snapshots"
+    snapshots = hub_io.cache_snapshots_dir(repo_id)
     cached = sorted(p.name for p in snapshots.glob(f"{prefix}*")) if snapshots.is_dir() else []
     if len(cached) == 1:
         return cached[0]
@@ -90,7 +88,7 @@ def _resolve_short_sha(repo_id: str, prefix: str) -> str:
 
 def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
     """Register hub-envs' choices, pre-load the env the flags name, and return (argv for LeRobot, LoadedEnv or None)."""
-    from hub_envs.lerobot_env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent
+    from hub_envs.lerobot.env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent
 
     install_hooks()
     argv = list(argv)
@@ -183,7 +181,7 @@ def _json_default(value):
 def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
     """What identifies the env a LeRobot config names: repo, sha, digests, config values, processors."""
     from hub_envs.envconfig import encode_config
-    from hub_envs.lerobot_env import loaded_for
+    from hub_envs.lerobot.env import loaded_for
 
     found = loaded_for(env_cfg_or_hub)
     if found is None:
@@ -210,7 +208,7 @@ def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
 
 
 def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: str | None, env: dict | None) -> dict[str, Any]:
-    from hub_envs.dataset import dataset_fingerprint
+    from hub_envs.dataset.reader import dataset_fingerprint
 
     out: dict[str, Any] = {"repo_id": repo_id, "root": str(root) if root else None, "revision": revision, "fingerprint": None}
     if root and (Path(root) / "meta" / "info.json").is_file():
@@ -221,7 +219,7 @@ def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: s
 
 
 def _versions() -> dict[str, str]:
-    from hub_envs.provenance import package_versions
+    from hub_envs.harness.provenance import package_versions
 
     return package_versions()
 
@@ -294,7 +292,7 @@ def _forgets_cli_consent(command: Callable[[list[str]], int]) -> Callable[[list[
 
     @functools.wraps(command)
     def run(argv: list[str]) -> int:
-        from hub_envs.lerobot_env import set_cli_consent
+        from hub_envs.lerobot.env import set_cli_consent
 
         try:
             return command(argv)

@@ -1,7 +1,7 @@
 """The reproduction report: one object, written as JSON (machines), Markdown (people) and a PNG plot.
 
 :class:`ReproduceReport` gathers what ``hub-envs reproduce`` found: the replay
-(:class:`hub_envs.replay.ReplayResult`), each benchmark (:class:`hub_envs.benchmark.BenchmarkResult`),
+(:class:`hub_envs.harness.replay.ReplayResult`), each benchmark (:class:`hub_envs.harness.benchmark.BenchmarkResult`),
 the golden-rollout fingerprint check, and provenance: the repo sha, the dataset fingerprint, the
 seeds, and the package versions here beside those the repo was published with. A version that
 differs is printed next to every divergence, since it is the first suspect.
@@ -11,7 +11,7 @@ The plot (matplotlib, Agg backend) shows per-episode returns published vs reprod
 benchmark and, when the replay diverged, the divergence over steps of the first diverged episode.
 
 Example:
-    >>> from hub_envs.report import ReproduceReport
+    >>> from hub_envs.harness.report import ReproduceReport
     >>> report = ReproduceReport(repo_id="user/env", sha="0" * 40, provenance={}, replay=None,
     ...                          benchmarks=[], fingerprint={"status": "matches", "ok": True})
     >>> report.reproduced, report.verdict()
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hub_envs.benchmark import BenchmarkResult
-from hub_envs.replay import ReplayResult
+from hub_envs.harness.benchmark import BenchmarkResult
+from hub_envs.harness.replay import ReplayResult
 
 __all__ = ["ReproduceReport", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
 
@@ -260,8 +260,14 @@ class ReproduceReport:
     # -- files --
 
     def plot(self, path: str | Path) -> Path | None:
-        """Per-episode returns published vs reproduced; the divergence over steps when there is one."""
-        import matplotlib
+        """Per-episode returns published vs reproduced; the divergence over steps when there is one.
+
+        None (and no file) without matplotlib: it is the ``plots`` extra (``pip install 'hub-envs[plots]'``).
+        """
+        try:
+            import matplotlib
+        except ModuleNotFoundError:
+            return None
 
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt

@@ -4,7 +4,7 @@ One concept: a *replay* resets the env with each episode's recorded seed, applie
 actions (the rollout engine with one action array per episode, in parallel across processes), and
 compares what comes out with what the dataset holds, frame by frame: every observation the config's
 ``features_map`` maps to a dataset key (images too), ``next.reward``, ``next.done``,
-``next.success`` and, when push_env recorded them (:mod:`hub_envs.states`), the simulator states.
+``next.success`` and, when push_env recorded them (:mod:`hub_envs.dataset.states`), the simulator states.
 Exactly by default; within an absolute ``tolerance`` if one is given (booleans are always exact).
 
 A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
@@ -19,7 +19,7 @@ frame ``t + 1``. Each diverged episode is then *localized* (robomimic's playback
   difference is in that transition and not in hidden state or non-determinism.
 
 Example:
-    >>> from hub_envs.replay import replay_dataset                                   # doctest: +SKIP
+    >>> from hub_envs.harness.replay import replay_dataset                                   # doctest: +SKIP
     >>> result = replay_dataset(loaded.make, loaded.dataset_root, loaded.config.features_map)  # doctest: +SKIP
     >>> result.ok, result.first_divergence                                          # doctest: +SKIP
     (False, Divergence(episode=0, step=1, feature='observation.state', ...))
@@ -36,21 +36,15 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs.dataset import data_file, read_episode_meta, read_info, rollout_to_frames
+from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
+from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
+from hub_envs.dataset.states import read_env_states
+from hub_envs.dataset.writer import rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
-from hub_envs.rollout import iter_episodes, run_episodes
-from hub_envs.states import read_env_states
-
-try:  # LeRobot depends on opencv; the fast PNG decoder
-    import cv2 as _cv2
-except ImportError:  # pragma: no cover
-    _cv2 = None
+from hub_envs.harness.rollout import iter_episodes, run_episodes
 
 __all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "Replay", "replay_dataset", "STATE_FEATURE"]
 
-#: The name under which recorded simulator states are compared.
-STATE_FEATURE = "env_state"
-NEXT_KEYS = ("next.reward", "next.done", "next.success")
 #: Diverged episodes localized by state-restored playback (each costs one more pass over the episode)
 #: and whose per-step error curves are kept in the report.
 MAX_LOCALIZED = 3
@@ -248,87 +242,6 @@ def _element(replay_frame: np.ndarray, data_frame: np.ndarray) -> list[int]:
 # --- the replay -------------------------------------------------------------------------------
 
 
-class _Frames:
-    """All episodes' frames of the compared keys, each data file read once (images decoded per episode)."""
-
-    def __init__(self, root: Path, info: dict, metas: list[dict], keys: list[str]):
-        import pyarrow.compute as pc
-        import pyarrow.parquet as pq
-
-        features = info["features"]
-        self.features = features
-        self.numeric: dict[int, dict[str, np.ndarray]] = {}
-        self.images: dict[int, dict[str, Any]] = {}
-        by_file: dict[tuple[int, int], list[int]] = {}
-        for m in metas:
-            by_file.setdefault((m["data/chunk_index"], m["data/file_index"]), []).append(m["episode_index"])
-        lengths = {m["episode_index"]: int(m["length"]) for m in metas}
-        for (chunk, file), episodes in by_file.items():
-            path = data_file(root, info, chunk, file)  # info.json's data_path, checked to stay inside root
-            try:
-                table = pq.read_table(path, columns=[*keys, "episode_index", "frame_index"])
-            except (OSError, ValueError, KeyError) as exc:
-                raise DatasetError(f"Cannot read {path}: {exc}. Re-download or regenerate the dataset.") from exc
-            ep_col = table.column("episode_index").to_numpy()
-            order = np.lexsort((table.column("frame_index").to_numpy(), ep_col))
-            if not np.all(order[:-1] < order[1:]):
-                table, ep_col = table.take(order), ep_col[order]
-            starts = {int(e): int(i) for e, i in zip(*np.unique(ep_col, return_index=True))}
-            columns: dict[str, np.ndarray] = {}
-            for key in keys:
-                ft = features[key]
-                col = table.column(key).combine_chunks()
-                if ft["dtype"] == "image":
-                    columns[key] = col.field("bytes")
-                    continue
-                flat = col
-                for _ in range(len(ft["shape"]) if tuple(ft["shape"]) != (1,) else 0):
-                    flat = pc.list_flatten(flat)
-                columns[key] = (
-                    flat.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(len(table), *ft["shape"])
-                )
-            for ep in episodes:
-                if ep not in starts:
-                    raise DatasetError(f"Episode {ep} has no rows in {path}. The dataset is corrupt; regenerate it.")
-                lo = starts[ep]
-                hi = lo + lengths[ep]
-                if hi > len(ep_col) or ep_col[hi - 1] != ep or (hi < len(ep_col) and ep_col[hi] == ep):
-                    raise DatasetError(
-                        f"Episode {ep} in {path} does not have the {lengths[ep]} rows its metadata says. The dataset is corrupt; regenerate it."
-                    )
-                self.numeric[ep] = {k: v[lo:hi] for k, v in columns.items() if features[k]["dtype"] != "image"}
-                self.images[ep] = {k: v.slice(lo, hi - lo) for k, v in columns.items() if features[k]["dtype"] == "image"}
-
-    def episode(self, ep: int, keys: list[str] | None = None) -> dict[str, np.ndarray]:
-        """The episode's frames; images decoded to uint8 (T, H, W, C). Thread-safe (read only)."""
-        out = {k: v for k, v in self.numeric[ep].items() if keys is None or k in keys}
-        for key, col in self.images[ep].items():
-            if keys is not None and key not in keys:
-                continue
-            frames = [_decode_png(data) for data in col.to_pylist()]
-            arr = np.stack(frames) if frames else np.zeros((0, *self.features[key]["shape"]), np.uint8)
-            out[key] = arr[..., None] if arr.ndim == 3 else arr
-        return out
-
-
-def _decode_png(data: bytes) -> np.ndarray:
-    """PNG bytes -> uint8 (H, W[, C]) RGB(A): OpenCV (LeRobot's dependency; ~4x faster than PIL, releases the GIL)."""
-    if _cv2 is not None:
-        img = _cv2.imdecode(np.frombuffer(data, np.uint8), _cv2.IMREAD_UNCHANGED)
-        if img is not None and img.dtype == np.uint8:
-            if img.ndim == 3 and img.shape[2] == 3:
-                return _cv2.cvtColor(img, _cv2.COLOR_BGR2RGB)
-            if img.ndim == 3 and img.shape[2] == 4:
-                return _cv2.cvtColor(img, _cv2.COLOR_BGRA2RGBA)
-            return img
-    import io
-
-    import PIL.Image
-
-    with PIL.Image.open(io.BytesIO(data)) as img:
-        return np.asarray(img)
-
-
 @dataclass
 class _Plan:
     root: Path
@@ -340,7 +253,7 @@ class _Plan:
     seeds: list[int]
     actions: list[np.ndarray]  # as recorded, per episode
     states: dict[int, np.ndarray] | None
-    frames: _Frames
+    frames: DatasetFrames
 
 
 def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[int] | None) -> _Plan:
@@ -384,7 +297,7 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
         elif key not in ("timestamp", "frame_index", "episode_index", "index", "task_index", action_key):
             skipped[key] = "not in the config's features_map"
     image_keys = {k for k in features if ds_features[k].get("dtype") == "image"}
-    frames = _Frames(Path(dataset_root), info, metas, [action_key, *features])
+    frames = DatasetFrames(Path(dataset_root), info, metas, [action_key, *features])
     actions = [frames.numeric[m["episode_index"]][action_key] for m in metas]
     states = read_env_states(dataset_root)
     if states is not None:
@@ -519,9 +432,7 @@ def _reset_to(env: Any) -> Callable[[Any], Any] | None:
     return getattr(env.unwrapped, "reset_to", None)
 
 
-def _localize_with_states(
-    plan: _Plan, pos: int, env: Any, actions: np.ndarray, features_map: Mapping[str, str], tolerance: float
-) -> dict[str, Any]:
+def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, tolerance: float) -> dict[str, Any]:
     """robomimic playback: from every recorded state, one step; where does the one-step error start?"""
     meta = plan.metas[pos]
     ep, length = meta["episode_index"], int(meta["length"])
@@ -584,13 +495,13 @@ def _localize_with_states(
 
 
 def _flatten(obs: Any) -> dict[str, Any]:
-    from hub_envs.rollout import flatten_observation
+    from hub_envs.harness.rollout import flatten_observation
 
     return flatten_observation(obs)
 
 
 def _localize_from_replay_state(
-    make_env: Callable[[], Any], plan: _Plan, pos: int, ep: EpisodeReplay, actions: np.ndarray, features_map: Mapping[str, str]
+    make_env: Callable[[], Any], plan: _Plan, pos: int, ep: EpisodeReplay, actions: np.ndarray
 ) -> dict[str, Any]:
     """No recorded states: restore the replay's own state before the first diverging step in a fresh env."""
     j = _first_transition(ep)
@@ -754,13 +665,9 @@ class Replay:
             for pos, ep in [(p, e) for p, e in enumerate(results) if not e.ok][:MAX_LOCALIZED]:
                 try:
                     if plan.states is not None and self.record_states:
-                        ep.localization = _localize_with_states(
-                            plan, pos, self.probe, self.actions[pos], self.features_map, self.tolerance
-                        )
+                        ep.localization = _localize_with_states(plan, pos, self.probe, self.actions[pos], self.tolerance)
                     else:
-                        ep.localization = _localize_from_replay_state(
-                            self.make_env, plan, pos, ep, self.actions[pos], self.features_map
-                        )
+                        ep.localization = _localize_from_replay_state(self.make_env, plan, pos, ep, self.actions[pos])
                 except HubEnvsError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - localization is a diagnosis; report why it failed

@@ -3,15 +3,15 @@
 For one env repo at one commit:
 
 1. load it (integrity, trust gate, feature check) and recompute its golden-rollout fingerprint;
-2. **replay** its dataset (:mod:`hub_envs.replay`): every episode reset with its recorded seed, the
+2. **replay** its dataset (:mod:`hub_envs.harness.replay`): every episode reset with its recorded seed, the
    recorded actions applied, observations (images too), rewards, done/success flags and recorded
    simulator states compared step by step, exactly or within ``tolerance``; a divergence is named by
    episode, step and feature, and localized with ``reset_to``;
-3. re-run each declared **benchmark** (:mod:`hub_envs.benchmark`): published vs reproduced per
+3. re-run each declared **benchmark** (:mod:`hub_envs.harness.benchmark`): published vs reproduced per
    metric, with a seeded bootstrap confidence interval and pass/fail against the declared tolerance;
 4. record **provenance**: the sha, digests, dataset fingerprint, seeds, and the package versions here
    beside those the repo was published with;
-5. write ``report.json``, ``report.md`` and ``report.png`` (:mod:`hub_envs.report`) to ``out``
+5. write ``report.json``, ``report.md`` and ``report.png`` (:mod:`hub_envs.harness.report`) to ``out``
    (default ``reproduce-out/<user>/<name>/``).
 
 Episodes run in parallel across ``workers`` processes; the report does not depend on their number.
@@ -34,20 +34,19 @@ import datetime as _dt
 import os
 import sys
 import time
-import types
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hub_envs.benchmark import BenchmarkResult, BenchmarkRun
-from hub_envs.checks import verify_fingerprint
-from hub_envs.dataset import dataset_fingerprint, read_episode_meta
+from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
-from hub_envs.provenance import describe_differences, package_versions, version_differences
-from hub_envs.replay import Replay, ReplayResult
-from hub_envs.report import ReproduceReport
-from hub_envs.rollout import iter_episodes
+from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
+from hub_envs.harness.checks import verify_fingerprint
+from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
+from hub_envs.harness.replay import Replay, ReplayResult
+from hub_envs.harness.report import ReproduceReport
+from hub_envs.harness.rollout import iter_episodes
 
 __all__ = [
     "reproduce",
@@ -385,15 +384,3 @@ def reproduce_cli(args: ReproduceArgs) -> int:
 
 
 CLI_COMMANDS = {"reproduce": (ReproduceArgs, reproduce_cli)}
-
-
-class _CallableModule(types.ModuleType):
-    """``hub_envs.reproduce`` is both this module and its main function: ``from hub_envs import reproduce``
-    may give either (Python binds a package attribute to its submodule once the submodule is imported),
-    so the module calls :func:`reproduce` when called."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> ReproduceReport:
-        return reproduce(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

@@ -27,7 +27,7 @@ Policies:
   on which worker ran which episode.
 
 Example:
-    >>> from hub_envs.benchmark import bootstrap_ci
+    >>> from hub_envs.harness.benchmark import bootstrap_ci
     >>> bootstrap_ci([1.0, 2.0, 3.0, 4.0], resamples=1000, seed=0)
     (1.5, 3.5)
 """
@@ -45,7 +45,7 @@ import numpy as np
 
 from hub_envs._text import safe_text
 from hub_envs.errors import ReproductionError, UntrustedCodeError
-from hub_envs.rollout import iter_episodes
+from hub_envs.harness.rollout import iter_episodes
 
 __all__ = ["MetricResult", "BenchmarkResult", "BenchmarkRun", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
 
@@ -231,36 +231,32 @@ def _checkpoint_policy(
             f"benchmark policy {repo_id}@{revision}: cannot load it as a LeRobot policy: {type(exc).__name__}: {exc}"
         ) from exc
 
-    features_map = dict(loaded.config.features_map)
-    visual = {k for k, f in loaded.config.features.items() if "VISUAL" in str(getattr(f.type, "value", f.type)).upper()}
     task = str(getattr(loaded.config, "task", "") or "")
 
     def act(obs: Any, t: int) -> np.ndarray:
-        from hub_envs.rollout import flatten_observation
-
         if t == 0:
             # one thread: the same arithmetic in every process (and no OpenMP pool inherited across fork)
             torch.set_num_threads(1)
             policy.reset()
             torch.manual_seed(0)
-        batch: dict[str, Any] = {}
-        for key, value in flatten_observation(obs).items():
-            if key not in features_map:
-                continue
-            tensor = torch.from_numpy(np.ascontiguousarray(value))
-            if key in visual:  # HWC uint8 -> CHW float in [0, 1] (LeRobot's preprocess_observation)
-                if tensor.ndim == 3 and tensor.shape[-1] in (1, 3, 4):
-                    tensor = tensor.permute(2, 0, 1)
-                tensor = tensor.float() / 255.0 if tensor.dtype == torch.uint8 else tensor.float()
-            else:
-                tensor = tensor.float()
-            batch[features_map[key]] = tensor.unsqueeze(0)
-        batch["task"] = [task]
+        batch = policy_observation(obs, task)
         with torch.inference_mode():
             action = post(policy.select_action(pre(batch)))
         return action.detach().cpu().numpy()[0]
 
     return act
+
+
+def policy_observation(env_observation: dict, task: str | None = "") -> dict:
+    """What LeRobot's eval loop gives the policy for one (unbatched) env observation: LeRobot's own
+    ``preprocess_observation`` (images HWC uint8 -> CHW float in [0, 1], states float32, a batch axis) and
+    the task, the one conversion hub-envs uses (benchmarks here, env processors' dry run)."""
+    from lerobot.envs.utils import preprocess_observation
+
+    batched = {k: (np.asarray(v)[None] if not isinstance(v, dict) else v) for k, v in env_observation.items()}
+    obs = preprocess_observation(batched)
+    obs["task"] = [task or ""]
+    return obs
 
 
 def _policy_for(spec: dict[str, Any], loaded: Any, token: str | None, trust_policy_code: bool = False) -> Any:

@@ -1,6 +1,6 @@
 """Checks that need the env's code to run: gymnasium's env checker, determinism, golden fingerprint.
 
-The three-way feature check lives in :mod:`hub_envs.features`; these are the others push_env runs
+The three-way feature check lives in :mod:`hub_envs.harness.features`; these are the others push_env runs
 before publishing and load_env re-runs after downloading.
 
 * :func:`run_env_checker` — gymnasium's ``check_env`` (spaces, reset/step API, seeding, render).
@@ -10,22 +10,26 @@ before publishing and load_env re-runs after downloading.
   across gymnasium / numpy / simulator upgrades.
 
 Example:
-    >>> from hub_envs.checks import golden_fingerprint                          # doctest: +SKIP
+    >>> from hub_envs.harness.checks import golden_fingerprint                          # doctest: +SKIP
     >>> golden_fingerprint(lambda: loaded.make(), seeds=[0, 1], steps=32)       # doctest: +SKIP
     {'algorithm': 'sha256', 'seeds': [0, 1], 'steps': 32, 'digest': '…', 'episodes': ['…', '…']}
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from hub_envs.errors import DeterminismError, EnvCheckError, EnvCodeError, FingerprintMismatchError
-from hub_envs.rollout import EpisodeRollout, run_episodes
+from hub_envs.harness.rollout import EpisodeRollout, run_episodes
+
+#: Steps of each seed the golden-rollout fingerprint covers (fewer when episodes are shorter).
+FINGERPRINT_STEPS = 32
 
 
 def run_env_checker(env, *, where: str) -> list[str]:
@@ -88,12 +92,37 @@ def check_determinism(make_env: Callable[[], Any], *, seed: int, steps: int, whe
         )
 
 
+def episode_prefix(ep: EpisodeRollout, steps: int) -> EpisodeRollout:
+    """The first ``steps`` steps of ``ep``, exactly as a run cut at ``max_steps=steps`` records them (the cut
+    step is a time-limit truncation), so a fingerprint can come from longer rollouts (push's dataset)."""
+    if ep.length <= steps:
+        return ep
+    cut = slice(0, steps)
+    truncated = ep.truncated[cut].copy()
+    if not ep.terminated[steps - 1]:
+        truncated[-1] = True
+    return dataclasses.replace(
+        ep,
+        observations={k: v[cut] for k, v in ep.observations.items()},
+        actions=ep.actions[cut],
+        rewards=ep.rewards[cut],
+        terminated=ep.terminated[cut],
+        truncated=truncated,
+        is_success=ep.is_success[cut],
+        states=None,
+    )
+
+
+def fingerprint_of(episodes: Sequence[EpisodeRollout], *, steps: int) -> dict[str, Any]:
+    """The golden-rollout fingerprint of seeded random-action ``episodes`` (each cut to its first ``steps``)."""
+    digests = [_episode_digest(episode_prefix(ep, steps)) for ep in episodes]
+    overall = hashlib.sha256("".join(digests).encode()).hexdigest()
+    return {"algorithm": "sha256", "seeds": [ep.seed for ep in episodes], "steps": steps, "digest": overall, "episodes": digests}
+
+
 def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: int) -> dict[str, Any]:
     """Hash the first ``steps`` steps of seeded random-action rollouts, one digest per seed plus one overall."""
-    episodes = run_episodes(make_env, list(seeds), max_steps=steps, progress=False)
-    digests = [_episode_digest(ep) for ep in episodes]
-    overall = hashlib.sha256("".join(digests).encode()).hexdigest()
-    return {"algorithm": "sha256", "seeds": list(seeds), "steps": steps, "digest": overall, "episodes": digests}
+    return fingerprint_of(run_episodes(make_env, list(seeds), max_steps=steps, progress=False), steps=steps)
 
 
 def verify_fingerprint(

@@ -6,7 +6,7 @@ the env says ``terminated`` or ``truncated`` or ``max_steps`` steps were taken. 
 samples ``env.action_space`` (so it is seeded too); a policy may also be a callable
 ``(obs, step_index) -> action`` or recorded actions to replay. Because nothing else goes in, the
 rollouts are identical whatever the number of worker processes. Dataset generation
-(:mod:`hub_envs.dataset`) and replay/reproduction share this engine.
+(:mod:`hub_envs.dataset.writer`) and replay/reproduction share this engine.
 
 What is recorded at step ``t`` (arrays of length ``T`` = episode length):
 
@@ -31,7 +31,7 @@ or reward, raises :class:`hub_envs.errors.EnvCodeError` naming the episode, seed
 
 Example:
     >>> import gymnasium as gym
-    >>> from hub_envs.rollout import run_episodes
+    >>> from hub_envs.harness.rollout import run_episodes
     >>> eps = run_episodes(lambda: gym.make("Pendulum-v1"), seeds=[0, 1], max_steps=50, progress=False)
     >>> [e.length for e in eps], sorted(eps[0].observations), eps[0].actions.shape
     ([50, 50], ['observation'], (50, 1))
@@ -79,6 +79,8 @@ class EpisodeRollout:
     truncated: np.ndarray
     is_success: np.ndarray
     states: np.ndarray | None = None
+    #: why ``states`` is None although the env has ``get_state`` (its values could not be kept), else None
+    states_problem: str | None = None
 
     @property
     def length(self) -> int:
@@ -314,6 +316,7 @@ class _Runner:
             raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {_exc_text(exc)}.") from exc
         get_state = self.get_state
         state_buf: _Buffer | None = None
+        states_problem: str | None = None
         act_buf: _Buffer | None = None
         rewards: list[float] = []
         terms: list[bool] = []
@@ -343,9 +346,13 @@ class _Runner:
                     state = get_state()
                 except Exception as exc:
                     raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {_exc_text(exc)}.") from exc
-                if state_buf is None:
-                    state_buf = _Buffer(state, max_steps)
-                state_buf.append(state)
+                try:
+                    if state_buf is None:
+                        state_buf = _Buffer(state, max_steps)
+                    state_buf.append(state)
+                except (TypeError, ValueError) as exc:  # a state of another shape or kind than the first
+                    states_problem = f"get_state() at step {t} returned a value unlike step 0's ({_exc_text(exc)})"
+                    get_state, state_buf = None, None
 
             if fixed is not None:
                 action = fixed[t]
@@ -386,6 +393,7 @@ class _Runner:
             truncated=np.asarray(truncs, dtype=bool),
             is_success=np.asarray(succ, dtype=bool),
             states=state_buf.array() if state_buf is not None else None,
+            states_problem=states_problem,
         )
 
 

@@ -21,7 +21,7 @@ other config they call LeRobot's own. :func:`install_hooks` puts them in place o
 Example:
     >>> import draccus
     >>> from lerobot.configs.eval import EvalPipelineConfig
-    >>> from hub_envs.lerobot_env import HubEnv, make_env
+    >>> from hub_envs.lerobot.env import HubEnv, make_env
     >>> cfg = draccus.parse(EvalPipelineConfig, args=["--env.type=hub", "--env.repo_id=user/pendulum-lerobot",
     ...     "--env.revision=<sha>", "--env.trust_remote_code=true"])                     # doctest: +SKIP
     >>> envs = make_env(cfg.env, n_envs=2)                                               # doctest: +SKIP

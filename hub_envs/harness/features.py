@@ -13,7 +13,7 @@ and also flags live observation keys and dataset keys nobody declared, and an
 error shows the whole table rather than the first problem.
 
 Example:
-    >>> from hub_envs.features import check_features                     # doctest: +SKIP
+    >>> from hub_envs.harness.features import check_features                     # doctest: +SKIP
     >>> report = check_features(cfg, env, dataset_features=None)          # doctest: +SKIP
     >>> print(report.table())                                             # doctest: +SKIP
 """
@@ -25,19 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs.dataset.layout import BOOKKEEPING_KEYS
 from hub_envs.errors import EnvCodeError, FeatureMismatchError
-
-#: Keys every LeRobot dataset has, or hub-envs adds, that no env feature maps to.
-DATASET_BOOKKEEPING = {
-    "timestamp",
-    "frame_index",
-    "episode_index",
-    "index",
-    "task_index",
-    "next.reward",
-    "next.done",
-    "next.success",
-}
 
 
 @dataclass
@@ -281,7 +270,7 @@ def check_features(
             )
         )
     if dataset_features is not None:
-        for extra in sorted(set(dataset_features) - mapped_dataset_keys - DATASET_BOOKKEEPING):
+        for extra in sorted(set(dataset_features) - mapped_dataset_keys - BOOKKEEPING_KEYS):
             spec = dataset_features[extra]
             rows.append(
                 FeatureRow(

@@ -1,4 +1,4 @@
-"""Write (fast) and read (lightly) LeRobot v3.0 datasets of env rollouts.
+"""Write LeRobot v3.0 datasets of env rollouts, fast and byte-deterministically.
 
 One concept: the bundled dataset is a plain LeRobot v3.0 folder that
 ``lerobot.datasets.lerobot_dataset.LeRobotDataset(repo_id, root=folder)`` loads, written directly
@@ -20,18 +20,18 @@ Image features use dtype ``"image"``: each frame is stored inside the data parqu
 by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at level 6: same pixels,
 ~6x faster. Differences from LeRobot's writer, none visible to its reader:
 
-* Stats are exact: quantiles by ``np.quantile`` (LeRobot: 5000-bin histograms) and image std
-  computed in float64 (LeRobot squares uint8 pixels and overflows, so its image std is often 0).
-  Image stats use LeRobot's frame sampling (``count`` = sampled frames) and downsampling.
+* Stats are exact (:mod:`hub_envs.dataset.stats`; ``info["hub_envs"]["stats"]`` says how they differ).
   Global stats aggregate the episode stats with LeRobot's formula (1000 episodes at a time).
 * Several episodes share one parquet row group; files roll over by the same size rule, measured on
   the Arrow bytes written rather than the file size on disk.
-* Extra: a ``seed`` column in the episodes metadata and ``info["hub_envs"] = {"seeds": [...], **extra_info}``.
+* Extra: a ``seed`` column in the episodes metadata and
+  ``info["hub_envs"] = {"seeds": [...], "stats": STATS_NOTE, **extra_info}``.
 * Byte-deterministic: no timestamps or random fingerprints in any file, fixed writer options.
 
 Example:
     >>> import tempfile, numpy as np
-    >>> from hub_envs.dataset import EpisodeFrames, write_lerobot_dataset, read_episode_frames
+    >>> from hub_envs.dataset.writer import EpisodeFrames, write_lerobot_dataset
+    >>> from hub_envs.dataset.reader import read_episode_frames
     >>> features = {"observation.state": {"dtype": "float32", "shape": [2], "names": ["x", "v"]},
     ...             "action": {"dtype": "float32", "shape": [1], "names": ["u"]}}
     >>> eps = [EpisodeFrames(i, seed=i, frames={"observation.state": np.zeros((5, 2), np.float32),
@@ -45,76 +45,38 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import re
 import shutil
-import string
-import struct
 import uuid
-import zlib
 from collections import deque
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hub_envs._compat import stats_extremes_as_float, tasks_index_name
+from hub_envs._compat import tasks_index_name
+from hub_envs.dataset.codec import PNG_CHANNELS, encode_png
+from hub_envs.dataset.layout import (
+    CODEBASE_VERSION,
+    DATA_PATH,
+    DEFAULT_CHUNK_SIZE,
+    DEFAULT_DATA_FILE_SIZE_IN_MB,
+    DEFAULT_FEATURES,
+    DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+    EPISODES_PATH,
+    INFO_PATH,
+    NEXT_FEATURES,
+    STATS_PATH,
+    TASKS_PATH,
+)
+from hub_envs.dataset.reader import dataset_fingerprint
+from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats
 from hub_envs.errors import ConfigError, DatasetError, HubEnvsError
 
-STATS_EXTREMES_AS_FLOAT = stats_extremes_as_float()
-
-try:  # LeRobot depends on opencv; used only for fast image histograms
-    import cv2 as _cv2
-except ImportError:  # pragma: no cover
-    _cv2 = None
-
-__all__ = [
-    "EpisodeFrames",
-    "DatasetSummary",
-    "write_lerobot_dataset",
-    "rollout_to_frames",
-    "dataset_features_from_config",
-    "read_info",
-    "data_file",
-    "read_episode_meta",
-    "read_episode_frames",
-    "dataset_fingerprint",
-    "encode_png",
-]
-
-# --- LeRobot v3.0 layout constants (lerobot/datasets/utils.py, lerobot 0.4.4) -------------------
-
-CODEBASE_VERSION = "v3.0"
-DEFAULT_CHUNK_SIZE = 1000  # max files per chunk folder
-DEFAULT_DATA_FILE_SIZE_IN_MB = 100
-DEFAULT_VIDEO_FILE_SIZE_IN_MB = 200
-INFO_PATH = "meta/info.json"
-STATS_PATH = "meta/stats.json"
-TASKS_PATH = "meta/tasks.parquet"
-EPISODES_DIR = "meta/episodes"
-DATA_DIR = "data"
-CHUNK_FILE_PATTERN = "chunk-{chunk_index:03d}/file-{file_index:03d}"
-EPISODES_PATH = EPISODES_DIR + "/" + CHUNK_FILE_PATTERN + ".parquet"
-DATA_PATH = DATA_DIR + "/" + CHUNK_FILE_PATTERN + ".parquet"
-DEFAULT_FEATURES: dict[str, dict] = {
-    "timestamp": {"dtype": "float32", "shape": [1], "names": None},
-    "frame_index": {"dtype": "int64", "shape": [1], "names": None},
-    "episode_index": {"dtype": "int64", "shape": [1], "names": None},
-    "index": {"dtype": "int64", "shape": [1], "names": None},
-    "task_index": {"dtype": "int64", "shape": [1], "names": None},
-}
-QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
-QUANTILE_KEYS = tuple(f"q{int(q * 100):02d}" for q in QUANTILES)
-NEXT_FEATURES: dict[str, dict] = {
-    "next.reward": {"dtype": "float32", "shape": [1], "names": None},
-    "next.done": {"dtype": "bool", "shape": [1], "names": None},
-    "next.success": {"dtype": "bool", "shape": [1], "names": None},
-}
 _NUMERIC_DTYPES = {
     "bool",
     "float16",
@@ -129,6 +91,8 @@ _NUMERIC_DTYPES = {
     "uint32",
     "uint64",
 }
+__all__ = ["EpisodeFrames", "DatasetSummary", "write_lerobot_dataset", "rollout_to_frames", "dataset_features_from_config"]
+
 # parquet writer options, fixed so the same rows give the same bytes
 _PARQUET_OPTS = dict(compression="snappy", use_dictionary=True, write_statistics=True, version="2.6")
 _FLUSH_ROWS = 65536
@@ -158,7 +122,7 @@ class EpisodeFrames:
 
     @classmethod
     def from_rollout(cls, rollout: Any, features_map: Mapping[str, str], keys: Iterable[str] | None = None) -> EpisodeFrames:
-        """Build from a :class:`hub_envs.rollout.EpisodeRollout` via :func:`rollout_to_frames`."""
+        """Build from a :class:`hub_envs.harness.rollout.EpisodeRollout` via :func:`rollout_to_frames`."""
         return cls(rollout.index, rollout.seed, rollout_to_frames(rollout, features_map, keys=keys))
 
 
@@ -267,166 +231,6 @@ class DatasetSummary:
         return d
 
 
-# --- PNG --------------------------------------------------------------------------------------
-
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = struct.pack(">I", 0) + b"IEND" + struct.pack(">I", zlib.crc32(b"IEND"))
-_PNG_COLOR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}  # channels -> gray, gray+alpha, RGB, RGBA
-
-
-def _png_chunk(tag: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
-
-
-def encode_png(frames: np.ndarray, level: int = 1) -> list[bytes]:
-    """PNG bytes for each ``(H, W, C)`` uint8 frame of ``frames`` (T, H, W, C), C in 1..4.
-
-    Every row uses PNG filter 2 ("Up", computed for all frames at once) and zlib at ``level``;
-    any PNG decoder (PIL, which LeRobot uses) returns the exact pixels.
-
-    >>> import io, PIL.Image
-    >>> img = np.arange(48, dtype=np.uint8).reshape(1, 4, 4, 3)
-    >>> bool((np.asarray(PIL.Image.open(io.BytesIO(encode_png(img)[0]))) == img[0]).all())
-    True
-    """
-    if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] not in _PNG_COLOR_TYPE:
-        raise ValueError(f"encode_png needs uint8 frames (T, H, W, C) with C in 1..4, got {frames.dtype} {frames.shape}")
-    t, h, w, c = frames.shape
-    header = _PNG_SIGNATURE + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, _PNG_COLOR_TYPE[c], 0, 0, 0))
-    rows = frames.reshape(t, h, w * c)
-    filtered = np.empty((t, h, w * c + 1), dtype=np.uint8)
-    filtered[:, :, 0] = 2  # "Up": byte minus the byte above (mod 256)
-    filtered[:, 0, 1:] = rows[:, 0]
-    np.subtract(rows[:, 1:], rows[:, :-1], out=filtered[:, 1:, 1:])
-    compress = zlib.compress
-    return [header + _png_chunk(b"IDAT", compress(filtered[i], level)) + _PNG_IEND for i in range(t)]
-
-
-def _decode_png(data: bytes) -> np.ndarray:
-    import io
-
-    import PIL.Image
-
-    with PIL.Image.open(io.BytesIO(data)) as img:
-        return np.asarray(img)
-
-
-# --- stats (same keys/shapes as lerobot.datasets.compute_stats) --------------------------------
-
-
-def _sample_indices(n: int) -> np.ndarray:
-    """LeRobot's image frame sampling (compute_stats.sample_indices / estimate_num_samples)."""
-    min_num, max_num, power = 100, 10_000, 0.75
-    if n < min_num:
-        min_num = n
-    num = max(min_num, min(int(n**power), max_num))
-    return np.round(np.linspace(0, n - 1, num)).astype(int)
-
-
-def _downsample(images: np.ndarray) -> np.ndarray:
-    """LeRobot's auto_downsample_height_width, on (N, H, W, C) arrays."""
-    _, h, w, _ = images.shape
-    if max(w, h) < 300:
-        return images
-    factor = int(w / 150) if w > h else int(h / 150)
-    return images[:, ::factor, ::factor]
-
-
-def _quantiles(values: np.ndarray) -> np.ndarray:
-    """``np.quantile(values, QUANTILES, axis=0)`` (method "linear", same arithmetic), without its overhead."""
-    n = values.shape[0]
-    ordered = np.sort(values, axis=0)
-    pos = (n - 1) * np.asarray(QUANTILES)
-    lo = np.floor(pos).astype(np.intp)
-    hi = np.minimum(lo + 1, n - 1)
-    t = (pos - lo).reshape(-1, *([1] * (values.ndim - 1)))
-    a, b = ordered[lo], ordered[hi]
-    diff = b - a
-    return np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
-
-
-def _vector_stats(arr: np.ndarray) -> dict[str, np.ndarray]:
-    """Stats over axis 0 of (T, *shape); results have ``shape`` (shape (1,) for scalar columns)."""
-    if arr.ndim == 1:
-        arr = arr.reshape(-1, 1)
-    as_float = arr.astype(np.float64, copy=False)
-    mean = as_float.mean(axis=0)
-    extremes = as_float if STATS_EXTREMES_AS_FLOAT else arr  # as the installed LeRobot writes them
-    stats = {
-        "min": extremes.min(axis=0),
-        "max": extremes.max(axis=0),
-        "mean": mean,
-        "std": np.sqrt(np.maximum(0.0, ((as_float - mean) ** 2).mean(axis=0))),
-        "count": np.array([arr.shape[0]], dtype=np.int64),
-    }
-    for key, q in zip(QUANTILE_KEYS, _quantiles(as_float), strict=True):
-        stats[key] = q
-    return stats
-
-
-def _channel_histograms(images: np.ndarray) -> np.ndarray:
-    """(C, 256) int64 pixel counts per channel of (N, H, W, C) uint8 images."""
-    n, h, w, c = images.shape
-    if _cv2 is not None and n * h * w < 2**24 and c <= 4:  # float32 counts stay exact; releases the GIL
-        flat = np.ascontiguousarray(images).reshape(n * h, w, c)
-        return np.stack([_cv2.calcHist([flat], [i], None, [256], [0, 256]).reshape(256) for i in range(c)]).astype(np.int64)
-    return np.stack([np.bincount(images[..., i].reshape(-1), minlength=256) for i in range(c)]).astype(np.int64)
-
-
-def _image_stats(frames: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-channel stats of (T, H, W, C) uint8 frames, in [0, 1], shaped (C, 1, 1) like LeRobot's."""
-    sampled = _downsample(frames[_sample_indices(frames.shape[0])])
-    n_img, c = sampled.shape[0], sampled.shape[-1]
-    counts = _channel_histograms(sampled)
-    values = np.arange(256, dtype=np.float64)
-    total = counts.sum(axis=1)
-    mean = counts @ values / total
-    var = (counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / total
-    cum = np.cumsum(counts, axis=1)
-    nonzero = counts > 0
-    stats = {
-        "min": nonzero.argmax(axis=1).astype(np.float64),
-        "max": (255 - nonzero[:, ::-1].argmax(axis=1)).astype(np.float64),
-        "mean": mean,
-        "std": np.sqrt(var),
-    }
-    quantiles = []
-    for q in QUANTILES:  # np.quantile's "linear" method, from the histogram
-        pos = (total - 1) * q
-        lo, hi = np.floor(pos).astype(np.int64), np.ceil(pos).astype(np.int64)
-        v_lo = np.array([np.searchsorted(cum[i], lo[i], side="right") for i in range(c)], dtype=np.float64)
-        v_hi = np.array([np.searchsorted(cum[i], hi[i], side="right") for i in range(c)], dtype=np.float64)
-        quantiles.append(v_lo + (pos - lo) * (v_hi - v_lo))
-    out = {k: (v / 255.0).reshape(c, 1, 1) for k, v in stats.items()}
-    out["count"] = np.array([n_img], dtype=np.int64)
-    for key, qv in zip(QUANTILE_KEYS, quantiles, strict=True):
-        out[key] = (qv / 255.0).reshape(c, 1, 1)
-    return out
-
-
-def _aggregate(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """lerobot.datasets.compute_stats.aggregate_feature_stats: combine stats of disjoint data."""
-    means = np.stack([s["mean"] for s in parts])
-    variances = np.stack([s["std"] ** 2 for s in parts])
-    counts = np.stack([s["count"] for s in parts])
-    total_count = counts.sum(axis=0)
-    while counts.ndim < means.ndim:
-        counts = np.expand_dims(counts, axis=-1)
-    total_mean = (means * counts).sum(axis=0) / total_count
-    delta = means - total_mean
-    total_var = ((variances + delta**2) * counts).sum(axis=0) / total_count
-    out = {
-        "min": np.min(np.stack([s["min"] for s in parts]), axis=0),
-        "max": np.max(np.stack([s["max"] for s in parts]), axis=0),
-        "mean": total_mean,
-        "std": np.sqrt(total_var),
-        "count": total_count,
-    }
-    for key in QUANTILE_KEYS:
-        out[key] = (np.stack([s[key] for s in parts]) * counts).sum(axis=0) / total_count
-    return out
-
-
 # --- feature handling -------------------------------------------------------------------------
 
 
@@ -448,7 +252,7 @@ def _normalize_features(features: Mapping[str, Mapping]) -> dict[str, dict]:
                 f"Feature '{key}' has dtype 'video'; hub-envs writes camera frames as dtype 'image' (PNG in parquet)."
             )
         if dtype == "image":
-            if len(shape) != 3 or shape[2] not in _PNG_COLOR_TYPE:
+            if len(shape) != 3 or shape[2] not in PNG_CHANNELS:
                 raise ConfigError(f"Image feature '{key}' has shape {shape}; use [height, width, channels] with 1-4 channels.")
         elif dtype not in _NUMERIC_DTYPES:
             raise ConfigError(f"Feature '{key}' has dtype {dtype!r}; supported: 'image' and {sorted(_NUMERIC_DTYPES)}.")
@@ -644,7 +448,7 @@ class _Writer:
             ep.pngs[key] = encode_png(ep.columns[key])
         for key, ft in self.features.items():
             col = ep.columns[key]
-            ep.stats[key] = _image_stats(col) if ft["dtype"] == "image" else _vector_stats(col)
+            ep.stats[key] = image_stats(col) if ft["dtype"] == "image" else vector_stats(col)
         return ep
 
     # -- sequential part: write --
@@ -713,7 +517,7 @@ class _Writer:
         if not self.pending_stats:
             return
         parts = ([self.stats] if self.stats is not None else []) + self.pending_stats
-        self.stats = {k: parts[0][k] if len(parts) == 1 else _aggregate([p[k] for p in parts]) for k in self.features}
+        self.stats = {k: parts[0][k] if len(parts) == 1 else aggregate_stats([p[k] for p in parts]) for k in self.features}
         self.pending_stats = []
 
     def _flush_data(self) -> None:
@@ -788,9 +592,9 @@ class _Writer:
         pd.DataFrame({"task_index": [0]}, index=pd.Index([self.task], name=tasks_index_name())).to_parquet(tasks_path)
         stats = {key: {stat: value.tolist() for stat, value in st.items()} for key, st in (self.stats or {}).items()}
         _write_json(self.tmp / STATS_PATH, stats)
-        hub_envs_info: dict[str, Any] = {"seeds": list(self.seeds)}
+        hub_envs_info: dict[str, Any] = {"seeds": list(self.seeds), "stats": STATS_NOTE}
         for key, value in (extra_info or {}).items():
-            if key in hub_envs_info:
+            if key in hub_envs_info:  # seeds, stats
                 raise ConfigError(f"extra_info may not set '{key}': hub-envs writes it. Rename that key.")
             hub_envs_info[key] = value
         info = {
@@ -973,222 +777,3 @@ def _move_into_place(tmp: Path, root: Path, overwrite: bool) -> None:
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.rename(tmp, root)
-
-
-# --- reading, without lerobot or torch --------------------------------------------------------
-
-
-def dataset_fingerprint(root: str | os.PathLike) -> str:
-    """sha256 over the dataset files under ``data/``, ``meta/`` and ``videos/`` of ``root``.
-
-    For each file in sorted order of its relative POSIX path: the path, its size and its bytes.
-    Files elsewhere (README.md, ``.cache/``) do not count.
-    """
-    root = Path(root)
-    files = sorted(
-        (p.relative_to(root).as_posix(), p)
-        for top in ("data", "meta", "videos")
-        if (root / top).is_dir()
-        for p in (root / top).rglob("*")
-        if p.is_file()
-    )
-    h = hashlib.sha256()
-    for rel, path in files:
-        h.update(f"{rel}\0{path.stat().st_size}\0".encode())
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-    return h.hexdigest()
-
-
-#: The fields LeRobot fills into ``info.json``'s path templates, all of them integers but ``video_key``.
-_PATH_TEMPLATE_FIELDS = {"data_path": ("chunk_index", "file_index"), "video_path": ("video_key", "chunk_index", "file_index")}
-_INT_FORMAT_SPEC = re.compile(r"^0?[1-9]?[0-9]?d?$")  # '', 'd', '03d', '06d', '3' ...
-
-
-def _check_path_template(path: Path, key: str, template: Any) -> None:
-    """``info[key]`` must be a format string of LeRobot's named fields only (no attribute or index lookups,
-    no conversions, integer format specs) that stays inside the dataset root whatever the field values."""
-    from hub_envs.repo_format import safe_text
-
-    fields = _PATH_TEMPLATE_FIELDS[key]
-    fix = (
-        f"Do not use this dataset; its publisher must re-publish it with push_env (which writes {key} = {DATA_PATH!r})."
-        if key == "data_path"
-        else "Do not use this dataset; its publisher must re-publish it with push_env (which writes no videos)."
-    )
-    if not isinstance(template, str) or not template:
-        raise DatasetError(f"{path}: {key} must be a non-empty path template string, got {safe_text(repr(template))}. {fix}")
-    try:
-        parts = list(string.Formatter().parse(template))
-    except ValueError as exc:
-        raise DatasetError(f"{path}: {key} {safe_text(repr(template))} is not a valid path template ({exc}). {fix}") from None
-    literal = []
-    for text, name, spec, conversion in parts:
-        literal.append(text)
-        if name is None:
-            continue
-        if name not in fields or conversion is not None or "{" in (spec or ""):
-            raise DatasetError(
-                f"{path}: {key} {safe_text(repr(template))} uses the field {{{safe_text(name)}"
-                f"{'!' + conversion if conversion else ''}}}; only {', '.join('{' + f + '}' for f in fields)} are allowed "
-                f"(no attribute or index lookups, no conversions). {fix}"
-            )
-        if name != "video_key" and not _INT_FORMAT_SPEC.match(spec or ""):
-            raise DatasetError(
-                f"{path}: {key} {safe_text(repr(template))}: {{{name}:{safe_text(spec)}}} is not an integer "
-                f"format such as {{{name}:03d}}. {fix}"
-            )
-        literal.append("x")
-    shape = "".join(literal)
-    rel = PurePosixPath(shape)
-    if "\\" in shape or "\x00" in shape or rel.is_absolute() or any(p in ("", ".", "..") for p in shape.split("/")):
-        raise DatasetError(
-            f"{path}: {key} {safe_text(repr(template))} leads outside the dataset folder (absolute, '..' "
-            f"or empty path parts). {fix}"
-        )
-
-
-def read_info(root: str | os.PathLike) -> dict:
-    """``meta/info.json`` as a dict (features, fps, totals, ``hub_envs`` with the seeds).
-
-    Its ``data_path`` and ``video_path`` templates are checked (named integer fields only, no way out
-    of ``root``), so a path built from them names a file of this dataset.
-    """
-    path = Path(root) / INFO_PATH
-    try:
-        with open(path, encoding="utf-8") as f:
-            info = json.load(f)
-    except FileNotFoundError as exc:
-        raise DatasetError(
-            f"{path} does not exist: {root} is not a LeRobot dataset folder. Generate or download it first."
-        ) from exc
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path} is unreadable or not JSON ({exc}). Regenerate the dataset.") from exc
-    except RecursionError:  # nested deeper than the parser goes: no info.json LeRobot writes
-        raise DatasetError(
-            f"{path} is nested too deeply to be a LeRobot info.json (not JSON this reader accepts). "
-            f"Regenerate the dataset, or re-publish the env with push_env."
-        ) from None
-    if not isinstance(info, dict) or "features" not in info or "codebase_version" not in info:
-        raise DatasetError(f"{path} lacks 'features' or 'codebase_version'; it is not a LeRobot v3.0 info.json.")
-    if "data_path" in info:
-        _check_path_template(path, "data_path", info["data_path"])
-    if info.get("video_path") is not None:
-        _check_path_template(path, "video_path", info["video_path"])
-        features = info["features"] if isinstance(info["features"], dict) else {}
-        for key, ft in features.items():  # LeRobot fills {video_key} with the feature's name
-            if (
-                isinstance(ft, dict)
-                and ft.get("dtype") == "video"
-                and ("/" in key or "\\" in key or "\x00" in key or key in ("", ".", ".."))
-            ):
-                raise DatasetError(
-                    f"{path}: video feature {key!r} cannot name a folder of video_path (it holds '/', '\\' "
-                    f"or is '.'/'..'). Do not use this dataset; its publisher must re-publish it."
-                )
-    return info
-
-
-def data_file(root: str | os.PathLike, info: Mapping, chunk_index: Any, file_index: Any) -> Path:
-    """The data file ``info["data_path"]`` names for ``(chunk_index, file_index)``, checked to lie inside ``root``.
-
-    ``info`` must come from :func:`read_info` (which checks the template); the indices come from the
-    episodes metadata and must be non-negative integers.
-    """
-    root = Path(root)
-    for name, value in (("data/chunk_index", chunk_index), ("data/file_index", file_index)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-            raise DatasetError(
-                f"{root / EPISODES_DIR}: {name} {value!r} is not a non-negative integer. "
-                f"The dataset is corrupt; re-download it or re-publish the env with push_env."
-            )
-    template = info.get("data_path", DATA_PATH)
-    _check_path_template(root / INFO_PATH, "data_path", template)
-    rel = template.format(chunk_index=int(chunk_index), file_index=int(file_index))
-    parts = rel.split("/")
-    if rel.startswith("/") or "\\" in rel or any(p in ("", ".", "..") for p in parts):  # cannot happen after the check
-        raise DatasetError(
-            f"{root / INFO_PATH}: data_path resolves to {rel!r}, outside the dataset folder. Re-publish with push_env."
-        )
-    return root.joinpath(*parts)
-
-
-def read_episode_meta(root: str | os.PathLike) -> list[dict]:
-    """One dict per episode (sorted by ``episode_index``): the episodes metadata without stats.
-
-    Keys: episode_index, tasks, length, data/chunk_index, data/file_index, dataset_from_index,
-    dataset_to_index, meta/episodes/chunk_index, meta/episodes/file_index and ``seed`` (``None``
-    for datasets not written by hub-envs).
-    """
-    import pyarrow.parquet as pq
-
-    meta_dir = Path(root) / EPISODES_DIR
-    paths = sorted(meta_dir.glob("*/*.parquet"))
-    if not paths:
-        raise DatasetError(f"No episode metadata under {meta_dir}: {root} is not a LeRobot v3.0 dataset folder.")
-    rows: list[dict] = []
-    try:
-        for path in paths:
-            names = pq.read_schema(path).names
-            table = pq.read_table(path, columns=[n for n in names if not n.startswith("stats/")])
-            rows.extend(table.to_pylist())
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"Cannot read episode metadata in {meta_dir}: {exc}. Regenerate the dataset.") from exc
-    for row in rows:
-        row.setdefault("seed", None)
-    rows.sort(key=lambda r: r["episode_index"])
-    return rows
-
-
-def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-    """The frames of one episode: ``{dataset_key: (T, *feature shape) array}`` (images decoded, uint8 HWC).
-
-    Reads only that episode's data file with pyarrow (row-group pruning on ``episode_index``);
-    LeRobot's default columns are included. ``keys`` restricts the columns returned.
-    """
-    import pyarrow.compute as pc
-    import pyarrow.parquet as pq
-
-    root = Path(root)
-    info = read_info(root)
-    features = info["features"]
-    meta = [m for m in read_episode_meta(root) if m["episode_index"] == episode_index]
-    if not meta:
-        raise DatasetError(f"Episode {episode_index} is not in {root} ({info.get('total_episodes')} episodes).")
-    m = meta[0]
-    path = data_file(root, info, m["data/chunk_index"], m["data/file_index"])
-    selected = None if keys is None else set(keys)
-    wanted = [k for k in features if features[k]["dtype"] != "video" and (selected is None or k in selected)]
-    columns = wanted if "episode_index" in wanted else [*wanted, "episode_index"]
-    try:
-        table = pq.read_table(path, columns=columns, filters=[("episode_index", "=", int(episode_index))])
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"Cannot read {path}: {exc}. Regenerate or re-download the dataset.") from exc
-    table = table.sort_by("frame_index") if "frame_index" in table.column_names else table
-    n = table.num_rows
-    out: dict[str, np.ndarray] = {}
-    for key in wanted:
-        ft = features[key]
-        col = table.column(key).combine_chunks()
-        shape = tuple(ft["shape"])
-        if ft["dtype"] == "image":
-            data = col.field("bytes").to_pylist()
-            out[key] = np.stack([_decode_png(b) for b in data]) if n else np.zeros((0, *shape), np.uint8)
-            if out[key].ndim == 3:  # grayscale
-                out[key] = out[key][..., None]
-        elif shape == (1,):
-            out[key] = col.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(n, 1)
-        elif len(shape) == 1:
-            out[key] = pc.list_flatten(col).to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(n, *shape)
-        else:
-            storage = col.storage if hasattr(col, "storage") else col
-            flat = storage
-            for _ in shape:
-                flat = pc.list_flatten(flat)
-            out[key] = flat.to_numpy(zero_copy_only=False).astype(ft["dtype"], copy=False).reshape(n, *shape)
-    if n != m["length"]:
-        raise DatasetError(
-            f"Episode {episode_index} has {n} rows in {path} but its metadata says {m['length']}. The dataset is corrupt; regenerate it."
-        )
-    return out

@@ -1,0 +1,69 @@
+"""What a push costs before it publishes: ``build_repo`` (checks, dataset, fingerprint, GIF, card) per example env.
+
+For ``envs/pendulum`` and ``envs/hover``: seconds of ``build_repo`` for 10 episodes on one worker
+(median of ``repeats``), and how many times the env class was constructed during it (every
+``make()`` in the process: checks, dataset, fingerprint, GIF, card). Publishing is measured by
+``bench_server``. Figures: ``push_build_s_<env>`` and ``push_env_constructions_<env>``; the issue
+that straightened push's data flow compares them with the figures before the change (its note).
+
+Run: ``python -m benchmarks.bench_push [--repeats 3]``; ``run()`` returns the dict.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+ENVS = ("pendulum", "hover")
+
+
+def _build_once(name: str, episodes: int) -> tuple[float, int]:
+    from hub_envs import load_env
+    from hub_envs.push import build_repo
+
+    loaded = load_env(REPO / "envs" / name, check=False)
+    cls = loaded.env_class
+    count = [0]
+    original = cls.__init__
+
+    def counting_init(self, *args, **kwargs):
+        count[0] += 1
+        original(self, *args, **kwargs)
+
+    cls.__init__ = counting_init
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            staging = Path(tmp) / "repo"
+            staging.mkdir()
+            t = time.perf_counter()
+            build_repo(loaded, staging, repo_id=f"bench/{name}", episodes=episodes, seed=0, workers=1, progress=False)
+            return time.perf_counter() - t, count[0]
+    finally:
+        cls.__init__ = original
+        loaded.unregister()
+
+
+def run(repeats: int = 3, episodes: int = 10) -> dict:
+    out: dict = {"episodes": episodes, "workers": 1}
+    for name in ENVS:
+        times, counts = [], []
+        for _ in range(repeats):
+            seconds, constructions = _build_once(name, episodes)
+            times.append(seconds)
+            counts.append(constructions)
+        out[name] = {"seconds": times, "env_constructions": counts}
+        out[f"push_build_s_{name}"] = round(statistics.median(times), 3)
+        out[f"push_env_constructions_{name}"] = max(counts)
+    return out
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    print(json.dumps(run(args.repeats), indent=2))
