@@ -47,6 +47,7 @@ class PushArgs:
     tag: str | None = None
     workers: int = 0  # 0: as many as useful on this machine
     commit_message: str | None = None
+    determinism_steps: int | None = None  # cap of the determinism check; default: a whole episode (two seeds)
 
 
 @dataclass
@@ -99,6 +100,7 @@ def push(args: PushArgs) -> int:
         tag=args.tag,
         workers=args.workers or None,
         commit_message=args.commit_message,
+        determinism_steps=args.determinism_steps,
     )
     print(result.summary())
     return 0

@@ -326,6 +326,20 @@ def build_pipelines(specs: list[ProcessorSpec], **kwargs) -> tuple[PolicyProcess
     )
 
 
+def _run_stage(specs: list[ProcessorSpec], pipeline: Any, transition: Any, stage: str, on: str, where: str) -> Any:
+    """Run the steps of one stage on ``transition``; the first that raises is named by its declaration."""
+    for spec, step in zip([s for s in specs if s.stage == stage], pipeline.steps, strict=False):
+        try:
+            transition = step(transition)
+        except Exception as e:
+            raise ProcessorError(
+                f"{where} processors[{spec.index}] ({spec.name!r}, stage {stage}) failed on {on}: "
+                f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
+                f"and re-publish with push_env."
+            ) from e
+    return transition
+
+
 def dry_run(
     specs: list[ProcessorSpec],
     pre: PolicyProcessorPipeline,
@@ -338,34 +352,10 @@ def dry_run(
 ) -> None:
     """Run every step once on a live observation and a sampled action; a failure names the step."""
     obs, _ = env.reset(seed=seed)
-    transition = pre.to_transition(policy_observation(obs, task))
-    for spec, step in zip([s for s in specs if s.stage == "pre"], pre.steps):
-        try:
-            transition = step(transition)
-        except Exception as e:
-            raise ProcessorError(
-                f"{where} processors[{spec.index}] ({spec.name!r}, stage pre) failed on a live observation: "
-                f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
-                f"and re-publish with push_env."
-            ) from e
+    _run_stage(specs, pre, pre.to_transition(policy_observation(obs, task)), "pre", "a live observation", where)
     env.action_space.seed(seed)
     action = torch.as_tensor(np.asarray(env.action_space.sample(), dtype=np.float32)).reshape(1, -1)
-    transition = post.to_transition({ACTION: action})
-    for spec, step in zip([s for s in specs if s.stage == "post"], post.steps):
-        try:
-            transition = step(transition)
-        except Exception as e:
-            raise ProcessorError(
-                f"{where} processors[{spec.index}] ({spec.name!r}, stage post) failed on a sampled action: "
-                f"{type(e).__name__}: {e}. Fix the step or its kwargs in [tool.hub-envs.processors] "
-                f"and re-publish with push_env."
-            ) from e
-    out = post.to_output(transition)[ACTION]
-    if not isinstance(out, torch.Tensor) or tuple(out.shape) != tuple(action.shape):
-        raise ProcessorError(
-            f"{where}: the post processors turned a {tuple(action.shape)} action into {out!r}; "
-            f"they must return a tensor of the same shape."
-        )
+    _run_stage(specs, post, post.to_transition({ACTION: action}), "post", "a sampled action", where)
 
 
 # --- with a loaded env ------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """``push_env``: validate a local env folder, build its dataset and card, publish it in one commit.
 
 1. load the folder through the same code path ``load_env`` uses;
-2. refuse to publish if a check fails: gymnasium's ``check_env``, the three-way feature check,
-   determinism (same seed, same first K steps);
+2. refuse to publish if a check fails: determinism (two seeds, a whole episode each, or
+   ``determinism_steps``), gymnasium's ``check_env``, the three-way feature check;
 3. generate the random-action dataset (seeded, in parallel across processes, progress bar);
 4. record the golden-rollout fingerprint and the random-policy benchmark, write the manifest,
    render the card and a GIF;
@@ -149,13 +149,16 @@ class _DatasetRun:
     golden: dict[str, Any]  # the golden-rollout fingerprint, from the first episodes
 
 
-def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int, where: str) -> Any:
-    """Stage 1: gymnasium's checker, the live half of the three-way feature check, determinism.
+def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, where: str) -> Any:
+    """Stage 1: determinism (two seeds, a whole episode or ``determinism_steps``), gymnasium's checker, the live
+    half of the three-way feature check. Determinism first: its message names the key, step and difference,
+    which gymnasium's own determinism assertion does not.
 
     Returns the env it checked (open): the dataset half of the feature check and the card reuse it.
     """
     cfg = loaded.config
-    check_determinism(loaded.make, seed=seed, steps=min(determinism_steps, int(cfg.episode_length)), where=where)
+    budget = int(cfg.episode_length) if determinism_steps is None else min(int(determinism_steps), int(cfg.episode_length))
+    check_determinism(loaded.make, seeds=[seed, seed + 1], steps=budget, where=where)
     raw = loaded.env_class(**cfg.gym_kwargs)  # no spec: gymnasium's checker would re-make a spec'd env per render mode
     try:
         run_env_checker(raw, where=where)
@@ -301,7 +304,7 @@ def build_repo(
     episodes: int,
     seed: int,
     workers: int,
-    determinism_steps: int = 32,
+    determinism_steps: int | None = None,
     fingerprint_seeds: int = 3,
     progress: bool = True,
 ) -> Manifest:
@@ -362,10 +365,12 @@ def push_env(
     workers: int | None = None,
     commit_message: str | None = None,
     progress: bool = True,
+    determinism_steps: int | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
     Pushing content identical to the repo's current main makes no new commit (the result says so).
+    ``determinism_steps`` caps the determinism check (default: a whole episode, for two seeds).
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -390,6 +395,7 @@ def push_env(
                 episodes=episodes,
                 seed=seed,
                 workers=workers or _default_workers(),
+                determinism_steps=determinism_steps,
                 progress=progress,
             )
             timings["build"] = time.perf_counter() - t0

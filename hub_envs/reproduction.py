@@ -196,19 +196,7 @@ def _run_episodes(
             if r in joint:
                 results.append(r.finish(episodes_seconds=joint_seconds * (1 - replay_share) / max(1, len(joint))))
             else:  # a checkpoint policy (or an unusual max_steps): its own pass
-                t = time.perf_counter()
-                if r.runnable:
-                    for rollout in iter_episodes(
-                        loaded.make,
-                        r.seeds,
-                        max_steps=r.max_steps,
-                        policy=r.policy,
-                        workers=workers,
-                        progress=progress,
-                        desc=f"Benchmark {r.name}",
-                    ):
-                        r.consume(rollout)
-                results.append(r.finish(episodes_seconds=time.perf_counter() - t))
+                results.append(r.run(loaded.make, workers=workers, progress=progress))
         timings["benchmarks"] = sum(b.seconds for b in results)
         return replay_result, results
     finally:

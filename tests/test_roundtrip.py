@@ -233,6 +233,28 @@ def test_push_warns_when_get_state_cannot_be_recorded(hub, tmp_path, get_state, 
     assert result.manifest.dataset["env_states"] is None  # published without states, and said so
 
 
+def test_noise_late_in_an_episode_is_refused_at_push_with_its_step(hub, tmp_path):
+    """Determinism covers whole episodes: noise injected from step 40 (past the first 32 steps) is found at push."""
+    folder = copy_env(
+        tmp_path,
+        edits={
+            "tiny.py": lambda s: (
+                s.replace("episode_length: int = 30", "episode_length: int = 60")
+                .replace("self.vel = np.zeros(1)\n        return", "self.vel = np.zeros(1)\n        self.t = 0\n        return")
+                .replace(
+                    "        reward = -float(abs(self.pos[0]))\n",
+                    "        reward = -float(abs(self.pos[0]))\n        self.t += 1\n"
+                    "        if self.t > 40:\n            self.vel = self.vel + np.random.normal(0.0, 1e-3, 1)\n",
+                )
+            )
+        },
+    )
+    with pytest.raises(errors.DeterminismError, match=r"observation 'agent_pos' at step 41 \(max abs difference"):
+        _push(folder, "alice/tiny-late-noise")
+    with pytest.raises(errors.EnvRepoNotFoundError):  # nothing was published
+        load_env("alice/tiny-late-noise", trust_remote_code=True)
+
+
 def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hub):
     _push(TINY, "alice/tiny-lies")
 

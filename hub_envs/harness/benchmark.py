@@ -349,6 +349,25 @@ class BenchmarkRun:
             key, get = METRICS[m]
             self.per_episode[key].append(get(rollout))
 
+    def run(self, make_env: Callable[[], Any], *, workers: int = 1, progress: bool = True) -> BenchmarkResult:
+        """Run this benchmark's episodes in a pass of its own, and :meth:`finish`."""
+        t = time.perf_counter()
+        try:
+            if self.runnable:
+                for rollout in iter_episodes(
+                    make_env,
+                    self.seeds,
+                    max_steps=self.max_steps,
+                    policy=self.policy,
+                    workers=workers,
+                    progress=progress,
+                    desc=f"Benchmark {self.name}",
+                ):
+                    self.consume(rollout)
+        finally:
+            seconds = time.perf_counter() - t
+        return self.finish(episodes_seconds=seconds)
+
     def finish(self, *, episodes_seconds: float = 0.0) -> BenchmarkResult:
         _restore_torch_threads(self._threads)
         result = self.result
@@ -398,20 +417,4 @@ def reproduce_benchmark(
     run = BenchmarkRun(
         loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token, trust_policy_code=trust_policy_code
     )
-    t = time.perf_counter()
-    try:
-        if run.runnable:
-            for rollout in iter_episodes(
-                loaded.make,
-                run.seeds,
-                max_steps=run.max_steps,
-                policy=run.policy,
-                workers=workers,
-                progress=progress,
-                desc=f"Benchmark {run.name}",
-            ):
-                run.consume(rollout)
-    finally:
-        episodes_seconds = time.perf_counter() - t
-        result = run.finish(episodes_seconds=episodes_seconds)
-    return result
+    return run.run(loaded.make, workers=workers, progress=progress)

@@ -4,7 +4,7 @@ The three-way feature check lives in :mod:`hub_envs.harness.features`; these are
 before publishing and load_env re-runs after downloading.
 
 * :func:`run_env_checker` — gymnasium's ``check_env`` (spaces, reset/step API, seeding, render).
-* :func:`check_determinism` — two fresh envs, same seed, same actions: bit-identical rollouts.
+* :func:`check_determinism` — per seed, two fresh envs, same actions, a whole episode: bit-identical rollouts.
 * :func:`golden_fingerprint` — a sha256 of the first K steps of seeded random-action rollouts
   (observations, rewards, terminations), recorded at push and recomputed at load to catch drift
   across gymnasium / numpy / simulator upgrades.
@@ -81,15 +81,19 @@ def _first_difference(a: EpisodeRollout, b: EpisodeRollout) -> str:
     return "lengths differ"
 
 
-def check_determinism(make_env: Callable[[], Any], *, seed: int, steps: int, where: str) -> None:
-    """Two fresh envs, reset with ``seed``, the same seeded random actions: the rollouts must be identical."""
-    first = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
-    second = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
-    if _episode_digest(first) != _episode_digest(second):
-        raise DeterminismError(
-            f"{where}: two rollouts with seed {seed} differ: {_first_difference(first, second)}.\n"
-            f"Seed every source of randomness from reset(seed=...) (use self.np_random), and avoid global state."
-        )
+def check_determinism(make_env: Callable[[], Any], *, seeds: Sequence[int], steps: int, where: str) -> None:
+    """Per seed, two fresh envs reset with it and driven by the same seeded random actions for up to ``steps``
+    steps (a whole episode by default at push): the rollouts must be bit-identical. A difference is named by
+    seed, key, step and size, before any other check could report it less precisely."""
+    for seed in seeds:
+        first = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
+        second = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
+        if _episode_digest(first) != _episode_digest(second):
+            raise DeterminismError(
+                f"{where}: two rollouts with seed {seed} differ: {_first_difference(first, second)}.\n"
+                f"Seed every source of randomness from reset(seed=...) (use self.np_random), reset every piece of "
+                f"state in reset(), and avoid global state."
+            )
 
 
 def episode_prefix(ep: EpisodeRollout, steps: int) -> EpisodeRollout:

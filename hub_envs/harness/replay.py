@@ -347,43 +347,25 @@ def _compare_episode(
     if plan.states is not None:
         pairs.append((STATE_FEATURE, rollout.states, plan.states[ep]))
     curves: dict[str, np.ndarray] = {}
+
+    def whole(key: str, dataset: Any, replay: Any, note: str) -> None:
+        """A divergence of the whole feature (gone, or another shape): from step 0, no element."""
+        result.divergences.append(
+            Divergence(ep, seed, 0, key, plan.features.get(key), float("inf"), [], dataset, replay, note=note)
+        )
+
     for key, rep, dat in pairs:
         if rep is None:
             if key == STATE_FEATURE:
                 continue  # the env has no get_state any more: nothing to compare the states with
-            result.divergences.append(
-                Divergence(
-                    ep,
-                    seed,
-                    0,
-                    key,
-                    plan.features.get(key),
-                    float("inf"),
-                    [],
-                    _value(dat[0], key in plan.image_keys) if len(dat) else None,
-                    "missing",
-                    note=f"the env's observation has no '{plan.features.get(key)}' any more",
-                )
-            )
+            dataset_value = _value(dat[0], key in plan.image_keys) if len(dat) else None
+            whole(key, dataset_value, "missing", f"the env's observation has no '{plan.features.get(key)}' any more")
             continue
         image = key in plan.image_keys
         rep = _as_dataset_layout(np.asarray(rep), dat, image)
         n = min(len(rep), len(dat))
         if rep.shape[1:] != dat.shape[1:]:
-            result.divergences.append(
-                Divergence(
-                    ep,
-                    seed,
-                    0,
-                    key,
-                    plan.features.get(key),
-                    float("inf"),
-                    [],
-                    f"shape {dat.shape[1:]}",
-                    f"shape {rep.shape[1:]}",
-                    note="the feature's shape changed",
-                )
-            )
+            whole(key, f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}", "the feature's shape changed")
             continue
         errors = _step_errors(rep[:n], dat[:n])
         curves[key] = errors

@@ -551,18 +551,8 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
             _FORK_STATES.pop(token, None)
 
 
-def run_episodes(
-    make_env: Callable[[], Any],
-    seeds: Sequence[int],
-    *,
-    max_steps: int,
-    policy: Any = None,
-    record_states: bool = False,
-    workers: int = 1,
-    progress: bool = True,
-    desc: str = "rollouts",
-) -> list[EpisodeRollout]:
-    """Run one episode per seed and return the rollouts in seed order.
+def run_episodes(make_env: Callable[[], Any], seeds: Sequence[int], **options: Any) -> list[EpisodeRollout]:
+    """Run one episode per seed and return the rollouts in seed order. ``options`` are :func:`iter_episodes`'.
 
     Args:
         make_env: zero-argument callable returning a gymnasium env. Called once per worker; the env
@@ -585,15 +575,4 @@ def run_episodes(
         EnvCodeError: the env raised in make_env/reset/step, or produced NaN/inf observations or rewards.
         ConfigError: invalid seeds, max_steps, workers or policy.
     """
-    return list(
-        iter_episodes(
-            make_env,
-            seeds,
-            max_steps=max_steps,
-            policy=policy,
-            record_states=record_states,
-            workers=workers,
-            progress=progress,
-            desc=desc,
-        )
-    )
+    return list(iter_episodes(make_env, seeds, **options))
