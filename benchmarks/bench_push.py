@@ -6,6 +6,10 @@ For ``envs/pendulum`` and ``envs/hover``: seconds of ``build_repo`` for 10 episo
 ``bench_server``. Figures: ``push_build_s_<env>`` and ``push_env_constructions_<env>``; the issue
 that straightened push's data flow compares them with the figures before the change (its note).
 
+``repush_unchanged_vs_push``: wall seconds of a second ``push_env`` of hover with nothing changed
+(main already holds it: no dataset, no checks, no commit) ÷ the first, full push, to a loopback Hub,
+alternating new repos per repeat. Goal <= 0.1.
+
 Run: ``python -m benchmarks.bench_push [--repeats 3]``; ``run()`` returns the dict.
 """
 
@@ -48,6 +52,30 @@ def _build_once(name: str, episodes: int) -> tuple[float, int]:
         loaded.unregister()
 
 
+def _repush(repeats: int, episodes: int) -> dict:
+    from hub_envs import push_env
+    from hub_envs.testing import HubServer, hub_environment
+
+    full, again = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        with HubServer(tmp / "hub-data") as server, hub_environment(server.endpoint, tmp / "home"):
+            for i in range(repeats):
+                repo = f"bench/hover-{i}"
+                t = time.perf_counter()
+                push_env(REPO / "envs" / "hover", repo, episodes=episodes, progress=False)
+                full.append(time.perf_counter() - t)
+                t = time.perf_counter()
+                result = push_env(REPO / "envs" / "hover", repo, episodes=episodes, progress=False)
+                again.append(time.perf_counter() - t)
+                assert not result.created_commit
+    return {
+        "full_push_s": [round(x, 3) for x in full],
+        "unchanged_repush_s": [round(x, 3) for x in again],
+        "repush_unchanged_vs_push": round(statistics.median(again) / statistics.median(full), 3),
+    }
+
+
 def run(repeats: int = 3, episodes: int = 10) -> dict:
     out: dict = {"episodes": episodes, "workers": 1}
     for name in ENVS:
@@ -59,6 +87,9 @@ def run(repeats: int = 3, episodes: int = 10) -> dict:
         out[name] = {"seconds": times, "env_constructions": counts}
         out[f"push_build_s_{name}"] = round(statistics.median(times), 3)
         out[f"push_env_constructions_{name}"] = max(counts)
+    repush = _repush(repeats, episodes)
+    out["repush"] = repush
+    out["repush_unchanged_vs_push"] = repush["repush_unchanged_vs_push"]
     return out
 
 

@@ -65,6 +65,7 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "push_build_s_hover": ("bench_push", None, "  same, hover"),
     "push_env_constructions_pendulum": ("bench_push", None, "env objects built during that push, pendulum"),
     "push_env_constructions_hover": ("bench_push", None, "  same, hover"),
+    "repush_unchanged_vs_push": ("bench_push", (LE, 0.1), "seconds: unchanged re-push of hover ÷ its first push"),
 }
 
 

@@ -48,6 +48,7 @@ class PushArgs:
     workers: int = 0  # 0: as many as useful on this machine
     commit_message: str | None = None
     determinism_steps: int | None = None  # cap of the determinism check; default: a whole episode (two seeds)
+    force: bool = False  # rebuild even when main already holds this code, config, seeds and versions
 
 
 @dataclass
@@ -101,6 +102,7 @@ def push(args: PushArgs) -> int:
         workers=args.workers or None,
         commit_message=args.commit_message,
         determinism_steps=args.determinism_steps,
+        force=args.force,
     )
     print(result.summary())
     return 0

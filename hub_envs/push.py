@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import sys
@@ -54,8 +55,11 @@ from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
     ENV_ENTRY_FILE,
+    FORMAT_VERSION,
     GIF_FILE,
+    HUB_FILES,
     MANIFEST_FILE,
+    MEDIA_DIR,
     Manifest,
     check_publishable,
     content_digest,
@@ -90,6 +94,10 @@ class PushResult:
             f"{verb} {self.repo_id} at commit {self.sha} (tags: {', '.join(self.tags)}).\n"
             f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}"
         )
+
+
+#: Seeds of the golden-rollout fingerprint: the first dataset episodes.
+FINGERPRINT_SEEDS = 3
 
 
 def _stage_printer(enabled: bool):
@@ -173,6 +181,74 @@ def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, w
     return env
 
 
+def _entry_text(repo_id: str) -> str:
+    return ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id)
+
+
+def _code_files(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
+    """``{path: sha256}`` of the code files a push of ``loaded`` publishes (the folder's files and ``env.py``)."""
+    files = hash_files(loaded.local_folder, list_files(loaded.local_folder))
+    files[ENV_ENTRY_FILE] = hashlib.sha256(_entry_text(repo_id).encode("utf-8")).hexdigest()
+    return dict(sorted(files.items()))
+
+
+def _published_unchanged(
+    loaded: LoadedEnv, repo_id: str, *, episodes: int, seed: int, fingerprint_seeds: int, token: str | None
+) -> tuple[str, Manifest] | None:
+    """``(sha, manifest)`` of main when it already holds what this push would build, else None.
+
+    "The same" is: the same code files (each hash), config values, dataset seeds and episode count, check
+    seed, fingerprint seeds, requirements, processors, name/version/description, format, and recorded package
+    versions (hub-envs' own included, so a new hub-envs regenerates); and main holds exactly the files its
+    manifest lists. Generated files (dataset, GIF, card) are not rebuilt to compare them: they follow from
+    the above, and a hand edit of them that also rewrote the manifest is for ``hub-envs reproduce`` to find
+    (``force=True`` regenerates anyway).
+    """
+    head = hub_io.remote_head(repo_id, token=token)
+    if head is None:
+        return None
+    remote = _remote_manifest(repo_id, head, token)
+    if remote is None:
+        return None
+    local = loaded.manifest
+    seeds = [seed + i for i in range(episodes)]
+    code = _code_files(loaded, repo_id)
+    same = (
+        remote.format_version == FORMAT_VERSION
+        and remote.repo_id == repo_id
+        and {p: h for p, h in remote.files.items() if not _generated(p)} == code
+        and remote.code_digest == code_digest_of_files(code)
+        and remote.config == encode_config(loaded.config)
+        and remote.seeds.get("dataset") == seeds
+        and remote.seeds.get("check") == seed
+        and remote.dataset.get("episodes") == episodes
+        and remote.fingerprint.get("seeds") == seeds[:fingerprint_seeds]
+        and (remote.name, remote.version, remote.description) == (local.name, local.version, local.description)
+        and remote.requirements == tuple(local.requirements)
+        and remote.processors == tuple(local.processors)
+        and remote.versions == package_versions(local.requirements)
+    )
+    if not same:
+        return None
+    remote_files = set(hub_io.list_remote_files(repo_id, head, token=token)) - set(HUB_FILES)
+    return (head, remote) if remote_files == set(remote.files) | {MANIFEST_FILE} else None
+
+
+def _generated(path: str) -> bool:
+    """A file push_env makes from the code (the dataset, the media, the card), not one the author wrote."""
+    return path == CARD_FILE or path.startswith((f"{DATASET_DIR}/", f"{MEDIA_DIR}/"))
+
+
+def _remote_manifest(repo_id: str, sha: str, token: str | None) -> Manifest | None:
+    text = hub_io.read_remote_text(repo_id, MANIFEST_FILE, revision=sha, token=token)
+    if text is None:
+        return None
+    try:
+        return Manifest.from_json(text)
+    except Exception:  # noqa: BLE001 - an unreadable manifest on main: the push replaces it
+        return None
+
+
 def _write_code(loaded: LoadedEnv, staging: Path, repo_id: str) -> str:
     """Stage 2: the env's own files and the generated ``env.py``; returns the code digest."""
     check_publishable(loaded.local_folder)  # no symlink out of the folder, no compiled files
@@ -180,9 +256,7 @@ def _write_code(loaded: LoadedEnv, staging: Path, repo_id: str) -> str:
         dest = staging / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(loaded.local_folder / rel, dest)
-    (staging / ENV_ENTRY_FILE).write_text(
-        ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id), encoding="utf-8"
-    )
+    (staging / ENV_ENTRY_FILE).write_text(_entry_text(repo_id), encoding="utf-8")
     return code_digest_of_files(hash_files(staging, list_files(staging)))
 
 
@@ -305,7 +379,7 @@ def build_repo(
     seed: int,
     workers: int,
     determinism_steps: int | None = None,
-    fingerprint_seeds: int = 3,
+    fingerprint_seeds: int = FINGERPRINT_SEEDS,
     progress: bool = True,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
@@ -353,6 +427,16 @@ def build_repo(
     return manifest
 
 
+def _tag(repo_id: str, sha: str, manifest: Manifest, tag: str | None, *, token: str | None) -> list[str]:
+    """Put the content tag (unless an earlier commit with the same content holds it) and ``tag`` on ``sha``."""
+    tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
+    for name in tags:
+        if name == tags[0] and hub_io.tag_target(repo_id, name, token=token) not in (None, sha):
+            continue  # an earlier commit holds the same content and keeps its content tag
+        hub_io.tag(repo_id, sha, name, message=f"hub-envs content {manifest.content_digest}", token=token)
+    return tags
+
+
 def push_env(
     env_dir: str | Path,
     repo_id: str,
@@ -366,11 +450,15 @@ def push_env(
     commit_message: str | None = None,
     progress: bool = True,
     determinism_steps: int | None = None,
+    force: bool = False,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
     Pushing content identical to the repo's current main makes no new commit (the result says so).
-    ``determinism_steps`` caps the determinism check (default: a whole episode, for two seeds).
+    When main already holds what this push would build (same code, config, seeds, episodes and recorded
+    versions: :func:`_published_unchanged`), nothing is regenerated and the push takes about a second;
+    ``force=True`` rebuilds and compares everything. ``determinism_steps`` caps the determinism check
+    (default: a whole episode, for two seeds).
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -385,6 +473,21 @@ def push_env(
     t0 = time.perf_counter()
     loaded = load_env(env_dir.resolve(), check=False)
     try:
+        unchanged = (
+            None
+            if force
+            else _published_unchanged(
+                loaded, repo_id, episodes=episodes, seed=seed, fingerprint_seeds=FINGERPRINT_SEEDS, token=token
+            )
+        )
+        if unchanged is not None:
+            sha, manifest = unchanged
+            _stage_printer(progress)(f"{repo_id}@{sha} already holds this code, config, seeds and versions: nothing to build")
+            tags = _tag(repo_id, sha, manifest, tag, token=token)
+            timings["total"] = time.perf_counter() - t0
+            return PushResult(
+                repo_id=repo_id, sha=sha, created_commit=False, content_tag=tags[0], manifest=manifest, timings=timings, tags=tags
+            )
         with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp:
             staging = Path(tmp) / "repo"
             staging.mkdir()
@@ -402,14 +505,7 @@ def push_env(
             t = time.perf_counter()
             _stage_printer(progress)(f"Publishing to {repo_id} at {hub_io.endpoint()}")
             head = hub_io.remote_head(repo_id, token=token)
-            remote_manifest = None
-            if head is not None:
-                text = hub_io.read_remote_text(repo_id, MANIFEST_FILE, revision=head, token=token)
-                if text is not None:
-                    try:
-                        remote_manifest = Manifest.from_json(text)
-                    except Exception:
-                        remote_manifest = None
+            remote_manifest = _remote_manifest(repo_id, head, token) if head is not None else None
             remote_files = hub_io.list_remote_files(repo_id, head, token=token)
             same_files = set(remote_files) - {".gitattributes"} == set(manifest.files) | {MANIFEST_FILE}
             if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files:
@@ -435,11 +531,7 @@ def push_env(
                     token=token,
                 )
                 created = True
-            tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
-            for name in tags:
-                if name == tags[0] and hub_io.tag_target(repo_id, name, token=token) not in (None, sha):
-                    continue  # an earlier commit holds the same content and keeps its content tag
-                hub_io.tag(repo_id, sha, name, message=f"hub-envs content {manifest.content_digest}", token=token)
+            tags = _tag(repo_id, sha, manifest, tag, token=token)
             timings["publish"] = time.perf_counter() - t
     finally:
         loaded.unregister()

@@ -76,15 +76,21 @@ def test_push_then_load_by_repo_id_from_a_clean_cache(hub, tmp_path):
         np.testing.assert_array_equal(first["observation.state"].numpy(), obs0["agent_pos"])
 
 
-def test_pushing_unchanged_content_twice_makes_one_commit(hub):
+def test_pushing_unchanged_content_twice_makes_one_commit(hub, tmp_path):
     first = _push(TINY, "alice/tiny-twice")
     second = _push(TINY, "alice/tiny-twice")
     assert not second.created_commit and second.sha == first.sha
+    assert "build" not in second.timings  # nothing was regenerated to find out
+    assert second.manifest == first.manifest
+    forced = _push(TINY, "alice/tiny-twice", force=True)  # rebuilt: the same bytes, so still no commit
+    assert not forced.created_commit and forced.sha == first.sha and "build" in forced.timings
     commits = hub.api.list_repo_commits("alice/tiny-twice")
     assert [c.commit_id for c in commits if c.commit_id == first.sha] == [first.sha]
     assert commits[0].commit_id == first.sha
     third = _push(TINY, "alice/tiny-twice", episodes=4)  # different content: a new commit
     assert third.created_commit and third.sha != first.sha
+    edited = copy_env(tmp_path, edits={"dynamics.py": lambda s: s + "\n# a comment is a change of code\n"})
+    assert _push(edited, "alice/tiny-twice", episodes=4).created_commit
 
 
 def test_one_commit_holds_everything_and_is_tagged(hub):
