@@ -60,6 +60,7 @@ from hub_envs.repo_format import (
     HUB_FILES,
     MANIFEST_FILE,
     MEDIA_DIR,
+    EnvFolder,
     Manifest,
     check_publishable,
     content_digest,
@@ -418,7 +419,13 @@ def build_repo(
         manifest = replace(
             manifest, content_digest=content_digest(hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE))))
         )
-        card = render_card(manifest, env_class=loaded.env_class, env=env, content_tag=content_tag(manifest.content_digest))
+        card = render_card(
+            manifest,
+            env_class=loaded.env_class,
+            env=env,
+            content_tag=content_tag(manifest.content_digest),
+            license=EnvFolder.read(loaded.local_folder).license,
+        )
         (staging / CARD_FILE).write_text(card, encoding="utf-8")
     finally:
         env.close()

@@ -594,6 +594,28 @@ class Manifest:
 # --- a local env folder (what an author writes) -----------------------------------------------
 
 
+_SPDX_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.+-]{0,63}$")
+
+
+def card_license(project: dict[str, Any]) -> str | None:
+    """The license a card may state for ``[project]``: the SPDX id it declares (``license = "MIT"`` or
+    ``license = {text = "MIT"}``), lowercased as the Hub spells ids; ``"other"`` for a license file or a
+    longer text; None when nothing is declared (the card then claims no license).
+
+    >>> card_license({"license": "Apache-2.0"}), card_license({"license": {"file": "LICENSE"}}), card_license({})
+    ('apache-2.0', 'other', None)
+    """
+    value = project.get("license")
+    if isinstance(value, dict):
+        value = value.get("text") if "text" in value else ("other" if value.get("file") else None)
+    if value is None and project.get("license-files"):
+        return "other"
+    if not isinstance(value, str) or not value.strip():
+        return None
+    value = value.strip()
+    return value.lower() if _SPDX_ID_RE.match(value) else "other"
+
+
 @dataclass(frozen=True)
 class EnvFolder:
     """A local env folder, read from its ``pyproject.toml`` without running any of its code."""
@@ -608,6 +630,8 @@ class EnvFolder:
     files: tuple[str, ...]
     #: ``[tool.hub-envs] processors`` (tables; validated by load_env, see hub_envs.processors)
     processors: tuple[dict[str, Any], ...] = ()
+    #: ``[project] license`` as the card states it (:func:`card_license`); None when none is declared
+    license: str | None = None
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
@@ -683,4 +707,5 @@ class EnvFolder:
             config_entry_point=tool["config"],
             files=tuple(files),
             processors=tuple(processors),
+            license=card_license(project),
         )

@@ -93,6 +93,18 @@ def test_pushing_unchanged_content_twice_makes_one_commit(hub, tmp_path):
     assert _push(edited, "alice/tiny-twice", episodes=4).created_commit
 
 
+def test_the_card_states_the_license_the_folder_declares_and_none_otherwise(hub, tmp_path):
+    from huggingface_hub import ModelCard
+
+    _push(TINY, "alice/tiny-nolicense")  # the fixture's pyproject declares none
+    assert "license" not in ModelCard.load("alice/tiny-nolicense").data.to_dict()
+    mit = copy_env(
+        tmp_path, edits={"pyproject.toml": lambda s: s.replace('version = "0.1.0"', 'version = "0.1.0"\nlicense = "MIT"')}
+    )
+    _push(mit, "alice/tiny-mit")
+    assert ModelCard.load("alice/tiny-mit").data.to_dict()["license"] == "mit"
+
+
 def test_one_commit_holds_everything_and_is_tagged(hub):
     result = _push(TINY, "alice/tiny-files", tag="v1")
     files = set(hub.api.list_repo_files("alice/tiny-files", revision=result.sha))
