@@ -195,10 +195,11 @@ def _highlight_code(code: str, lang: str, _attrs: str) -> str:
         lexer = get_lexer_by_name(lang.split()[0].lower())
     except ClassNotFound:
         return ""
-    return pygments_highlight(code, lexer, _FENCE_FORMATTER)
+    # starts with "<pre": markdown-it then uses it as the whole block (no second <pre><code> around it)
+    return f'<pre class="highlight"><code>{pygments_highlight(code, lexer, _FENCE_FORMATTER)}</code></pre>'
 
 
-_FENCE_FORMATTER = HtmlFormatter(cssclass="highlight", wrapcode=True)
+_FENCE_FORMATTER = HtmlFormatter(nowrap=True)
 _FILE_FORMATTER = HtmlFormatter(cssclass="highlight", wrapcode=True, linenos="table", lineanchors="L", anchorlinenos=True)
 
 
