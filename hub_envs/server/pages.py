@@ -115,6 +115,7 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".svg", ".ico"}
 _VIDEO_EXT = {".mp4", ".webm", ".ogv"}
 _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
 _CACHE_SIZE = 1024
+_HIGHLIGHT_CACHE_SIZE = 64  # highlighted files (each at most a few MB of HTML)
 
 
 class PageError(Exception):
@@ -383,6 +384,7 @@ class Pages:
         self.env.filters["date"] = lambda d: str(d).replace("T", " ")[:16] + " UTC" if d else ""
         self.env.globals["static"] = STATIC_PREFIX
         self._cards: OrderedDict[tuple[str, str], _Card] = OrderedDict()  # (README sha256, commit) -> card
+        self._highlights: OrderedDict[tuple[str, str], str] = OrderedDict()  # (blob sha256, file name) -> HTML
         self._guard = threading.Lock()
         self._static = _static_files()
 
@@ -629,7 +631,7 @@ class Pages:
                 data = f.read()
             text = _as_text(data)
             if text is not None:
-                kind, code = "text", _highlight_file(path, text)
+                kind, code = "text", self._highlighted(entry.sha256, path, text)
         patterns = lfs_patterns(_read_text(repo, commit, ".gitattributes") or "")
         return self._render(
             "blob.html",
@@ -643,6 +645,19 @@ class Pages:
             lfs=matches_lfs(path, patterns),
             media_type=mimetypes.guess_type(path)[0] or "application/octet-stream",
         )
+
+    def _highlighted(self, sha256: str, path: str, text: str) -> str:
+        key = (sha256, "highlight:" + path.rsplit("/", 1)[-1])  # the lexer follows the file name
+        with self._guard:
+            if key in self._highlights:
+                self._highlights.move_to_end(key)
+                return self._highlights[key]
+        code = _highlight_file(path, text)
+        with self._guard:
+            self._highlights[key] = code
+            while len(self._highlights) > _HIGHLIGHT_CACHE_SIZE:
+                self._highlights.popitem(last=False)
+        return code
 
     def commits_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
         c = self._context(ctx, repo_type, repo_id, revision)
