@@ -223,6 +223,7 @@ def test_blob_pages_show_text_highlighted_images_inline_and_others_as_downloads(
         ("/web/tiny-lerobot/tree/main/a%2F..%2F..%2Fx", 400, "Invalid path"),
         ("/web/tiny-lerobot/commits/main?p=x", 400, "Invalid page number"),
         ("/_hub/static/nope.js", 404, "nope.js"),
+        ("/-bad/name", 400, "Invalid repo id &#39;-bad/name&#39;"),
     ],
 )
 def test_bad_input_gets_an_html_error_page_naming_what_was_not_found(hub_module, site, path, status, named):

@@ -57,7 +57,7 @@ from fnmatch import fnmatchcase
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
-from urllib.parse import quote, urlencode, urlsplit
+from urllib.parse import quote, unquote, urlencode, urlsplit
 
 import jinja2
 from markdown_it import MarkdownIt
@@ -229,7 +229,7 @@ class _Links:
         """The repo path a relative ``url`` names (``./media/a.gif#x`` -> ``media/a.gif``), or None."""
         if not url or url.startswith(("#", "/", "?")) or _SCHEME_RE.match(url):
             return None
-        path = urlsplit(url).path
+        path = unquote(urlsplit(url).path)
         norm = posixpath.normpath(path)
         if norm in ("", ".") or norm.startswith(".."):
             return None
@@ -436,8 +436,10 @@ class Pages:
             return self._error(ctx, PageError(404, "Revision not found", _revision_message(err)))
         except EntryNotFoundError as err:
             return self._error(ctx, PageError(404, "File not found", str(err)))
-        except (InvalidPathError, InvalidNameError) as err:
+        except InvalidPathError as err:
             return self._error(ctx, PageError(400, "Invalid path", str(err)))
+        except InvalidNameError as err:
+            return self._error(ctx, PageError(400, "Invalid name", str(err)))
         except StoreError:
             logger.exception("Store error on page %s", ctx.request.url.path)
             return self._error(ctx, PageError(500, "Server error", "The page failed on the server (details in its log)."))
