@@ -196,6 +196,13 @@ def test_card_markdown_tables_code_images_links_and_metadata(hub_module, site):
     assert 'load-line">snapshot_download(&#34;web/notes&#34;, revision=&#34;' + sha in page  # not an env repo
     assert _get(hub_module, f"/web/notes/resolve/{sha}/media/plot.png").status_code == 200
 
+    api: HfApi = hub_module.api  # other repo types: the same pages under /datasets/ and /spaces/
+    api.create_repo("web/data", repo_type="dataset")
+    api.upload_file(path_or_fileobj=b"# Data card\n", path_in_repo="README.md", repo_id="web/data", repo_type="dataset")
+    data = _get(hub_module, "/datasets/web/data").text
+    assert "<h1>Data card</h1>" in data and "repo_type=&#34;dataset&#34;" in data
+    assert '<span class="badge">dataset</span>' in _get(hub_module, "/?q=web/data", headers=HTML).text
+
 
 def test_blob_pages_show_text_highlighted_images_inline_and_others_as_downloads(hub_module, site):
     code = _get(hub_module, f"/{ENV_REPO}/blob/{site.sha}/tiny.py")
@@ -314,11 +321,11 @@ def test_in_a_browser_search_open_see_the_gif_copy_the_load_line_and_open_a_file
     try:
         page = context.new_page()
         page.goto(hub_module.endpoint + "/")
-        assert page.locator(".repo-item").count() == 3
+        assert {ENV_REPO, "web/notes", "web/hostile"} <= set(page.locator(".repo-name").all_inner_texts())
         page.fill("input[name=q]", "tiny")
         page.press("input[name=q]", "Enter")
         page.wait_for_url(re.compile(r"\?q=tiny$"))
-        assert page.locator(".repo-item").count() == 1
+        assert page.locator(".repo-name").all_inner_texts() == [ENV_REPO]
 
         page.click(f"a.repo-name:text('{ENV_REPO}')")
         page.wait_for_url(hub_module.endpoint + f"/{ENV_REPO}")
