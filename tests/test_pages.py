@@ -198,7 +198,8 @@ def test_card_markdown_tables_code_images_links_and_metadata(hub_module, site):
 
     api: HfApi = hub_module.api  # other repo types: the same pages under /datasets/ and /spaces/
     api.create_repo("web/data", repo_type="dataset")
-    api.upload_file(path_or_fileobj=b"# Data card\n", path_in_repo="README.md", repo_id="web/data", repo_type="dataset")
+    card = b"---\ntags: [data]\n---\n# Data card\n"
+    api.upload_file(path_or_fileobj=card, path_in_repo="README.md", repo_id="web/data", repo_type="dataset")
     data = _get(hub_module, "/datasets/web/data").text
     assert "<h1>Data card</h1>" in data and "repo_type=&#34;dataset&#34;" in data
     assert '<span class="badge">dataset</span>' in _get(hub_module, "/?q=web/data", headers=HTML).text
