@@ -56,7 +56,7 @@ from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 from urllib.parse import quote, unquote, urlencode, urlsplit
 
 import jinja2
@@ -222,8 +222,7 @@ class _Links:
 
     base: str  # /{prefix}{repo_id}
     sha: str
-    files: Any  # the commit's files (path -> entry)
-    folders: set[str]
+    folders: set[str]  # the commit's folders: a link to one goes to its tree page
 
     def target(self, url: str) -> str | None:
         """The repo path a relative ``url`` names (``./media/a.gif#x`` -> ``media/a.gif``), or None."""
@@ -260,7 +259,7 @@ def render_markdown(text: str, links: _Links | None = None) -> str:
 
     >>> render_markdown("Hi <script>alert(1)</script> [x](javascript:alert(1))")
     '<p>Hi &lt;script&gt;alert(1)&lt;/script&gt; [x](javascript:alert(1))</p>\\n'
-    >>> links = _Links("/alice/env", "a" * 40, {"media/a.gif": None}, set())
+    >>> links = _Links("/alice/env", "a" * 40, folders=set())
     >>> render_markdown("![roll](media/a.gif)", links)
     '<p><img src="/alice/env/resolve/aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa/media/a.gif" alt="roll" /></p>\\n'
     """
@@ -477,7 +476,7 @@ class Pages:
             raw = f.read(MAX_CARD_BYTES + 1)
         text = raw[:MAX_CARD_BYTES].decode("utf-8", "replace")
         body = strip_front_matter(text)
-        links = _Links(base, commit.id, commit.files, _folders(commit.files))
+        links = _Links(base, commit.id, _folders(commit.files))
         card = _Card(card_title(body), render_markdown(body, links), truncated=len(raw) > MAX_CARD_BYTES)
         with self._guard:
             self._cards[key] = card
