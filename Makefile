@@ -58,8 +58,9 @@ test: install lint
 	sh scripts/test-legs venv=$(PY)
 endif
 
+# SERVE=1: keep the loopback Hub and its web page up after the demo, until Ctrl-C.
 demo: install
-	$(PY) -m hub_envs.demo
+	$(PY) -m hub_envs.demo $(if $(SERVE),--serve)
 
 bench: install
 	$(PY) -m benchmarks.run

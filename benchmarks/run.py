@@ -36,6 +36,7 @@ MODULES: dict[str, dict] = {
     "bench_replay": {"repeats": 3},
     "bench_server": {"repeats": 3, "n_files": 100, "size_mb": 16},
     "bench_push": {"repeats": 3},
+    "bench_pages": {"rounds": 5, "requests_per_round": 100},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -66,6 +67,9 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "push_env_constructions_pendulum": ("bench_push", None, "env objects built during that push, pendulum"),
     "push_env_constructions_hover": ("bench_push", None, "  same, hover"),
     "repush_unchanged_vs_push": ("bench_push", (LE, 0.1), "seconds: unchanged re-push of hover ÷ its first push"),
+    "repo_page_rps": ("bench_pages", None, "requests/s: an env's web page (one client, keep-alive)"),
+    "api_info_rps": ("bench_pages", None, "requests/s: GET /api/models/{repo} beside it (the same client)"),
+    "repo_page_vs_api": ("bench_pages", None, "repo page ÷ API request (requests/s)"),
 }
 
 
@@ -127,7 +131,7 @@ def table(out: dict) -> str:
             if value is None
             else (
                 f"{value:.0f}"
-                if figure == "server_download_mb_s"
+                if figure == "server_download_mb_s" or figure.endswith("_rps")
                 else f"{value:.0%}"
                 if figure.endswith("share")
                 else f"{value:g}"
@@ -147,7 +151,7 @@ def table(out: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", nargs="*", help="module names (load, startup, download, datagen, replay, server)")
+    parser.add_argument("--only", nargs="*", help="module names (load, startup, download, datagen, replay, server, pages)")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     out = run(args.only)

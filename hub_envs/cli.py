@@ -69,7 +69,7 @@ def serve(args: ServeArgs) -> int:
     try:
         from hub_envs.server import run
     except ModuleNotFoundError as exc:
-        if exc.name not in ("starlette", "uvicorn"):
+        if exc.name not in ("starlette", "uvicorn", "markdown_it", "pygments"):
             raise
         raise MissingRequirementsError(
             f"hub-envs serve needs {exc.name}, which is not installed. Install the server extra: pip install 'hub-envs[server]'"

@@ -4,14 +4,17 @@ Starts ``hub-envs serve`` on a free loopback port, publishes each example env un
 push_env, loads each back by repo id pinned to the pushed sha (as a user on another machine would,
 from a fresh cache), prints its three-way feature check and where its card and GIF are, and stops
 the server. Everything lands in ``demo-out/`` (git-ignored) so you can look at it afterwards.
+It prints the address of the Hub's web page (``/``: the envs, their cards, GIFs and files); with
+``--serve`` (``make demo SERVE=1``) the server stays up for it until Ctrl-C.
 
-    python -m hub_envs.demo [--episodes=N] [--out=demo-out] [envs/pendulum ...]
+    python -m hub_envs.demo [--episodes=N] [--out=demo-out] [--serve] [envs/pendulum ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import shutil
+import signal
 import sys
 import time
 from pathlib import Path
@@ -26,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "demo-out")
     parser.add_argument("--namespace", default="demo")
+    parser.add_argument("--serve", action="store_true", help="keep the server (and its web page) up until Ctrl-C")
     args = parser.parse_args(argv)
 
     env_dirs = [Path(d) for d in args.env_dirs] or [
@@ -69,7 +73,24 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"card: {loaded.path / 'README.md'}")
                 print(f"GIF:  {loaded.path / 'media' / 'rollout.gif'}")
                 print(f"(cold load took {time.perf_counter() - t:.1f}s)")
+        print(
+            f"\nWeb page: {server.endpoint}/ (the envs: " + ", ".join(f"{server.endpoint}/{r.repo_id}" for r in published) + ")"
+        )
+        if args.serve:
+            print(f"Demo done in {time.perf_counter() - t0:.0f}s. Serving {server.endpoint}/ until Ctrl-C.", flush=True)
+            # Ctrl-C (even when started with SIGINT ignored, as from a background job) or SIGTERM: stop
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.signal(signal.SIGTERM, signal.default_int_handler)
+            try:
+                while server.running:
+                    time.sleep(0.5)
+            except KeyboardInterrupt:
+                print(f"\nServer stopped. Everything is under {args.out}.", flush=True)
+                return 0
+            print(f"The server exited on its own:\n{server.output()[-2000:]}", file=sys.stderr)
+            return 1
     print(f"\nDemo done in {time.perf_counter() - t0:.0f}s; server stopped. Everything is under {args.out}.")
+    print("(make demo SERVE=1 keeps the server and its web page up until Ctrl-C.)")
     return 0
 
 

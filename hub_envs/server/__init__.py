@@ -22,6 +22,9 @@ Example:
         ['.gitattributes', 'hello.txt']
 
     With ``--token=T``, writes (and reads of private repos) need ``HF_TOKEN=T`` on the client.
+
+    A browser pointed at ``http://127.0.0.1:8000/`` gets the web pages (:mod:`hub_envs.server.pages`):
+    the repos, each env's card, files and pinned load line.
 """
 
 from __future__ import annotations

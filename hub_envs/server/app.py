@@ -85,6 +85,7 @@ from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
 from hub_envs.server.faults import install_faults
+from hub_envs.server.pages import Pages, ResolveSandbox
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     REPO_TYPES,
@@ -226,6 +227,7 @@ class HubApp:
         self.allow_bytecode = allow_bytecode  # as huggingface.co does: to test clients against it
         self._cards: OrderedDict[str, dict | None] = OrderedDict()  # README sha256 -> cardData
         self._cards_guard = threading.Lock()
+        self.pages = Pages(self)  # the web pages
 
     # -- entry point ---------------------------------------------------------------------------
 
@@ -280,6 +282,9 @@ class HubApp:
 
     async def _route(self, ctx: Ctx) -> Response:
         segs = ctx.segs
+        page = self.pages.match(ctx) if ctx.method in ("GET", "HEAD") else None
+        if page is not None:  # the web pages (pages.py): "/" for browsers, /{user}/{repo}[/tree|blob|commits/...]
+            return await self._call(ctx, {"GET": lambda c: self.pages.handle(c, page)})
         if segs and segs[0] == "api":
             rest = segs[1:]
             if rest == ["whoami-v2"]:
@@ -1393,5 +1398,6 @@ def create_app(
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
     app = Starlette(routes=[Route("/{path:path}", hub.endpoint, methods=methods)])
     app.state.hub = hub
+    app.add_middleware(ResolveSandbox)  # /resolve/ answers: a repo's HTML or SVG runs nothing in a browser
     install_faults(app)  # no-op unless HUB_ENVS_SERVER_FAULTS is set (tests only; see faults.py)
     return app
