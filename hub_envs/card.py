@@ -138,6 +138,7 @@ def render_card(manifest: Manifest, *, env_class: type, env, content_tag: str, l
         task=config.get("task"),
         fps=config.get("fps"),
         episode_length=config.get("episode_length"),
+        config_overrides=manifest.config_overrides,
         requirements_text=", ".join(f"`{r}`" for r in manifest.requirements) or "none beyond hub-envs",
         features=features,
         observation_space=describe_space(env.observation_space),

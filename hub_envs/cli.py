@@ -86,7 +86,45 @@ def serve(args: ServeArgs) -> int:
     return 0
 
 
-def push(args: PushArgs) -> int:
+def config_flags(argv: list[str]) -> tuple[dict, list[str]]:
+    """Split ``--config.<field>[.<sub>]=<value>`` flags (a config variant, as LeRobot's ``--env.<field>``) from
+    the others: ``({field: value or {sub: value}}, the other flags)``.
+
+    >>> config_flags(["--repo_id=a/b", "--config.obs_type=pixels_agent_pos", "--config.cam.width=64"])
+    ({'obs_type': 'pixels_agent_pos', 'cam': {'width': '64'}}, ['--repo_id=a/b'])
+    """
+    from hub_envs.errors import ConfigError
+
+    values: dict = {}
+    rest = []
+    for arg in argv:
+        if not arg.startswith("--config."):
+            rest.append(arg)
+            continue
+        path, sep, value = arg[len("--config.") :].partition("=")
+        if not sep or not path or "" in path.split("."):
+            raise ConfigError(
+                f"{arg}: write a config field as --config.<field>=<value>, e.g. --config.obs_type=pixels_agent_pos."
+            )
+        *parents, leaf = path.split(".")
+        node = values
+        for name in parents:
+            node = node.setdefault(name, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{arg}: --config.{name} was already given a value; it cannot also have fields.")
+        node[leaf] = value
+    return values, rest
+
+
+def push_command(argv: list[str]) -> int:
+    """``push_env`` / ``hub-envs push``: PushArgs' flags, plus ``--config.<field>=<value>`` for a variant."""
+    config, rest = config_flags(argv)
+    if any(a in ("-h", "--help") for a in rest):
+        print("Config variants: --config.<field>=<value> sets a field of the env's EnvConfig before publishing.\n")
+    return push(draccus.parse(config_class=PushArgs, args=rest), config=config)
+
+
+def push(args: PushArgs, *, config: dict | None = None) -> int:
     from hub_envs.errors import ConfigError
     from hub_envs.push import push_env
 
@@ -103,6 +141,7 @@ def push(args: PushArgs) -> int:
         commit_message=args.commit_message,
         determinism_steps=args.determinism_steps,
         force=args.force,
+        config=config or None,
     )
     print(result.summary())
     return 0
@@ -180,7 +219,7 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
 
 COMMANDS = {
     "serve": (ServeArgs, serve),
-    "push": (PushArgs, push),
+    "push": push_command,
     "load": (LoadArgs, load),
 }
 RAW_COMMANDS = {

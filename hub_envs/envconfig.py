@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import typing
+from collections.abc import Mapping
 from typing import Any
 
 import draccus
@@ -39,14 +41,38 @@ def validate_config_class(config_class: Any, *, where: str) -> None:
         )
 
 
-def instantiate_config(config_class: type, *, where: str, **overrides) -> EnvConfig:
-    """Build the config (its defaults, plus ``overrides``); errors from its ``__post_init__`` become ConfigError."""
+def instantiate_config(config_class: type, *, where: str, overrides: Mapping[str, Any] | None = None) -> EnvConfig:
+    """Build the config: its defaults, with ``overrides`` (field values, decoded by draccus as LeRobot's
+    ``--env.<field>=<value>`` flags are: ``{"episode_length": "50"}`` gives the int 50) set before its
+    ``__post_init__`` runs, so what it computes follows them.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass
+    ... class DemoConfig(EnvConfig):
+    ...     episode_length: int = 200
+    ...     @property
+    ...     def gym_kwargs(self): return {}
+    >>> instantiate_config(DemoConfig, where="demo", overrides={"episode_length": "50"}).episode_length
+    50
+    """
+    overrides = dict(overrides or {})
+    names = {f.name for f in dataclasses.fields(config_class) if f.init}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise ConfigError(f"{where}: {config_class.__qualname__} has no field(s) {unknown} to set. Its fields: {sorted(names)}.")
     try:
-        cfg = config_class(**overrides)
+        # field by field (each value decoded to its field's type), then the constructor: decoding the whole class
+        # would make draccus < 0.11 dispatch on a "type" key, EnvConfig being a choice registry
+        hints = typing.get_type_hints(config_class)
+        values = {name: draccus.decode(hints[name], value) for name, value in overrides.items()}
+    except (TypeError, ValueError, NameError, draccus.ParsingError) as e:  # ParsingError: draccus' DecodingError too
+        raise ConfigError(f"{where}: {config_class.__qualname__} with {overrides} is invalid: {e}") from e
+    try:
+        cfg = config_class(**values)
     except (TypeError, ValueError) as e:
-        raise ConfigError(f"{where}: {config_class.__qualname__}({overrides or ''}) is invalid: {e}") from e
+        raise ConfigError(f"{where}: {config_class.__qualname__} with {overrides} is invalid: {e}") from e
     except Exception as e:
-        raise EnvCodeError(f"{where}: {config_class.__qualname__}() raised {type(e).__name__}: {e}") from e
+        raise EnvCodeError(f"{where}: {config_class.__qualname__}({overrides or ''}) raised {type(e).__name__}: {e}") from e
     try:
         gym_kwargs = cfg.gym_kwargs
     except Exception as e:

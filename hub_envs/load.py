@@ -19,10 +19,14 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import os
 import re
 import time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -337,6 +341,7 @@ def load_env(
     recheck: bool = False,
     token: str | None = None,
     cache_dir: str | Path | None = None,
+    config: Mapping[str, Any] | None = None,
 ) -> LoadedEnv:
     """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
 
@@ -351,6 +356,9 @@ def load_env(
         recheck: run the checks even if they already passed for this repo@sha with the same packages
             and platform (see :mod:`hub_envs.check_cache`; ``HUB_ENVS_RECHECK=1`` does the same).
         token, cache_dir: passed to huggingface_hub.
+        config: for a local folder, config fields to set (``{"obs_type": "pixels_agent_pos"}``; values are
+            decoded as LeRobot's ``--env.<field>=<value>`` flags are), the variant ``push_env --config.*``
+            publishes. A Hub repo's config is the one it published (its own variant included).
 
     Returns:
         A :class:`LoadedEnv`.
@@ -385,8 +393,17 @@ def load_env(
             f"'./{repo_id}' to load the folder instead.",
             stacklevel=2,
         )
+    if config and not use_local:
+        raise ConfigError(
+            f"load_env({repo_id!r}, config=...): config fields can be set for a local folder only; a Hub repo's config "
+            f"is the one it published. Publish a variant with push_env --config.<field>=<value>."
+        )
     if use_local:
         repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
+        if config:  # another variant of the folder: other names, so both can be loaded at once
+            variant = json.dumps(dict(config), sort_keys=True, default=str)
+            sha = "local-" + hashlib.sha256(f"{manifest.content_digest}\0{variant}".encode()).hexdigest()[:12]
+            manifest = dataclasses.replace(manifest, config_overrides=dict(config))
         local_folder = path
         requested = None
         if folder is None:
@@ -441,15 +458,18 @@ def load_env(
                     f"env itself, under names unique to the repo and commit."
                 )
             validate_config_class(config_class, where=where)
-            config = instantiate_config(config_class, where=where)
+            set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
+            loaded_config = instantiate_config(config_class, where=where, overrides=set_fields)
             if manifest.config:
-                diffs = config_differences(manifest.config, encode_config(config))
+                diffs = config_differences(manifest.config, encode_config(loaded_config))
                 if diffs:
+                    what = "the code's defaults" if not set_fields else f"what the code computes from {set_fields}"
                     raise InvalidRepoFormatError(
-                        f"{where}: the manifest's config values differ from the code's defaults:\n  "
+                        f"{where}: the manifest's config values differ from {what}:\n  "
                         + "\n  ".join(diffs)
                         + "\nRe-publish with push_env so the manifest matches the code."
                     )
+            config = loaded_config
             qualifier = sha[:12] if not sha.startswith("local-") else sha
             reg = registration.register(
                 gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}",

@@ -43,7 +43,8 @@ from hub_envs.dataset.writer import (
     write_lerobot_dataset,
 )
 from hub_envs.envconfig import encode_config
-from hub_envs.errors import ConfigError, EnvFolderError, StatesNotRecordedWarning
+from hub_envs.errors import ConfigError, EnvCheckError, EnvFolderError, StatesNotRecordedWarning
+from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import write_rollout_gif
@@ -151,6 +152,7 @@ class _DatasetRun:
     """What the one rollout pass of a push produced besides the dataset files."""
 
     summary: DatasetSummary
+    features: dict[str, dict]  # info.json-style, as declared (LeRobot's defaults not added)
     digest: str  # dataset fingerprint, recorded simulator states included
     has_states: bool
     returns: list[float]
@@ -166,10 +168,13 @@ def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, w
     Returns the env it checked (open): the dataset half of the feature check and the card reuse it.
     """
     cfg = loaded.config
-    budget = int(cfg.episode_length) if determinism_steps is None else min(int(determinism_steps), int(cfg.episode_length))
-    check_determinism(loaded.make, seeds=[seed, seed + 1], steps=budget, where=where)
     raw = loaded.env_class(**cfg.gym_kwargs)  # no spec: gymnasium's checker would re-make a spec'd env per render mode
     try:
+        unsupported = unsupported_reason(raw.action_space)
+        if unsupported:  # before anything samples or steps such actions
+            raise EnvCheckError(f"{where}: {unsupported}. Nothing was published.")
+        budget = int(cfg.episode_length) if determinism_steps is None else min(int(determinism_steps), int(cfg.episode_length))
+        check_determinism(loaded.make, seeds=[seed, seed + 1], steps=budget, where=where)
         run_env_checker(raw, where=where)
     finally:
         raw.close()
@@ -220,6 +225,7 @@ def _published_unchanged(
         and {p: h for p, h in remote.files.items() if not _generated(p)} == code
         and remote.code_digest == code_digest_of_files(code)
         and remote.config == encode_config(loaded.config)
+        and remote.config_overrides == _published_overrides(loaded)
         and remote.seeds.get("dataset") == seeds
         and remote.seeds.get("check") == seed
         and remote.dataset.get("episodes") == episodes
@@ -270,6 +276,7 @@ def _generate_dataset(
     workers: int,
     code_digest: str,
     fingerprint_seeds: int,
+    features: dict[str, dict],
     where: str,
     progress: bool,
 ) -> _DatasetRun:
@@ -305,7 +312,7 @@ def _generate_dataset(
         staging / DATASET_DIR,
         repo_id=repo_id,
         fps=int(cfg.fps),
-        features=dataset_features_from_config(cfg),
+        features=features,
         episodes=frames(),
         task=str(cfg.task),
         extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
@@ -322,12 +329,19 @@ def _generate_dataset(
         )
     return _DatasetRun(
         summary=summary,
+        features=features,
         digest=dataset_fingerprint(staging / DATASET_DIR) if has_states else summary.fingerprint,
         has_states=has_states,
         returns=returns,
         successes=successes,
         golden=fingerprint_of(first, steps=min(FINGERPRINT_STEPS, int(cfg.episode_length))),
     )
+
+
+def _published_overrides(loaded: LoadedEnv) -> dict[str, Any]:
+    """The config fields the publisher set, as the config holds them (decoded: ``"50"`` is recorded as 50)."""
+    values = encode_config(loaded.config)
+    return {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
 
 
 def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _DatasetRun, seed: int) -> Manifest:
@@ -345,6 +359,7 @@ def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _
         env_type=repo_id,
         requirements=tuple(loaded.manifest.requirements),
         config=encode_config(loaded.config),
+        config_overrides=_published_overrides(loaded),
         dataset={
             "path": DATASET_DIR,
             "fingerprint": run.digest,
@@ -358,7 +373,7 @@ def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _
             "return_min": summary.return_min,
             "return_max": summary.return_max,
             "success_rate": summary.success_rate,
-            "features": dataset_features_from_config(loaded.config),
+            "features": run.features,
         },
         fingerprint=run.golden,
         code_digest=code_digest,
@@ -406,6 +421,7 @@ def build_repo(
             workers=workers,
             code_digest=code_digest,
             fingerprint_seeds=fingerprint_seeds,
+            features=dataset_features_from_config(cfg, action=stored_action(env.action_space)),
             where=where,
             progress=progress,
         )
@@ -458,6 +474,7 @@ def push_env(
     progress: bool = True,
     determinism_steps: int | None = None,
     force: bool = False,
+    config: dict[str, Any] | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -465,7 +482,9 @@ def push_env(
     When main already holds what this push would build (same code, config, seeds, episodes and recorded
     versions: :func:`_published_unchanged`), nothing is regenerated and the push takes about a second;
     ``force=True`` rebuilds and compares everything. ``determinism_steps`` caps the determinism check
-    (default: a whole episode, for two seeds).
+    (default: a whole episode, for two seeds). ``config`` sets fields of the env's config before its
+    ``__post_init__`` (``{"obs_type": "pixels_agent_pos"}``; the CLI's ``--config.<field>=<value>``): the
+    variant is published from the same folder, and load_env rebuilds it from the manifest.
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -478,7 +497,7 @@ def push_env(
     check_publishable(env_dir)  # before anything runs: a symlink out of the folder would publish its target
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    loaded = load_env(env_dir.resolve(), check=False)
+    loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
         unchanged = (
             None

@@ -50,7 +50,9 @@ from typing import Any
 from hub_envs._text import safe_text
 from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
 
-FORMAT_VERSION = 1
+#: The manifest format this hub-envs writes; it reads every format from 1 up to this one.
+#: 2 added ``config_overrides`` (config variants published with ``--config.<field>=<value>``).
+FORMAT_VERSION = 2
 MANIFEST_FILE = "hub_env.json"
 CARD_FILE = "README.md"
 ENV_ENTRY_FILE = "env.py"
@@ -355,13 +357,14 @@ def _check_field_types(cls: type, data: dict, where: str) -> None:
     import typing
 
     hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in fields(cls)}
+    version = data["format_version"]
+    known = {f.name: f for f in fields(cls) if f.metadata.get("since", 1) <= version}
     unknown = sorted(set(data) - set(known))
     if unknown:
         writer = data.get("versions", {}).get("hub-envs") if isinstance(data.get("versions"), dict) else None
         by = f"hub-envs {safe_text(str(writer))}" if writer else "an unknown writer"
         raise ManifestError(
-            f"{where}: unknown field(s) {[safe_text(u) for u in unknown]} for format_version {FORMAT_VERSION} (written by "
+            f"{where}: unknown field(s) {[safe_text(u) for u in unknown]} for format_version {version} (written by "
             f"{by}). Fields are only ever added with a new format_version, so this manifest was edited by hand or "
             f"written by a hub-envs that did not follow the format. {_REPUBLISH}"
         )
@@ -451,6 +454,9 @@ class Manifest:
     versions: dict[str, str] = field(default_factory=dict)
     benchmarks: tuple[dict[str, Any], ...] = ()
     processors: tuple[dict[str, Any], ...] = ()
+    #: the config fields the publisher set (``push_env --config.<field>=<value>``); the rest are the code's
+    #: defaults. ``config`` holds every resulting value, which load_env checks the code still computes.
+    config_overrides: dict[str, Any] = field(default_factory=dict, metadata={"since": 2})
 
     # -- (de)serialization --
 
@@ -459,7 +465,7 @@ class Manifest:
         return type(self).from_dict(self.to_dict(), where=where)
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
+        d = {k: v for k, v in asdict(self).items() if _FIELD_SINCE.get(k, 1) <= self.format_version}
         d["requirements"] = list(self.requirements)
         d["benchmarks"] = list(self.benchmarks)
         d["processors"] = list(self.processors)
@@ -471,6 +477,7 @@ class Manifest:
 
     @classmethod
     def from_dict(cls, data: Any, *, where: str = MANIFEST_FILE) -> Manifest:
+        """Read and check a manifest of any format this hub-envs reads (a field added later gets its default)."""
         if not isinstance(data, dict):
             raise ManifestError(
                 f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env."
@@ -478,9 +485,9 @@ class Manifest:
         version = data.get("format_version")
         if type(version) is int and version > FORMAT_VERSION:
             raise ManifestError(_newer_format_message(data, version, where))
-        if type(version) is not int or version != FORMAT_VERSION:
+        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
             raise ManifestError(
-                f"{where}: format_version {version!r} is not supported (this hub-envs reads {FORMAT_VERSION}); "
+                f"{where}: format_version {version!r} is not supported (this hub-envs reads 1 to {FORMAT_VERSION}); "
                 f"re-publish it with push_env."
             )
         _check_field_types(cls, data, where)
@@ -593,6 +600,9 @@ class Manifest:
 
 # --- a local env folder (what an author writes) -----------------------------------------------
 
+
+#: The format version each manifest field appeared in (1 unless said).
+_FIELD_SINCE = {f.name: f.metadata.get("since", 1) for f in fields(Manifest)}
 
 _SPDX_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.+-]{0,63}$")
 

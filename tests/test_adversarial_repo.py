@@ -466,6 +466,30 @@ def test_a_listed_name_longer_than_file_systems_allow_is_refused(hub, tmp_path):
         load_env(f"mallory/long-name@{sha}", trust_remote_code=True)
 
 
+def test_lerobots_loader_tells_a_bad_publication_from_a_bad_download(hub, tmp_path):
+    """env.py (LeRobot's own path) refuses a code file whose hash is not the manifest's. When the cached file is
+    byte for byte what the Hub serves, the publication is at fault and re-downloading cannot help: it says so;
+    when the cache was damaged after the download, it says to download again."""
+    from huggingface_hub import snapshot_download
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    from hub_envs.testing import hub_environment
+
+    _push(TINY, "mallory/bad-publication")
+    sha = republish(hub.api, "mallory/bad-publication", lambda f: (f / "dynamics.py").write_text("GAIN = 9\n"), fix_hashes=False)
+    with hub_environment(hub.endpoint, tmp_path / "fresh"):
+        with pytest.raises(RuntimeError, match=r"dynamics\.py are exactly what the Hub serves.*will not help.*re-publish"):
+            lerobot_make_env(f"mallory/bad-publication@{sha}", n_envs=1, trust_remote_code=True)
+    _push(TINY, "mallory/bad-cache")
+    sha = hub.api.model_info("mallory/bad-cache").sha
+    with hub_environment(hub.endpoint, tmp_path / "fresh2"):
+        snapshot = Path(snapshot_download("mallory/bad-cache", revision=sha))
+        blob = (snapshot / "dynamics.py").resolve()
+        blob.write_text(blob.read_text() + "\n# damaged on disk\n")  # the cache changed after the download
+        with pytest.raises(RuntimeError, match=r"Delete this snapshot from the cache and download it again"):
+            lerobot_make_env(f"mallory/bad-cache@{sha}", n_envs=1, trust_remote_code=True)
+
+
 def test_safe_text_escapes_what_a_terminal_would_act_on():
     assert safe_text("tiny.py") == "tiny.py" and safe_text("a b") == "a b"
     assert safe_text("\x1b[2J\x9b\x07\u202e\u2066\u200f\x7f\udcff") == "\\x1b[2J\\x9b\\x07\\u202e\\u2066\\u200f\\x7f\\udcff"

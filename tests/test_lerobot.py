@@ -181,6 +181,43 @@ class _no_warning:
         assert not [w for w in self._rec if "task_description" in str(w.message)]
 
 
+def test_a_config_variant_publishes_from_the_same_folder_and_loads_everywhere(hub_module, tmp_path, capsys):
+    """push_env --config.obs_type=pixels_agent_pos: pendulum's pixels variant, from the unedited folder."""
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    folder = EXAMPLES["pendulum"]
+    argv = ["push", f"--env_dir={folder}", "--repo_id=alice/pendulum-variant", "--episodes=2"]
+    assert cli_main([*argv, "--config.obs_type=pixels_agent_pos", "--config.episode_length=40"]) == 0
+    sha = hub_module.api.model_info("alice/pendulum-variant").sha
+    loaded = load_env(f"alice/pendulum-variant@{sha}", trust_remote_code=True)
+    try:
+        assert loaded.manifest.config_overrides == {"episode_length": 40, "obs_type": "pixels_agent_pos"}
+        assert loaded.config.obs_type == "pixels_agent_pos" and loaded.config.episode_length == 40
+        assert "pixels" in loaded.config.features  # computed in __post_init__ from the field set at push
+        assert loaded.manifest.dataset["features"]["observation.image"]["dtype"] == "image"
+        obs, _ = loaded.make().reset(seed=0)
+        assert obs["pixels"].ndim == 3
+    finally:
+        loaded.unregister()
+    card = Path(hub_module.api.hf_hub_download("alice/pendulum-variant", "README.md", revision=sha)).read_text()
+    assert "`episode_length=40`, `obs_type=pixels_agent_pos`" in card
+    with hub_environment(hub_module.endpoint, tmp_path / "fresh_home"):  # LeRobot's own loader, env.py alone
+        vec = lerobot_make_env(f"alice/pendulum-variant@{sha}", n_envs=1, trust_remote_code=True)
+        ((_, tasks),) = vec.items()
+        obs, _ = tasks[0].reset(seed=[0])
+        assert obs["pixels"].shape[0] == 1 and tasks[0].call("_max_episode_steps") == (40,)
+    # the default variant from the same folder is still the state-only env; a field that does not exist is refused
+    assert cli_main([*argv[:2], "--repo_id=alice/pendulum-default", "--episodes=1"]) == 0
+    assert (
+        "pixels"
+        not in json.loads(Path(hub_module.api.hf_hub_download("alice/pendulum-default", "hub_env.json")).read_text())["config"][
+            "features"
+        ]
+    )
+    assert cli_main([*argv, "--config.no_such_field=1"]) == 1
+    assert "has no field(s) ['no_such_field']" in capsys.readouterr().err
+
+
 def test_lerobot_make_env_reports_success_through_final_info_and_refuses_without_trust(hub_module, published, tmp_path):
     from lerobot.envs.factory import make_env as lerobot_make_env
 

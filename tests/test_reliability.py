@@ -34,7 +34,7 @@ from huggingface_hub import snapshot_download
 from hub_envs import errors, load_env, push_env
 from hub_envs.paths import hub_envs_home
 from hub_envs.registration import snapshot_registries
-from hub_envs.repo_format import MANIFEST_FILE, content_digest, hash_files, list_files
+from hub_envs.repo_format import FORMAT_VERSION, MANIFEST_FILE, content_digest, hash_files, list_files
 from hub_envs.requirements import installed_version
 from hub_envs.testing import hub_environment
 
@@ -308,8 +308,8 @@ CASES: list[Case] = [
     repo_case(
         "manifest-future-version",
         E.ManifestError,
-        ("hub_env.json", "format_version 2", "upgrade hub-envs"),
-        manifest=setitem("format_version", 2),
+        ("hub_env.json", f"format_version {FORMAT_VERSION + 1}", "upgrade hub-envs"),
+        manifest=setitem("format_version", FORMAT_VERSION + 1),
     ),
     repo_case(
         "manifest-newer-writer",
@@ -330,9 +330,15 @@ CASES: list[Case] = [
         manifest=setitem("format_version", True),
     ),
     repo_case(
+        "manifest-field-from-a-later-format",
+        E.ManifestError,
+        ("hub_env.json", "unknown field(s) ['config_overrides'] for format_version 1", "push_env"),
+        manifest=setitem("format_version", 1),  # config_overrides came with format 2
+    ),
+    repo_case(
         "manifest-unknown-field",
         E.ManifestError,
-        ("hub_env.json", "unknown field(s) ['surprise'] for format_version 1", "edited by hand", "push_env"),
+        ("hub_env.json", f"unknown field(s) ['surprise'] for format_version {FORMAT_VERSION}", "edited by hand", "push_env"),
         manifest=setitem("surprise", 1),
     ),
     repo_case(

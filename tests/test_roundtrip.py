@@ -17,7 +17,7 @@ import pytest
 from helpers import TINY, copy_env, republish
 from lerobot.envs.configs import EnvConfig
 
-from hub_envs import errors, load_env, push_env, trust
+from hub_envs import errors, load_env, push_env, reproduce, trust
 from hub_envs.importing import module_key
 from hub_envs.registration import snapshot_registries
 from hub_envs.testing import hub_environment
@@ -221,6 +221,13 @@ def test_a_missing_requirement_is_reported_with_the_pip_line(hub):
         load_env(f"alice/tiny-reqs@{sha}", trust_remote_code=True)
     assert "pip install 'hub-envs-no-such-package>=1.0' 'numpy<1'" in str(e.value)
     assert snapshot_registries() == before
+    # LeRobot's own loader (the repo's env.py, no hub-envs): the same pip line, before any env code runs
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    with pytest.raises(
+        ImportError, match=r"alice/tiny-reqs@[0-9a-f]{40} needs .*pip install 'hub-envs-no-such-package>=1.0' 'numpy<1'"
+    ):
+        lerobot_make_env(f"alice/tiny-reqs@{sha}", n_envs=1, trust_remote_code=True)
 
 
 def test_push_refuses_declared_shapes_that_disagree_with_rollouts(hub, tmp_path):
@@ -293,6 +300,12 @@ def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hu
     assert "action_space shape (1,) != declared (2,)" in table  # every disagreement, not just the first
     assert len(e.value.mismatches) == 2
     assert snapshot_registries() == before
+    # LeRobot's own loader (the repo's env.py, no hub-envs) refuses it too, with the same rows
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    with pytest.raises(ValueError, match=r"declared features disagree") as e:
+        lerobot_make_env(f"alice/tiny-lies@{sha}", n_envs=1, trust_remote_code=True)
+    assert "live shape (2,) != declared (3,)" in str(e.value) and "action_space shape (1,) != declared (2,)" in str(e.value)
 
     def lie_in_dataset(folder):
         info = json.loads((folder / "dataset/meta/info.json").read_text())
@@ -304,6 +317,23 @@ def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hu
     with pytest.raises(errors.FeatureMismatchError, match=r"dataset shape \(5,\) != declared \(2,\)"):
         load_env(f"alice/tiny-lies2@{sha}", trust_remote_code=True)
     assert snapshot_registries() == before
+
+
+def test_a_manifest_of_the_first_format_still_loads(hub):
+    """Older formats keep loading: a format_version 1 manifest (no config_overrides) is read with that field's default."""
+    _push(TINY, "alice/tiny-v1")
+
+    def as_format_1(folder):
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["format_version"] = 1
+        del manifest["config_overrides"]
+        (folder / "hub_env.json").write_text(json.dumps(manifest))
+
+    sha = republish(hub.api, "alice/tiny-v1", as_format_1)
+    loaded = load_env(f"alice/tiny-v1@{sha}", trust_remote_code=True)
+    assert loaded.manifest.format_version == 1 and loaded.manifest.config_overrides == {}
+    assert '"config_overrides"' not in loaded.manifest.to_json()  # written back as format 1 wrote it
+    loaded.unregister()
 
 
 def test_missing_repo_and_revision_are_typed_errors(hub):
@@ -372,3 +402,62 @@ def test_a_repo_id_never_picks_a_same_named_local_folder(hub, tmp_path, monkeypa
     assert loaded.revision == result.sha and not loaded.is_local
     with pytest.raises(errors.EnvCodeError, match="local code ran"):
         load_env("./alice/tiny-shadow")
+
+
+# --- integer actions ---------------------------------------------------------------------------------
+
+CARTPOLE = TINY.parent / "cartpole_env"
+
+
+@pytest.mark.parametrize("declared", ["()", "(1,)"])
+def test_discrete_actions_push_load_replay_and_run_in_lerobot(hub, tmp_path, declared):
+    """A Discrete(2) CartPole declared with shape () or (1,): stored as int64 (1,), replayed exactly, and
+    driven by LeRobot's own loader with the float actions a policy gives."""
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    from hub_envs.dataset.reader import read_episode_frames
+
+    folder = copy_env(tmp_path, CARTPOLE, edits={"cartpole.py": lambda s: s.replace("shape=()", f"shape={declared}")})
+    repo = f"alice/cartpole-{len(declared)}"
+    result = _push(folder, repo)
+    action = result.manifest.dataset["features"]["action"]
+    assert (action["dtype"], action["shape"]) == ("int64", [1])
+    loaded = load_env(f"{repo}@{result.sha}", trust_remote_code=True)  # the three-way check passes
+    try:
+        frames = read_episode_frames(loaded.dataset_root, 0)
+        assert frames["action"].dtype == np.int64 and frames["action"].shape[1:] == (1,)
+        assert set(np.unique(frames["action"])) <= {0, 1}
+    finally:
+        loaded.unregister()
+    report = reproduce(f"{repo}@{result.sha}", trust_remote_code=True, out=tmp_path / "rep", workers=1, progress=False)
+    assert report.reproduced, report.summary()
+    with hub_environment(hub.endpoint, tmp_path / "fresh"):
+        ((_, tasks),) = lerobot_make_env(f"{repo}@{result.sha}", n_envs=2, trust_remote_code=True).items()
+        vec = tasks[0]
+        vec.reset(seed=[0, 1])
+        _, reward, *_ = vec.step(np.array([[1.0], [0.0]], dtype=np.float32))  # what LeRobot's eval loop passes
+        assert reward.tolist() == [1.0, 1.0]
+
+
+def test_integer_actions_stored_as_floats_are_a_mismatch(hub, tmp_path):
+    """The three-way check compares the action's dtype too: a MultiDiscrete env whose dataset says float32."""
+    result = _push(CARTPOLE, "alice/cartpole-multi", config={"action_kind": "multi"})
+    assert result.manifest.dataset["features"]["action"]["dtype"] == "int64"
+
+    def as_floats(folder):
+        info = json.loads((folder / "dataset/meta/info.json").read_text())
+        info["features"]["action"]["dtype"] = "float32"
+        (folder / "dataset/meta/info.json").write_text(json.dumps(info))
+
+    sha = republish(hub.api, "alice/cartpole-multi", as_floats)
+    with pytest.raises(errors.FeatureMismatchError, match=r"dataset dtype float32 != int64, which the live int64 actions"):
+        load_env(f"alice/cartpole-multi@{sha}", trust_remote_code=True)
+
+
+def test_an_action_space_hub_envs_cannot_record_is_refused_at_push_by_name(hub, tmp_path):
+    folder = copy_env(
+        tmp_path,
+        edits={"tiny.py": lambda s: s.replace("spaces.Box(-1.0, 1.0, (1,), np.float32)", "spaces.Text(4)")},
+    )
+    with pytest.raises(errors.EnvCheckError, match=r"Text\(1, 4, charset=\.\.\.\) actions are not supported: use a Box"):
+        _push(folder, "alice/tiny-text-actions")

@@ -159,13 +159,17 @@ def rollout_to_frames(
     return out
 
 
-def dataset_features_from_config(cfg: Any, *, names: Mapping[str, list[str]] | None = None) -> dict[str, dict]:
+def dataset_features_from_config(
+    cfg: Any, *, names: Mapping[str, list[str]] | None = None, action: tuple[tuple[int, ...], str] | None = None
+) -> dict[str, dict]:
     """info.json-style features for a LeRobot ``EnvConfig`` (its ``features`` and ``features_map``).
 
     VISUAL features become ``{"dtype": "image", "shape": [H, W, C], "names": ["height", "width",
     "channels"]}`` (channel-first shapes are turned channel-last); STATE/ACTION/ENV features become
     float32 with ``names`` (from ``names[dataset_key]`` or ``<env_key>_<i>`` for 1-D shapes).
-    ``next.reward`` (float32), ``next.done`` and ``next.success`` (bool) are appended.
+    ``next.reward`` (float32), ``next.done`` and ``next.success`` (bool) are appended. ``action`` is the
+    ``(shape, dtype)`` the env's action space is stored as (:func:`hub_envs.harness.actions.stored_action`:
+    int64 ``(1,)`` for a ``Discrete``), when it is known.
 
     >>> from types import SimpleNamespace as NS
     >>> cfg = NS(features={"action": NS(type="ACTION", shape=(1,)), "pixels": NS(type="VISUAL", shape=(3, 8, 8))},
@@ -195,7 +199,12 @@ def dataset_features_from_config(cfg: Any, *, names: Mapping[str, list[str]] | N
             feature_names = names.get(key)
             if feature_names is None and len(shape) == 1:
                 feature_names = [f"{env_key.replace('/', '_')}_{i}" for i in range(shape[0])]
-            out[key] = {"dtype": "float32", "shape": shape, "names": feature_names}
+            dtype = "float32"
+            if ftype.endswith("ACTION") and action is not None:
+                shape, dtype = list(action[0]), action[1]
+                if feature_names is None and len(shape) == 1:
+                    feature_names = [f"{env_key.replace('/', '_')}_{i}" for i in range(shape[0])]
+            out[key] = {"dtype": dtype, "shape": shape, "names": feature_names}
     for key, ft in NEXT_FEATURES.items():
         out.setdefault(key, {**ft, "shape": list(ft["shape"])})
     return out

@@ -27,6 +27,7 @@ import numpy as np
 
 from hub_envs.dataset.layout import BOOKKEEPING_KEYS
 from hub_envs.errors import EnvCodeError, FeatureMismatchError
+from hub_envs.harness.actions import accepts_declared, stored_action, unsupported_reason
 
 
 @dataclass
@@ -199,10 +200,14 @@ def check_features(
         mapped_dataset_keys.add(key)
         # -- live --
         if ftype == FeatureType.ACTION:
-            shape = tuple(env.action_space.shape or ())
-            dtype = np.asarray(actions[0]).dtype if actions else getattr(env.action_space, "dtype", "?")
+            space = env.action_space
+            shape = tuple(space.shape or ())
+            dtype = np.asarray(actions[0]).dtype if actions else getattr(space, "dtype", "?")
             live = f"{dtype} {shape}"
-            if shape != declared_shape:
+            unsupported = unsupported_reason(space)
+            if unsupported:
+                problems.append(unsupported)
+            elif not accepts_declared(space, declared_shape):
                 problems.append(f"action_space shape {shape} != declared {declared_shape}")
         else:
             try:
@@ -249,12 +254,19 @@ def check_features(
             ds_shape = tuple(spec.get("shape", ()))
             ds_dtype = spec.get("dtype", "?")
             dataset = f"{ds_dtype} {ds_shape}"
-            if ds_shape != declared_shape:
-                problems.append(f"dataset shape {ds_shape} != declared {declared_shape}")
-            if ftype == FeatureType.VISUAL and ds_dtype not in ("image", "video"):
-                problems.append(f"dataset dtype {ds_dtype!r} for a VISUAL feature (expected 'image' or 'video')")
-            if ftype != FeatureType.VISUAL and ds_dtype not in ("float32", "float64"):
-                problems.append(f"dataset dtype {ds_dtype!r} for a {_type_name(ftype)} feature (expected float32)")
+            if ftype == FeatureType.ACTION and unsupported_reason(env.action_space) is None:
+                want_shape, want_dtype = stored_action(env.action_space)
+                if ds_shape != want_shape or (declared_shape not in (want_shape, ()) and ds_shape != declared_shape):
+                    problems.append(f"dataset shape {ds_shape} != declared {declared_shape} (stored as {want_shape})")
+                if ds_dtype != want_dtype:
+                    problems.append(f"dataset dtype {ds_dtype} != {want_dtype}, which the live {dtype} actions are stored as")
+            else:
+                if ds_shape != declared_shape:
+                    problems.append(f"dataset shape {ds_shape} != declared {declared_shape}")
+                if ftype == FeatureType.VISUAL and ds_dtype not in ("image", "video"):
+                    problems.append(f"dataset dtype {ds_dtype!r} for a VISUAL feature (expected 'image' or 'video')")
+                if ftype != FeatureType.VISUAL and ds_dtype not in ("float32", "float64"):
+                    problems.append(f"dataset dtype {ds_dtype!r} for a {_type_name(ftype)} feature (expected float32)")
         rows.append(FeatureRow(name, key, f"{_type_name(ftype)} {declared_shape}", live, dataset, problems))
 
     for extra in sorted(live_keys):

@@ -41,6 +41,7 @@ from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
 from hub_envs.dataset.states import read_env_states
 from hub_envs.dataset.writer import rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
+from hub_envs.harness.actions import to_env_actions
 from hub_envs.harness.rollout import iter_episodes, run_episodes
 
 __all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "Replay", "replay_dataset", "STATE_FEATURE"]
@@ -314,20 +315,14 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
 
 
 def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
-    """Recorded (float32) actions in the layout and dtype of the env's action space."""
+    """Recorded actions in the layout and dtype of the env's action space (:func:`hub_envs.harness.actions.to_env_actions`)."""
     shape = tuple(getattr(space, "shape", None) or ())
-    dtype = getattr(space, "dtype", None)
-    if actions.shape[1:] != shape:
-        if int(np.prod(actions.shape[1:])) == int(np.prod(shape)):
-            actions = actions.reshape(len(actions), *shape)
-        else:
-            raise ReproductionError(
-                f"{where}: the recorded actions have shape {actions.shape[1:]} but the env's action space is {space}. "
-                f"The env changed its action space since the data was recorded."
-            )
-    if dtype is not None and actions.dtype != dtype:
-        actions = actions.astype(dtype)
-    return actions
+    if actions.shape[1:] != shape and int(np.prod(actions.shape[1:])) != int(np.prod(shape)):
+        raise ReproductionError(
+            f"{where}: the recorded actions have shape {actions.shape[1:]} but the env's action space is {space}. "
+            f"The env changed its action space since the data was recorded."
+        )
+    return to_env_actions(actions, space)
 
 
 def _compare_episode(

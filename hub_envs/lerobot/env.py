@@ -41,6 +41,7 @@ from lerobot.envs.configs import EnvConfig
 
 from hub_envs._compat import env_configs_create_envs, train_dataset_hooks
 from hub_envs.errors import ConfigError, UntrustedCodeError
+from hub_envs.harness.actions import IntegerActions
 from hub_envs.load import LoadedEnv, load_env, loaded_env_for_type
 from hub_envs.registration import owner_of_choice
 
@@ -148,7 +149,12 @@ class HubEnv(EnvConfig):
         overrides = _typed_overrides(loaded.config_class, overrides, where=where)
         from hub_envs.envconfig import instantiate_config
 
-        env_cfg = instantiate_config(loaded.config_class, where=where, **overrides) if overrides else loaded.config
+        published = dict(loaded.manifest.config_overrides)  # a published variant's fields, then the user's
+        env_cfg = (
+            instantiate_config(loaded.config_class, where=where, overrides={**published, **overrides})
+            if overrides
+            else loaded.config
+        )
         self._loaded = loaded
         self._env_config = env_cfg
         if not loaded.is_local:
@@ -236,6 +242,8 @@ def make_vec_env(
 
     def _one():
         env = gym.make(gym_id, max_episode_steps=steps, disable_env_checker=True, **kwargs)
+        if isinstance(env.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete)):
+            env = IntegerActions(env)  # LeRobot's policies give floats
         return TaskDescription(env, task) if task is not None else env
 
     fns = [_one for _ in range(n_envs)]

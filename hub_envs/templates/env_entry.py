@@ -95,9 +95,28 @@ def _ensure_snapshot() -> dict:
             if name.endswith((".py", ".pyc", ".pyo", ".so", ".pyd")) and rel not in listed:
                 bad.append(f"{rel} (unlisted)")
     if bad:
-        raise RuntimeError(f"{_HERE}: {', '.join(_safe(b) for b in bad)} differ from the sha256 in {_MANIFEST} or are code it does not list; not importing. "
-                           f"Delete this snapshot from the cache and download it again, or ask the repo's author.")
+        served = [b for b in bad if _as_served(_HERE / b)]
+        if served:  # byte for byte what the Hub serves: the publication itself disagrees with its manifest
+            advice = (f"{', '.join(_safe(b) for b in served)} are exactly what the Hub serves for this commit, so the "
+                      f"published files disagree with their own manifest and downloading again will not help: ask the "
+                      f"repo's author to re-publish it with push_env.")
+        else:
+            advice = "Delete this snapshot from the cache and download it again, or ask the repo's author."
+        raise RuntimeError(f"{_HERE}: {', '.join(_safe(b) for b in bad)} differ from the sha256 in {_MANIFEST} or are code it "
+                           f"does not list; not importing. {advice}")
     return manifest
+
+
+def _as_served(path: Path) -> bool:
+    """Whether a cached file is byte for byte what the Hub served: huggingface_hub names a blob by the ETag it
+    checked, the git blob sha1 of a regular file or the sha256 of an LFS one."""
+    try:
+        blob = os.path.basename(os.readlink(path))
+        data = path.read_bytes()
+    except OSError:
+        return False
+    git_sha1 = hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+    return blob in (git_sha1, hashlib.sha256(data).hexdigest())
 
 
 def _source_only(folder: Path) -> None:
@@ -162,11 +181,62 @@ def _resolve(package: str, entry_point: str):
     return obj
 
 
+def _preflight(manifest: dict) -> None:
+    """Before any of the env's code is imported: every requirement it declares is installed, at a version it
+    accepts; otherwise an ImportError naming them and the pip line (not a bare ModuleNotFoundError from deep
+    inside the env's code)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        from packaging.requirements import InvalidRequirement, Requirement
+    except ImportError:  # pragma: no cover - packaging comes with huggingface_hub
+        return
+    problems, lines = [], []
+    for text in manifest.get("requirements", []):
+        try:
+            req = Requirement(text)
+        except InvalidRequirement:
+            problems.append(f"{_safe(text)} (not a valid requirement)")
+            continue
+        if req.marker is not None and not req.marker.evaluate():
+            continue
+        try:
+            have = version(req.name)
+        except PackageNotFoundError:
+            problems.append(f"{_safe(text)} (not installed)")
+            lines.append(_safe(text))
+            continue
+        if req.specifier and not req.specifier.contains(have, prereleases=True):
+            problems.append(f"{_safe(text)} ({_safe(req.name)} {_safe(have)} is installed)")
+            lines.append(_safe(text))
+    if problems:
+        origin = _snapshot_origin(_HERE)
+        repo = f"{origin[0]}@{origin[1]}" if origin else str(_HERE)
+        pip = "pip install " + " ".join(f"'{line}'" for line in lines) if lines else "fix the repo's requirements"
+        raise ImportError(f"{repo} needs {', '.join(problems)}. Install them: {pip}")
+
+
 def load_classes():
     """(env class, config class) of this repo."""
     manifest = _ensure_snapshot()
+    _preflight(manifest)
     package = _import_package(manifest)
     return _resolve(package, manifest["env_entry_point"]), _resolve(package, manifest["config_entry_point"])
+
+
+class IntegerActions(gym.ActionWrapper):
+    """A policy's float actions in LeRobot's layout (a Discrete's as shape (1,)) as the integers the env expects
+    (the same conversion as hub_envs.harness.actions.IntegerActions)."""
+
+    def action(self, action):
+        import numpy as np
+
+        arr = np.asarray(action)
+        if isinstance(self.env.action_space, gym.spaces.Discrete):
+            return np.int64(np.rint(arr.reshape(-1)[0])) if arr.size == 1 else action
+        if arr.dtype.kind == "f":
+            return np.rint(arr).astype(self.env.action_space.dtype).reshape(self.env.action_space.shape)
+        return action
 
 
 class TaskDescription(gym.Wrapper):
@@ -178,20 +248,78 @@ class TaskDescription(gym.Wrapper):
         self.task_description = task
 
 
+#: repo@sha (and config) whose declared features matched a live env in this process
+_FEATURES_CHECKED: set = set()
+
+
+def _check_features_once(cfg, make_one) -> None:
+    """The declared-vs-live half of hub-envs' three-way feature check, once per repo@sha and config in a process:
+    every feature the config declares has that shape in a live observation (images: HWC or CHW), and the action
+    space the declared action shape. A disagreement is refused with the whole table, as load_env refuses it."""
+    origin = _snapshot_origin(_HERE)
+    key = (origin[:2] if origin else str(_HERE), json.dumps(getattr(cfg, "gym_kwargs", {}), sort_keys=True, default=str))
+    if key in _FEATURES_CHECKED:
+        return
+    env = make_one()
+    try:
+        obs, _ = env.reset(seed=0)
+        rows = []
+        for name, feature in cfg.features.items():
+            declared = tuple(int(d) for d in feature.shape)
+            kind = str(getattr(feature.type, "value", feature.type)).upper()
+            if kind.endswith("ACTION"):
+                live, what = tuple(env.action_space.shape or ()), "action_space shape"
+            else:
+                node = obs
+                for part in name.split("/"):
+                    node = node.get(part) if isinstance(node, dict) else None
+                if node is None:
+                    rows.append(f"  {_safe(name)}: declared {declared}, not in the live observation")
+                    continue
+                live, what = tuple(getattr(node, "shape", ())), "live shape"
+            channel_first = kind.endswith("VISUAL") and len(declared) == 3 and live in (
+                (declared[2], declared[0], declared[1]), (declared[1], declared[2], declared[0]))
+            scalar = kind.endswith("ACTION") and live == () and declared == (1,)  # a Discrete, as LeRobot stores it
+            if live != declared and not channel_first and not scalar:
+                rows.append(f"  {_safe(name)}: {what} {live} != declared {declared}")
+    finally:
+        env.close()
+    if rows:
+        repo = f"{origin[0]}@{origin[1]}" if origin else str(_HERE)
+        raise ValueError(f"{repo}: the env's declared features disagree with what it produces:\n" + "\n".join(rows)
+                         + "\nNot building it. Ask the repo's author to fix the config's features and re-publish with push_env.")
+    _FEATURES_CHECKED.add(key)
+
+
 def make_env(n_envs: int = 1, use_async_envs: bool = False, cfg=None):
     """LeRobot EnvHub's entry point: ``{name: {0: VectorEnv}}`` of ``n_envs`` copies of this env.
 
-    ``cfg``, when it is an instance of this repo's config class, overrides the published defaults;
-    anything else (LeRobot passes its own ``HubEnvConfig``) means the defaults.
+    ``cfg``, when it is an instance of this repo's config class, overrides the published config;
+    anything else (LeRobot passes its own ``HubEnvConfig``) means the published one: the code's defaults
+    with the fields the publisher set (``config_overrides``: a variant published with ``--config.*``).
     """
     env_class, config_class = load_classes()
-    cfg = cfg if isinstance(cfg, config_class) else config_class()
+    if not isinstance(cfg, config_class):
+        manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
+        overrides = manifest.get("config_overrides") or {}
+        if overrides:
+            import typing
+
+            import draccus  # LeRobot's config library, present wherever LeRobot runs this file
+
+            hints = typing.get_type_hints(config_class)  # field by field: EnvConfig is a draccus choice registry
+            cfg = config_class(**{name: draccus.decode(hints[name], value) for name, value in overrides.items()})
+        else:
+            cfg = config_class()
     task = cfg.task if isinstance(cfg.task, str) else None
 
     def _one():
         env = gym.wrappers.TimeLimit(env_class(**cfg.gym_kwargs), max_episode_steps=int(cfg.episode_length))
+        if isinstance(env.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete)):
+            env = IntegerActions(env)
         return TaskDescription(env, task) if task is not None else env
 
+    _check_features_once(cfg, _one)
     fns = [_one for _ in range(n_envs)]
     mode = gym.vector.AutoresetMode.SAME_STEP
     if use_async_envs:
