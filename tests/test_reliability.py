@@ -722,6 +722,16 @@ CASES: list[Case] = [
     _push_case("push-bad-repo-id", E.ConfigError, ("'not a repo'", "is not valid"), repo_id="not a repo"),
     _push_case("push-zero-episodes", E.ConfigError, ("--episodes must be at least 1",), episodes=0),
     _push_case(
+        "push-render-needs-a-package",
+        E.EnvCodeError,
+        ("raised ModuleNotFoundError", "pygame_not_installed", "[project] dependencies", "renders the card's GIF"),
+        edits={
+            "tiny.py": lambda s: s.replace(
+                "    def render(self):\n", "    def render(self):\n        import pygame_not_installed  # noqa\n"
+            )
+        },
+    ),
+    _push_case(
         "push-nan-observation",
         E.EnvCodeError,  # the determinism check, the first to run, finds it
         ("observation 'agent_pos' contains NaN or inf at step 0", "returned by env.reset", "Fix the env"),

@@ -45,6 +45,11 @@ def run_env_checker(env, *, where: str) -> list[str]:
                 f"{where}: gymnasium's check_env refused the env: {e}\n"
                 f"Run `from gymnasium.utils.env_checker import check_env; check_env(env)` on it and fix what it reports."
             ) from e
+        except ImportError as e:
+            raise EnvCodeError(
+                f"{where}: the env raised {type(e).__name__} inside gymnasium's check_env: {e}. Install it and list it in "
+                f"the env's [project] dependencies (check_env calls render(), and publishing renders the card's GIF)."
+            ) from e
         except Exception as e:
             raise EnvCodeError(f"{where}: the env raised {type(e).__name__} inside gymnasium's check_env: {e}") from e
     return sorted({str(w.message) for w in caught})

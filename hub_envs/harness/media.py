@@ -34,7 +34,14 @@ def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: 
             env.action_space.seed(seed)
             for step in range(max_steps):
                 if step % every == 0:
-                    frame = env.render()
+                    try:
+                        frame = env.render()
+                    except Exception as exc:
+                        raise EnvCodeError(
+                            f"env.render() raised {type(exc).__name__}: {exc}. Publishing renders the card's GIF, so "
+                            f"what render() needs (e.g. pygame) must be installed and listed in the env's "
+                            f"[project] dependencies."
+                        ) from exc
                     if not (isinstance(frame, np.ndarray) and frame.ndim == 3 and frame.dtype == np.uint8):
                         raise EnvCodeError(
                             f"env.render() must return an (H, W, 3) uint8 array in rgb_array mode, got "
