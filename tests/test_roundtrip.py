@@ -450,7 +450,9 @@ def test_integer_actions_stored_as_floats_are_a_mismatch(hub, tmp_path):
         (folder / "dataset/meta/info.json").write_text(json.dumps(info))
 
     sha = republish(hub.api, "alice/cartpole-multi", as_floats)
-    with pytest.raises(errors.FeatureMismatchError, match=r"dataset dtype float32 != int64, which the live int64 actions"):
+    with pytest.raises(
+        errors.FeatureMismatchError, match=r"dataset dtype float32 != int64, which the live actions are stored as"
+    ):
         load_env(f"alice/cartpole-multi@{sha}", trust_remote_code=True)
 
 

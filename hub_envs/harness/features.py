@@ -166,10 +166,136 @@ def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[A
     return observations, actions, infos
 
 
+def _live_action(space: Any, declared: tuple[int, ...], actions: list[Any]) -> tuple[str, list[str]]:
+    """What the live env's action space is (its description) and what is wrong with it for ``declared``."""
+    shape = tuple(space.shape or ())
+    dtype = np.asarray(actions[0]).dtype if actions else getattr(space, "dtype", "?")
+    unsupported = unsupported_reason(space)
+    if unsupported:
+        return f"{dtype} {shape}", [unsupported]
+    if not accepts_declared(space, declared):
+        return f"{dtype} {shape}", [f"action_space shape {shape} != declared {declared}"]
+    return f"{dtype} {shape}", []
+
+
+def _live_observation(
+    name: str, ftype: Any, declared: tuple[int, ...], observations: list[Any], obs_space: Any
+) -> tuple[str, list[str]]:
+    """One observation feature across the live steps: its description and what is wrong with it."""
+    from lerobot.configs.types import FeatureType
+
+    try:
+        values = [np.asarray(_lookup(o, name)) for o in observations]
+    except KeyError:
+        return "missing", [f"observation has no key {name!r} (it has {sorted(_flat_keys(observations[0]))})"]
+    live = _describe(values[0])
+    problems = []
+    if tuple(values[0].shape) != declared:
+        problems.append(f"live shape {tuple(values[0].shape)} != declared {declared}")
+    if ftype == FeatureType.VISUAL:
+        if values[0].dtype != np.uint8 or values[0].ndim != 3 or values[0].shape[-1] not in (1, 3, 4):
+            problems.append(f"VISUAL feature must be a uint8 (H, W, C) image, live is {live}")
+    elif not np.issubdtype(values[0].dtype, np.floating):
+        problems.append(f"{_type_name(ftype)} feature must be floating point, live is {values[0].dtype}")
+    else:
+        bad = [i for i, v in enumerate(values) if not np.all(np.isfinite(v))]
+        if bad:
+            problems.append(f"non-finite values (NaN/inf) at step {bad[0]}")
+    space = _space_for(obs_space, name)
+    if space is None:
+        problems.append(f"observation_space has no entry {name!r}")
+    else:
+        outside = [i for i, v in enumerate(values) if not space.contains(v)]
+        if outside and not any("non-finite" in p for p in problems):
+            v = values[outside[0]]
+            problems.append(
+                f"outside observation_space at step {outside[0]} (min {v.min():.4g}, max {v.max():.4g})"
+                if v.size and v.shape == space.shape
+                else f"outside observation_space at step {outside[0]}"
+            )
+    return live, problems
+
+
+def _in_dataset(
+    key: str, ftype: Any, declared: tuple[int, ...], dataset_features: dict[str, Any] | None, action_space: Any
+) -> tuple[str, list[str]]:
+    """One feature as the dataset's info.json declares it: its description and what is wrong with it."""
+    from lerobot.configs.types import FeatureType
+
+    if dataset_features is None:
+        return "-", []
+    if key not in dataset_features:
+        return "missing", [f"dataset has no feature {key!r}"]
+    spec = dataset_features[key]
+    ds_shape, ds_dtype = tuple(spec.get("shape", ())), spec.get("dtype", "?")
+    problems = []
+    if ftype == FeatureType.ACTION and unsupported_reason(action_space) is None:
+        want_shape, want_dtype = stored_action(action_space)
+        if ds_shape != want_shape or (declared not in (want_shape, ()) and ds_shape != declared):
+            problems.append(f"dataset shape {ds_shape} != declared {declared} (stored as {want_shape})")
+        if ds_dtype != want_dtype:
+            problems.append(f"dataset dtype {ds_dtype} != {want_dtype}, which the live actions are stored as")
+    else:
+        if ds_shape != declared:
+            problems.append(f"dataset shape {ds_shape} != declared {declared}")
+        if ftype == FeatureType.VISUAL and ds_dtype not in ("image", "video"):
+            problems.append(f"dataset dtype {ds_dtype!r} for a VISUAL feature (expected 'image' or 'video')")
+        if ftype != FeatureType.VISUAL and ds_dtype not in ("float32", "float64"):
+            problems.append(f"dataset dtype {ds_dtype!r} for a {_type_name(ftype)} feature (expected float32)")
+    return f"{ds_dtype} {ds_shape}", problems
+
+
+def _undeclared(
+    observations: list[Any], live_keys: set[str], features_map: dict, dataset_features: dict | None, mapped: set
+) -> list[FeatureRow]:
+    """Rows for what the env observes or the dataset holds that the config does not declare."""
+    rows = [
+        FeatureRow(
+            extra,
+            features_map.get(extra, "-"),
+            "-",
+            _describe(np.asarray(_lookup(observations[0], extra))),
+            "-",
+            [f"observation key {extra!r} is not declared in config.features"],
+        )
+        for extra in sorted(live_keys)
+    ]
+    for extra in sorted(set(dataset_features or {}) - mapped - BOOKKEEPING_KEYS):
+        spec = dataset_features[extra]
+        rows.append(
+            FeatureRow(
+                "-",
+                extra,
+                "-",
+                "-",
+                f"{spec.get('dtype')} {tuple(spec.get('shape', ()))}",
+                [f"dataset feature {extra!r} is not declared in config.features"],
+            )
+        )
+    return rows
+
+
+def _success_row(infos: list[dict], dataset_features: dict | None) -> FeatureRow:
+    """``info["is_success"]``: a bool at every reset and step (LeRobot's eval reads it), ``next.success`` in the data."""
+    bad = [i for i, info in enumerate(infos) if not isinstance(info.get("is_success"), (bool, np.bool_))]
+    problems = []
+    if bad:
+        got = infos[bad[0]].get("is_success", "missing")
+        problems.append(
+            f"info['is_success'] must be a bool in every reset/step info; got {got!r} ({type(got).__name__}) at call {bad[0]}"
+        )
+    dataset = "-" if dataset_features is None else ("bool" if "next.success" in dataset_features else "missing")
+    return FeatureRow("info.is_success", "next.success", "bool", "bool" if not bad else "wrong", dataset, problems)
+
+
 def check_features(
     cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0, where: str = "the env"
 ) -> FeatureReport:
-    """Compare declared features, a live seeded rollout of ``env`` and the dataset's info.json features."""
+    """Compare declared features, a live seeded rollout of ``env`` and the dataset's info.json features.
+
+    One row per declared feature (:func:`_live_action` or :func:`_live_observation`, then :func:`_in_dataset`),
+    rows for what is not declared (:func:`_undeclared`), and the success flag (:func:`_success_row`).
+    """
     from lerobot.configs.types import FeatureType
 
     observations, actions, infos = _rollout(env, steps, seed, where)
@@ -187,130 +313,26 @@ def check_features(
                 ["observations must be dicts such as {'agent_pos': ...} (LeRobot's format)"],
             )
         )
-    mapped_dataset_keys = set()
-
+    mapped: set[str] = set()
     for name, feat in cfg.features.items():
-        ftype = feat.type
-        declared_shape = tuple(feat.shape)
+        declared = tuple(feat.shape)
         key = features_map.get(name)
         problems: list[str] = []
         if key is None:
             problems.append(f"no features_map entry (LeRobot cannot name it; add {name!r}: 'observation.…')")
             key = name
-        mapped_dataset_keys.add(key)
-        # -- live --
-        if ftype == FeatureType.ACTION:
-            space = env.action_space
-            shape = tuple(space.shape or ())
-            dtype = np.asarray(actions[0]).dtype if actions else getattr(space, "dtype", "?")
-            live = f"{dtype} {shape}"
-            unsupported = unsupported_reason(space)
-            if unsupported:
-                problems.append(unsupported)
-            elif not accepts_declared(space, declared_shape):
-                problems.append(f"action_space shape {shape} != declared {declared_shape}")
+        mapped.add(key)
+        if feat.type == FeatureType.ACTION:
+            live, live_problems = _live_action(env.action_space, declared, actions)
         else:
-            try:
-                values = [np.asarray(_lookup(o, name)) for o in observations]
-            except KeyError:
-                values = []
             live_keys.discard(name)
-            if not values:
-                live = "missing"
-                problems.append(f"observation has no key {name!r} (it has {sorted(_flat_keys(observations[0]))})")
-            else:
-                live = _describe(values[0])
-                if tuple(values[0].shape) != declared_shape:
-                    problems.append(f"live shape {tuple(values[0].shape)} != declared {declared_shape}")
-                if ftype == FeatureType.VISUAL:
-                    if values[0].dtype != np.uint8 or values[0].ndim != 3 or values[0].shape[-1] not in (1, 3, 4):
-                        problems.append(f"VISUAL feature must be a uint8 (H, W, C) image, live is {live}")
-                elif not np.issubdtype(values[0].dtype, np.floating):
-                    problems.append(f"{_type_name(ftype)} feature must be floating point, live is {values[0].dtype}")
-                else:
-                    bad = [i for i, v in enumerate(values) if not np.all(np.isfinite(v))]
-                    if bad:
-                        problems.append(f"non-finite values (NaN/inf) at step {bad[0]}")
-                space = _space_for(env.observation_space, name)
-                if space is None:
-                    problems.append(f"observation_space has no entry {name!r}")
-                else:
-                    outside = [i for i, v in enumerate(values) if not space.contains(v)]
-                    if outside and not any("non-finite" in p for p in problems):
-                        v = values[outside[0]]
-                        problems.append(
-                            f"outside observation_space at step {outside[0]} (min {v.min():.4g}, max {v.max():.4g})"
-                            if v.size and v.shape == space.shape
-                            else f"outside observation_space at step {outside[0]}"
-                        )
-        # -- dataset --
-        if dataset_features is None:
-            dataset = "-"
-        elif key not in dataset_features:
-            dataset = "missing"
-            problems.append(f"dataset has no feature {key!r}")
-        else:
-            spec = dataset_features[key]
-            ds_shape = tuple(spec.get("shape", ()))
-            ds_dtype = spec.get("dtype", "?")
-            dataset = f"{ds_dtype} {ds_shape}"
-            if ftype == FeatureType.ACTION and unsupported_reason(env.action_space) is None:
-                want_shape, want_dtype = stored_action(env.action_space)
-                if ds_shape != want_shape or (declared_shape not in (want_shape, ()) and ds_shape != declared_shape):
-                    problems.append(f"dataset shape {ds_shape} != declared {declared_shape} (stored as {want_shape})")
-                if ds_dtype != want_dtype:
-                    problems.append(f"dataset dtype {ds_dtype} != {want_dtype}, which the live {dtype} actions are stored as")
-            else:
-                if ds_shape != declared_shape:
-                    problems.append(f"dataset shape {ds_shape} != declared {declared_shape}")
-                if ftype == FeatureType.VISUAL and ds_dtype not in ("image", "video"):
-                    problems.append(f"dataset dtype {ds_dtype!r} for a VISUAL feature (expected 'image' or 'video')")
-                if ftype != FeatureType.VISUAL and ds_dtype not in ("float32", "float64"):
-                    problems.append(f"dataset dtype {ds_dtype!r} for a {_type_name(ftype)} feature (expected float32)")
-        rows.append(FeatureRow(name, key, f"{_type_name(ftype)} {declared_shape}", live, dataset, problems))
-
-    for extra in sorted(live_keys):
-        value = np.asarray(_lookup(observations[0], extra))
+            live, live_problems = _live_observation(name, feat.type, declared, observations, env.observation_space)
+        dataset, dataset_problems = _in_dataset(key, feat.type, declared, dataset_features, env.action_space)
         rows.append(
             FeatureRow(
-                extra,
-                features_map.get(extra, "-"),
-                "-",
-                _describe(value),
-                "-",
-                [f"observation key {extra!r} is not declared in config.features"],
+                name, key, f"{_type_name(feat.type)} {declared}", live, dataset, problems + live_problems + dataset_problems
             )
         )
-    if dataset_features is not None:
-        for extra in sorted(set(dataset_features) - mapped_dataset_keys - BOOKKEEPING_KEYS):
-            spec = dataset_features[extra]
-            rows.append(
-                FeatureRow(
-                    "-",
-                    extra,
-                    "-",
-                    "-",
-                    f"{spec.get('dtype')} {tuple(spec.get('shape', ()))}",
-                    [f"dataset feature {extra!r} is not declared in config.features"],
-                )
-            )
-
-    bad_success = [i for i, info in enumerate(infos) if not isinstance(info.get("is_success"), (bool, np.bool_))]
-    success_problems = []
-    if bad_success:
-        i = bad_success[0]
-        got = infos[i].get("is_success", "missing")
-        success_problems.append(
-            f"info['is_success'] must be a bool in every reset/step info; got {got!r} ({type(got).__name__}) at call {i}"
-        )
-    rows.append(
-        FeatureRow(
-            "info.is_success",
-            "next.success",
-            "bool",
-            "bool" if not bad_success else "wrong",
-            "-" if dataset_features is None else ("bool" if "next.success" in dataset_features else "missing"),
-            success_problems,
-        )
-    )
+    rows += _undeclared(observations, live_keys, features_map, dataset_features, mapped)
+    rows.append(_success_row(infos, dataset_features))
     return FeatureReport(rows=rows, steps=steps, seed=seed, dataset_checked=dataset_features is not None)
