@@ -719,24 +719,9 @@ def write_lerobot_dataset(
     except TypeError:
         total = None
     bar = _progress(total, f"writing {root.name}", progress)
-    pool = None
     try:
         n_threads = (1 if (os.cpu_count() or 1) > 1 else 0) if encode_threads is None else int(encode_threads)
-        if writer.image_keys and n_threads > 0:
-            pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hub-envs-png")
-            pending: deque = deque()
-            for ep in episodes:
-                pending.append(pool.submit(writer.encode, writer.prepare(ep)))
-                while len(pending) > n_threads:
-                    writer.write(pending.popleft().result())
-                    bar.update(1)
-            while pending:
-                writer.write(pending.popleft().result())
-                bar.update(1)
-        else:
-            for ep in episodes:
-                writer.write(writer.encode(writer.prepare(ep)))
-                bar.update(1)
+        _write_episodes(writer, episodes, n_threads, bar)
         if writer.n_episodes == 0:
             raise DatasetError(f"No episodes were given for {root}; a LeRobot dataset needs at least one.")
         writer.finish(robot_type=robot_type, extra_info=extra_info)
@@ -753,17 +738,41 @@ def write_lerobot_dataset(
             ) from exc
         raise DatasetError(f"Writing the dataset at {root} failed: {type(exc).__name__}: {exc}. Nothing was written.") from exc
     finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
+    return _summary(writer, root, repo_id, int(fps), feats, fingerprint)
 
+
+def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], n_threads: int, bar: Any) -> None:
+    """Prepare, encode (PNG and stats, on ``n_threads`` threads when there are images) and write, in order."""
+    if not writer.image_keys or n_threads <= 0:
+        for ep in episodes:
+            writer.write(writer.encode(writer.prepare(ep)))
+            bar.update(1)
+        return
+    with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hub-envs-png") as pool:
+        pending: deque = deque()
+        try:
+            for ep in episodes:
+                pending.append(pool.submit(writer.encode, writer.prepare(ep)))
+                while len(pending) > n_threads:
+                    writer.write(pending.popleft().result())
+                    bar.update(1)
+            while pending:
+                writer.write(pending.popleft().result())
+                bar.update(1)
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _summary(writer: _Writer, root: Path, repo_id: str, fps: int, feats: dict, fingerprint: str) -> DatasetSummary:
     returns = np.asarray(writer.returns, dtype=np.float64)
     return DatasetSummary(
         root=root,
         repo_id=repo_id,
         episodes=writer.n_episodes,
         frames=writer.total_frames,
-        fps=int(fps),
+        fps=fps,
         features=feats,
         episode_lengths=tuple(writer.lengths),
         seeds=tuple(writer.seeds),
