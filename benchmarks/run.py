@@ -37,6 +37,7 @@ MODULES: dict[str, dict] = {
     "bench_server": {"repeats": 3, "n_files": 100, "size_mb": 16},
     "bench_push": {"repeats": 3},
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
+    "bench_isolation": {"repeats": 5},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -70,6 +71,16 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "repo_page_rps": ("bench_pages", None, "requests/s: an env's web page (one client, keep-alive)"),
     "api_info_rps": ("bench_pages", None, "requests/s: GET /api/models/{repo} beside it (the same client)"),
     "repo_page_vs_api": ("bench_pages", None, "repo page ÷ API request (requests/s)"),
+    "isolated_step_hover": ("bench_isolation", (GE, 0.85), "steps/s of hover in a worker process ÷ in-process"),
+    "isolated_vec8_pendulum": ("bench_isolation", (GE, 0.7), "8 pendulums in isolated workers ÷ in-process SyncVectorEnv of 8"),
+    "isolated_warm_load": (
+        "bench_isolation",
+        (LE, 2.0),
+        "load_env(isolation='venv') cached + make + reset ÷ python -c 'import numpy, gymnasium'",
+    ),
+    "sandboxed_step_hover": ("bench_isolation", None, "steps/s of hover in a sandboxed worker ÷ in-process"),
+    "worker_start_s": ("bench_isolation", None, "seconds: start a worker and import hover's code"),
+    "sandboxed_worker_start_s": ("bench_isolation", None, "seconds: the same, sandboxed"),
 }
 
 

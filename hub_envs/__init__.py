@@ -28,12 +28,19 @@ _EXPORTS = {
     "Manifest": "hub_envs.repo_format",
     "reproduce": "hub_envs.reproduction",
     "env_from_dataset": "hub_envs.from_dataset",
+    "IsolationOptions": "hub_envs.isolation.proxy",
+    "IsolatedEnv": "hub_envs.isolation.proxy",
+    "IsolatedVectorEnv": "hub_envs.isolation.vector",
+    "sandbox_support": "hub_envs.isolation.sandbox",
 }
 
 __all__ = sorted(_EXPORTS) + ["errors", "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.from_dataset import env_from_dataset  # noqa: F401
+    from hub_envs.isolation.proxy import IsolatedEnv, IsolationOptions  # noqa: F401
+    from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401
+    from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
     from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401

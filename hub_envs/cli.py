@@ -4,7 +4,7 @@ Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` 
 
     hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024]
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1]
-    hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true]
+    hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
     hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true
     hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.type=act ...
@@ -61,6 +61,10 @@ class LoadArgs:
     check: bool = True
     fingerprint: str = "error"
     json: bool = False
+    isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
+    sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
+    versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
+    step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
 
 
 def serve(args: ServeArgs) -> int:
@@ -159,6 +163,10 @@ def load(args: LoadArgs) -> int:
         trust_remote_code=args.trust_remote_code,
         check=args.check,
         fingerprint=args.fingerprint,
+        isolation=args.isolation,
+        sandbox=args.sandbox,
+        versions=args.versions,
+        step_timeout=args.step_timeout,
     )
     if args.json:
         print(
@@ -169,6 +177,7 @@ def load(args: LoadArgs) -> int:
                     "gym_id": loaded.gym_id,
                     "env_type": loaded.env_type,
                     "path": str(loaded.path),
+                    "isolation": _isolation_text(loaded),
                     "report": loaded.report.to_dict(),
                 },
                 indent=2,
@@ -179,6 +188,7 @@ def load(args: LoadArgs) -> int:
     print(f"  gym id:      {loaded.gym_id}")
     print(f"  --env.type:  {loaded.env_type}")
     print(f"  snapshot:    {loaded.path}")
+    print(f"  runs:        {_isolation_text(loaded)}")
     print(f"  integrity:   {loaded.report.integrity}")
     print(f"  trust:       {loaded.report.trust}")
     print(f"  fingerprint: {loaded.report.fingerprint}")
@@ -186,6 +196,13 @@ def load(args: LoadArgs) -> int:
         print("  three-way feature check (declared / live / dataset):")
         print("    " + loaded.report.features.table().replace("\n", "\n    "))
     return 0
+
+
+def _isolation_text(loaded) -> str:
+    iso = loaded.isolation
+    if iso is None:
+        return "in this process"
+    return "in a sandboxed worker process" if iso.sandbox else "in a worker process"
 
 
 def _trust_cmd(argv: list[str], *, remove: bool) -> int:

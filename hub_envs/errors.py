@@ -127,6 +127,40 @@ class ConcurrentPushError(HubError):
     """The repo's main moved while push_env was preparing its commit (another push landed first); nothing was written."""
 
 
+# --- isolated envs (hub_envs.isolation) ----------------------------------------------------------
+
+
+class IsolationError(HubEnvsError):
+    """An isolated env (``load_env(..., isolation="process" | "venv", sandbox=True)``) could not run as asked."""
+
+
+class EnvCrashedError(IsolationError, EnvCodeError):
+    """The worker process running an isolated env died (segfault, kill, memory limit). The message names
+    repo@sha, how it died and the last lines of its stderr; ``restart=True`` starts a fresh one on ``reset()``."""
+
+
+class EnvTimeoutError(IsolationError, EnvCodeError, TimeoutError):
+    """A call into an isolated env (``reset``, ``step``, ...) took longer than ``step_timeout``: the worker was killed."""
+
+
+class RemoteEnvError(EnvCodeError):
+    """The env's own code raised inside its worker process. Builtin exception types are re-raised as a class
+    that is both this and the original (``except ValueError`` still works); ``__cause__`` holds the remote traceback."""
+
+
+class SandboxUnavailableError(IsolationError):
+    """``sandbox=True`` was asked for, but this machine does not allow a mechanism it needs (the message names it):
+    the env was not started (a sandbox never silently runs without one of its parts)."""
+
+
+class IsolationUnavailableError(IsolationError, NotImplementedError):
+    """An isolation option this hub-envs does not implement yet (it is refused, never silently ignored)."""
+
+
+class VenvBuildError(IsolationError):
+    """``isolation="venv"``: uv could not build the env's venv (its message is included); nothing was left behind."""
+
+
 # --- warnings ---------------------------------------------------------------------------------
 
 

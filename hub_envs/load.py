@@ -46,6 +46,7 @@ from hub_envs.errors import (
     HubEnvsError,
     IntegrityError,
     InvalidRepoFormatError,
+    IsolationUnavailableError,
     OfflineNotCachedError,
     RegistrationConflictError,
     UntrustedCodeError,
@@ -126,6 +127,7 @@ class LoadedEnv:
         registration_,
         report,
         local_folder=None,
+        isolation=None,
     ):
         self.repo_id: str = repo_id
         self.revision: str = revision
@@ -138,6 +140,8 @@ class LoadedEnv:
         self._registration: registration.Registration = registration_
         self.report: LoadReport = report
         self.local_folder: Path | None = local_folder
+        #: how the env's code runs (:class:`hub_envs.isolation.IsolationOptions`); None: in this process
+        self.isolation = isolation if isolation is not None and isolation.isolated else None
 
     # -- names --
     @property
@@ -170,9 +174,29 @@ class LoadedEnv:
         return gym.make(self.gym_id, **kwargs)
 
     def make_vec(self, n_envs: int = 1, use_async: bool = False, cfg=None, **kwargs) -> gym.vector.VectorEnv:
-        """A vector env of ``n_envs`` copies (async: one process each, forked so the registration carries over)."""
+        """A vector env of ``n_envs`` copies (async: one process each, forked so the registration carries over).
+
+        Isolated (``load_env(..., isolation="process")``): an :class:`~hub_envs.isolation.vector.IsolatedVectorEnv`
+        (``use_async`` does not apply: its workers always step side by side)."""
         if n_envs < 1:
             raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+        if self.isolation is not None:
+            from hub_envs.isolation.vector import IsolatedVectorEnv
+
+            spec = gym.spec(self.gym_id)
+            if cfg is not None:
+                kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
+            kwargs = {**spec.kwargs, **kwargs}
+            max_steps = kwargs.pop("max_episode_steps", spec.max_episode_steps)
+            return IsolatedVectorEnv(
+                spec.entry_point.target,
+                self.isolation,
+                n_envs,
+                gym_id=self.gym_id,
+                kwargs=kwargs,
+                max_episode_steps=max_steps,
+                disable_env_checker=spec.disable_env_checker,
+            )
         fns = [lambda: self.make(cfg, **kwargs) for _ in range(n_envs)]
         if use_async:
             return gym.vector.AsyncVectorEnv(fns, context="fork")
@@ -342,6 +366,13 @@ def load_env(
     token: str | None = None,
     cache_dir: str | Path | None = None,
     config: Mapping[str, Any] | None = None,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
+    step_timeout: float | None = None,
+    restart: bool = False,
+    envs_per_worker: int = 0,
+    sandbox_limits: dict[str, int] | None = None,
 ) -> LoadedEnv:
     """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
 
@@ -359,6 +390,20 @@ def load_env(
         config: for a local folder, config fields to set (``{"obs_type": "pixels_agent_pos"}``; values are
             decoded as LeRobot's ``--env.<field>=<value>`` flags are), the variant ``push_env --config.*``
             publishes. A Hub repo's config is the one it published (its own variant included).
+        isolation: ``"none"`` (the env's code runs in this process), ``"process"`` (each env, or each group of
+            ``envs_per_worker`` envs of ``make_vec``, runs in a worker process; this process never imports the
+            env's code) or ``"venv"`` (the same, with the worker in a venv built with uv from the env's
+            requirements, cached under ``$HUB_ENVS_HOME/venvs``). See :mod:`hub_envs.isolation`.
+        sandbox: run the workers in a sandbox (implies ``isolation="process"``): no network, a read-only view
+            of the files, no secrets in the environment, resource limits; fails closed where the machine does
+            not allow a part of it (:class:`~hub_envs.errors.SandboxUnavailableError`).
+        versions: ``"current"`` (the packages installed here); ``"publisher"`` is not available yet.
+        step_timeout: seconds a call into an isolated env may take before its worker is killed
+            (:class:`~hub_envs.errors.EnvTimeoutError`); None: no limit (a sandbox: 60 s).
+        restart: with isolation, ``reset()`` after a crash or timeout starts a fresh worker.
+        envs_per_worker: with isolation, envs of one ``make_vec`` per worker process (0: spread over the CPUs).
+        sandbox_limits: the sandbox's resource limits, any of ``memory_mb`` (address space, default 4096),
+            ``open_files`` (256) and ``processes`` (64, counted for the sandbox's uid).
 
     Returns:
         A :class:`LoadedEnv`.
@@ -368,6 +413,7 @@ def load_env(
     """
     if fingerprint not in ("error", "warn", "off"):
         raise ConfigError(f"fingerprint={fingerprint!r} is not a policy: pass 'error' (the default), 'warn' or 'off'.")
+    iso = _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     report = LoadReport()
@@ -435,7 +481,7 @@ def load_env(
     checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint)
     use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
     cached_checks = check_cache.lookup(checks_key) if use_cache else None
-    if cached_checks is None:
+    if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
         check_requirements(manifest.requirements, repo=where)
     # else: this repo@sha passed every stage before with exactly these installed distributions
     report.requirements = list(manifest.requirements)
@@ -445,11 +491,19 @@ def load_env(
     key = module_key(repo, sha)
     owner = f"{repo}@{sha}"
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
+    if iso.isolated:
+        owner = f"{owner} ({_isolation_suffix(iso).lstrip('-')})"  # not the same registration as in-process
     try:
         with registration.registry_transaction() as txn:
-            package = import_env_folder(path, key)
-            env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
-            config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
+            if iso.isolated:
+                env_class, config_class, isolated_config = _isolated_parts(
+                    repo, sha, path, key, manifest, local_folder, iso, overrides=dict(config or {})
+                )
+                iso = env_class.options
+            else:
+                package = import_env_folder(path, key)
+                env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
+                config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
             replaced = txn.replaced()
             if replaced:
                 raise RegistrationConflictError(
@@ -457,10 +511,13 @@ def load_env(
                     f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
                     f"env itself, under names unique to the repo and commit."
                 )
-            validate_config_class(config_class, where=where)
-            set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
-            loaded_config = instantiate_config(config_class, where=where, overrides=set_fields)
-            if manifest.config:
+            if not iso.isolated:
+                validate_config_class(config_class, where=where)
+                set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
+                loaded_config = instantiate_config(config_class, where=where, overrides=set_fields)
+            else:
+                set_fields, loaded_config = {}, isolated_config
+            if manifest.config and not iso.isolated:
                 diffs = config_differences(manifest.config, encode_config(loaded_config))
                 if diffs:
                     what = "the code's defaults" if not set_fields else f"what the code computes from {set_fields}"
@@ -471,15 +528,17 @@ def load_env(
                     )
             config = loaded_config
             qualifier = sha[:12] if not sha.startswith("local-") else sha
+            suffix = _isolation_suffix(iso) if iso.isolated else ""
             reg = registration.register(
-                gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}",
-                env_type=f"{manifest.env_type}@{qualifier}",
+                gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}{suffix}",
+                env_type=f"{manifest.env_type}@{qualifier}{suffix}",
                 owner=owner,
                 entry_point=env_class,
                 config_class=config_class,
                 max_episode_steps=int(config.episode_length),
                 kwargs=config.gym_kwargs,
                 disable_env_checker=bool(getattr(config, "disable_env_checker", True)),
+                register_choice=not iso.isolated or config_class is not None,
             )
             timings["import_register"] = time.perf_counter() - t
             loaded = LoadedEnv(
@@ -494,23 +553,153 @@ def load_env(
                 registration_=reg,
                 report=report,
                 local_folder=local_folder,
+                isolation=iso,
             )
             if check:
                 t = time.perf_counter()
                 _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps, key=checks_key, cached=cached_checks)
                 timings["checks"] = time.perf_counter() - t
+            if manifest.processors and iso.isolated:
+                from hub_envs.processors import specs_for
+
+                own = [sp.name for sp in specs_for(loaded) if ":" in sp.entry_point]
+                if own:
+                    raise IsolationUnavailableError(
+                        f"{where} declares env processors from its own code ({', '.join(own)}), which would run in this "
+                        f"process; isolation does not support those yet (built-in and LeRobot-registry steps work). "
+                        f"Load it with isolation='none'."
+                    )
             if manifest.processors:
                 from hub_envs.processors import validate_for
 
                 validate_for(loaded, dry=check)  # ProcessorError names the malformed field
     except BaseException:
-        if not imported_before:
+        if not imported_before and not iso.isolated:
             forget_env_folder(key)
         raise
     timings["total"] = time.perf_counter() - t0
     report.timings = timings
     _LOADED[loaded.env_type] = loaded
     return loaded
+
+
+def _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits=None):
+    """Validate load_env's isolation keywords; every option either works or is refused with a typed error."""
+    from hub_envs.isolation.proxy import IsolationOptions
+
+    if isolation not in ("none", "process", "venv"):
+        raise ConfigError(f"isolation={isolation!r} is not an isolation mode: pass 'none' (the default), 'process' or 'venv'.")
+    if versions not in ("current", "publisher"):
+        raise ConfigError(f"versions={versions!r}: pass 'current' (the default) or 'publisher'.")
+    if versions == "publisher" and isolation != "venv":
+        raise ConfigError(
+            f"versions='publisher' runs the env in a venv of the publisher's package versions: pass isolation='venv' "
+            f"with it (isolation={isolation!r} runs the packages installed here)."
+        )
+    if step_timeout is not None and not (isinstance(step_timeout, (int, float)) and step_timeout > 0):
+        raise ConfigError(f"step_timeout={step_timeout!r}: pass a positive number of seconds (or None for no limit).")
+    if not isinstance(envs_per_worker, int) or envs_per_worker < 0:
+        raise ConfigError(f"envs_per_worker={envs_per_worker!r}: pass a positive number (or 0 for the default).")
+    limits = dict(sandbox_limits or {})
+    names = {"memory_mb": "memory_limit_mb", "open_files": "max_open_files", "processes": "max_processes"}
+    bad = {k: v for k, v in limits.items() if k not in names or not isinstance(v, int) or v < 1}
+    if bad:
+        raise ConfigError(
+            f"sandbox_limits={bad!r}: pass positive integers for any of {', '.join(names)} (e.g. {{'memory_mb': 2048}})."
+        )
+    if limits and not sandbox:
+        raise ConfigError("sandbox_limits only apply with sandbox=True (a worker without the sandbox has no limits).")
+    if sandbox:
+        isolation = "process" if isolation == "none" else isolation
+        from hub_envs.isolation.sandbox import require_sandbox
+
+        require_sandbox()  # SandboxUnavailableError naming what this machine does not allow
+    return IsolationOptions(
+        isolation=isolation,
+        sandbox=bool(sandbox),
+        step_timeout=step_timeout,
+        restart=bool(restart),
+        envs_per_worker=envs_per_worker,
+        versions=versions,
+        **{names[k]: v for k, v in limits.items()},
+    )
+
+
+def _isolation_suffix(iso) -> str:
+    """What an isolated load's gym id and draccus name end with: the mode, and a digest of any non-default
+    setting (two loads of one repo@sha with other settings are two registrations, never a conflict)."""
+    import dataclasses
+    import hashlib
+
+    from hub_envs.isolation.proxy import IsolationOptions
+
+    mode = iso.isolation + ("-sandbox" if iso.sandbox else "")
+    mode = "sandbox" if mode == "process-sandbox" else mode
+    settings = {f.name: getattr(iso, f.name) for f in dataclasses.fields(iso) if f.name not in ("python", "pythonpath")}
+    default = dataclasses.asdict(IsolationOptions(isolation=iso.isolation, sandbox=iso.sandbox))
+    if any(default[k] != v for k, v in settings.items()):
+        mode += "-" + hashlib.sha256(repr(sorted(settings.items())).encode()).hexdigest()[:8]
+    return f"-{mode}"
+
+
+def _isolated_parts(repo, sha, path, key, manifest, local_folder, iso, overrides=None):
+    """``(entry point, config class or None, config)`` of an isolated load: the gym entry point is a factory of
+    proxies; the config comes from the verified manifest (a local folder's, which is your own code, is imported)."""
+    from hub_envs.isolation.config import ManifestConfig
+    from hub_envs.isolation.proxy import EnvTarget, IsolatedEnvFactory
+
+    where = f"{repo}@{sha}"
+    config_class = None
+    if manifest.config:
+        config = ManifestConfig(manifest.config, where=f"{where}: hub_env.json")
+    elif local_folder is not None:
+        package = import_env_folder(path, key)
+        config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
+        validate_config_class(config_class, where=where)
+        config = instantiate_config(config_class, where=where, overrides=overrides or None)
+    else:
+        raise InvalidRepoFormatError(
+            f"{where}: the manifest records no config values, which an isolated load reads instead of importing the "
+            f"env's code. Re-publish with push_env."
+        )
+    if iso.isolation == "venv":
+        import dataclasses
+
+        from hub_envs.isolation.venvs import hub_envs_path, venv_for, venv_python
+
+        notes: list[str] = []
+        if iso.versions == "publisher":
+            from hub_envs.isolation.venvs import publisher_pins
+
+            reqs, python, minor, notes = publisher_pins(manifest.requirements, dict(manifest.versions))
+            venv, record = venv_for(reqs, where=where, python=python, minor=minor)
+        else:
+            venv, record = venv_for(manifest.requirements, where=where)
+        iso = dataclasses.replace(iso, python=str(venv_python(venv)), pythonpath=hub_envs_path())
+        _VENVS[iso] = {**record, "path": str(venv), "notes": notes}
+    target = EnvTarget(
+        repo_id=repo,
+        revision=sha,
+        path=Path(path),
+        key=key,
+        entry_point=manifest.env_entry_point,
+        files=tuple(sorted(manifest.files.items())),
+    )
+    factory = _FACTORIES.setdefault((target, iso), IsolatedEnvFactory(target, iso))  # one entry point per load setting
+    return factory, config_class, config
+
+
+#: What each venv worker setting runs: the venv's record (python, installed packages) and notes.
+_VENVS: dict[Any, dict] = {}
+
+
+def worker_versions(loaded: LoadedEnv) -> dict[str, Any] | None:
+    """For an ``isolation="venv"`` load: the worker's venv record (``python``, ``installed``, ``notes``), else None."""
+    return _VENVS.get(loaded.isolation) if loaded.isolation is not None else None
+
+
+#: The gym entry point of each isolated repo@sha and setting (load_env's registration is idempotent per entry point).
+_FACTORIES: dict[Any, Any] = {}
 
 
 #: The envs load_env returned in this process, by draccus choice name (for integrations such as the LeRobot bridge).

@@ -368,6 +368,10 @@ def _source(loaded) -> str:
 
 
 def _package(loaded) -> str:
+    if getattr(loaded, "isolation", None) is not None:  # the env's code is not imported here (see load_env)
+        from hub_envs.importing import ROOT_PACKAGE
+
+        return f"{ROOT_PACKAGE}.{loaded.env_class.target.key}"
     return ".".join(loaded.env_class.__module__.split(".")[:2])
 
 
@@ -381,7 +385,8 @@ def pipelines_for(loaded, cfg=None) -> tuple[PolicyProcessorPipeline, PolicyProc
     spaces: dict = {}
     if specs:
         cfg = cfg if cfg is not None else loaded.config
-        env = loaded.env_class(**cfg.gym_kwargs)
+        # isolated: the spaces come from a proxy (the env runs in its worker)
+        env = loaded.env_class(**cfg.gym_kwargs) if getattr(loaded, "isolation", None) is None else loaded.make(cfg)
         try:
             spaces = {"action_space": env.action_space, "observation_space": env.observation_space}
         finally:

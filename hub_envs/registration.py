@@ -97,6 +97,7 @@ def register(
     max_episode_steps: int | None,
     kwargs: dict[str, Any],
     disable_env_checker: bool = True,
+    register_choice: bool = True,
 ) -> Registration:
     """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner."""
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) == owner and gym.registry[gym_id].entry_point is not entry_point:
@@ -108,17 +109,19 @@ def register(
             f"Unregister it first (hub_envs.unregister / del gymnasium.registry[{gym_id!r}]) or load in a fresh process."
         )
     existing = _choices().get(env_type)
+    if not register_choice:  # an isolated env: the parent has no config class to offer draccus
+        existing = None
     if existing is not None and _OWNED_CHOICES.get(env_type) != owner:
         raise RegistrationConflictError(
             f"draccus choice {env_type!r} is already registered for {existing!r}, not by {owner}. "
             f"Pick another name or load in a fresh process."
         )
-    if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
+    if register_choice and not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
         raise RegistrationConflictError(
             f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice."
         )
     # A config class registered under another name by its own module would make `cfg.type` ambiguous.
-    other_names = [n for n, c in _choices().items() if c is config_class and n != env_type]
+    other_names = [n for n, c in _choices().items() if c is config_class and n != env_type] if register_choice else []
     for name in other_names:
         if _OWNED_CHOICES.get(name) is None:
             raise RegistrationConflictError(
@@ -134,7 +137,7 @@ def register(
             disable_env_checker=disable_env_checker,
         )
         _OWNED_GYM[gym_id] = owner
-    if env_type not in _choices():
+    if register_choice and env_type not in _choices():
         EnvConfig.register_subclass(env_type)(config_class)
         _OWNED_CHOICES[env_type] = owner
     return Registration(gym_id=gym_id, env_type=env_type, owner=owner)

@@ -17,7 +17,7 @@ For one env repo at one commit:
 Episodes run in parallel across ``workers`` processes; the report does not depend on their number.
 
     hub-envs reproduce --repo_id=user/name [--revision=<sha>] [--trust_remote_code=true] [--workers=2]
-                       [--tolerance=0] [--out=DIR]
+                       [--tolerance=0] [--out=DIR] [--isolation=process] [--sandbox=true]
 
 exits 0 when everything reproduces, 1 when anything diverged or failed (or on any hub-envs error).
 
@@ -75,6 +75,9 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
 
     m = loaded.manifest
     here = package_versions(m.requirements)
+    worker = _worker_versions(loaded)
+    if worker is not None:  # isolation="venv": the env ran with the venv's packages and python, not these
+        here = {**here, **worker["versions"]}
     diffs = version_differences(m.versions, here)
     prov: dict[str, Any] = {
         "repo_id": loaded.repo_id,
@@ -91,6 +94,7 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         "versions_published": dict(m.versions),
         "versions_here": here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
+        "worker": worker,
         "hub_envs_version": __version__,
         "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
     }
@@ -102,6 +106,30 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
             prov["dataset_code_digest"] = None
         prov["seeds"]["dataset"] = [m_.get("seed") for m_ in read_episode_meta(dataset_root)]
     return prov
+
+
+def _worker_versions(loaded: Any) -> dict[str, Any] | None:
+    """For a venv-isolated load: where the env ran (venv, python, every installed package, notes) and the versions
+    of the packages the manifest records, as the worker has them."""
+    from hub_envs.load import worker_versions
+
+    record = worker_versions(loaded)
+    if record is None:
+        return None
+
+    def norm(name: str) -> str:
+        return name.lower().replace("_", "-")
+
+    installed = {norm(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)}
+    versions = {k: installed[norm(k)] for k in loaded.manifest.versions if norm(k) in installed}
+    versions["python"] = record.get("python")
+    return {
+        "venv": record.get("path"),
+        "python": record.get("python"),
+        "installed": list(record.get("installed", [])),
+        "notes": list(record.get("notes", [])),
+        "versions": versions,
+    }
 
 
 def _fingerprint(loaded: Any) -> dict[str, Any]:
@@ -220,6 +248,10 @@ def reproduce(
     write: bool = True,
     token: str | None = None,
     trust_policy_code: bool = False,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
+    step_timeout: float | None = None,
 ) -> ReproduceReport:
     """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
 
@@ -234,6 +266,8 @@ def reproduce(
         episodes: replay only these episode indices (default: all).
         resamples: bootstrap resamples for the benchmark confidence intervals.
         progress: progress bars. write: write the report files.
+        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`); the
+            replay, the benchmarks and the fingerprint all step the env through its worker processes.
         trust_policy_code: consent to load the LeRobot policy checkpoints the benchmarks name (other repos than
             the env: loading one can import code its processor config names). Or trust each with ``hub-envs trust``.
 
@@ -250,7 +284,18 @@ def reproduce(
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
-    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, check=True, fingerprint="off", token=token)
+    loaded = load_env(
+        repo_id,
+        revision=revision,
+        trust_remote_code=trust_remote_code,
+        check=True,
+        fingerprint="off",
+        token=token,
+        isolation=isolation,
+        sandbox=sandbox,
+        versions=versions,
+        step_timeout=step_timeout,
+    )
     timings["load"] = time.perf_counter() - t
     try:
         dataset_root = loaded.dataset_root
@@ -310,6 +355,8 @@ def reproduce(
                 "episodes": episodes,
                 "replay": replay,
                 "benchmarks": benchmarks,
+                "isolation": isolation + ("+sandbox" if sandbox else ""),
+                "versions": versions,
             },
         )
         report.timings = {k: round(v, 4) for k, v in timings.items()}
@@ -341,6 +388,10 @@ class ReproduceArgs:
     benchmarks: bool = True
     resamples: int = 1000
     json: bool = False  # also print the JSON report to stdout
+    isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
+    sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
+    versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
+    step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
 
 
 def reproduce_cli(args: ReproduceArgs) -> int:
@@ -357,6 +408,10 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         benchmarks=args.benchmarks,
         resamples=args.resamples,
         trust_policy_code=args.trust_policy_code,
+        isolation=args.isolation,
+        sandbox=args.sandbox,
+        versions=args.versions,
+        step_timeout=args.step_timeout,
     )
     if args.json:
         print(report.to_json(), end="")

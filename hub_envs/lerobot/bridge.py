@@ -104,7 +104,16 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
         repo_id = flag(argv, "env.repo_id")
         if not repo_id:
             raise ConfigError("--env.type=hub needs --env.repo_id=user/name (and --env.revision=<sha> to pin it).")
-        loaded = load_cached(repo_id, flag(argv, "env.revision"), trust_remote_code=trust, fingerprint=fingerprint, check=check)
+        loaded = load_cached(
+            repo_id,
+            flag(argv, "env.revision"),
+            trust_remote_code=trust,
+            fingerprint=fingerprint,
+            check=check,
+            isolation=flag(argv, "env.isolation") or "none",
+            sandbox=_true(flag(argv, "env.sandbox")),
+            versions=flag(argv, "env.versions") or "current",
+        )
     elif env_type and _PER_REPO_RE.match(env_type):
         m = _PER_REPO_RE.match(env_type)
         repo_id = flag(argv, "env.repo_id") or m["repo"]

@@ -65,20 +65,38 @@ def set_cli_consent(trust_remote_code: bool | None) -> None:
 
 
 def load_cached(
-    repo_id: str, revision: str | None = None, *, trust_remote_code: bool = False, fingerprint: str = "error", check: bool = True
+    repo_id: str,
+    revision: str | None = None,
+    *,
+    trust_remote_code: bool = False,
+    fingerprint: str = "error",
+    check: bool = True,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
 ) -> LoadedEnv:
     """:func:`hub_envs.load_env`, once per process for the same arguments."""
-    key = (repo_id, revision, fingerprint, bool(check))
+    iso = (isolation, bool(sandbox), versions)
+    key = (repo_id, revision, fingerprint, bool(check), iso)
     loaded = _CACHE.get(key)
     if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
         return loaded
     try:
-        loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, fingerprint=fingerprint, check=check)
+        loaded = load_env(
+            repo_id,
+            revision=revision,
+            trust_remote_code=trust_remote_code,
+            fingerprint=fingerprint,
+            check=check,
+            isolation=isolation,
+            sandbox=sandbox,
+            versions=versions,
+        )
     except UntrustedCodeError as e:
         raise UntrustedCodeError(f"{e}\nWith LeRobot's CLIs (hub-envs train / eval): add --env.trust_remote_code=true.") from None
     _CACHE[key] = loaded
     if not loaded.is_local:
-        _CACHE[(loaded.repo_id, loaded.revision, fingerprint, bool(check))] = loaded
+        _CACHE[(loaded.repo_id, loaded.revision, fingerprint, bool(check), iso)] = loaded
     return loaded
 
 
@@ -120,6 +138,9 @@ class HubEnv(EnvConfig):
         task, fps, episode_length: override the repo config's (default: the repo's).
         fingerprint: ``error`` / ``warn`` / ``off``, what a drifted golden rollout does at load.
         check: run load_env's feature and fingerprint checks.
+        isolation, sandbox, versions: run the env in worker processes / a sandbox / a venv of the publisher's
+            versions (see :func:`hub_envs.load_env`); ``overrides`` are not available with isolation (the
+            repo's config class is not imported here).
     """
 
     repo_id: str | None = None
@@ -130,6 +151,9 @@ class HubEnv(EnvConfig):
     episode_length: int | None = None
     fingerprint: str = "error"
     check: bool = True
+    isolation: str = "none"
+    sandbox: bool = False
+    versions: str = "current"
 
     def __post_init__(self) -> None:
         if not self.repo_id:
@@ -139,14 +163,30 @@ class HubEnv(EnvConfig):
         consent = _CLI_CONSENT[0] if _CLI_CONSENT else bool(self.trust_remote_code)
         self.trust_remote_code = False  # consent is not part of what a run's config describes, nor saved with it
         loaded = load_cached(
-            self.repo_id, self.revision, trust_remote_code=consent, fingerprint=self.fingerprint, check=self.check
+            self.repo_id,
+            self.revision,
+            trust_remote_code=consent,
+            fingerprint=self.fingerprint,
+            check=self.check,
+            isolation=self.isolation,
+            sandbox=self.sandbox,
+            versions=self.versions,
         )
         where = f"{loaded.repo_id}@{loaded.revision}"
         overrides = dict(self.overrides or {})
         for name in ("task", "fps", "episode_length"):
-            if getattr(self, name) is not None:
+            if getattr(self, name) is not None and (
+                loaded.config_class is not None or getattr(self, name) != getattr(loaded.config, name, None)
+            ):
                 overrides.setdefault(name, getattr(self, name))
-        overrides = _typed_overrides(loaded.config_class, overrides, where=where)
+        if overrides and loaded.config_class is None:
+            from hub_envs.errors import IsolationUnavailableError
+
+            raise IsolationUnavailableError(
+                f"{where}: --env.overrides / task / fps / episode_length ({sorted(overrides)}) need the repo's config class, "
+                f"which an isolated load does not import; not available with isolation yet. Drop them or use --env.isolation=none."
+            )
+        overrides = _typed_overrides(loaded.config_class, overrides, where=where) if overrides else {}
         from hub_envs.envconfig import instantiate_config
 
         published = dict(loaded.manifest.config_overrides)  # a published variant's fields, then the user's

@@ -1,0 +1,183 @@
+"""The wire between a parent and an env worker: framed pickles over a socketpair, and what may come back.
+
+* Parent -> worker: ``pickle`` of a tuple ``(op, *args)`` (the parent is trusted by the worker).
+* Worker -> parent: ``("ok", value)``, ``("err", ErrorInfo-dict)`` (the env raised: the worker lives on) or
+  ``("fatal", ErrorInfo-dict)`` (the worker cannot go on, e.g. MemoryError: it exits after sending).
+
+What the worker sends is read with :class:`SafeUnpickler`, which builds only plain data, numpy arrays and
+scalars and gymnasium spaces: unpickling anything else would let the env's code (which may be sandboxed,
+and is never trusted more than it was in-process) run code in the parent. Exceptions therefore never
+travel as objects: the worker sends the type's name, its message and the formatted traceback, and
+:func:`rebuild_error` raises a :class:`~hub_envs.errors.RemoteEnvError` (for builtin exception types, a
+class that is both that and the original type, so ``except ValueError`` keeps working).
+
+Example:
+    >>> import pickle, numpy as np
+    >>> from hub_envs.isolation.protocol import safe_loads
+    >>> safe_loads(pickle.dumps({"x": np.arange(3, dtype=np.float32), "ok": True}, protocol=5))["x"].dtype
+    dtype('float32')
+    >>> import os
+    >>> safe_loads(pickle.dumps(os.getcwd))  # doctest: +IGNORE_EXCEPTION_DETAIL
+    Traceback (most recent call last):
+    hub_envs.errors.IsolationError: ...
+"""
+
+from __future__ import annotations
+
+import builtins
+import io
+import pickle
+from typing import Any
+
+from hub_envs.errors import IsolationError, RemoteEnvError
+
+PROTOCOL = 5
+
+_NUMPY_NAMES = {
+    "_reconstruct",
+    "scalar",
+    "_frombuffer",
+    "ndarray",
+    "dtype",
+    "__generator_ctor",
+    "__bit_generator_ctor",
+    "__randomstate_ctor",
+    "_DType_reconstruct",
+}
+_BUILTINS = {
+    "set",
+    "frozenset",
+    "slice",
+    "complex",
+    "range",
+    "bytearray",
+    "bytes",
+    "list",
+    "dict",
+    "tuple",
+    "int",
+    "float",
+    "bool",
+    "str",
+}
+
+
+def _allowed(module: str, name: str) -> bool:
+    if module == "builtins":
+        return name in _BUILTINS
+    if module == "collections":
+        return name in ("OrderedDict", "defaultdict", "deque")
+    if module == "copyreg":
+        return name == "_reconstructor"
+    if module == "numpy" or module.startswith("numpy."):
+        if name in _NUMPY_NAMES or name.endswith("DType"):
+            return True
+        if module == "numpy":  # scalar types (numpy.float32, numpy.bool, ...)
+            import numpy as np
+
+            obj = getattr(np, name, None)
+            return isinstance(obj, type) and issubclass(obj, np.generic)
+        if module.startswith("numpy.random."):  # bit generators (PCG64, MT19937, ...) and their seed sequences
+            return name.startswith("__pyx_unpickle_SeedSequence") or name in (
+                "SeedSequence",
+                "PCG64",
+                "PCG64DXSM",
+                "MT19937",
+                "Philox",
+                "SFC64",
+                "Generator",
+                "RandomState",
+            )
+        return False
+    if module.startswith("gymnasium.spaces"):
+        import gymnasium.spaces as spaces
+
+        obj = getattr(spaces, name, None)
+        return isinstance(obj, type) and issubclass(obj, spaces.Space)
+    return False
+
+
+class SafeUnpickler(pickle.Unpickler):
+    """An unpickler that builds only data (see the module docstring); anything else is an IsolationError."""
+
+    def find_class(self, module: str, name: str):
+        if _allowed(module, name):
+            return super().find_class(module, name)
+        raise IsolationError(
+            f"the env worker sent an object of type {module}.{name}, which an isolated env may not hand to the parent "
+            f"(only numbers, strings, lists/dicts, numpy arrays and gymnasium spaces). Return plain data from the env."
+        )
+
+
+def dumps(obj: Any) -> bytes:
+    return pickle.dumps(obj, protocol=PROTOCOL)
+
+
+def safe_loads(data: bytes) -> Any:
+    return SafeUnpickler(io.BytesIO(data)).load()
+
+
+def error_info(exc: BaseException) -> dict[str, Any]:
+    """What the worker sends for an exception: type, message and formatted traceback (all strings)."""
+    import traceback
+
+    cls = type(exc)
+    args: list[Any] = []
+    for a in exc.args:  # plain arguments only, so the parent can rebuild a builtin exception exactly
+        if isinstance(a, (str, int, float, bool, type(None))):
+            args.append(a)
+        else:
+            args = [str(exc)]
+            break
+    return {
+        "module": cls.__module__,
+        "qualname": cls.__qualname__,
+        "message": str(exc),
+        "args": args,
+        "traceback": "".join(traceback.format_exception(exc)),
+    }
+
+
+class RemoteTraceback(Exception):
+    """Carries the worker's formatted traceback as the ``__cause__`` of a re-raised env error."""
+
+    def __init__(self, tb: str):
+        super().__init__(tb)
+        self.tb = tb
+
+    def __str__(self) -> str:
+        return f'\n"""\n{self.tb}"""'
+
+
+_REMOTE_CLASSES: dict[type, type] = {}
+
+
+def _remote_class(original: type) -> type:
+    cls = _REMOTE_CLASSES.get(original)
+    if cls is None:
+        try:
+            cls = type(original.__name__, (RemoteEnvError, original), {"__module__": "hub_envs.errors"})
+        except TypeError:  # an instance layout RemoteEnvError cannot share
+            cls = RemoteEnvError
+        _REMOTE_CLASSES[original] = cls
+    return cls
+
+
+def rebuild_error(info: dict[str, Any], where: str, call: str) -> BaseException:
+    """The exception the parent raises for an env error the worker reported in ``call``."""
+    module, qualname, message = str(info.get("module")), str(info.get("qualname")), str(info.get("message"))
+    text = f"{where}: the env raised {qualname}: {message} (in {call}, inside its worker process; remote traceback above)"
+    original = getattr(builtins, qualname, None) if module == "builtins" else None
+    if isinstance(original, type) and issubclass(original, Exception) and not issubclass(original, (KeyboardInterrupt,)):
+        cls = _remote_class(original)
+        try:
+            exc = cls(*info.get("args", [])) if cls is not RemoteEnvError else RemoteEnvError(text)
+        except Exception:
+            exc = RemoteEnvError(text)
+        exc.args = (text,)
+    else:
+        exc = RemoteEnvError(text.replace(f"raised {qualname}", f"raised {module}.{qualname}"))
+    exc.remote_type = f"{module}.{qualname}"
+    exc.remote_traceback = str(info.get("traceback", ""))
+    exc.__cause__ = RemoteTraceback(exc.remote_traceback)
+    return exc

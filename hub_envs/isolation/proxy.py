@@ -1,0 +1,509 @@
+"""The parent's side of an isolated env: the worker process handle and the ``gym.Env`` proxy.
+
+:class:`Worker` starts one worker process (:mod:`hub_envs.isolation.worker`; spawned, never forked),
+sends it requests and turns every way it can fail into a typed error:
+
+* the env raised: :class:`~hub_envs.errors.RemoteEnvError` (for a builtin type, also that type), with the
+  remote traceback as ``__cause__``; the worker lives on;
+* the worker died (segfault, kill, memory limit): :class:`~hub_envs.errors.EnvCrashedError` naming repo@sha,
+  how it died and the last lines of its stderr;
+* a call took longer than ``step_timeout``: the worker (and everything it started) is killed,
+  :class:`~hub_envs.errors.EnvTimeoutError`.
+
+A worker is killed when its handle is closed or garbage-collected, at interpreter exit, and by the kernel
+when the parent dies (``PR_SET_PDEATHSIG``); it runs in its own process group, so whatever the env's code
+forked goes with it.
+
+:class:`IsolatedEnv` is the ``gym.Env`` that ``loaded.make()`` / ``gym.make(loaded.gym_id)`` wrap (with
+the same TimeLimit and OrderEnforcing as in-process): spaces, ``reset``/``step``/``render``/``close``,
+``get_state``/``reset_to`` when the env has them. With ``restart=True`` the ``reset()`` after a crash or a
+timeout starts a fresh worker.
+
+Example:
+    >>> loaded = load_env("user/hover@<sha>", trust_remote_code=True, isolation="process")  # doctest: +SKIP
+    >>> env = loaded.make()              # a TimeLimit(OrderEnforcing(IsolatedEnv)), the env in a worker  # doctest: +SKIP
+    >>> obs, info = env.reset(seed=0)                                                       # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import weakref
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
+from hub_envs.isolation.protocol import dumps, rebuild_error, safe_loads
+
+STDERR_TAIL_LINES = 20
+_WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
+
+
+@dataclass(frozen=True)
+class IsolationOptions:
+    """How load_env runs an env's code: ``isolation`` ("none", "process"; "venv" is not available yet),
+    ``sandbox`` (implies a worker process), the per-call watchdog ``step_timeout`` (seconds, None: none; a
+    sandbox defaults to 60), ``start_timeout`` for a worker to import the env's code, ``restart`` (a fresh
+    worker on ``reset()`` after a crash), ``envs_per_worker`` for ``make_vec`` (0: spread over the CPUs), and
+    the sandbox's resource limits."""
+
+    isolation: str = "none"
+    sandbox: bool = False
+    step_timeout: float | None = None
+    start_timeout: float = 120.0
+    restart: bool = False
+    envs_per_worker: int = 0
+    memory_limit_mb: int = 4096
+    max_open_files: int = 256
+    max_processes: int = 64
+    versions: str = "current"  # "publisher": the venv pins the publisher's recorded versions
+    python: str | None = None  # the worker's interpreter (isolation="venv": the venv's), default this one
+    pythonpath: str | None = None  # the worker's PYTHONPATH (isolation="venv": only hub-envs), default sys.path
+
+    @property
+    def isolated(self) -> bool:
+        return self.isolation != "none" or self.sandbox
+
+    @property
+    def call_timeout(self) -> float | None:
+        if self.step_timeout is not None:
+            return float(self.step_timeout)
+        return 60.0 if self.sandbox else None
+
+
+@dataclass(frozen=True)
+class EnvTarget:
+    """Which code a worker runs: repo@sha, the verified snapshot folder, the env entry point."""
+
+    repo_id: str
+    revision: str
+    path: Path
+    key: str
+    entry_point: str
+    files: tuple[tuple[str, str], ...] = ()  # manifest sha256 per file (the sandbox verifies its copy)
+
+    @property
+    def where(self) -> str:
+        return f"{self.repo_id}@{self.revision}"
+
+
+def _worker_environ(target: EnvTarget, options: IsolationOptions, scratch: Path | None) -> dict[str, str]:
+    paths = [p for p in sys.path if p and os.path.isdir(p)] if options.pythonpath is None else [options.pythonpath]
+    if options.sandbox:
+        from hub_envs.isolation.sandbox import scrubbed_environ
+
+        env = scrubbed_environ(os.environ, home=scratch)
+    else:
+        env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    env.pop("PYTHONSTARTUP", None)
+    return env
+
+
+def _kill_group(proc: subprocess.Popen, owner: int) -> None:
+    if os.getpid() != owner:  # a forked copy of the parent does not own this worker
+        return
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            try:
+                proc.kill()
+            except ProcessLookupError:
+                pass
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:  # pragma: no cover
+        pass
+    else:
+        try:  # children the env forked are in the same group
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+def _cleanup(proc: subprocess.Popen, conn, log_path: str, scratch: str | None, owner: int) -> None:
+    if os.getpid() != owner:
+        return
+    try:
+        conn.close()
+    except OSError:
+        pass
+    _kill_group(proc, owner)
+    try:
+        os.unlink(log_path)
+    except OSError:
+        pass
+    if scratch:
+        import shutil
+
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+class _Launcher:
+    """One long-lived thread per process that starts every worker.
+
+    ``PR_SET_PDEATHSIG`` fires when the *thread* that started the worker ends, not only the process: an env
+    made in a short-lived thread (a thread pool, a data loader) would lose its worker with that thread. Workers
+    are therefore started from this thread, which lives as long as the process (a forked child gets its own).
+    """
+
+    def __init__(self) -> None:
+        import queue
+        import threading
+
+        self.pid = os.getpid()
+        self.requests: queue.SimpleQueue = queue.SimpleQueue()
+        self.thread = threading.Thread(target=self._run, name="hub-envs-worker-launcher", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while True:
+            args, kwargs, done = self.requests.get()
+            try:
+                done.append(("ok", subprocess.Popen(*args, **kwargs)))
+            except BaseException as e:  # handed to the caller
+                done.append(("err", e))
+
+    def popen(self, *args: Any, **kwargs: Any) -> subprocess.Popen:
+        import threading
+
+        event = threading.Event()
+        done: list = []
+
+        class _Done(list):
+            def append(self, item) -> None:
+                done.append(item)
+                event.set()
+
+        self.requests.put((args, kwargs, _Done()))
+        event.wait()
+        status, value = done[0]
+        if status == "err":
+            raise value
+        return value
+
+
+_LAUNCHER: _Launcher | None = None
+
+
+def _launch(*args: Any, **kwargs: Any) -> subprocess.Popen:
+    global _LAUNCHER
+    if _LAUNCHER is None or _LAUNCHER.pid != os.getpid() or not _LAUNCHER.thread.is_alive():
+        _LAUNCHER = _Launcher()
+    return _LAUNCHER.popen(*args, **kwargs)
+
+
+def _signal_name(code: int) -> str:
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        return f"signal {-code}"
+
+
+class Worker:
+    """One worker process: start it, ask it things, know how it died."""
+
+    def __init__(self, target: EnvTarget, options: IsolationOptions, *, wait: bool = True):
+        self.target, self.options = target, options
+        self.where = target.where
+        self.dead: EnvCrashedError | EnvTimeoutError | None = None
+        self._owner = os.getpid()
+        scratch = None  # a sandbox makes its private /tmp itself (hub_envs.isolation.sandbox)
+        log = tempfile.NamedTemporaryFile(prefix="hub-envs-worker-", suffix=".log", delete=False)
+        self.log_path = log.name
+        parent_sock, child_sock = socket.socketpair()
+        preexec = None
+        init: dict[str, Any] = {
+            "where": target.where,
+            "path": str(target.path),
+            "key": target.key,
+            "entry_point": target.entry_point,
+        }
+        if options.sandbox:
+            from hub_envs.isolation.sandbox import sandbox_init, unshare_namespaces
+
+            init["sandbox"] = sandbox_init(target, options, scratch)
+            preexec = unshare_namespaces
+        t0 = time.perf_counter()
+        try:
+            self.proc = _launch(
+                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno())],
+                pass_fds=(child_sock.fileno(),),
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=log,
+                env=_worker_environ(target, options, scratch),
+                start_new_session=True,
+                preexec_fn=preexec,
+                cwd="/" if options.sandbox else None,
+            )
+        finally:
+            child_sock.close()
+            log.close()
+        from multiprocessing.connection import Connection
+
+        self.conn = Connection(parent_sock.detach())
+        self.pid = self.proc.pid
+        self._finalizer = weakref.finalize(
+            self, _cleanup, self.proc, self.conn, self.log_path, str(scratch) if scratch else None, self._owner
+        )
+        self._t0 = t0
+        self.start_seconds: float | None = None
+        self.send("init", init, raw=True)
+        if wait:
+            self.ready()
+
+    def ready(self) -> None:
+        """Wait until the worker imported the env's code (workers of a vector env start side by side)."""
+        if self.start_seconds is None:
+            self.receive("init", timeout=self.options.start_timeout)
+            self.start_seconds = time.perf_counter() - self._t0
+
+    def send_fds(self, fds: list[int]) -> None:
+        """Hand file descriptors to the worker (SCM_RIGHTS), right after a message that tells it to expect them."""
+        sock = socket.socket(fileno=os.dup(self.conn.fileno()))
+        try:
+            socket.send_fds(sock, [b"F"], fds)
+        finally:
+            sock.close()
+
+    # -- requests --
+    def request(self, op: str, *args: Any, timeout: float | None = None, raw: bool = False) -> Any:
+        """Send ``(op, *args)`` and return the answer (``raw``: send ``args[0]`` itself, the init message)."""
+        self.send(op, *args, raw=raw)
+        return self.receive(op, timeout=timeout)
+
+    def send(self, op: str, *args: Any, raw: bool = False) -> None:
+        """The first half of :meth:`request` (send to several workers, then :meth:`receive` from each)."""
+        if self.dead is not None:
+            raise self.dead
+        try:
+            self.conn.send_bytes(dumps(args[0] if raw else (op, *args)))
+        except (OSError, EOFError):
+            raise self._died(op) from None
+
+    def send_raw(self, data: bytes) -> None:
+        """Send bytes as they are (the fast step path: ``b"s" + action bytes``)."""
+        if self.dead is not None:
+            raise self.dead
+        try:
+            self.conn.send_bytes(data)
+        except (OSError, EOFError):
+            raise self._died("step") from None
+
+    def receive(self, op: str, timeout: float | None = None) -> Any:
+        if self.dead is not None:
+            raise self.dead
+        if timeout is not None and not self.conn.poll(timeout):
+            self._kill()
+            self.dead = EnvTimeoutError(
+                f"{self.where}: {op} took longer than step_timeout={timeout:g} s; the env's worker process (pid {self.pid}) "
+                f"was killed. Raise step_timeout if the env is just slow; reset() starts a fresh worker with restart=True."
+            )
+            raise self.dead
+        try:
+            status, value = safe_loads(self.conn.recv_bytes())
+        except (OSError, EOFError):
+            raise self._died(op) from None
+        except IsolationError as e:
+            self._kill()
+            self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")
+            raise self.dead from None
+        if status == "ok":
+            return value
+        if status == "fatal":
+            raise self._died(op, reason=f"{value.get('qualname')}: {value.get('message')}", remote=value)
+        raise rebuild_error(value, self.where, op)
+
+    def _died(self, op: str, reason: str | None = None, remote: dict | None = None) -> EnvCrashedError:
+        try:
+            code = self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            code = None
+        self._kill()
+        if reason is not None:
+            how = f"stopped after {reason}" + (
+                f" (the sandbox's memory limit is {self.options.memory_limit_mb} MB)"
+                if self.options.sandbox and "MemoryError" in reason
+                else ""
+            )
+        elif code is None:
+            how = "stopped answering"
+        elif code < 0:
+            how = f"was killed by {_signal_name(code)}" + (" (out of memory?)" if code == -signal.SIGKILL else "")
+        else:
+            how = f"exited with code {code}"
+        tail = self.stderr_tail()
+        self.dead = EnvCrashedError(
+            f"{self.where}: the env's worker process (pid {self.pid}) {how} during {op}.\n"
+            + (f"Last lines of its stderr:\n{tail}\n" if tail else "It wrote nothing to stderr.\n")
+            + ("Remote traceback:\n" + str(remote.get("traceback", "")) if remote else "")
+            + "The env is gone: with restart=True, reset() starts a fresh worker; otherwise make a new env."
+        )
+        return self.dead
+
+    def stderr_tail(self, lines: int = STDERR_TAIL_LINES) -> str:
+        try:
+            with open(self.log_path, "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(0, f.tell() - 16384))
+                text = f.read().decode("utf-8", "replace")
+        except OSError:
+            return ""
+        return "\n".join("  " + line for line in text.splitlines()[-lines:])
+
+    def _kill(self) -> None:
+        _kill_group(self.proc, self._owner)
+
+    @property
+    def alive(self) -> bool:
+        return self.dead is None and self.proc.poll() is None
+
+    def close(self) -> None:
+        """Ask the worker to exit, then make sure it did (and everything it started)."""
+        if os.getpid() != self._owner:
+            return
+        if self.dead is None and self.proc.poll() is None:
+            try:
+                self.conn.send_bytes(dumps(("exit",)))
+                self.proc.wait(timeout=2)
+            except (OSError, EOFError, subprocess.TimeoutExpired):
+                pass
+        self._finalizer()
+
+
+class IsolatedEnv(gym.Env):
+    """A ``gym.Env`` whose env runs in a worker process (see the module docstring)."""
+
+    def __init__(self, target: EnvTarget, options: IsolationOptions, kwargs: dict[str, Any]):
+        self._target, self._options, self._kwargs = target, options, dict(kwargs)
+        self._worker: Worker | None = None
+        self._fast = None
+        self._fast_buffers = None
+        self._closed = False
+        self._start()
+
+    def _start(self) -> None:
+        self._worker = Worker(self._target, self._options)
+        desc = self._worker.request("make", 0, self._kwargs, timeout=self._options.start_timeout)
+        self.observation_space = desc["observation_space"]
+        self.action_space = desc["action_space"]
+        self.metadata = desc["metadata"]
+        self.render_mode = desc["render_mode"]
+        self._state_methods = tuple(desc["state_methods"])
+        self._arm_fast_step()
+        if set(self._state_methods) == {"get_state", "reset_to"}:
+            self.__class__ = IsolatedEnvWithState
+        elif "get_state" in self._state_methods:
+            self.__class__ = IsolatedEnvWithGetState
+
+    @property
+    def worker(self) -> Worker | None:
+        """The current worker (its ``pid``, ``start_seconds``, ``stderr_tail()``)."""
+        return self._worker
+
+    def _call(self, op: str, *args: Any) -> Any:
+        if self._closed:
+            raise IsolationError(f"{self._target.where}: {op} on a closed isolated env. Make a new one.")
+        return self._worker.request(op, 0, *args, timeout=self._options.call_timeout)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if self._worker is not None and self._worker.dead is not None and self._options.restart and not self._closed:
+            self._worker.close()
+            self._start()
+        return self._call("reset", seed, options)
+
+    def _arm_fast_step(self) -> None:
+        """With a Box action space and an observation space of Boxes, ``step`` sends the action as raw bytes
+        and the worker writes the observation into shared memory (nothing pickled but the small rest)."""
+        import numpy as np
+
+        from hub_envs.isolation.vector import _box_leaves, _Buffers
+
+        self._fast = None
+        if self._fast_buffers is not None:
+            self._fast_buffers.close()
+            self._fast_buffers = None
+        leaves = _box_leaves(self.observation_space)
+        act = self.action_space
+        if leaves is None or not isinstance(act, gym.spaces.Box):
+            return
+        buffers = _Buffers(leaves, 1)
+        try:
+            self._worker.send("fast", leaves, np.dtype(act.dtype).str, tuple(act.shape), len(buffers.fds))
+            self._worker.send_fds(buffers.fds)
+            self._worker.receive("fast", timeout=self._options.start_timeout)
+        except BaseException:
+            buffers.close()
+            raise
+        self._fast_buffers = buffers
+        self._fast = (np.dtype(act.dtype), tuple(act.shape))
+
+    def step(self, action):
+        fast = self._fast
+        if fast is not None and type(action) is np.ndarray and action.dtype == fast[0] and action.shape == fast[1]:
+            if self._closed:
+                raise IsolationError(f"{self._target.where}: step on a closed isolated env. Make a new one.")
+            worker = self._worker
+            worker.send_raw(b"s" + action.tobytes())
+            reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)
+            return (self._fast_buffers.read_one() if obs is None else obs), reward, terminated, truncated, info
+        return self._call("step", action)
+
+    def render(self):
+        return self._call("render")
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        worker = self._worker
+        if worker is not None:
+            if worker.alive:
+                try:
+                    worker.request("close", 0, timeout=self._options.call_timeout or 30.0)
+                except Exception:
+                    pass
+            worker.close()
+        if self._fast_buffers is not None:
+            self._fast_buffers.close()
+            self._fast_buffers = None
+
+    def __repr__(self) -> str:
+        pid = self._worker.pid if self._worker is not None else None
+        return f"<IsolatedEnv {self._target.where} pid={pid}{' sandboxed' if self._options.sandbox else ''}>"
+
+
+class IsolatedEnvWithGetState(IsolatedEnv):
+    def get_state(self):
+        return self._call("call", "get_state", ())
+
+
+class IsolatedEnvWithState(IsolatedEnvWithGetState):
+    def reset_to(self, state):
+        return self._call("call", "reset_to", (state,))
+
+
+class IsolatedEnvFactory:
+    """The entry point load_env registers with gymnasium for an isolated env: ``factory(**gym_kwargs)``."""
+
+    def __init__(self, target: EnvTarget, options: IsolationOptions):
+        self.target, self.options = target, options
+
+    def __call__(self, **kwargs: Any) -> IsolatedEnv:
+        return IsolatedEnv(self.target, self.options, kwargs)
+
+    def __repr__(self) -> str:
+        return f"IsolatedEnvFactory({self.target.where}, isolation={self.options.isolation!r}, sandbox={self.options.sandbox})"

@@ -1,0 +1,397 @@
+"""``make_vec`` for isolated envs: several envs per worker, one message per vector step, observations
+through shared memory.
+
+:class:`IsolatedVectorEnv` is a ``gym.vector.VectorEnv`` that behaves as the in-process
+``SyncVectorEnv`` of ``n_envs`` copies (same seeds ``seed + i``, same next-step autoreset, same batched
+observations, rewards, flags and infos), with the envs split over worker processes
+(``envs_per_worker``; default: spread over the CPUs). Each step sends every worker one message with its
+envs' actions; the workers step in parallel, write each observation into per-key shared buffers (one
+``memfd`` per leaf ``Box`` of the observation space, ``(n_envs, *shape)`` of its dtype, handed to the
+workers as file descriptors, so no name in ``/dev/shm`` and nothing for a sandbox to reach) and answer
+with rewards, flags and infos only. Observation spaces with leaves other than ``Box`` travel pickled.
+
+Inside a worker (:class:`WorkerSlice`) every env is built as ``gym.make`` builds it in-process (TimeLimit,
+OrderEnforcing, the env checker as registered).
+
+Example:
+    >>> vec = loaded.make_vec(8)          # with load_env(..., isolation="process")   # doctest: +SKIP
+    >>> obs, infos = vec.reset(seed=0)                                                 # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import mmap
+import os
+from copy import deepcopy
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
+
+from hub_envs.errors import ConfigError
+from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker
+
+try:
+    from gymnasium.vector import AutoresetMode
+except ImportError:  # pragma: no cover - gymnasium < 1.1
+    AutoresetMode = None
+
+
+def _box_leaves(space: spaces.Space, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], spaces.Box]] | None:
+    """``[(key path, Box)]`` for a Box or a (nested) Dict of Boxes; None for any other space."""
+    if isinstance(space, spaces.Box):
+        return [(prefix, space)]
+    if isinstance(space, spaces.Dict):
+        out = []
+        for k, sub in space.spaces.items():
+            leaves = _box_leaves(sub, (*prefix, k))
+            if leaves is None:
+                return None
+            out += leaves
+        return out
+    return None
+
+
+def _get(obs: Any, path: tuple[str, ...]) -> Any:
+    for k in path:
+        obs = obs[k]
+    return obs
+
+
+class _Buffers:
+    """Per-leaf shared arrays ``(n, *shape)`` in memfds (created by the parent, mapped by the workers)."""
+
+    def __init__(self, leaves, n: int, fds: list[int] | None = None):
+        self.leaves = leaves
+        self.fds: list[int] = []
+        self.maps: list[mmap.mmap] = []
+        self.arrays: list[np.ndarray] = []
+        for i, (path, box) in enumerate(leaves):
+            nbytes = max(1, n * int(np.prod(box.shape, dtype=np.int64)) * np.dtype(box.dtype).itemsize)
+            if fds is None:
+                fd = os.memfd_create(f"hub-envs-obs-{'.'.join(path) or 'obs'}", os.MFD_CLOEXEC)
+                os.ftruncate(fd, nbytes)
+            else:
+                fd = fds[i]
+            self.fds.append(fd)
+            m = mmap.mmap(fd, nbytes)
+            self.maps.append(m)
+            self.arrays.append(np.ndarray((n, *box.shape), dtype=box.dtype, buffer=m))
+
+    def write_exact(self, index: int, obs: Any) -> bool:
+        """Write ``obs`` only if reading it back gives exactly it (a dict of exactly these keys, arrays of
+        exactly these dtypes and shapes); False (nothing written) otherwise."""
+        if len(self.leaves) == 1 and self.leaves[0][0] == ():
+            ok = type(obs) is np.ndarray and obs.dtype == self.arrays[0].dtype and obs.shape == self.arrays[0].shape[1:]
+        else:
+            ok = self._same_layout(obs, ())
+        if ok:
+            self.write(index, obs)
+        return ok
+
+    def _same_layout(self, obs: Any, prefix: tuple[str, ...]) -> bool:
+        paths = {p: arr for (p, _), arr in zip(self.leaves, self.arrays, strict=True)}
+        if type(obs) is not dict:
+            return False
+        keys = {p[len(prefix)] for p in paths if p[: len(prefix)] == prefix and len(p) > len(prefix)}
+        if set(obs) != keys:
+            return False
+        for k, v in obs.items():
+            path = (*prefix, k)
+            if path in paths:
+                arr = paths[path]
+                if type(v) is not np.ndarray or v.dtype != arr.dtype or v.shape != arr.shape[1:]:
+                    return False
+            elif not self._same_layout(v, path):
+                return False
+        return True
+
+    def read_one(self, index: int = 0) -> Any:
+        """A copy of one env's observation."""
+        if len(self.leaves) == 1 and self.leaves[0][0] == ():
+            return self.arrays[0][index].copy()
+        out: dict = {}
+        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
+            d = out
+            for k in path[:-1]:
+                d = d.setdefault(k, {})
+            d[path[-1]] = arr[index].copy()
+        return out
+
+    def write(self, index: int, obs: Any) -> None:
+        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
+            arr[index] = _get(obs, path)
+
+    def read(self) -> Any:
+        """A copy of the batch, shaped like ``batch_space(single_observation_space)`` (dicts of arrays)."""
+        if len(self.leaves) == 1 and self.leaves[0][0] == ():
+            return self.arrays[0].copy()
+        out: dict = {}
+        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
+            d = out
+            for k in path[:-1]:
+                d = d.setdefault(k, {})
+            d[path[-1]] = arr.copy()
+        return out
+
+    def close(self) -> None:
+        self.arrays.clear()
+        for m in self.maps:
+            try:
+                m.close()
+            except BufferError:  # pragma: no cover - an array still views it
+                pass
+        self.maps.clear()
+        for fd in self.fds:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.fds.clear()
+
+
+class WorkerSlice:
+    """The envs ``offset .. offset + count`` of a vector env, inside one worker process."""
+
+    def __init__(self, env_class, spec: dict[str, Any]):
+        from gymnasium.envs.registration import EnvSpec
+
+        env_spec = EnvSpec(
+            id=spec["gym_id"],
+            entry_point=env_class,
+            max_episode_steps=spec["max_episode_steps"],
+            kwargs=dict(spec["kwargs"]),
+            disable_env_checker=spec["disable_env_checker"],
+        )
+        self.envs = [gym.make(env_spec) for _ in range(spec["count"])]
+        self.autoreset = [False] * len(self.envs)
+        self.buffers: _Buffers | None = None
+        self.offset = spec["offset"]
+        space = self.envs[0].action_space
+        self.action_layout = (np.dtype(space.dtype), tuple(space.shape)) if isinstance(space, spaces.Box) else None
+
+    def attach_buffers(self, leaves, n_envs: int, fds: list[int]) -> None:
+        self.buffers = _Buffers(leaves, n_envs, fds=fds)
+
+    def _out(self, i: int, obs: Any, pickled: list) -> None:
+        if self.buffers is not None:
+            self.buffers.write(self.offset + i, obs)
+        else:
+            pickled.append(obs)
+
+    def reset(self, seeds, options):
+        infos, pickled = [], []
+        for i, (env, seed) in enumerate(zip(self.envs, seeds, strict=True)):
+            obs, info = env.reset(seed=seed, options=options)
+            self._out(i, obs, pickled)
+            infos.append(info)
+        self.autoreset = [False] * len(self.envs)
+        return infos, pickled
+
+    def step(self, actions):
+        rewards, terms, truncs, infos, pickled = [], [], [], [], []
+        for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
+            if self.autoreset[i]:
+                obs, info = env.reset()
+                r, te, tr = 0.0, False, False
+            else:
+                obs, r, te, tr, info = env.step(action)
+            self._out(i, obs, pickled)
+            rewards.append(r)
+            terms.append(bool(te))
+            truncs.append(bool(tr))
+            infos.append(info)
+            self.autoreset[i] = bool(te or tr)
+        return rewards, terms, truncs, infos, pickled
+
+    def step_raw(self, data: bytes):
+        """``step`` of actions sent as raw bytes (``b"v"`` + this slice's rows of the batched action array)."""
+        dtype, shape = self.action_layout
+        actions = np.frombuffer(data, dtype=dtype, offset=1).reshape((len(self.envs), *shape)).copy()
+        return self.step(list(actions))
+
+    def call(self, name: str, args: tuple):
+        if name not in ("render", "get_state", "reset_to"):
+            raise AttributeError(f"{name} cannot be called through an isolated vector env")
+        return [getattr(env.unwrapped if name != "render" else env, name)(*args) for env in self.envs]
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+        if self.buffers is not None:
+            self.buffers.close()
+
+
+class IsolatedVectorEnv(gym.vector.VectorEnv):
+    """``n_envs`` copies of an isolated env, batched like ``SyncVectorEnv`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        target: EnvTarget,
+        options: IsolationOptions,
+        n_envs: int,
+        *,
+        gym_id: str,
+        kwargs: dict[str, Any],
+        max_episode_steps: int | None,
+        disable_env_checker: bool,
+    ):
+        if n_envs < 1:
+            raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+        per = options.envs_per_worker or math.ceil(n_envs / max(1, min(n_envs, os.cpu_count() or 1)))
+        if per < 1:
+            raise ConfigError(f"envs_per_worker={options.envs_per_worker}: pass a positive number (or 0 for the default).")
+        self._target, self._options = target, options
+        self.num_envs = n_envs
+        self._workers: list[Worker] = []
+        self._slices: list[tuple[int, int]] = []
+        self._buffers: _Buffers | None = None
+        self._closed_vec = False
+        try:
+            counts = [min(per, n_envs - o) for o in range(0, n_envs, per)]
+            for _ in counts:  # side by side: each imports the env's code at the same time
+                self._workers.append(Worker(target, options, wait=False))
+            for w in self._workers:
+                w.ready()
+            offset = 0
+            for w, count in zip(self._workers, counts, strict=True):
+                spec = {
+                    "gym_id": gym_id,
+                    "kwargs": dict(kwargs),
+                    "max_episode_steps": max_episode_steps,
+                    "disable_env_checker": disable_env_checker,
+                    "count": count,
+                    "offset": offset,
+                }
+                w.send("vmake", spec)
+                self._slices.append((offset, count))
+                offset += count
+            descs = [w.receive("vmake", timeout=options.start_timeout) for w in self._workers]
+            desc = descs[0]
+            self.single_observation_space = desc["observation_space"]
+            self.single_action_space = desc["action_space"]
+            leaves = _box_leaves(self.single_observation_space)
+            if leaves is not None:
+                self._buffers = _Buffers(leaves, n_envs)
+                for w in self._workers:
+                    w.send("vbuffers", leaves, n_envs, len(self._buffers.fds))
+                    w.send_fds(self._buffers.fds)
+                for w in self._workers:
+                    w.receive("vbuffers", timeout=options.start_timeout)
+            self.metadata = dict(desc["metadata"])
+            if AutoresetMode is not None:
+                self.metadata["autoreset_mode"] = AutoresetMode.NEXT_STEP
+            self.render_mode = desc["render_mode"]
+            self.observation_space = batch_space(self.single_observation_space, n_envs)
+            self.action_space = batch_space(self.single_action_space, n_envs)
+            self._pickled_out = create_empty_array(self.single_observation_space, n_envs) if leaves is None else None
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def workers(self) -> list[Worker]:
+        return list(self._workers)
+
+    def _all(self, op: str, per_worker_args: list[tuple]) -> list[Any]:
+        for w, args in zip(self._workers, per_worker_args, strict=True):
+            w.send(op, *args)
+        return self._gather(op)
+
+    def _gather(self, op: str) -> list[Any]:
+        out, error = [], None
+        for w in self._workers:
+            try:
+                out.append(w.receive(op, timeout=self._options.call_timeout))
+            except Exception as e:  # keep reading the others, so every worker stays in step
+                out.append(None)
+                error = error or e
+        if error is not None:
+            raise error
+        return out
+
+    def _obs(self, answers: list) -> Any:
+        if self._buffers is not None:
+            return self._buffers.read()
+        flat = [o for a in answers for o in a[-1]]
+        return deepcopy(concatenate(self.single_observation_space, flat, self._pickled_out))
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+        if len(seeds) != self.num_envs:
+            raise ValueError(
+                f"If seeds are passed as a list the length must match num_envs={self.num_envs} but got length={len(seeds)}."
+            )
+        if options is not None and "reset_mask" in options:
+            raise ConfigError("reset_mask is not supported by an isolated vector env (it autoresets on the next step).")
+        answers = self._all("vreset", [(seeds[o : o + c], options) for o, c in self._slices])
+        infos: dict = {}
+        i = 0
+        for env_infos, _ in answers:
+            for info in env_infos:
+                infos = self._add_info(infos, info, i)
+                i += 1
+        return self._obs(answers), infos
+
+    def step(self, actions):
+        space = self.single_action_space
+        if (
+            isinstance(space, spaces.Box)
+            and type(actions) is np.ndarray
+            and actions.dtype == space.dtype
+            and actions.shape == (self.num_envs, *space.shape)
+        ):  # raw bytes, one message per worker
+            for w, (o, c) in zip(self._workers, self._slices, strict=True):
+                w.send_raw(b"v" + actions[o : o + c].tobytes())
+            answers = self._gather("vstep")
+        else:
+            per_env = list(iterate(self.action_space, actions))
+            answers = self._all("vstep", [(per_env[o : o + c],) for o, c in self._slices])
+        rewards = np.zeros(self.num_envs, dtype=np.float64)
+        terms = np.zeros(self.num_envs, dtype=np.bool_)
+        truncs = np.zeros(self.num_envs, dtype=np.bool_)
+        infos: dict = {}
+        i = 0
+        for r, te, tr, env_infos, _ in answers:
+            for j in range(len(r)):
+                rewards[i], terms[i], truncs[i] = r[j], te[j], tr[j]
+                infos = self._add_info(infos, env_infos[j], i)
+                i += 1
+        return self._obs(answers), rewards, terms, truncs, infos
+
+    def render(self):
+        frames = self._all("vcall", [("render", ())] * len(self._workers))
+        return tuple(f for fs in frames for f in fs)
+
+    def call(self, name: str, *args: Any) -> tuple:
+        results = self._all("vcall", [(name, args)] * len(self._workers))
+        return tuple(r for rs in results for r in rs)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.close()
+
+    def close(self, **kwargs: Any) -> None:
+        if self._closed_vec:
+            return
+        self._closed_vec = True
+        for w in self._workers:
+            if w.alive:
+                try:
+                    w.request("vclose", timeout=self._options.call_timeout or 30.0)
+                except Exception:
+                    pass
+            w.close()
+        if self._buffers is not None:
+            self._buffers.close()
+        self.closed = True
+
+    def __repr__(self) -> str:
+        return f"IsolatedVectorEnv({self._target.where}, num_envs={self.num_envs}, workers={len(self._workers)})"

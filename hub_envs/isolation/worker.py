@@ -1,0 +1,220 @@
+"""The worker process of an isolated env: imports the env's code, runs its envs, answers the parent.
+
+Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
+main()" <fd>`` (a fresh interpreter, never a fork of the parent, which may hold torch and threads), with
+the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end of a
+socketpair. The first message is the init dict (repo@sha, snapshot folder, env entry point, sandbox
+settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
+
+It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
+else runs) and, as a second line, the socket: EOF on it ends the worker. A process the env's code forks
+never answers: every answer is sent only by the worker's own pid (a forked child is ended instead).
+
+The env's code is imported exactly as in-process (:func:`hub_envs.importing.import_env_folder`: sources
+only, no bytecode) from the snapshot folder the parent verified (or, sandboxed, from the private copy
+:mod:`hub_envs.isolation.sandbox` verified again); the env's config and lerobot are never imported here.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import sys
+from typing import Any
+
+from hub_envs.isolation.protocol import dumps, error_info
+
+STATE_METHODS = ("get_state", "reset_to")
+
+
+def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)``: the kernel sends ``sig`` to this process when its parent dies."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(1, int(sig), 0, 0, 0) == 0  # PR_SET_PDEATHSIG = 1
+    except Exception:  # pragma: no cover - not Linux
+        return False
+
+
+def _describe(env: Any) -> dict[str, Any]:
+    raw = env.unwrapped
+    obs_space, act_space = env.observation_space, env.action_space
+    return {
+        "observation_space": obs_space,
+        "action_space": act_space,
+        "metadata": dict(getattr(raw, "metadata", {}) or {}),
+        "render_mode": getattr(raw, "render_mode", None),
+        "state_methods": [m for m in STATE_METHODS if callable(getattr(raw, m, None))],
+        "pid": os.getpid(),
+    }
+
+
+class Server:
+    """Holds the envs of one worker (single envs by index, plus at most one vector slice) and serves requests."""
+
+    def __init__(self, init: dict[str, Any], conn):
+        from hub_envs.importing import import_env_folder, resolve_entry_point
+
+        self.where = init["where"]
+        self.conn = conn
+        package = import_env_folder(init["path"], init["key"])
+        self.env_class = resolve_entry_point(package, init["entry_point"], where=f"{self.where}: env entry point")
+        self.envs: dict[int, Any] = {}
+        self.vec = None
+
+    # -- single envs --
+    def op_make(self, idx: int, kwargs: dict) -> dict:
+        env = self.env_class(**kwargs)
+        self.envs[idx] = env
+        return _describe(env)
+
+    def op_reset(self, idx: int, seed, options):
+        return self.envs[idx].reset(seed=seed, options=options)
+
+    def op_step(self, idx: int, action):
+        return self.envs[idx].step(action)
+
+    # -- the fast path of a single env's step: raw action bytes in, observation into shared memory --
+    def op_fast(self, leaves, action_dtype: str, action_shape: tuple, n_fds: int):
+        """Arm the fast path of env 0: map its observation buffers (fds follow the message)."""
+        import socket
+
+        import numpy as np
+
+        from hub_envs.isolation.vector import _Buffers
+
+        sock = socket.socket(fileno=os.dup(self.conn.fileno()))
+        try:
+            _, fds, _, _ = socket.recv_fds(sock, 1, n_fds)
+        finally:
+            sock.close()
+        self.fast_buffers = _Buffers(leaves, 1, fds=fds)
+        self.fast_action = (np.dtype(action_dtype), tuple(action_shape))
+
+    def fast_step(self, data: bytes):
+        import numpy as np
+
+        dtype, shape = self.fast_action
+        action = np.frombuffer(data, dtype=dtype, offset=1).reshape(shape).copy()
+        obs, reward, terminated, truncated, info = self.envs[0].step(action)
+        # the observation goes through shared memory only if that keeps it exactly (types, dtypes, shapes)
+        shared = self.fast_buffers.write_exact(0, obs)
+        return reward, terminated, truncated, info, None if shared else obs
+
+    def op_render(self, idx: int):
+        return self.envs[idx].render()
+
+    def op_call(self, idx: int, name: str, args: tuple):
+        if name not in STATE_METHODS:
+            raise AttributeError(f"{name} cannot be called through an isolated env")
+        return getattr(self.envs[idx].unwrapped, name)(*args)
+
+    def op_close(self, idx: int):
+        env = self.envs.pop(idx, None)
+        if env is not None:
+            env.close()
+
+    # -- a slice of a vector env --
+    def op_vmake(self, spec: dict) -> dict:
+        from hub_envs.isolation.vector import WorkerSlice
+
+        self.vec = WorkerSlice(self.env_class, spec)
+        return _describe(self.vec.envs[0])
+
+    def op_vbuffers(self, leaves, n_envs: int, n_fds: int):
+        import socket
+
+        sock = socket.socket(fileno=os.dup(self.conn.fileno()))
+        try:
+            _, fds, _, _ = socket.recv_fds(sock, 1, n_fds)
+        finally:
+            sock.close()
+        self.vec.attach_buffers(leaves, n_envs, fds)
+
+    def op_vreset(self, seeds, options):
+        return self.vec.reset(seeds, options)
+
+    def op_vstep(self, actions):
+        return self.vec.step(actions)
+
+    def op_vcall(self, name: str, args: tuple):
+        return self.vec.call(name, args)
+
+    def op_vclose(self):
+        if self.vec is not None:
+            self.vec.close()
+            self.vec = None
+
+    def op_ping(self):
+        return os.getpid()
+
+
+def serve(conn, init: dict[str, Any]) -> None:
+    me = os.getpid()
+    try:
+        server = Server(init, conn)
+    except BaseException as e:  # the env's code failed on import: report it, then stop
+        conn.send_bytes(dumps(("err", error_info(e))))
+        return
+    conn.send_bytes(dumps(("ok", {"pid": me})))
+    while True:
+        try:
+            data = conn.recv_bytes()
+        except (EOFError, OSError):
+            return  # the parent closed its end (or died)
+        fast = data[:1] in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
+        msg = ("step",) if fast else pickle.loads(data)
+        op, args = msg[0], msg[1:]
+        fatal = False
+        if op == "exit":
+            return
+        try:
+            if fast:
+                result = server.fast_step(data) if data[:1] == b"s" else server.vec.step_raw(data)
+            else:
+                result = getattr(server, f"op_{op}")(*args)
+            reply = ("ok", result)
+        except MemoryError as e:  # memory state is suspect (RLIMIT_AS hit): report, then end this worker
+            reply, fatal = ("fatal", error_info(e)), True
+        except BaseException as e:
+            reply = ("err", error_info(e))
+        if os.getpid() != me:  # a process the env's code forked came back here: it never answers
+            os._exit(0)
+        try:
+            data = dumps(reply)
+        except Exception as e:  # an answer that cannot be pickled: say what it was
+            data = dumps(("err", error_info(TypeError(f"the env's {op} returned something that cannot be sent: {e}"))))
+        try:
+            conn.send_bytes(data)
+        except (OSError, EOFError):
+            return
+        if fatal:
+            os._exit(70)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from multiprocessing.connection import Connection
+
+    set_parent_death_signal()
+    argv = sys.argv[1:] if argv is None else argv
+    conn = Connection(int(argv[0]))
+    if os.getppid() == 1:  # the parent died before the death signal was armed
+        os._exit(0)
+    init = pickle.loads(conn.recv_bytes())
+    if init.get("sandbox"):
+        from hub_envs.isolation.sandbox import enter_sandbox
+
+        try:
+            enter_sandbox(init)  # may fork: the caller of serve() below is then pid 1 of a new pid namespace
+        except BaseException as e:
+            conn.send_bytes(dumps(("fatal", error_info(e))))
+            os._exit(71)
+    serve(conn, init)
+    os._exit(0)
+
+
+if __name__ == "__main__":
+    main()

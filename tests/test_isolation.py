@@ -1,0 +1,557 @@
+"""Isolated envs (``load_env(..., isolation="process")``): real worker processes, the real loopback Hub.
+
+The example envs are pushed once per module; each test loads them in-process and isolated and holds the
+proxy to the in-process env bit for bit (single envs and ``make_vec``). A hostile env
+(``tests/fixtures/hostile_env``: behaves until ``reset(options={"mode": ...})`` arms an attack) checks
+that every fault is typed and contained: the env raising, a segfault, a hang, and that no worker outlives
+its env or its parent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from helpers import FIXTURES
+
+from hub_envs import errors, load_env, push_env
+from hub_envs.isolation.proxy import IsolatedEnv
+
+ENVS = Path(__file__).resolve().parents[1] / "envs"
+HOSTILE = FIXTURES / "hostile_env"
+
+
+@pytest.fixture(scope="module")
+def published(hub_module):
+    """repo@sha of the three example envs and the hostile env on one loopback Hub."""
+    out = {}
+    for name, folder in (
+        ("pendulum", ENVS / "pendulum"),
+        ("hover", ENVS / "hover"),
+        ("reach", ENVS / "reach"),
+        ("hostile", HOSTILE),
+    ):
+        result = push_env(folder, f"iso/{name}", episodes=1, progress=False, workers=1)
+        out[name] = f"iso/{name}@{result.sha}"
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie is dead too
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_gone(pid: int, seconds: float = 10.0) -> bool:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if not _alive(pid):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _rollout(env, seed: int, steps: int) -> list:
+    env.action_space.seed(seed)
+    out = [env.reset(seed=seed)]
+    for _ in range(steps):
+        step = env.step(env.action_space.sample())
+        out.append(step)
+        if step[2] or step[3]:
+            out.append(env.reset())
+    out.append(env.render())
+    return out
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (tuple, list)):
+        return isinstance(b, (tuple, list)) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    return type(a) is type(b) and a == b
+
+
+def _inner(env) -> IsolatedEnv:
+    assert isinstance(env.unwrapped, IsolatedEnv), env
+    return env.unwrapped
+
+
+@pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
+def test_an_isolated_env_steps_bit_identically_to_the_in_process_env(published, name):
+    ref = published[name]
+    here = load_env(ref, trust_remote_code=True)
+    isolated = load_env(ref, trust_remote_code=True, isolation="process", check=(name == "pendulum"))
+    assert isolated.gym_id != here.gym_id and isolated.isolation is not None
+    if name == "pendulum":  # the feature check and the golden-rollout fingerprint ran through the proxy
+        assert isolated.report.fingerprint.startswith("matches")
+    a, b = here.make(max_episode_steps=15), gym.make(isolated.gym_id, max_episode_steps=15)
+    try:
+        worker = _inner(b).worker
+        assert worker.pid != os.getpid() and worker.start_seconds > 0
+        assert b.observation_space == a.observation_space and b.action_space == a.action_space
+        assert b.spec.max_episode_steps == a.spec.max_episode_steps == 15
+        assert b.metadata == a.metadata and b.render_mode == a.render_mode
+        ra, rb = _rollout(a, 3, 20), _rollout(b, 3, 20)  # crosses the TimeLimit: truncated, then reset
+        assert _same(ra, rb)
+        assert any(step[3] for step in rb[1:-1] if len(step) == 5)
+        # get_state / reset_to through the proxy restore a step exactly, as in-process
+        state = b.unwrapped.get_state()
+        assert _same(state, a.unwrapped.get_state())
+        action = np.asarray(b.action_space.sample())
+        first = b.step(action)
+        b.unwrapped.reset_to(state)
+        assert _same(b.step(action), first)
+    finally:
+        a.close()
+        b.close()
+    assert _wait_gone(worker.pid), "closing the env left its worker running"
+    here.unregister()
+    isolated.unregister()
+
+
+def test_make_vec_isolated_matches_sync_vector_env(published):
+    ref = published["pendulum"]
+    here = load_env(ref, trust_remote_code=True)
+    isolated = load_env(ref, trust_remote_code=True, isolation="process", check=False, envs_per_worker=2)
+    a = here.make_vec(5, max_episode_steps=7)
+    b = isolated.make_vec(5, max_episode_steps=7)
+    try:
+        assert len(b.workers) == 3  # 2 + 2 + 1
+        assert b.single_observation_space == a.single_observation_space and b.action_space == a.action_space
+        assert _same(b.reset(seed=11), a.reset(seed=11))
+        b.action_space.seed(4)
+        for _ in range(18):  # two autoresets (next-step mode)
+            actions = b.action_space.sample()
+            assert _same(b.step(actions), a.step(actions))
+        assert _same(b.render(), a.render())
+        pids = [w.pid for w in b.workers]
+    finally:
+        a.close()
+        b.close()
+    assert all(_wait_gone(p) for p in pids)
+    here.unregister()
+    isolated.unregister()
+
+
+@pytest.fixture(scope="module")
+def hostile(published):
+    return load_env(published["hostile"], trust_remote_code=True, isolation="process", check=False, step_timeout=2, restart=True)
+
+
+def test_the_envs_own_error_comes_back_with_its_remote_traceback(hostile):
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "raise"})
+        with pytest.raises(ValueError, match="refuses this action") as info:
+            env.step(env.action_space.sample())
+        assert isinstance(info.value, errors.RemoteEnvError) and isinstance(info.value, errors.HubEnvsError)
+        assert hostile.repo_id in str(info.value) and "hostile.py" in info.value.remote_traceback
+        assert "the env refuses this action" in str(info.value.__cause__)
+        # the worker lives on
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+    finally:
+        env.close()
+
+
+def test_a_segfault_is_an_env_crashed_error_and_restart_starts_a_fresh_worker(hostile):
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "segfault"})
+        first = _inner(env).worker.pid
+        with pytest.raises(errors.EnvCrashedError) as info:
+            env.step(env.action_space.sample())
+        message = str(info.value)
+        assert hostile.repo_id in message and hostile.revision in message and "SIGSEGV" in message
+        assert "about to run segfault" in message  # the last lines of the worker's stderr
+        with pytest.raises(errors.EnvCrashedError):  # stepping a dead env says so again
+            env.step(env.action_space.sample())
+        obs, _ = env.reset(seed=1)  # restart=True: a fresh worker
+        assert _inner(env).worker.pid != first and env.observation_space.contains(obs)
+        env.step(env.action_space.sample())
+    finally:
+        env.close()
+
+
+def test_a_hang_is_an_env_timeout_error_and_the_worker_is_killed(hostile):
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "hang"})
+        pid = _inner(env).worker.pid
+        t = time.perf_counter()
+        with pytest.raises(errors.EnvTimeoutError, match="step_timeout=2") as info:
+            env.step(env.action_space.sample())
+        assert time.perf_counter() - t < 15 and isinstance(info.value, TimeoutError)
+        assert _wait_gone(pid)
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+    finally:
+        env.close()
+
+
+def test_no_worker_outlives_its_parent(hostile, tmp_path):
+    """The parent is SIGKILLed (no cleanup of its own runs): the kernel's parent-death signal ends the worker."""
+    from hub_envs.isolation.proxy import EnvTarget
+
+    target = hostile.make.__self__  # noqa: F841 - keep the loaded env alive
+    factory = gym.spec(hostile.gym_id).entry_point
+    t: EnvTarget = factory.target
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        from pathlib import Path
+        from hub_envs.isolation.proxy import EnvTarget, IsolatedEnv, IsolationOptions
+        target = EnvTarget({t.repo_id!r}, {t.revision!r}, Path({str(t.path)!r}), {t.key!r}, {t.entry_point!r})
+        env = IsolatedEnv(target, IsolationOptions(isolation="process"), {{}})
+        print(env.worker.pid, flush=True)
+        time.sleep(120)
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    try:
+        pid = int(proc.stdout.readline())
+        assert _alive(pid)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        assert _wait_gone(pid), "the worker outlived its SIGKILLed parent"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_unimplemented_options_are_refused_not_ignored(published):
+    with pytest.raises(errors.ConfigError, match="versions='publisher'.*isolation='venv'"):
+        load_env(published["pendulum"], trust_remote_code=True, isolation="process", versions="publisher")
+    with pytest.raises(errors.ConfigError, match="isolation='threads'"):
+        load_env(published["pendulum"], trust_remote_code=True, isolation="threads")
+
+
+def test_isolation_does_not_replace_consent(published):
+    with pytest.raises(errors.UntrustedCodeError):
+        load_env(published["hostile"], isolation="process")
+
+
+# --- sandbox=True ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sandboxed(published):
+    return load_env(
+        published["hostile"],
+        trust_remote_code=True,
+        sandbox=True,
+        check=False,
+        step_timeout=3,
+        restart=True,
+        sandbox_limits={"memory_mb": 768, "processes": 32},
+    )
+
+
+def _probe(env, mode: str, arg=None):
+    env.reset(seed=0, options={"mode": mode, "arg": arg})
+    return env.step(env.action_space.sample())[4].get("probe")
+
+
+def test_sandboxed_env_code_cannot_read_secrets_reach_the_hub_or_write_files(sandboxed, hub_module, monkeypatch, tmp_path):
+    from urllib.parse import urlparse
+
+    home = Path(os.path.expanduser("~"))
+    url = urlparse(hub_module.endpoint)
+    env = sandboxed.make()
+    try:
+        seen = _probe(env, "env", ["HF_TOKEN", "HOME", "HF_ENDPOINT", "AWS_SECRET_ACCESS_KEY"])
+        assert seen["HF_TOKEN"] is None and seen["AWS_SECRET_ACCESS_KEY"] is None and seen["HF_ENDPOINT"] is None
+        assert seen["HOME"].startswith("/tmp/")
+        # no network: not even the loopback Hub this process talks to
+        assert _probe(env, "connect", [url.hostname, url.port]).startswith("refused")
+        # the env's own files (its verified copy) are read-only, and so is the snapshot it came from
+        assert "Read-only file system" in _probe(env, "write", "/tmp/env/hostile.py")
+        assert _probe(env, "write", str(sandboxed.path / "hostile.py")).startswith("refused")
+        # the user's home is not visible (empty) and not writable
+        assert not [p for p in _probe(env, "listdir", str(home)) if not p.startswith(".pyenv")]
+        assert _probe(env, "write", str(home / "pwned")).startswith("refused")
+        assert not (home / "pwned").exists()
+        assert _probe(env, "write", "/work/pwned").startswith("refused")
+        # its private temp dir is writable
+        assert _probe(env, "write", "/tmp/scratch.txt") == "written"
+    finally:
+        env.close()
+
+
+def test_sandbox_keeps_secrets_out_even_when_set(sandboxed, monkeypatch):
+    monkeypatch.setenv("HF_TOKEN", "hf_secret_for_the_sandbox_test")
+    monkeypatch.setenv("MY_SERVICE_API_KEY", "k")
+    env = sandboxed.make()
+    try:
+        seen = _probe(env, "env", ["HF_TOKEN", "MY_SERVICE_API_KEY"])
+        assert seen == {"HF_TOKEN": None, "MY_SERVICE_API_KEY": None}
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("mode", "arg", "error"),
+    [
+        ("hang", None, errors.EnvTimeoutError),
+        ("memory", 1024, errors.EnvCrashedError),  # 1 GB: more than the sandbox's 768 MB, not more than this machine has
+        ("forkbomb", None, errors.HubEnvsError),
+    ],
+)
+def test_hostile_loads_are_stopped_with_a_typed_error_and_the_parent_keeps_running(sandboxed, mode, arg, error):
+    env = sandboxed.make()
+    try:
+        env.reset(seed=0, options={"mode": mode, "arg": arg})
+        pid = _inner(env).worker.pid
+        with pytest.raises(error) as info:
+            env.step(env.action_space.sample())
+        assert sandboxed.repo_id in str(info.value)
+        print(f"{mode}: {type(info.value).__name__}: {info.value}")
+        if mode != "forkbomb":
+            assert _wait_gone(pid)
+        obs, _ = env.reset(seed=1)  # restart=True after a crash or timeout: a fresh sandboxed worker
+        assert env.observation_space.contains(obs)
+    finally:
+        env.close()
+    assert _wait_gone(pid) and _group_gone(pid), "a process the env started outlived its sandbox"
+
+
+def _group_gone(pgid: int, seconds: float = 10.0) -> bool:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        members = []
+        for d in os.listdir("/proc"):
+            if d.isdigit():
+                try:
+                    with open(f"/proc/{d}/stat") as f:
+                        fields = f.read().rsplit(")", 1)[1].split()
+                except OSError:
+                    continue
+                if int(fields[2]) == pgid and fields[0] != "Z":
+                    members.append(d)
+        if not members:
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_a_sandboxed_env_steps_bit_identically_also_vectorized(published):
+    ref = published["pendulum"]
+    here = load_env(ref, trust_remote_code=True)
+    boxed = load_env(ref, trust_remote_code=True, sandbox=True, check=False, envs_per_worker=2)
+    a, b = here.make(max_episode_steps=10), boxed.make(max_episode_steps=10)
+    try:
+        assert _same(_rollout(a, 5, 14), _rollout(b, 5, 14))
+    finally:
+        a.close()
+        b.close()
+    va, vb = here.make_vec(3, max_episode_steps=6), boxed.make_vec(3, max_episode_steps=6)
+    try:
+        assert _same(vb.reset(seed=2), va.reset(seed=2))
+        vb.action_space.seed(0)
+        for _ in range(8):
+            actions = vb.action_space.sample()
+            assert _same(vb.step(actions), va.step(actions))
+    finally:
+        va.close()
+        vb.close()
+    here.unregister()
+    boxed.unregister()
+
+
+def test_cli_load_and_reproduce_take_the_isolation_flags(published, tmp_path, capsys):
+    from hub_envs.cli import main
+
+    repo, sha = published["pendulum"].split("@")
+    assert main(["load", f"--repo_id={repo}@{sha}", "--trust_remote_code=true", "--isolation=process"]) == 0
+    assert "runs:        in a worker process" in capsys.readouterr().out
+    assert main(["load", f"--repo_id={repo}@{sha}", "--trust_remote_code=true", "--versions=publisher"]) == 1
+    assert "ConfigError" in capsys.readouterr().err
+    code = main(
+        ["reproduce", f"--repo_id={repo}", f"--revision={sha}", "--trust_remote_code=true", "--sandbox=true", "--workers=1"]
+        + [f"--out={tmp_path / 'out'}", "--resamples=50"]
+    )
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert out.startswith(f"REPRODUCED: {repo}@{sha}")
+    report = (tmp_path / "out" / "report.json").read_text()
+    assert '"isolation": "none+sandbox"' in report or '"isolation": "process+sandbox"' in report
+
+
+# --- isolation="venv" -----------------------------------------------------------------------------
+
+
+def test_a_venv_worker_runs_in_the_venv_built_from_the_envs_requirements(published):
+    from hub_envs.isolation.venvs import venvs_root
+
+    loaded = load_env(published["hostile"], trust_remote_code=True, isolation="venv", check=False)
+    env = loaded.make()
+    try:
+        seen = _probe(env, "versions")
+        venv = Path(seen["prefix"])
+        assert venv.parent == venvs_root() and (venv / "hub-envs-venv.json").is_file()
+        record = json.loads((venv / "hub-envs-venv.json").read_text())
+        assert f"numpy=={seen['numpy']}" in record["installed"] and "torch" not in " ".join(record["installed"])
+        assert not any(p.startswith("lerobot") for p in record["installed"])  # the worker venv stays small
+    finally:
+        env.close()
+    # a second load reuses it: no second build, no uv, no network needed
+    again = load_env(published["hostile"], trust_remote_code=True, isolation="venv", sandbox=True, check=False)
+    env = again.make()
+    try:
+        assert _probe(env, "versions")["prefix"] == str(venv)  # sandboxed, in the same venv
+    finally:
+        env.close()
+    builds = (venvs_root() / "builds.log").read_text().split()
+    assert builds.count(venv.name) == 1
+
+
+def test_sixteen_concurrent_loaders_build_one_venv(hub_module, tmp_path):
+    from hub_envs.isolation.venvs import venv_digest, venvs_root
+
+    reqs = ["gymnasium>=1.0.0", "numpy>=1.20"]  # a digest no other test builds
+    code = f"from hub_envs.isolation.venvs import venv_for; print(venv_for({reqs!r}, where='concurrent')[0])"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env) for _ in range(16)]
+    outs = [p.communicate(timeout=300)[0].strip() for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    digest = venv_digest(reqs, f"{sys.version_info[0]}.{sys.version_info[1]}")
+    assert set(outs) == {str(venvs_root() / digest)}
+    assert (venvs_root() / "builds.log").read_text().split().count(digest) == 1
+    assert not [p for p in venvs_root().iterdir() if p.name.startswith(f".{digest}")]  # no half-built venv
+
+
+def test_a_requirement_uv_cannot_resolve_is_a_typed_error_and_leaves_nothing(hub_module):
+    from hub_envs.isolation.venvs import venv_digest, venv_for, venvs_root
+
+    with pytest.raises(errors.VenvBuildError, match="numpy>=99") as info:
+        venv_for(["numpy>=99"], where="iso/broken@0123")
+    assert "iso/broken@0123" in str(info.value) and "unsatisfiable" in str(info.value)
+    digest = venv_digest(["numpy>=99"], f"{sys.version_info[0]}.{sys.version_info[1]}")
+    assert not (venvs_root() / digest).exists()
+    assert not [p for p in venvs_root().iterdir() if p.name.startswith(f".{digest}")]
+
+
+def test_versions_publisher_pins_the_recorded_versions_and_python(published, hub_module):
+    """The hostile env republished as if from the compat stack (python 3.11, numpy 2.3.5): the worker runs
+    exactly those; pushed from here, the same env's worker runs this stack's versions (not the newest)."""
+    from helpers import republish
+
+    here_numpy = np.__version__
+    loaded = load_env(published["hostile"], trust_remote_code=True, isolation="venv", versions="publisher", check=False)
+    env = loaded.make()
+    try:
+        seen = _probe(env, "versions")
+        assert seen["numpy"] == here_numpy and seen["gymnasium"] == gym.__version__
+    finally:
+        env.close()
+
+    def as_compat(folder: Path) -> None:
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        manifest["versions"].update({"python": "3.11.7", "numpy": "2.3.5"})
+        (folder / "hub_env.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+    sha = republish(hub_module.api, "iso/hostile", as_compat)
+    compat = load_env(f"iso/hostile@{sha}", trust_remote_code=True, isolation="venv", versions="publisher", check=False)
+    env = compat.make()
+    try:
+        seen = _probe(env, "versions")
+        assert seen["numpy"] == "2.3.5" and "/venvs/" in seen["prefix"]
+    finally:
+        env.close()
+    from hub_envs.load import worker_versions
+
+    record = worker_versions(compat)
+    assert record["python"] == seen["python"]
+    if any("is not installed here" in n for n in record["notes"]):  # no python 3.11 on this machine: said so
+        assert seen["python"] == platform.python_version()
+    else:
+        assert seen["python"].startswith("3.11.")
+
+
+def test_reproduce_in_a_publisher_venv_reports_the_workers_versions(published, tmp_path):
+    from hub_envs import reproduce
+
+    repo, sha = published["pendulum"].split("@")
+    report = reproduce(
+        repo,
+        revision=sha,
+        trust_remote_code=True,
+        isolation="venv",
+        versions="publisher",
+        workers=1,
+        benchmarks=False,
+        progress=False,
+        out=tmp_path,
+        resamples=10,
+    )
+    assert report.reproduced, report.summary()
+    worker = report.provenance["worker"]
+    assert "/venvs/" in worker["venv"] and worker["versions"]["numpy"] == np.__version__
+    assert "numpy" not in report.provenance["version_differences"]
+
+
+def test_an_env_made_in_a_thread_that_ended_keeps_its_worker(hostile):
+    """The parent-death signal follows the thread that started the worker: workers start from one long-lived
+    launcher thread, so an env made in a short-lived thread (a pool, a loader) keeps working after it ends."""
+    import threading
+
+    made = []
+    thread = threading.Thread(target=lambda: made.append(hostile.make()))
+    thread.start()
+    thread.join()
+    env = made[0]
+    try:
+        time.sleep(0.3)
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+    finally:
+        env.close()
+
+
+def test_lerobot_hub_env_config_takes_the_isolation_fields(published):
+    """``--env.type=hub --env.isolation=process``: LeRobot's eval loop gets vector envs whose envs run in workers,
+    stepping exactly as the in-process ones."""
+    from hub_envs.lerobot.env import HubEnv
+
+    repo, sha = published["pendulum"].split("@")
+    here = HubEnv(repo_id=repo, revision=sha, trust_remote_code=True)
+    isolated = HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, isolation="process", check=False)
+    assert isolated.features == here.features and isolated.episode_length == here.episode_length
+    (va,) = here.create_envs(2)[here.loaded.manifest.name].values()
+    (vb,) = isolated.create_envs(2)[isolated.loaded.manifest.name].values()
+    try:
+        assert isinstance(vb.envs[0].unwrapped, IsolatedEnv)
+        assert _same(vb.reset(seed=3), va.reset(seed=3))
+        vb.action_space.seed(1)
+        for _ in range(5):
+            actions = vb.action_space.sample()
+            assert _same(vb.step(actions), va.step(actions))
+    finally:
+        va.close()
+        vb.close()
+    with pytest.raises(errors.IsolationUnavailableError, match="overrides"):
+        HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, isolation="process", overrides={"g": 3.0})
