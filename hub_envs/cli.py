@@ -22,6 +22,8 @@ from pathlib import Path
 
 import draccus
 
+from hub_envs._flags import EnvFlags
+
 
 @dataclass
 class ServeArgs:
@@ -52,19 +54,12 @@ class PushArgs:
 
 
 @dataclass
-class LoadArgs:
+class LoadArgs(EnvFlags):
     """Load an env repo, run its checks, and print what was loaded (the three-way table)."""
 
-    repo_id: str | None = None
-    revision: str | None = None
-    trust_remote_code: bool = False
     check: bool = True
     fingerprint: str = "error"
     json: bool = False
-    isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
-    sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
-    versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
-    step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
 
 
 def serve(args: ServeArgs) -> int:
@@ -157,17 +152,7 @@ def load(args: LoadArgs) -> int:
 
     if args.repo_id is None:
         raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
-    loaded = load_env(
-        args.repo_id,
-        revision=args.revision,
-        trust_remote_code=args.trust_remote_code,
-        check=args.check,
-        fingerprint=args.fingerprint,
-        isolation=args.isolation,
-        sandbox=args.sandbox,
-        versions=args.versions,
-        step_timeout=args.step_timeout,
-    )
+    loaded = load_env(args.repo_id, check=args.check, fingerprint=args.fingerprint, **args.load_kwargs())
     if args.json:
         print(
             json.dumps(

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hub_envs._flags import EnvFlags
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
@@ -374,12 +375,9 @@ def reproduce(
 
 
 @dataclass
-class ReproduceArgs:
+class ReproduceArgs(EnvFlags):
     """Replay a repo's dataset and re-run its benchmarks; write JSON, Markdown and a plot."""
 
-    repo_id: str | None = None
-    revision: str | None = None
-    trust_remote_code: bool = False
     trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints the benchmarks name (other repos)
     workers: int = 0  # 0: up to 2 processes
     tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
@@ -388,10 +386,6 @@ class ReproduceArgs:
     benchmarks: bool = True
     resamples: int = 1000
     json: bool = False  # also print the JSON report to stdout
-    isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
-    sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
-    versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
-    step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
 
 
 def reproduce_cli(args: ReproduceArgs) -> int:
@@ -399,8 +393,6 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
     report = reproduce(
         args.repo_id,
-        revision=args.revision,
-        trust_remote_code=args.trust_remote_code,
         workers=args.workers or None,
         tolerance=args.tolerance,
         out=args.out,
@@ -408,10 +400,7 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         benchmarks=args.benchmarks,
         resamples=args.resamples,
         trust_policy_code=args.trust_policy_code,
-        isolation=args.isolation,
-        sandbox=args.sandbox,
-        versions=args.versions,
-        step_timeout=args.step_timeout,
+        **args.load_kwargs(),
     )
     if args.json:
         print(report.to_json(), end="")
