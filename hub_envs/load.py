@@ -35,6 +35,7 @@ import gymnasium as gym
 
 from hub_envs import check_cache, hub_io, registration, trust_list
 from hub_envs._text import safe_text
+from hub_envs.code_copy import code_copy, code_files
 from hub_envs.dataset.reader import read_info
 from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
 from hub_envs.errors import (
@@ -488,6 +489,8 @@ def load_env(
     timings["requirements"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    # a published env's code runs from real files (its own folder for __file__.resolve()), not cache symlinks
+    code = path if local_folder is not None else code_copy(path, manifest.files, repo, sha)
     key = module_key(repo, sha)
     owner = f"{repo}@{sha}"
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
@@ -497,11 +500,11 @@ def load_env(
         with registration.registry_transaction() as txn:
             if iso.isolated:
                 env_class, config_class, isolated_config = _isolated_parts(
-                    repo, sha, path, key, manifest, local_folder, iso, overrides=dict(config or {})
+                    repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
                 )
                 iso = env_class.options
             else:
-                package = import_env_folder(path, key)
+                package = import_env_folder(code, key)
                 env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
                 config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
             replaced = txn.replaced()
@@ -683,7 +686,7 @@ def _isolated_parts(repo, sha, path, key, manifest, local_folder, iso, overrides
         path=Path(path),
         key=key,
         entry_point=manifest.env_entry_point,
-        files=tuple(sorted(manifest.files.items())),
+        files=tuple(sorted(code_files(manifest.files).items())),  # what ``path`` (the code copy) holds
     )
     factory = _FACTORIES.setdefault((target, iso), IsolatedEnvFactory(target, iso))  # one entry point per load setting
     return factory, config_class, config

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import draccus
 import gymnasium as gym
@@ -463,3 +465,27 @@ def test_an_action_space_hub_envs_cannot_record_is_refused_at_push_by_name(hub, 
     )
     with pytest.raises(errors.EnvCheckError, match=r"Text\(1, 4, charset=\.\.\.\) actions are not supported: use a Box"):
         _push(folder, "alice/tiny-text-actions")
+
+
+def test_env_code_reading_assets_through_resolve_loads_from_the_hub_and_in_lerobot(hub, tmp_path):
+    """``Path(__file__).resolve().parent / "assets"`` works in a loaded env as in the author's folder: env code is
+    imported from real files (hub_envs.code_copy), not from the cache's symlinks into blobs/."""
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    reads_asset = (
+        "import json\nfrom pathlib import Path\n\n"
+        'GAIN = json.loads((Path(__file__).resolve().parent / "assets" / "params.json").read_text())["gain"]\n'
+    )
+    folder = copy_env(tmp_path, edits={"dynamics.py": lambda s: s.replace("GAIN = 1.0\n", reads_asset)})
+    (folder / "assets").mkdir()
+    (folder / "assets" / "params.json").write_text('{"gain": 1.5}\n')
+    result = _push(folder, "alice/tiny-assets")
+    with hub_environment(hub.endpoint, tmp_path / "fresh"):  # from the Hub, into an empty cache
+        loaded = load_env(f"alice/tiny-assets@{result.sha}", trust_remote_code=True)
+        try:
+            module = sys.modules[type(loaded.make().unwrapped).__module__.rsplit(".", 1)[0] + ".dynamics"]
+            assert module.GAIN == 1.5 and not Path(module.__file__).is_symlink()
+        finally:
+            loaded.unregister()
+        ((_, tasks),) = lerobot_make_env(f"alice/tiny-assets@{result.sha}", n_envs=1, trust_remote_code=True).items()
+        tasks[0].reset(seed=[0])

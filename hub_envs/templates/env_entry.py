@@ -55,7 +55,8 @@ def _is_bytecode(path: str) -> bool:
 
 
 def _needed(files: dict) -> dict:
-    return {p: h for p, h in files.items() if not p.startswith(_NOT_NEEDED)}
+    """The files making an env needs: all but the dataset, the media and the card (as hub_envs.code_copy)."""
+    return {p: h for p, h in files.items() if p not in _NOT_NEEDED and not p.startswith(_NOT_NEEDED[:2])}
 
 
 def _complete(folder: Path) -> bool:
@@ -166,11 +167,54 @@ def _import_package(manifest: dict) -> str:
         root.__path__ = []
         sys.modules[_ROOT_PACKAGE] = root
     if name not in sys.modules:
-        _source_only(_HERE)
+        folder = _code_copy(manifest, origin) if origin else _HERE
+        _source_only(folder)
         pkg = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader=None, is_package=True))
-        pkg.__path__ = [str(_HERE)]
+        pkg.__path__ = [str(folder)]
         sys.modules[name] = pkg
     return name
+
+
+def _code_copy(manifest: dict, origin) -> Path:
+    """Real files, not the cache's symlinks into blobs/, so ``Path(__file__).resolve().parent`` is the code's folder
+    (the folder hub-envs' load_env imports from too: $HUB_ENVS_HOME/code/<models--user--name>/<sha>)."""
+    import shutil
+    import uuid
+
+    repo_id, sha = origin[0], origin[1]
+    home = os.environ.get("HUB_ENVS_HOME") or os.path.join(os.environ.get("XDG_STATE_HOME") or "~/.local/state", "hub-envs")
+    root = Path(home).expanduser() / "code" / ("models--" + repo_id.replace("/", "--"))
+    target = root / sha
+    wanted = _needed(manifest.get("files", {}))
+
+    def matches(folder: Path) -> bool:
+        present = {q.relative_to(folder).as_posix() for q in folder.rglob("*") if q.is_file() or q.is_symlink()}
+        return present == set(wanted) and all(
+            not (folder / rel).is_symlink() and hashlib.sha256((folder / rel).read_bytes()).hexdigest() == digest
+            for rel, digest in wanted.items()
+        )
+
+    if target.is_dir() and matches(target):
+        return target
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = root / f".{sha}.partial-{uuid.uuid4().hex[:12]}"
+    try:
+        for rel, digest in sorted(wanted.items()):
+            data = (_HERE / rel).read_bytes()
+            if hashlib.sha256(data).hexdigest() != digest:
+                raise RuntimeError(f"{_HERE}: {_safe(rel)} changed since it was checked; load it again.")
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / rel).write_bytes(data)
+        if target.exists():
+            shutil.rmtree(target, ignore_errors=True)
+        try:
+            os.rename(tmp, target)
+        except OSError:
+            if not matches(target):
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return target
 
 
 def _resolve(package: str, entry_point: str):
