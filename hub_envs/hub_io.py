@@ -34,7 +34,7 @@ from huggingface_hub.errors import (
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
 from huggingface_hub.utils import validate_repo_id
 
-from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook
+from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet
 from hub_envs._text import safe_text
 from hub_envs.errors import (
     ConcurrentPushError,
@@ -397,14 +397,17 @@ def publish_folder(
         warnings.filterwarnings("ignore", message=".*commit a data file.*")
         client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
         try:
-            info = client.create_commit(
-                repo_id,
-                operations=ops,
-                commit_message=message,
-                commit_description=description,
-                repo_type=REPO_TYPE,
-                parent_commit=parent_commit,
-            )
+            # huggingface_hub 1.x takes Xet whenever hf_xet is installed; a Hub without Xet (the
+            # loopback server, an air-gapped lab) says so in the repo's xetEnabled: go through LFS then
+            with lfs_instead_of_xet(not _xet_enabled(client, repo_id)):
+                info = client.create_commit(
+                    repo_id,
+                    operations=ops,
+                    commit_message=message,
+                    commit_description=description,
+                    repo_type=REPO_TYPE,
+                    parent_commit=parent_commit,
+                )
         except HfHubHTTPError as e:
             if getattr(e.response, "status_code", None) != 412:
                 raise
@@ -413,6 +416,13 @@ def publish_folder(
                 f"first); nothing was written. Re-run push_env: it compares with the new main and commits on top of it."
             ) from e
     return info.oid
+
+
+def _xet_enabled(client: HfApi, repo_id: str) -> bool:
+    """Whether the repo takes uploads through Xet (``xetEnabled``, as huggingface_hub 0.3x asks it)."""
+    info = client.repo_info(repo_id, repo_type=REPO_TYPE, expand=["xetEnabled"])  # type: ignore[list-item]
+    # 0.x parses it as `xet_enabled`; 1.x keeps the fields it does not know under their JSON names
+    return bool(getattr(info, "xet_enabled", None) or getattr(info, "xetEnabled", None))
 
 
 def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, exist_ok: bool = True) -> None:
