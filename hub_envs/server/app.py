@@ -91,6 +91,7 @@ from starlette.routing import Route
 from hub_envs.server.faults import install_faults
 from hub_envs.server.pages import Pages, ResolveSandbox
 from hub_envs.server.lfs import LfsRoutes
+from hub_envs.server.lfs import logger as lfs_logger
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     REPO_TYPES,
@@ -745,6 +746,8 @@ class HubApp:
                 start, end = parsed
                 status = 206
                 headers["Content-Range"] = f"bytes {start}-{end}/{entry.size}"
+                if entry.lfs and ctx.method == "GET" and start > 0:  # a resumed download, typically
+                    lfs_logger.info("lfs: serving bytes %d-%d of %s (%s)", start, end, entry.sha256, path)
         length = max(end - start + 1, 0)
         headers["Content-Length"] = str(length)
         if ctx.method == "HEAD":

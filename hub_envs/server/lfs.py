@@ -202,6 +202,7 @@ class LfsRoutes:
         self._secret = os.urandom(32)
         self._rules: OrderedDict[str, list] = OrderedDict()  # .gitattributes sha256 -> rules
         self._rules_guard = threading.Lock()
+        self._told_xet = False
 
     # -- preupload --
 
@@ -274,6 +275,9 @@ class LfsRoutes:
     def no_xet(self, ctx: Ctx) -> Response:
         from hub_envs.server.app import HTTPError
 
+        if not self._told_xet:  # hf_xet shows the client only "501 Not Implemented": say it here too, once
+            self._told_xet = True
+            logger.warning("A client asked for a Xet token (%s). %s", ctx.request.url.path, _NO_XET)
         raise HTTPError(501, _NO_XET, "XetNotSupported")
 
     # -- signed URLs --
