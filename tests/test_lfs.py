@@ -306,3 +306,34 @@ def test_an_lfs_commit_line_must_match_the_stored_size(lfs):
     r = requests.post(f"{lfs.endpoint}/api/models/lfs/size/commit/main", data=payload, timeout=10)
     assert r.status_code == 400 and "not 5" in r.json()["error"]
     assert api.list_repo_files("lfs/size") == [".gitattributes", "a.bin"]
+
+
+def _rss_mb(pid: int, field: str) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no {field} in /proc/{pid}/status")
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the server's peak RSS from /proc")
+def test_a_large_push_does_not_grow_the_servers_memory(tmp_path):
+    # 96 MiB through LFS (multipart and basic) into a fresh server: streamed to disk, so its peak RSS
+    # grows by a few buffers, not by the files (the inline path held a whole file's base64 line).
+    # The 1 GiB figure is the benchmark `server_push_rss_mb`.
+    folder = tmp_path / "big"
+    folder.mkdir()
+    sizes = {"a.parquet": 40 * MiB, "b.parquet": 40 * MiB, "c.bin": 16 * MiB}
+    for name, size in sizes.items():
+        with open(folder / name, "wb") as f:
+            for _ in range(size // MiB):
+                f.write(os.urandom(MiB))
+    env = {"HUB_ENVS_SERVER_LFS_CHUNK_MB": "32"}
+    with HubServer(tmp_path / "hub-data", env=env) as server, hub_environment(server.endpoint, tmp_path / "home"):
+        api = HfApi(endpoint=server.endpoint)
+        api.create_repo("mem/big")
+        before = _rss_mb(server.process.pid, "VmRSS")
+        api.upload_folder(folder_path=folder, repo_id="mem/big", commit_message="big")
+        peak = _rss_mb(server.process.pid, "VmHWM")
+        stored = _stored(server)
+        assert len(stored) == 3 and set(stored.values()) == {"basic", "multipart"}
+    assert peak - before < 48, f"server RSS grew from {before:.0f} to a peak of {peak:.0f} MiB during a 96 MiB push"

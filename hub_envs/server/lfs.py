@@ -339,15 +339,15 @@ class LfsRoutes:
                     item["error"] = {"code": 422, "message": f"Object {oid} is {have} bytes here, not {size}."}
                 out.append(item)  # already held: no actions, the client skips the upload
                 continue
-            if size > self.max_object:
-                item["error"] = {
-                    "code": 422,
-                    "message": f"Object {oid} ({size} bytes) is over this server's limit of one LFS file "
-                    f"({self.max_object / MiB:g} MiB, {_MAX_LFS_SETTING}).",
-                }
-            elif size > free:
-                item["error"] = {"code": 507, "message": f"Not enough disk space on the server for object {oid} ({size} bytes)."}
-            elif multipart and size > self.chunk_size and math.ceil(size / self.chunk_size) <= _MAX_PARTS:
+            if size > self.max_object:  # the whole request, as the server's other caps: the client raises its HTTP error
+                raise HTTPError(
+                    413,
+                    f"Request too large: LFS object {oid} ({size} bytes) is over {self.max_object / MiB:g} MiB, the limit "
+                    f"of one LFS file on this server ({_MAX_LFS_SETTING}).",
+                )
+            if size > free:
+                raise HTTPError(507, f"Not enough disk space on the server for LFS object {oid} ({size} bytes).")
+            if multipart and size > self.chunk_size and math.ceil(size / self.chunk_size) <= _MAX_PARTS:
                 used = "multipart"
                 chunk = self.chunk_size
                 upload_id = os.urandom(12).hex()
