@@ -91,7 +91,7 @@ def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_
     home = tmp_path / "home"
     ref = f"flt/base@{faulty.sha}"
     before = faulty.injected()
-    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/(env\.py|dataset/meta/)", "times": 3})
     try:
         with hub_environment(faulty.endpoint, home):
             if _compat.file_get_retries_server_errors():  # huggingface_hub 0.x: retried, the load succeeds
@@ -118,6 +118,33 @@ def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_
     assert _incomplete(home) == []
 
 
+def test_transient_500s_on_dataset_files_fail_the_fetch_clearly_and_the_next_one_completes(faulty, tmp_path):
+    # load_env does not fetch the dataset's data files: opening the dataset does
+    home = tmp_path / "home"
+    ref = f"flt/base@{faulty.sha}"
+    with hub_environment(faulty.endpoint, home):
+        loaded = load_env(ref, trust_remote_code=True)
+        loaded.unregister()
+        assert not list(loaded.path.glob("dataset/data/**/*.parquet"))
+        before = faulty.injected()
+        faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+        try:
+            if _compat.file_get_retries_server_errors():  # 0.x: retried, the fetch succeeds
+                assert loaded.fetch_dataset() == loaded.path / "dataset"
+                assert faulty.injected() - before == 3
+            else:  # 1.x: not retried: a typed error that says to retry; offline, opening says what is missing
+                with pytest.raises(errors.HubError) as e:
+                    loaded.fetch_dataset()
+                assert ref in str(e.value) and "answered 500" in str(e.value) and "Retry" in str(e.value)
+                with hub_environment(faulty.endpoint, home, offline=True):
+                    with pytest.raises(errors.DatasetNotCachedError, match="not in the local cache"):
+                        loaded.open_dataset()
+        finally:
+            faulty.heal()
+        assert loaded.open_dataset().num_frames == loaded.manifest.dataset["frames"]
+    assert _incomplete(home) == []
+
+
 def test_a_failing_hub_api_is_a_clear_error_and_the_next_load_succeeds(faulty, tmp_path):
     faulty.inject({"match": r"GET /api/models/flt/base/revision/", "times": -1, "status": 503})
     home = tmp_path / "home"
@@ -137,7 +164,7 @@ def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partia
     home = tmp_path / "home"
     ref = f"flt/base@{faulty.sha}"
     faulty.inject(
-        {"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "action": "drop", "after_bytes": 64, "times": -1}
+        {"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/meta/", "action": "drop", "after_bytes": 64, "times": -1}
     )
     try:
         with hub_environment(faulty.endpoint, home):
