@@ -40,12 +40,12 @@ from hub_envs.envconfig import config_differences, encode_config, instantiate_co
 from hub_envs.errors import (
     ConfigError,
     DatasetError,
+    DatasetNotCachedError,
     EnvCodeError,
     EnvFolderError,
     FingerprintMismatchError,
     HubEnvsError,
     IntegrityError,
-    DatasetNotCachedError,
     InvalidRepoFormatError,
     IsolationUnavailableError,
     OfflineNotCachedError,

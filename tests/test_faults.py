@@ -206,7 +206,9 @@ def test_a_server_killed_during_a_push_leaves_no_partial_commit_and_a_rerun_comp
         # the whole (small) body was sent, a connection closed without an answer (httpx's RemoteProtocolError)
         # (1.x closes its client after a network error: other LFS upload threads then fail with "client has been closed")
         cause = e.value.__cause__
-        assert isinstance(cause, _compat.NETWORK_ERRORS + _compat.TRANSFER_ERRORS) or "closed" in str(cause.__cause__), repr(cause)
+        assert isinstance(cause, _compat.NETWORK_ERRORS + _compat.TRANSFER_ERRORS) or "closed" in str(cause.__cause__), repr(
+            cause
+        )
         assert repo in str(e.value) and any(s in str(e.value) for s in ("cannot reach the Hub", "broke off", "broke during"))
         commits = faulty.api.list_repo_commits(repo)
         assert len(commits) == 1 and faulty.api.list_repo_files(repo) == [".gitattributes"]  # only create_repo's

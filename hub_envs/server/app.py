@@ -628,9 +628,7 @@ class HubApp:
         if meta.repo_type == "space":
             info["sdk"] = meta.sdk
         if siblings:
-            info["siblings"] = [
-                {"rfilename": p, **(_sibling_blob(e) if blobs else {})} for p, e in sorted(commit.files.items())
-            ]
+            info["siblings"] = [{"rfilename": p, **(_sibling_blob(e) if blobs else {})} for p, e in sorted(commit.files.items())]
         return info
 
     def repo_info(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None) -> Response:

@@ -305,14 +305,12 @@ class LfsRoutes:
     # -- batch --
 
     def batch(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
-        from hub_envs.server.app import HTTPError, _json
+        from hub_envs.server.app import HTTPError
 
         repo = self.hub._open(ctx, repo_type, repo_id, write=True)
         data = self.hub._body_json(ctx)
         if data.get("operation", "upload") != "upload":
-            raise HTTPError(
-                400, "Only the 'upload' operation is served by this LFS endpoint: download files through /resolve/."
-            )
+            raise HTTPError(400, "Only the 'upload' operation is served by this LFS endpoint: download files through /resolve/.")
         if data.get("hash_algo", "sha256") != "sha256":
             raise HTTPError(400, "Only hash_algo 'sha256' is supported.")
         ref = data.get("ref")
