@@ -9,15 +9,22 @@ Measured in one run:
   the same size forced inline (base64 in the NDJSON commit: the only path before LFS);
   ``lfs_upload_vs_regular`` is their ratio (> 1: LFS is faster).
 * ``lfs_download_mb_s``: ``hf_hub_download`` of that LFS file into an empty cache.
+* ``cold_load_big_vs_small``: seconds of a cold ``load_env`` (empty cache) of an env whose dataset is
+  ``big_mb`` MiB ÷ the same env with its ~1 MiB dataset (median of ``repeats`` alternating pairs).
+  The big variant is pendulum's published repo plus ``big_mb`` MiB of data files listed in its manifest
+  (what a camera dataset adds; load_env never parses them). Goal <= 1.1. ``open_dataset_big_s``:
+  seconds for ``open_dataset()`` of the big one afterwards (fetch + verify the data).
 * ``server_peak_after_inline_mb``: the server's peak RSS once the inline commit has been served too
   (the inline path holds a file's base64 line in memory: what LFS avoids).
 
-Run: ``python benchmarks/bench_lfs.py [--push-mb 1024] [--size-mb 64]``; ``run()`` returns the dict.
+Run: ``python -m benchmarks.bench_lfs [--push-mb 1024] [--size-mb 64] [--big-mb 200]``; ``run()``
+returns the dict.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import shutil
 import subprocess
@@ -50,12 +57,72 @@ def write_random_files(folder: Path, total_mb: int, file_mb: int = 128) -> None:
                 f.write(os.urandom(MiB))
 
 
-def run(push_mb: int = 1024, size_mb: int = 64) -> dict:
+def run(push_mb: int = 1024, size_mb: int = 64, big_mb: int = 200, repeats: int = 5) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="bench-lfs-"))
     try:
-        return _run(tmp, push_mb, size_mb)
+        results = _run(tmp, push_mb, size_mb)
+        results.update(cold_load_big_vs_small(tmp, big_mb, repeats))
+        return results
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
+    import json
+    import statistics
+
+    from huggingface_hub import snapshot_download
+
+    from hub_envs import hub_io, load_env, push_env
+    from hub_envs.importing import forget_env_folder, module_key
+    from hub_envs.repo_format import MANIFEST_FILE, content_digest
+
+    repo_root = Path(__file__).resolve().parent.parent
+    with HubServer(tmp / "hub-cold") as server:
+        with hub_environment(server.endpoint, tmp / "pusher"):
+            small = push_env(repo_root / "envs" / "pendulum", "bench/small", episodes=4, progress=False).sha
+            folder = Path(snapshot_download("bench/small", revision=small, local_dir=tmp / "big-repo"))
+            shutil.rmtree(folder / ".cache", ignore_errors=True)
+            manifest = json.loads((folder / MANIFEST_FILE).read_text())
+            manifest["repo_id"] = "bench/big"
+            for i in range(max(1, big_mb // 50)):
+                rel = f"dataset/data/chunk-001/file-{i:03d}.parquet"
+                (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+                h = hashlib.sha256()
+                with open(folder / rel, "wb") as f:
+                    for _ in range(50):
+                        block = os.urandom(MiB)
+                        h.update(block)
+                        f.write(block)
+                manifest["files"][rel] = h.hexdigest()
+            manifest["content_digest"] = content_digest(manifest["files"])
+            (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
+            big = hub_io.publish_folder(folder, "bench/big", parent_commit=None, remote_files=[], message="big dataset")
+        times: dict[str, list[float]] = {"small": [], "big": []}
+        for rep in range(repeats + 1):  # the first pair warms up imports and is dropped
+            for name in ("small", "big") if rep % 2 == 0 else ("big", "small"):
+                sha = small if name == "small" else big
+                home = tmp / f"cold-{name}-{rep}"
+                with hub_environment(server.endpoint, home):
+                    start = time.perf_counter()
+                    loaded = load_env(f"bench/{name}@{sha}", trust_remote_code=True)
+                    seconds = time.perf_counter() - start
+                    loaded.unregister()
+                    forget_env_folder(module_key(f"bench/{name}", sha))
+                    if rep:
+                        times[name].append(seconds)
+                    if rep == repeats and name == "big":
+                        start = time.perf_counter()
+                        loaded.fetch_dataset()
+                        open_big = time.perf_counter() - start
+                shutil.rmtree(home, ignore_errors=True)
+    ratios = [b / s for b, s in zip(times["big"], times["small"])]
+    return {
+        "cold_load_small_s": round(statistics.median(times["small"]), 4),
+        "cold_load_big_s": round(statistics.median(times["big"]), 4),
+        "cold_load_big_vs_small": round(statistics.median(ratios), 3),
+        "open_dataset_big_s": round(open_big, 3),
+    }
 
 
 def _run(tmp: Path, push_mb: int, size_mb: int) -> dict:
@@ -103,8 +170,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--push-mb", type=int, default=1024)
     parser.add_argument("--size-mb", type=int, default=64)
+    parser.add_argument("--big-mb", type=int, default=200)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    for key, value in run(args.push_mb, args.size_mb).items():
+    for key, value in run(args.push_mb, args.size_mb, args.big_mb, args.repeats).items():
         print(f"{key:>28}: {value:10.2f}")
 
 

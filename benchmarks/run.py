@@ -38,7 +38,7 @@ MODULES: dict[str, dict] = {
     "bench_push": {"repeats": 3},
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
     "bench_isolation": {"repeats": 5},
-    "bench_lfs": {"push_mb": 1024, "size_mb": 64},
+    "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 5},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -86,6 +86,7 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "client_push_rss_mb": ("bench_lfs", None, "MiB: pushing client's peak RSS over that push"),
     "lfs_upload_vs_regular": ("bench_lfs", None, "64 MiB file up through LFS ÷ inline base64 (MiB/s)"),
     "lfs_download_mb_s": ("bench_lfs", None, "MiB/s: hf_hub_download of that LFS file"),
+    "cold_load_big_vs_small": ("bench_lfs", (LE, 1.1), "cold load_env, 200 MiB dataset ÷ 1 MiB dataset (same env)"),
 }
 
 
