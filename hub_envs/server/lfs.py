@@ -203,6 +203,7 @@ class LfsRoutes:
         self._rules: OrderedDict[str, list] = OrderedDict()  # .gitattributes sha256 -> rules
         self._rules_guard = threading.Lock()
         self._told_xet = False
+        self._swept = 0.0
 
     # -- preupload --
 
@@ -319,6 +320,7 @@ class LfsRoutes:
         objects = data.get("objects")
         if not isinstance(objects, list) or len(objects) > _MAX_OBJECTS:
             raise HTTPError(400, f"'objects' must be a list of at most {_MAX_OBJECTS} {{oid, size}}.")
+        self._sweep_abandoned()
         transfers = data.get("transfers") or ["basic"]
         multipart = isinstance(transfers, list) and "multipart" in transfers
         free = shutil.disk_usage(self.hub.store.root).free
@@ -366,6 +368,20 @@ class LfsRoutes:
         return Response(
             json.dumps({"transfer": used, "objects": out, "hash_algo": "sha256"}), media_type=_LFS_JSON, status_code=200
         )
+
+    def _sweep_abandoned(self) -> None:
+        """Remove multipart uploads whose URLs have expired (a client that never completed them); at most
+        every 10 minutes, from a batch request."""
+        now = time.time()
+        if now - self._swept < 600:
+            return
+        self._swept = now
+        for path in (self.hub.store.root / "tmp").glob("lfs-multipart-*"):
+            try:
+                if now - path.stat().st_mtime > _URL_TTL:
+                    shutil.rmtree(path, ignore_errors=True)
+            except OSError:
+                continue
 
     def verify(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
         from hub_envs.server.app import HTTPError, _json
