@@ -89,9 +89,9 @@ from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
 from hub_envs.server.faults import install_faults
-from hub_envs.server.pages import Pages, ResolveSandbox
 from hub_envs.server.lfs import LfsRoutes
 from hub_envs.server.lfs import logger as lfs_logger
+from hub_envs.server.pages import Pages, ResolveSandbox
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     REPO_TYPES,
