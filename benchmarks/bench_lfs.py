@@ -57,11 +57,12 @@ def write_random_files(folder: Path, total_mb: int, file_mb: int = 128) -> None:
                 f.write(os.urandom(MiB))
 
 
-def run(push_mb: int = 1024, size_mb: int = 64, big_mb: int = 200, repeats: int = 5) -> dict:
+def run(push_mb: int = 1024, size_mb: int = 64, big_mb: int = 200, repeats: int = 9) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="bench-lfs-"))
     try:
-        results = _run(tmp, push_mb, size_mb)
-        results.update(cold_load_big_vs_small(tmp, big_mb, repeats))
+        # the cold loads first: the 1 GiB push leaves the disk busy writing back for a while
+        results = cold_load_big_vs_small(tmp, big_mb, repeats)
+        results.update(_run(tmp, push_mb, size_mb))
         return results
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -99,6 +100,7 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
             (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
             big = hub_io.publish_folder(folder, "bench/big", parent_commit=None, remote_files=[], message="big dataset")
         times: dict[str, list[float]] = {"small": [], "big": []}
+        stages: dict[str, list[dict]] = {"small": [], "big": []}
         for rep in range(repeats + 1):  # the first pair warms up imports and is dropped
             for name in ("small", "big") if rep % 2 == 0 else ("big", "small"):
                 sha = small if name == "small" else big
@@ -111,6 +113,7 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
                     forget_env_folder(module_key(f"bench/{name}", sha))
                     if rep:
                         times[name].append(seconds)
+                        stages[name].append(loaded.report.timings)
                     if rep == repeats and name == "big":
                         start = time.perf_counter()
                         loaded.fetch_dataset()
@@ -122,6 +125,10 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
         "cold_load_big_s": round(statistics.median(times["big"]), 4),
         "cold_load_big_vs_small": round(statistics.median(ratios), 3),
         "open_dataset_big_s": round(open_big, 3),
+        "cold_load_stages_s": {
+            name: {k: round(statistics.median(t.get(k, 0.0) for t in stages[name]), 4) for k in stages[name][0]}
+            for name in stages
+        },
     }
 
 
@@ -171,7 +178,7 @@ def main() -> None:
     parser.add_argument("--push-mb", type=int, default=1024)
     parser.add_argument("--size-mb", type=int, default=64)
     parser.add_argument("--big-mb", type=int, default=200)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=9)
     args = parser.parse_args()
     for key, value in run(args.push_mb, args.size_mb, args.big_mb, args.repeats).items():
         print(f"{key:>28}: {value:10.2f}")

@@ -38,7 +38,7 @@ MODULES: dict[str, dict] = {
     "bench_push": {"repeats": 3},
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
     "bench_isolation": {"repeats": 5},
-    "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 5},
+    "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 9},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
