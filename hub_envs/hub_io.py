@@ -304,17 +304,20 @@ def _glob_escape(path: str) -> str:
 
 
 def _lazy_patterns(files) -> list[str]:
-    """``ignore_patterns`` leaving out the lazy files of ``files``: one per folder under ``dataset/``
-    (``dataset/data/*``), or the escaped name of a lazy file directly in ``dataset/``."""
-    patterns = set()
+    """``ignore_patterns`` leaving out the lazy files of ``files``: one per folder under ``dataset/`` that
+    holds lazy files only (``dataset/data/*``), else the escaped name of each lazy file."""
+    folders: dict[str, list[str]] = {}  # first folder under dataset/ ("" for files directly in it) -> its files
     for path in files:
-        if not isinstance(path, str) or not is_lazy_file(path):
-            continue
-        rest = path[len(DATASET_DIR) + 1 :]
-        if "/" in rest:
-            patterns.add(f"{DATASET_DIR}/{_glob_escape(rest.split('/', 1)[0])}/*")
-        else:
-            patterns.add(_glob_escape(path))
+        if isinstance(path, str) and path.startswith(DATASET_DIR + "/"):
+            rest = path[len(DATASET_DIR) + 1 :]
+            folders.setdefault(rest.split("/", 1)[0] if "/" in rest else "", []).append(path)
+    patterns = set()
+    for folder, paths in folders.items():
+        lazy = [p for p in paths if is_lazy_file(p)]
+        if folder and lazy and len(lazy) == len(paths):
+            patterns.add(f"{DATASET_DIR}/{_glob_escape(folder)}/*")
+        else:  # code (or meta/) beside the data: name the lazy files one by one
+            patterns.update(_glob_escape(p) for p in lazy)
     return sorted(patterns)
 
 

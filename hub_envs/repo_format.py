@@ -91,12 +91,20 @@ GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
 def is_lazy_file(path: str) -> bool:
     """A file ``load_env`` does not fetch: the dataset's data (``dataset/data/``, ``dataset/videos/``,
     anything under ``dataset/`` but its ``meta/``). It is fetched, and verified against the manifest,
-    when the dataset is opened (:meth:`hub_envs.load.LoadedEnv.fetch_dataset`).
+    when the dataset is opened (:meth:`hub_envs.load.LoadedEnv.fetch_dataset`). Never code: a ``.py``
+    (or anything Python could run) under ``dataset/`` is fetched and verified with the rest of the code.
 
     >>> [is_lazy_file(p) for p in ("dataset/data/chunk-000/file-000.parquet", "dataset/meta/info.json", "env.py")]
     [True, False, False]
+    >>> is_lazy_file("dataset/helper.py"), is_lazy_file("dataset/data/x.so")
+    (False, False)
     """
-    return path.startswith(DATASET_DIR + "/") and not path.startswith(DATASET_DIR + "/meta/")
+    return (
+        path.startswith(DATASET_DIR + "/")
+        and not path.startswith(DATASET_DIR + "/meta/")
+        and not is_code_file(path)
+        and not path.endswith(EXECUTABLE_SUFFIXES)
+    )
 
 
 def is_code_file(path: str) -> bool:
