@@ -73,7 +73,7 @@ DEFAULT_MAX_LFS_MB = 50 * 1024.0  # the Hub's cap on one file: 50 GB
 _CHUNK_SETTING = "HUB_ENVS_SERVER_LFS_CHUNK_MB"
 _MAX_LFS_SETTING = "--max_lfs_mb / HUB_ENVS_SERVER_MAX_LFS_MB"
 _URL_TTL = 24 * 3600
-_FLUSH = 4 * MiB  # received bytes are written (and hashed, in a worker thread) this much at a time
+_FLUSH = 1 * MiB  # received bytes are written (and hashed, in a worker thread) this much at a time
 _HASH_PIECE = 8 * MiB
 _MAX_OBJECTS = 10_000  # per batch request (huggingface_hub sends at most 256)
 _MAX_PARTS = 10_000
@@ -424,7 +424,7 @@ class LfsRoutes:
         received = 0
         buf = bytearray()
 
-        def flush(data: bytes, at: int) -> None:
+        def flush(data: bytearray, at: int) -> None:
             hasher.update(data)
             view = memoryview(data)
             while view:
@@ -438,11 +438,12 @@ class LfsRoutes:
                 raise HTTPError(400, f"{what}: more than the {expected} bytes announced.")
             buf += chunk
             if len(buf) >= _FLUSH:
-                data, buf = bytes(buf), bytearray()
+                data, buf = buf, bytearray()  # handed over, not copied
                 await run_in_threadpool(flush, data, pos)
                 pos += len(data)
+                del data
         if buf:
-            await run_in_threadpool(flush, bytes(buf), pos)
+            await run_in_threadpool(flush, buf, pos)
         if received != expected:
             raise HTTPError(400, f"{what}: {received} bytes received, {expected} announced (interrupted?). Upload it again.")
         return hasher.hexdigest()
