@@ -38,6 +38,7 @@ MODULES: dict[str, dict] = {
     "bench_push": {"repeats": 3},
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
     "bench_isolation": {"repeats": 5},
+    "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 9},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -81,6 +82,11 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "sandboxed_step_hover": ("bench_isolation", None, "steps/s of hover in a sandboxed worker ÷ in-process"),
     "worker_start_s": ("bench_isolation", None, "seconds: start a worker and import hover's code"),
     "sandboxed_worker_start_s": ("bench_isolation", None, "seconds: the same, sandboxed"),
+    "server_push_rss_mb": ("bench_lfs", (LE, 300), "MiB: server peak RSS over a 1 GiB push (LFS, streamed)"),
+    "client_push_rss_mb": ("bench_lfs", None, "MiB: pushing client's peak RSS over that push"),
+    "lfs_upload_vs_regular": ("bench_lfs", None, "64 MiB file up through LFS ÷ inline base64 (MiB/s)"),
+    "lfs_download_mb_s": ("bench_lfs", None, "MiB/s: hf_hub_download of that LFS file"),
+    "cold_load_big_vs_small": ("bench_lfs", (LE, 1.1), "cold load_env, 200 MiB dataset ÷ 1 MiB dataset (same env)"),
 }
 
 

@@ -15,6 +15,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import sys
 from typing import Any
@@ -81,6 +82,34 @@ def file_get_retries_server_errors() -> bool:
     (``http_backoff``: 408, 429, 5xx and network errors, up to 5 more times).
     """
     return HF_HUB_MAJOR < 1
+
+
+def upload_uses_xet_unconditionally() -> bool:
+    """Whether the client uploads LFS-mode files through Xet without asking the repo (when ``hf_xet`` is installed).
+
+    0.x: no. ``create_commit`` (and ``upload_large_folder``) ask ``repo_info(expand="xetEnabled")``
+    and take the Git LFS batch API when the repo says ``xetEnabled: false``, as the hub-envs server does.
+    1.x: yes. ``_upload_files`` takes Xet whenever ``is_xet_available()`` (hf_xet installed and
+    ``constants.HF_HUB_DISABLE_XET`` false), whatever the server offers; against a Hub without Xet,
+    ``HF_HUB_DISABLE_XET=1`` is the only way to the LFS path.
+    """
+    return HF_HUB_MAJOR >= 1
+
+
+@contextlib.contextmanager
+def lfs_instead_of_xet(enabled: bool = True):
+    """Inside the block, huggingface_hub uploads large files through Git LFS, not Xet (both versions
+    read ``constants.HF_HUB_DISABLE_XET`` at each upload). Process-wide while it lasts."""
+    from huggingface_hub import constants
+
+    if not enabled or constants.HF_HUB_DISABLE_XET:
+        yield
+        return
+    constants.HF_HUB_DISABLE_XET = True
+    try:
+        yield
+    finally:
+        constants.HF_HUB_DISABLE_XET = False
 
 
 def reset_http_sessions() -> None:

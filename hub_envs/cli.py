@@ -2,7 +2,7 @@
 
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
-    hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024]
+    hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024] [--max_lfs_mb=51200]
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
@@ -35,6 +35,7 @@ class ServeArgs:
     token: str | None = None
     max_body_mb: float | None = None  # largest request body; default: $HUB_ENVS_SERVER_MAX_BODY_MB, else 2048
     max_line_mb: float | None = None  # largest commit line (one base64 file); default: $HUB_ENVS_SERVER_MAX_LINE_MB, else 1024
+    max_lfs_mb: float | None = None  # largest LFS file; default: $HUB_ENVS_SERVER_MAX_LFS_MB, else 51200 (the Hub's 50 GB)
 
 
 @dataclass
@@ -81,6 +82,7 @@ def serve(args: ServeArgs) -> int:
         token=args.token,
         max_body_mb=args.max_body_mb,
         max_line_mb=args.max_line_mb,
+        max_lfs_mb=args.max_lfs_mb,
     )
     return 0
 

@@ -102,6 +102,10 @@ class DatasetError(HubEnvsError):
     """The bundled LeRobot dataset is missing, malformed, or cannot be written."""
 
 
+class DatasetNotCachedError(OfflineNotCachedError, DatasetError):
+    """An env's dataset files are not in the local cache and the Hub cannot be used to fetch them."""
+
+
 class ReproductionError(HubEnvsError):
     """A replay or benchmark reproduction could not be run (not: it ran and diverged)."""
 

@@ -98,12 +98,17 @@ def locate_dataset(
     except EnvRepoNotFoundError:
         is_env_repo = False
     if is_env_repo:
-        snap = hub_io.resolve_snapshot(repo_id, revision, token=token)
+        from hub_envs.load import ensure_dataset_files
+
+        snap = hub_io.resolve_snapshot(repo_id, revision, token=token, lazy=True)
         if snap.from_cache and not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
             # only part of that commit is cached (e.g. its manifest, read while searching history)
-            snap = hub_io.resolve_snapshot(repo_id, snap.sha, token=token, force_download=True)
+            snap = hub_io.resolve_snapshot(repo_id, snap.sha, token=token, force_download=True, lazy=True)
         if not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
             raise ReproductionError(f"{repo_id}@{snap.sha} has no dataset/. Re-publish it with push_env.")
+        # the data files too (load_env leaves them out), each checked against the commit's manifest
+        manifest = Manifest.read(snap.path, where=f"{repo_id}@{snap.sha}: hub_env.json")
+        ensure_dataset_files(repo_id, snap.sha, snap.path, manifest, token=token)
         return snap.path / DATASET_DIR, (repo_id, snap.sha)
     from huggingface_hub import snapshot_download
 

@@ -34,7 +34,7 @@ from huggingface_hub.errors import (
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
 from huggingface_hub.utils import validate_repo_id
 
-from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook
+from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet
 from hub_envs._text import safe_text
 from hub_envs.errors import (
     ConcurrentPushError,
@@ -46,7 +46,7 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import MANIFEST_FILE, is_commit_sha
+from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, is_commit_sha, is_lazy_file
 
 REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
 
@@ -198,6 +198,19 @@ def translate_hub_errors(repo_id: str, revision: str | None):
     where = f"{repo_id}@{revision}" if revision else repo_id
     try:
         yield
+    except RuntimeError as e:
+        # huggingface_hub wraps a failed LFS upload: RuntimeError("Error while uploading '<path>' to the Hub.")
+        cause = e.__cause__
+        if isinstance(cause, RuntimeError) and "client has been closed" in str(cause):
+            # huggingface_hub 1.x closes its HTTP client after a network error; the other upload threads then fail so
+            raise HubError(
+                f"{where}: the connection to the Hub at {constants.ENDPOINT} broke during an upload ({safe_text(str(e))}). "
+                f"Retry: nothing was committed, and files the Hub already holds are not sent again."
+            ) from e
+        if not isinstance(cause, (HfHubHTTPError, *NETWORK_ERRORS, *TRANSFER_ERRORS)) or e is cause:
+            raise
+        with translate_hub_errors(repo_id, revision):
+            raise cause from None
     except HfRevisionNotFoundError as e:
         raise RevisionNotFoundError(
             f"{repo_id} has no revision {revision!r} at {constants.ENDPOINT}. List its branches and tags with "
@@ -245,11 +258,14 @@ def resolve_snapshot(
     token: str | None = None,
     cache_dir: str | Path | None = None,
     force_download: bool = False,
+    lazy: bool = False,
 ) -> Snapshot:
     """Resolve ``revision`` (default: main) to a commit sha and make sure its files are on disk.
 
     A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
+    ``lazy``: leave the dataset's data files out (:func:`hub_envs.repo_format.is_lazy_file`; fetch
+    them with :func:`fetch_dataset_files`).
     """
     if (
         revision is not None
@@ -269,6 +285,7 @@ def resolve_snapshot(
         info = api(token).repo_info(repo_id, revision=revision, repo_type=REPO_TYPE)
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
+        ignore = _lazy_patterns(s.rfilename for s in info.siblings or []) if lazy else None
         path = snapshot_download(
             repo_id,
             revision=sha,
@@ -276,9 +293,51 @@ def resolve_snapshot(
             cache_dir=cache_dir,
             token=token,
             force_download=force_download,
+            ignore_patterns=ignore,
         )
     _check_resolved(repo_id, revision, Path(path).name)
     return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
+
+
+def _glob_escape(path: str) -> str:
+    return "".join(f"[{c}]" if c in "*?[" else c for c in path)
+
+
+def _lazy_patterns(files) -> list[str]:
+    """``ignore_patterns`` leaving out the lazy files of ``files``: one per folder under ``dataset/`` that
+    holds lazy files only (``dataset/data/*``), else the escaped name of each lazy file."""
+    folders: dict[str, list[str]] = {}  # first folder under dataset/ ("" for files directly in it) -> its files
+    for path in files:
+        if isinstance(path, str) and path.startswith(DATASET_DIR + "/"):
+            rest = path[len(DATASET_DIR) + 1 :]
+            folders.setdefault(rest.split("/", 1)[0] if "/" in rest else "", []).append(path)
+    patterns = set()
+    for folder, paths in folders.items():
+        lazy = [p for p in paths if is_lazy_file(p)]
+        if folder and lazy and len(lazy) == len(paths):
+            patterns.add(f"{DATASET_DIR}/{_glob_escape(folder)}/*")
+        else:  # code (or meta/) beside the data: name the lazy files one by one
+            patterns.update(_glob_escape(p) for p in lazy)
+    return sorted(patterns)
+
+
+def fetch_dataset_files(
+    repo_id: str, sha: str, *, token: str | None = None, cache_dir: str | Path | None = None, force_download: bool = False
+) -> Path:
+    """Download the dataset folder of ``repo_id`` at commit ``sha`` into the cache (files already there
+    are not fetched again); return the snapshot folder. The caller verifies them against the manifest."""
+    with translate_hub_errors(repo_id, sha):
+        path = snapshot_download(
+            repo_id,
+            revision=sha,
+            repo_type=REPO_TYPE,
+            cache_dir=cache_dir,
+            token=token,
+            allow_patterns=[f"{DATASET_DIR}/*"],
+            force_download=force_download,
+        )
+    _check_resolved(repo_id, sha, Path(path).name)
+    return Path(path)
 
 
 def _check_resolved(repo_id: str, requested: str | None, sha: str | None) -> None:
@@ -397,14 +456,17 @@ def publish_folder(
         warnings.filterwarnings("ignore", message=".*commit a data file.*")
         client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
         try:
-            info = client.create_commit(
-                repo_id,
-                operations=ops,
-                commit_message=message,
-                commit_description=description,
-                repo_type=REPO_TYPE,
-                parent_commit=parent_commit,
-            )
+            # huggingface_hub 1.x takes Xet whenever hf_xet is installed; a Hub without Xet (the
+            # loopback server, an air-gapped lab) says so in the repo's xetEnabled: go through LFS then
+            with lfs_instead_of_xet(not _xet_enabled(client, repo_id)):
+                info = client.create_commit(
+                    repo_id,
+                    operations=ops,
+                    commit_message=message,
+                    commit_description=description,
+                    repo_type=REPO_TYPE,
+                    parent_commit=parent_commit,
+                )
         except HfHubHTTPError as e:
             if getattr(e.response, "status_code", None) != 412:
                 raise
@@ -413,6 +475,13 @@ def publish_folder(
                 f"first); nothing was written. Re-run push_env: it compares with the new main and commits on top of it."
             ) from e
     return info.oid
+
+
+def _xet_enabled(client: HfApi, repo_id: str) -> bool:
+    """Whether the repo takes uploads through Xet (``xetEnabled``, as huggingface_hub 0.3x asks it)."""
+    info = client.repo_info(repo_id, repo_type=REPO_TYPE, expand=["xetEnabled"])  # type: ignore[list-item]
+    # 0.x parses it as `xet_enabled`; 1.x keeps the fields it does not know under their JSON names
+    return bool(getattr(info, "xet_enabled", None) or getattr(info, "xetEnabled", None))
 
 
 def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, exist_ok: bool = True) -> None:

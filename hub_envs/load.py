@@ -41,6 +41,7 @@ from hub_envs.envconfig import config_differences, encode_config, instantiate_co
 from hub_envs.errors import (
     ConfigError,
     DatasetError,
+    DatasetNotCachedError,
     EnvCodeError,
     EnvFolderError,
     FingerprintMismatchError,
@@ -65,6 +66,8 @@ from hub_envs.repo_format import (
     content_digest,
     hash_files,
     is_code_file,
+    is_lazy_file,
+    sha256_file,
 )
 from hub_envs.requirements import check_requirements
 
@@ -129,6 +132,8 @@ class LoadedEnv:
         report,
         local_folder=None,
         isolation=None,
+        token=None,
+        cache_dir=None,
     ):
         self.repo_id: str = repo_id
         self.revision: str = revision
@@ -143,6 +148,9 @@ class LoadedEnv:
         self.local_folder: Path | None = local_folder
         #: how the env's code runs (:class:`hub_envs.isolation.IsolationOptions`); None: in this process
         self.isolation = isolation if isolation is not None and isolation.isolated else None
+        self._token = token
+        self._cache_dir = cache_dir
+        self._dataset_verified = False
 
     # -- names --
     @property
@@ -159,8 +167,31 @@ class LoadedEnv:
 
     @property
     def dataset_root(self) -> Path | None:
+        """The bundled dataset's folder, its data files fetched and verified (see :meth:`fetch_dataset`);
+        None if the repo has no dataset."""
+        return self.fetch_dataset()
+
+    @property
+    def dataset_meta_root(self) -> Path | None:
+        """The bundled dataset's folder with its ``meta/`` only (what load_env fetches); no download."""
         root = self.path / DATASET_DIR
         return root if (root / "meta" / "info.json").is_file() else None
+
+    def fetch_dataset(self) -> Path | None:
+        """Fetch the bundled dataset's data files (``dataset/data/``, videos: load_env fetched its
+        ``meta/`` only), verify each against the manifest's sha256, and return the dataset folder.
+
+        Once per LoadedEnv; files already in the cache are not downloaded again. None if the repo
+        has no dataset. Raises :class:`~hub_envs.errors.DatasetNotCachedError` offline when files
+        are missing, and :class:`~hub_envs.errors.IntegrityError` (the bad files are removed from
+        the cache) when a file differs from the manifest.
+        """
+        root = self.dataset_meta_root
+        if root is None or self._dataset_verified or self.is_local:
+            return root
+        ensure_dataset_files(self.repo_id, self.revision, self.path, self.manifest, token=self._token, cache_dir=self._cache_dir)
+        self._dataset_verified = True
+        return root
 
     def load_line(self) -> str:
         if self.is_local:
@@ -204,14 +235,16 @@ class LoadedEnv:
         return gym.vector.SyncVectorEnv(fns)
 
     def open_dataset(self, **kwargs):
-        """The bundled random-action dataset as a ``LeRobotDataset`` (read from the snapshot, no download)."""
+        """The bundled random-action dataset as a ``LeRobotDataset``, read from the snapshot; its data
+        files are fetched and verified first if load_env left them out (see :meth:`fetch_dataset`)."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        if self.dataset_root is None:
+        root = self.fetch_dataset()
+        if root is None:
             raise InvalidRepoFormatError(
                 f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env)."
             )
-        return LeRobotDataset(self.repo_id, root=self.dataset_root, **kwargs)
+        return LeRobotDataset(self.repo_id, root=root, **kwargs)
 
     def processors(self, cfg=None):
         """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares.
@@ -319,13 +352,13 @@ def _check_content_tag(requested: str | None, manifest: Manifest, where: str) ->
 def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> tuple[hub_io.Snapshot, Manifest]:
     """Resolve, download and verify a snapshot; a snapshot that fails is removed from the cache (so nothing,
     LeRobot's own loader included, later runs what it holds)."""
-    snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir)
+    snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir, lazy=True)
     where = f"{repo}@{snap.sha}"
 
     def verify(s: hub_io.Snapshot) -> Manifest:
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
         check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
-        manifest.verify_files(s.path, where=where)
+        manifest.verify_files(s.path, where=where, lazy=True)  # the dataset's data: when it is opened
         hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest
 
@@ -339,7 +372,7 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
                 raise
             # a cached snapshot may be damaged locally: fetch it again once, then judge
             hub_io.drop_snapshot(snap.path)
-            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True)
+            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True, lazy=True)
             return snap, verify(snap)
     except IntegrityError:
         hub_io.drop_snapshot(snap.path)
@@ -557,6 +590,8 @@ def load_env(
                 report=report,
                 local_folder=local_folder,
                 isolation=iso,
+                token=token,
+                cache_dir=cache_dir,
             )
             if check:
                 t = time.perf_counter()
@@ -714,13 +749,56 @@ def loaded_env_for_type(env_type: str) -> LoadedEnv | None:
     return _LOADED.get(env_type)
 
 
+def ensure_dataset_files(
+    repo_id: str, sha: str, path: Path, manifest: Manifest, *, token: str | None = None, cache_dir: str | Path | None = None
+) -> None:
+    """Make the dataset's data files of the snapshot ``path`` (``repo_id@sha``) present and verified against
+    ``manifest``: fetch the missing ones (offline: :class:`DatasetNotCachedError`), check every sha256 (a
+    mismatch removes the file from the cache and raises :class:`IntegrityError`)."""
+    where = f"{repo_id}@{sha}"
+    lazy = sorted(p for p in manifest.files if is_lazy_file(p))
+    missing = [p for p in lazy if not (path / p).is_file()]
+    if missing:
+        if hub_io.offline():
+            raise DatasetNotCachedError(
+                f"{where}: {len(missing)} of the dataset's {len(lazy)} data file(s) are not in the local cache "
+                f"(e.g. {safe_text(missing[0])}), and the Hub cannot be used (HF_HUB_OFFLINE is set). load_env "
+                f"fetches the code and the dataset's meta/ only; fetch the data once online: unset HF_HUB_OFFLINE and "
+                f"call loaded.fetch_dataset() (or open_dataset()), or "
+                f'huggingface_hub.snapshot_download("{repo_id}", revision="{sha}", allow_patterns=["{DATASET_DIR}/*"]).'
+            )
+        hub_io.fetch_dataset_files(repo_id, sha, token=token, cache_dir=cache_dir)
+    bad = [p for p in lazy if not (path / p).is_file() or sha256_file(path / p) != manifest.files[p]]
+    if bad:
+        for p in bad:
+            _drop_cached_file(path / p)
+        raise IntegrityError(
+            f"{where}: {len(bad)} dataset file(s) are missing or differ from the manifest (sha256), e.g. {safe_text(bad[0])}. They "
+            f"were removed from the cache; fetch again (loaded.fetch_dataset()). If it persists, the endpoint serves "
+            f"other bytes than the publisher pushed: check HF_ENDPOINT."
+        )
+    hub_io.check_snapshot_layout(path, set(manifest.files), where=where)
+
+
+def _drop_cached_file(path: Path) -> None:
+    """Remove one file of a cache snapshot and the blob it links to (so the next fetch downloads it again)."""
+    try:
+        if path.is_symlink():
+            target = Path(os.path.realpath(path))
+            if target.parent.name == "blobs":
+                target.unlink(missing_ok=True)
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
 def _raise_if_partly_cached(path: Path, where: str) -> None:
     """Offline, a snapshot left incomplete by an interrupted download is a cache problem, not tampering."""
     try:
         files = Manifest.read(path).files
     except HubEnvsError:
         files = {}
-    missing = sorted(p for p in files if not (path / p).is_file()) if files else ["hub_env.json"]
+    missing = sorted(p for p in files if not is_lazy_file(p) and not (path / p).is_file()) if files else ["hub_env.json"]
     if missing:
         raise OfflineNotCachedError(
             f"{where} is only partly in the local cache ({len(missing)} file(s) missing, e.g. {missing[0]}; an interrupted "
@@ -754,7 +832,7 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
         return
     dataset_features = None
     dataset_dir = loaded.manifest.dataset.get("path") if loaded.manifest.dataset else None
-    if loaded.dataset_root is not None or dataset_dir:
+    if loaded.dataset_meta_root is not None or dataset_dir:  # meta/info.json: no data file is fetched
         try:
             info = read_info(loaded.path / (dataset_dir or DATASET_DIR))
         except DatasetError as e:

@@ -88,6 +88,25 @@ ENTRY_POINT_RE = re.compile(r"^(?P<module>[A-Za-z_]\w*(\.[A-Za-z_]\w*)*):(?P<att
 GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
 
 
+def is_lazy_file(path: str) -> bool:
+    """A file ``load_env`` does not fetch: the dataset's data (``dataset/data/``, ``dataset/videos/``,
+    anything under ``dataset/`` but its ``meta/``). It is fetched, and verified against the manifest,
+    when the dataset is opened (:meth:`hub_envs.load.LoadedEnv.fetch_dataset`). Never code: a ``.py``
+    (or anything Python could run) under ``dataset/`` is fetched and verified with the rest of the code.
+
+    >>> [is_lazy_file(p) for p in ("dataset/data/chunk-000/file-000.parquet", "dataset/meta/info.json", "env.py")]
+    [True, False, False]
+    >>> is_lazy_file("dataset/helper.py"), is_lazy_file("dataset/data/x.so")
+    (False, False)
+    """
+    return (
+        path.startswith(DATASET_DIR + "/")
+        and not path.startswith(DATASET_DIR + "/meta/")
+        and not is_code_file(path)
+        and not path.endswith(EXECUTABLE_SUFFIXES)
+    )
+
+
 def is_code_file(path: str) -> bool:
     return path.endswith(CODE_SUFFIXES)
 
@@ -572,11 +591,16 @@ class Manifest:
 
     # -- checks that need no code --
 
-    def verify_files(self, folder: Path, *, where: str) -> None:
-        """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code."""
+    def verify_files(self, folder: Path, *, where: str, lazy: bool = False) -> None:
+        """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code.
+
+        ``lazy``: leave the dataset's data files (:func:`is_lazy_file`) out; they are verified when fetched.
+        """
         folder = Path(folder)
         problems = []
         for path, expected in sorted(self.files.items()):
+            if lazy and is_lazy_file(path):
+                continue
             local = folder / path
             if not local.is_file():
                 problems.append(f"  missing   {safe_text(path)}")

@@ -235,7 +235,8 @@ def hub_environment(
 
     Sets ``HF_ENDPOINT``, ``HF_HOME``, ``HF_HUB_CACHE``, ``HF_ASSETS_CACHE``, ``HF_XET_CACHE``,
     ``HF_TOKEN`` (or removes it when ``token`` is None, so no stored token leaks in),
-    ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
+    ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_DISABLE_XET=1`` (the loopback server takes large files
+    through Git LFS), ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
     ``HF_DATASETS_CACHE``, ``HUB_ENVS_HOME`` (a folder beside ``hf_home``) and, for a loopback endpoint, ``NO_PROXY``; patches what
     ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants``
     and ``datasets.config`` computed at import time; resets the client's HTTP sessions and the
@@ -260,6 +261,9 @@ def hub_environment(
         "HUGGINGFACE_HUB_CACHE": None,
         "HUGGINGFACE_ASSETS_CACHE": None,
         "HF_HUB_DISABLE_TELEMETRY": "1",
+        # the loopback server stores large files through Git LFS, not Xet: huggingface_hub 1.x would
+        # upload through Xet whenever hf_xet is installed (see hub_envs.server.lfs)
+        "HF_HUB_DISABLE_XET": "1",
         "HF_HUB_OFFLINE": "1" if offline else None,
         "TRANSFORMERS_OFFLINE": None,
         "HF_DATASETS_OFFLINE": None,
@@ -309,6 +313,7 @@ def hub_environment(
             "HF_STORED_TOKENS_PATH": str(home / "stored_tokens"),
             "HF_HUB_OFFLINE": bool(offline),
             "HF_HUB_DISABLE_TELEMETRY": True,
+            "HF_HUB_DISABLE_XET": True,
         }
         for name, value in values.items():
             patch(constants, name, value)

@@ -228,7 +228,7 @@ def test_anonymous_big_post_to_a_token_server_is_refused_before_its_body_is_read
 @pytest.fixture
 def capped_hub(tmp_path):
     """A token server with small caps: 16 MiB bodies, 4 MiB commit lines (env variables of run())."""
-    env = {"HUB_ENVS_SERVER_MAX_BODY_MB": "16", "HUB_ENVS_SERVER_MAX_LINE_MB": "4"}
+    env = {"HUB_ENVS_SERVER_MAX_BODY_MB": "16", "HUB_ENVS_SERVER_MAX_LINE_MB": "4", "HUB_ENVS_SERVER_MAX_LFS_MB": "8"}
     with HubServer(tmp_path / "capped-data", token="capped-token", env=env) as server:
         with hub_environment(server.endpoint, tmp_path / "capped-home", token="capped-token"):
             yield server
@@ -267,16 +267,22 @@ def test_oversize_bodies_and_lines_get_413_naming_the_limit(capped_hub):
     _assert_error(response, 413, "16 MiB")  # JSON bodies: at most the body cap (and 32 MiB)
     assert api.model_info("alice/env").sha == head  # nothing was committed
 
-    # the real client gets a typed error naming the limit
+    # the real client gets a typed error naming the limit: a text file goes inline (regular, under 10 MiB)...
     with pytest.raises(HfHubHTTPError) as exc:
-        _commit(api, "alice/env", {"too-big.bin": bytes(4 * MiB)})
+        _commit(api, "alice/env", {"too-big.txt": b"a" * (4 * MiB)})
     assert exc.value.response.status_code == 413 and "HUB_ENVS_SERVER_MAX_LINE_MB" in str(exc.value)
+    # ... a binary one through LFS, whose cap is per file
+    with pytest.raises(HfHubHTTPError) as exc:
+        _commit(api, "alice/env", {"too-big.bin": bytes(9 * MiB)})
+    assert exc.value.response.status_code == 413 and "HUB_ENVS_SERVER_MAX_LFS_MB" in str(exc.value)
+    assert api.model_info("alice/env").sha == head
     # and files under the caps still commit (a line over 1 MiB takes the large-line path)
-    payload = bytes(range(256)) * (10 * 1024)  # 2.5 MiB: a 3.3 MiB line
-    sha = _commit(api, "alice/env", {"a.bin": payload, "small.txt": b"s"})
+    payload = b"0123456789abcde\n" * (160 * 1024)  # 2.5 MiB of text: a 3.3 MiB line
+    sha = _commit(api, "alice/env", {"a.txt": payload, "small.txt": b"s", "b.bin": bytes(6 * MiB)})
     siblings = {s.rfilename: s for s in api.model_info("alice/env", files_metadata=True).siblings}
-    assert siblings["a.bin"].blob_id == _git_blob_oid(payload) and siblings["a.bin"].size == len(payload)
-    assert Path(hf_hub_download("alice/env", "a.bin", revision=sha)).read_bytes() == payload
+    assert siblings["a.txt"].blob_id == _git_blob_oid(payload) and siblings["a.txt"].size == len(payload)
+    assert Path(hf_hub_download("alice/env", "a.txt", revision=sha)).read_bytes() == payload
+    assert siblings["b.bin"].lfs.size == 6 * MiB  # over the 4 MiB line cap, under the 8 MiB LFS cap
 
 
 def test_large_lines_must_be_base64_file_lines(hub):

@@ -91,7 +91,7 @@ def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_
     home = tmp_path / "home"
     ref = f"flt/base@{faulty.sha}"
     before = faulty.injected()
-    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+    faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/(env\.py|dataset/meta/)", "times": 3})
     try:
         with hub_environment(faulty.endpoint, home):
             if _compat.file_get_retries_server_errors():  # huggingface_hub 0.x: retried, the load succeeds
@@ -118,6 +118,33 @@ def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_
     assert _incomplete(home) == []
 
 
+def test_transient_500s_on_dataset_files_fail_the_fetch_clearly_and_the_next_one_completes(faulty, tmp_path):
+    # load_env does not fetch the dataset's data files: opening the dataset does
+    home = tmp_path / "home"
+    ref = f"flt/base@{faulty.sha}"
+    with hub_environment(faulty.endpoint, home):
+        loaded = load_env(ref, trust_remote_code=True)
+        loaded.unregister()
+        assert not list(loaded.path.glob("dataset/data/**/*.parquet"))
+        before = faulty.injected()
+        faulty.inject({"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+        try:
+            if _compat.file_get_retries_server_errors():  # 0.x: retried, the fetch succeeds
+                assert loaded.fetch_dataset() == loaded.path / "dataset"
+                assert faulty.injected() - before == 3
+            else:  # 1.x: not retried: a typed error that says to retry; offline, opening says what is missing
+                with pytest.raises(errors.HubError) as e:
+                    loaded.fetch_dataset()
+                assert ref in str(e.value) and "answered 500" in str(e.value) and "Retry" in str(e.value)
+                with hub_environment(faulty.endpoint, home, offline=True):
+                    with pytest.raises(errors.DatasetNotCachedError, match="not in the local cache"):
+                        loaded.open_dataset()
+        finally:
+            faulty.heal()
+        assert loaded.open_dataset().num_frames == loaded.manifest.dataset["frames"]
+    assert _incomplete(home) == []
+
+
 def test_a_failing_hub_api_is_a_clear_error_and_the_next_load_succeeds(faulty, tmp_path):
     faulty.inject({"match": r"GET /api/models/flt/base/revision/", "times": -1, "status": 503})
     home = tmp_path / "home"
@@ -137,7 +164,7 @@ def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partia
     home = tmp_path / "home"
     ref = f"flt/base@{faulty.sha}"
     faulty.inject(
-        {"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/data/", "action": "drop", "after_bytes": 64, "times": -1}
+        {"match": rf"GET /flt/base/resolve/{faulty.sha}/dataset/meta/", "action": "drop", "after_bytes": 64, "times": -1}
     )
     try:
         with hub_environment(faulty.endpoint, home):
@@ -157,25 +184,38 @@ def test_a_connection_dropped_mid_file_fails_clearly_and_leaves_no_usable_partia
     assert _incomplete(home) == []
 
 
-def test_a_server_killed_during_a_push_leaves_no_partial_commit_and_a_rerun_completes(faulty, tmp_path):
-    faulty.inject({"match": r"POST /api/models/flt/killed/commit/", "action": "exit", "after_bytes": 4096})
+@pytest.mark.parametrize(
+    "repo, during",
+    [
+        ("flt/killed", "PUT /flt/killed.git/info/lfs/objects/upload/"),  # the dataset's bytes, through LFS
+        ("flt/killed2", "POST /api/models/flt/killed2/commit/"),  # the commit that names them
+    ],
+    ids=["lfs-upload", "commit"],
+)
+def test_a_server_killed_during_a_push_leaves_no_partial_commit_and_a_rerun_completes(faulty, tmp_path, repo, during):
+    faulty.inject({"match": during, "action": "exit", "after_bytes": 1024})
     with hub_environment(faulty.endpoint, tmp_path / "home"):
         try:
             with pytest.raises(errors.HubError) as e:
-                push_env(TINY, "flt/killed", episodes=2, progress=False)
+                push_env(TINY, repo, episodes=2, progress=False)
             assert not faulty.server.running  # the fault killed the server mid-upload
         finally:  # whatever happened, the module's later tests need the server back
             faulty.heal()
             faulty.server.start()  # same root, same port; no-op if it still runs
-        # a connection reset mid-request: requests' ConnectionError, httpx's ReadError or WriteError
-        assert isinstance(e.value.__cause__, _compat.NETWORK_ERRORS), repr(e.value.__cause__)
-        assert "flt/killed" in str(e.value) and "cannot reach the Hub" in str(e.value)
-        commits = faulty.api.list_repo_commits("flt/killed")
-        assert len(commits) == 1 and faulty.api.list_repo_files("flt/killed") == [".gitattributes"]  # only create_repo's
+        # a connection reset mid-request (requests' ConnectionError, httpx's ReadError or WriteError), or, when
+        # the whole (small) body was sent, a connection closed without an answer (httpx's RemoteProtocolError)
+        # (1.x closes its client after a network error: other LFS upload threads then fail with "client has been closed")
+        cause = e.value.__cause__
+        assert isinstance(cause, _compat.NETWORK_ERRORS + _compat.TRANSFER_ERRORS) or "closed" in str(cause.__cause__), repr(
+            cause
+        )
+        assert repo in str(e.value) and any(s in str(e.value) for s in ("cannot reach the Hub", "broke off", "broke during"))
+        commits = faulty.api.list_repo_commits(repo)
+        assert len(commits) == 1 and faulty.api.list_repo_files(repo) == [".gitattributes"]  # only create_repo's
 
-        result = push_env(TINY, "flt/killed", episodes=2, progress=False)
+        result = push_env(TINY, repo, episodes=2, progress=False)
         assert result.created_commit
-        loaded = load_env(f"flt/killed@{result.sha}", trust_remote_code=True)
+        loaded = load_env(f"{repo}@{result.sha}", trust_remote_code=True)
         assert loaded.report.features.ok
         loaded.unregister()
 

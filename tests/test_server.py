@@ -232,6 +232,12 @@ def test_upload_folder_then_snapshot_and_file_downloads(shared, tmp_path):
         siblings = {s.rfilename: s for s in repo.siblings}
         for rel, data in files.items():  # blob ids are git blob sha1s, as on the Hub
             assert siblings[rel].size == len(data)
+            if rel.endswith(".bin"):  # in LFS (a *.bin pattern of the default .gitattributes): git holds a pointer
+                pointer = f"version https://git-lfs.github.com/spec/v1\noid sha256:{hashlib.sha256(data).hexdigest()}\nsize {len(data)}\n"
+                data = pointer.encode()
+                assert siblings[rel].lfs.sha256 == pointer.split("sha256:")[1].split()[0]
+            else:
+                assert siblings[rel].lfs is None
             assert siblings[rel].blob_id == hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
         assert shared.api.file_exists(f"{ns}/env", "assets/deep/x.bin", repo_type=repo_type)
         assert not shared.api.file_exists(f"{ns}/env", "assets/nope.bin", repo_type=repo_type)

@@ -46,6 +46,7 @@ def run(
     token: str | None = None,
     max_body_mb: float | None = None,
     max_line_mb: float | None = None,
+    max_lfs_mb: float | None = None,
 ) -> None:
     """Serve the repos under ``root`` on ``http://host:port`` until interrupted (SIGINT/SIGTERM).
 
@@ -66,14 +67,17 @@ def run(
         max_line_mb: largest line of a commit body in MiB (default 1024, or env
             ``HUB_ENVS_SERVER_MAX_LINE_MB``); a line carries one file in base64 (4/3 of its size) and
             is held in memory while it is stored. Larger: 413.
+        max_lfs_mb: largest file uploaded through Git LFS, in MiB (default 51200, the Hub's 50 GB, or env
+            ``HUB_ENVS_SERVER_MAX_LFS_MB``); LFS files are streamed to disk, never held in memory.
     """
     import uvicorn
 
     from hub_envs.server.storage import StoreError
 
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    logging.getLogger("hub_envs.server.lfs").setLevel(logging.INFO)  # one line per stored LFS object
     try:
-        app = create_app(root, token=token, max_body_mb=max_body_mb, max_line_mb=max_line_mb)
+        app = create_app(root, token=token, max_body_mb=max_body_mb, max_line_mb=max_line_mb, max_lfs_mb=max_lfs_mb)
     except (StoreError, ValueError) as err:
         raise SystemExit(f"hub-envs serve: {err}") from None
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -95,7 +99,8 @@ def run(
     shown_host = f"[{host}]" if family == socket.AF_INET6 else host
     access = "writes need the token" if token else "writes open to anyone"
     print(
-        f"hub-envs server: serving {app.state.hub.store.root} at http://{shown_host}:{bound_port} ({access})",
+        f"hub-envs server: serving {app.state.hub.store.root} at http://{shown_host}:{bound_port} ({access}); "
+        f"clients: HF_ENDPOINT=http://{shown_host}:{bound_port} HF_HUB_DISABLE_XET=1 (large files go through Git LFS)",
         file=sys.stderr,
         flush=True,
     )

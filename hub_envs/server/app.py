@@ -13,12 +13,16 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
   errors. A missing or private repo answers 401 to anonymous callers and 404 to authenticated ones.
 * Repo privacy comes as ``"private": bool`` (0.x clients) or ``"visibility"`` (1.x clients) in
   ``/api/repos/create`` and ``PUT .../settings``; both are understood, and repo info reports ``private``.
-* ``/preupload`` always answers ``uploadMode: "regular"``: file contents come inline, base64, in
-  the NDJSON commit payload, so no LFS or Xet endpoint exists here. It also returns the ``oid`` of
-  files already present, which lets the client skip no-op commits as it does against the Hub.
+* ``/preupload`` answers ``"lfs"`` or ``"regular"`` by the Hub's rules (the repo's ``.gitattributes``
+  LFS patterns, files over 10 MiB, binary samples), and the ``oid`` of files already present, which
+  lets the client skip no-op commits as it does against the Hub. Regular files come inline, base64,
+  in the NDJSON commit; LFS files through the Git LFS batch API (basic and multipart transfers,
+  streamed to disk, sha256-checked) and an ``lfsFile`` commit line: see :mod:`hub_envs.server.lfs`.
+  Xet is not offered (``xetEnabled: false``; ``/xet-*-token`` answers 501 naming ``HF_HUB_DISABLE_XET=1``).
 * A stale ``parentCommit`` is refused with 412 and the Hub's message.
-* ``/resolve`` answers HEAD and GET with ``X-Repo-Commit``, ``ETag`` (the git blob sha1),
-  ``Content-Length`` and ``Accept-Ranges``, and serves single ``Range`` requests with 206.
+* ``/resolve`` answers HEAD and GET with ``X-Repo-Commit``, ``ETag`` (the git blob sha1; for an
+  LFS file its sha256, also in ``X-Linked-Etag``, with ``X-Linked-Size``), ``Content-Length`` and
+  ``Accept-Ranges``, and serves single ``Range`` requests with 206.
 * Lists (tree, commits) are paged with a ``Link: <...>; rel="next"`` header.
 * Paths that could escape a repo (``..``, absolute, ``\\``, NUL, percent-encoded variants) get 400,
   as do control characters (C0, DEL, C1) and names over 255 bytes.
@@ -85,6 +89,8 @@ from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
 from hub_envs.server.faults import install_faults
+from hub_envs.server.lfs import LfsRoutes
+from hub_envs.server.lfs import logger as lfs_logger
 from hub_envs.server.pages import Pages, ResolveSandbox
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
@@ -208,6 +214,7 @@ class HubApp:
         max_body_mb: float | None = None,
         max_line_mb: float | None = None,
         allow_bytecode: bool | None = None,
+        max_lfs_mb: float | None = None,
     ):
         if fsync is None:
             fsync = os.environ.get("HUB_ENVS_SERVER_FSYNC", "1").lower() not in ("0", "false", "no")
@@ -228,6 +235,7 @@ class HubApp:
         self._cards: OrderedDict[str, dict | None] = OrderedDict()  # README sha256 -> cardData
         self._cards_guard = threading.Lock()
         self.pages = Pages(self)  # the web pages
+        self.lfs = LfsRoutes(self, max_lfs_mb=max_lfs_mb)  # Git LFS: preupload rules, batch API, uploads
 
     # -- entry point ---------------------------------------------------------------------------
 
@@ -304,6 +312,8 @@ class HubApp:
         repo_type, rest = "model", segs
         if rest and rest[0] in _PLURAL:
             repo_type, rest = _PLURAL[rest[0]], rest[1:]
+        if len(rest) >= 4 and rest[1].endswith(".git") and rest[2:4] == ["info", "lfs"]:  # Git LFS
+            return await self.lfs.route(ctx, repo_type, f"{rest[0]}/{rest[1][: -len('.git')]}", rest[4:])
         if len(rest) >= 4 and rest[2] == "resolve":
             repo_id, revision, path = f"{rest[0]}/{rest[1]}", rest[3], "/".join(rest[4:])
             handlers = {m: (lambda c: self.resolve(c, repo_type, repo_id, revision, path)) for m in ("GET", "HEAD")}
@@ -358,6 +368,8 @@ class HubApp:
                 body=True,
                 write=True,
             )
+        if action in ("xet-write-token", "xet-read-token"):  # Xet is not offered: say what to do instead
+            return await self._call(ctx, {m: self.lfs.no_xet for m in ("GET", "POST")})
         if action == "settings" and arg is None:
             return await self._call(ctx, {"PUT": lambda c: self.settings(c, repo_type, repo_id)}, body=True, write=True)
         raise HTTPError(404, f"Unknown API route /{'/'.join(ctx.segs)}.")
@@ -616,9 +628,7 @@ class HubApp:
         if meta.repo_type == "space":
             info["sdk"] = meta.sdk
         if siblings:
-            info["siblings"] = [
-                {"rfilename": p, **({"size": e.size, "blobId": e.oid} if blobs else {})} for p, e in sorted(commit.files.items())
-            ]
+            info["siblings"] = [{"rfilename": p, **(_sibling_blob(e) if blobs else {})} for p, e in sorted(commit.files.items())]
         return info
 
     def repo_info(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None) -> Response:
@@ -650,6 +660,8 @@ class HubApp:
             entry = commit.files.get(p)
             if entry is not None:
                 item = {"type": "file", "oid": entry.oid, "size": entry.size, "path": p}
+                if entry.lfs:
+                    item["lfs"] = {"oid": entry.sha256, "size": entry.size, "pointerSize": entry.pointer_size}
             else:
                 item = {"type": "directory", "oid": folder_oids[p], "size": 0, "path": p}
             if expand and p in last:
@@ -713,11 +725,14 @@ class HubApp:
         ascii_name = re.sub(r'[^\x20-\x7e]|"', "_", name)
         headers = {
             "X-Repo-Commit": commit.id,
-            "ETag": f'"{entry.oid}"',
+            "ETag": f'"{entry.sha256 if entry.lfs else entry.oid}"',
             "Accept-Ranges": "bytes",
             "Content-Disposition": f"inline; filename*=UTF-8''{quote(name)}; filename=\"{ascii_name}\";",
             "Content-Type": mimetypes.guess_type(name)[0] or "application/octet-stream",
         }
+        if entry.lfs:  # the Hub's answer for an LFS file: its sha256 and size, as the client checks them
+            headers["X-Linked-Etag"] = f'"{entry.sha256}"'
+            headers["X-Linked-Size"] = str(entry.size)
         start, end, status = 0, entry.size - 1, 200
         range_header = ctx.request.headers.get("range")
         if range_header:
@@ -729,6 +744,8 @@ class HubApp:
                 start, end = parsed
                 status = 206
                 headers["Content-Range"] = f"bytes {start}-{end}/{entry.size}"
+                if entry.lfs and ctx.method == "GET" and start > 0:  # a resumed download, typically
+                    lfs_logger.info("lfs: serving bytes %d-%d of %s (%s)", start, end, entry.sha256, path)
         length = max(end - start + 1, 0)
         headers["Content-Length"] = str(length)
         if ctx.method == "HEAD":
@@ -830,15 +847,7 @@ class HubApp:
             if not isinstance(path, str):
                 raise HTTPError(400, "Each file needs a 'path'.")
             validate_path(path)
-            existing = commit.files.get(path)
-            out.append(
-                {
-                    "path": path,
-                    "uploadMode": "regular",
-                    "shouldIgnore": False,
-                    "oid": existing.oid if existing else None,
-                }
-            )
+            out.append(self.lfs.preupload_answer(repo, commit, f))
         return _json({"files": out, "commitOid": commit.id})
 
     async def commit(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
@@ -933,14 +942,21 @@ class _CommitBuilder:
             self.operations.append(AddFile(path, self._store_file(path, value, content)))
         elif key == "lfsFile":
             validate_path(path)
-            oid = value.get("oid", "")
-            if not isinstance(oid, str) or value.get("algo", "sha256") != "sha256" or not self.repo.has_blob(oid):
+            oid, size = value.get("oid", ""), value.get("size")
+            if value.get("algo", "sha256") != "sha256":
+                raise HTTPError(400, f"Unsupported LFS algo {str(value.get('algo'))[:20]!r} for {path!r}: expected 'sha256'.")
+            have = self.repo.blob_size(oid) if isinstance(oid, str) else None
+            if have is None:
                 raise HTTPError(
                     400,
-                    f"LFS object {str(oid)[:64]} for {path!r} is not on this server: the hub-envs server takes file "
-                    "contents inline (preupload answers uploadMode 'regular').",
+                    f"LFS object {str(oid)[:64]} for {path!r} was never uploaded to {self.repo.repo_id}: upload it through "
+                    "the LFS batch API (.git/info/lfs/objects/batch) before the commit; huggingface_hub's create_commit "
+                    "does so (re-run it). Nothing was committed.",
+                    "LfsObjectMissing",
                 )
-            self.operations.append(AddFile(path, self.repo.blob_entry(oid)))
+            if size is not None and size != have:
+                raise HTTPError(400, f"LFS object {oid} for {path!r} is {have} bytes on this server, not {size}.")
+            self.operations.append(AddFile(path, self.repo.blob_entry(oid, lfs=True)))
         elif key == "deletedFile":
             self.operations.append(DeleteFile(path))
         elif key == "deletedFolder":
@@ -1162,6 +1178,13 @@ def _requested_private(data: dict, repo_type: str) -> bool | None:
     return from_visibility
 
 
+def _sibling_blob(entry) -> dict:
+    out: dict[str, Any] = {"size": entry.size, "blobId": entry.oid}
+    if entry.lfs:
+        out["lfs"] = {"sha256": entry.sha256, "size": entry.size, "pointerSize": entry.pointer_size}
+    return out
+
+
 def format_date_now() -> str:
     return format_date(now())
 
@@ -1365,6 +1388,7 @@ def create_app(
     max_body_mb: float | None = None,
     max_line_mb: float | None = None,
     allow_bytecode: bool | None = None,
+    max_lfs_mb: float | None = None,
 ) -> Starlette:
     """A Starlette app serving the repos stored under ``root``.
 
@@ -1384,6 +1408,8 @@ def create_app(
         allow_bytecode: store compiled Python bytecode in env repos too, as huggingface.co does
             (default off; env ``HUB_ENVS_SERVER_ALLOW_BYTECODE=1``): for tests of what clients do
             with a repo the real Hub would serve.
+        max_lfs_mb: largest file uploaded through Git LFS, in MiB (default 51200, the Hub's 50 GB; env
+            ``HUB_ENVS_SERVER_MAX_LFS_MB``). LFS files stream to disk; see :mod:`hub_envs.server.lfs`.
     """
     hub = HubApp(
         root,
@@ -1394,6 +1420,7 @@ def create_app(
         max_body_mb=max_body_mb,
         max_line_mb=max_line_mb,
         allow_bytecode=allow_bytecode,
+        max_lfs_mb=max_lfs_mb,
     )
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
     app = Starlette(routes=[Route("/{path:path}", hub.endpoint, methods=methods)])

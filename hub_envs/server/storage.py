@@ -65,54 +65,26 @@ _MAX_PATH_LEN = 1024
 _MAX_SEGMENT_BYTES = 255  # NAME_MAX of ext4, APFS, NTFS...: a longer name cannot be checked out
 _CONTROL_RE = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
-# What the Hub commits as ".gitattributes" when it creates a repo (abridged to the common patterns).
-DEFAULT_GITATTRIBUTES = "".join(
-    f"{pattern} filter=lfs diff=lfs merge=lfs -text\n"
-    for pattern in (
-        "*.7z",
-        "*.arrow",
-        "*.bin",
-        "*.bz2",
-        "*.ckpt",
-        "*.ftz",
-        "*.gz",
-        "*.h5",
-        "*.joblib",
-        "*.lfs.*",
-        "*.lz4",
-        "*.mds",
-        "*.mlmodel",
-        "*.model",
-        "*.msgpack",
-        "*.npy",
-        "*.npz",
-        "*.onnx",
-        "*.ot",
-        "*.parquet",
-        "*.pb",
-        "*.pickle",
-        "*.pkl",
-        "*.pt",
-        "*.pth",
-        "*.rar",
-        "*.safetensors",
-        "saved_model/**/*",
-        "*.tar.*",
-        "*.tar",
-        "*.tflite",
-        "*.tgz",
-        "*.wasm",
-        "*.xz",
-        "*.zip",
-        "*.zst",
-        "*tfevents*",
-        "*.mp3",
-        "*.wav",
-        "*.png",
-        "*.jpg",
-        "*.jpeg",
-        "*.webp",
-        "*.mp4",
+# What the Hub commits as ".gitattributes" when it creates a repo: its default LFS patterns (those of
+# a model repo, and the image, audio and video patterns of a dataset repo: env repos hold datasets).
+# The preupload answer follows them (see hub_envs.server.lfs).
+_LFS_PATTERNS = (
+    "*.7z *.arrow *.bin *.bz2 *.ckpt *.ftz *.gz *.h5 *.joblib *.lfs.* *.lz4 *.mds *.mlmodel *.model *.msgpack *.npy "
+    "*.npz *.onnx *.ot *.parquet *.pb *.pickle *.pkl *.pt *.pth *.rar *.safetensors saved_model/**/* *.tar.* *.tar "
+    "*.tflite *.tgz *.wasm *.xz *.zip *.zst *tfevents*"
+)
+_LFS_MEDIA = (
+    ("Audio files - uncompressed", "*.pcm *.sam *.raw"),
+    ("Audio files - compressed", "*.aac *.flac *.mp3 *.ogg *.wav"),
+    ("Image files - uncompressed", "*.bmp *.gif *.png *.tiff"),
+    ("Image files - compressed", "*.jpg *.jpeg *.webp"),
+    ("Video files - compressed", "*.mp4 *.webm"),
+)
+DEFAULT_GITATTRIBUTES = (
+    "".join(f"{p} filter=lfs diff=lfs merge=lfs -text\n" for p in _LFS_PATTERNS.split())
+    + "".join(
+        f"# {title}\n" + "".join(f"{p} filter=lfs diff=lfs merge=lfs -text\n" for p in patterns.split())
+        for title, patterns in _LFS_MEDIA
     )
 ).encode()
 
@@ -168,6 +140,16 @@ def git_blob_oid(data: bytes) -> str:
     digest = hashlib.sha1(b"blob %d\0" % len(data))
     digest.update(data)  # not `header + data`: that would copy a large file once more
     return digest.hexdigest()
+
+
+def lfs_pointer(sha256: str, size: int) -> bytes:
+    """The Git LFS pointer file of a blob: what git stores in the tree for a file kept in LFS."""
+    return f"version https://git-lfs.github.com/spec/v1\noid sha256:{sha256}\nsize {size}\n".encode()
+
+
+def lfs_entry(sha256: str, size: int) -> FileEntry:
+    """The :class:`FileEntry` of an LFS file: its git ``oid`` is the pointer's blob sha1."""
+    return FileEntry(oid=git_blob_oid(lfs_pointer(sha256, size)), sha256=sha256, size=size, lfs=True)
 
 
 def format_date(dt: datetime) -> str:
@@ -266,11 +248,22 @@ def validate_ref_name(name: str, kind: str = "branch") -> str:
 
 @dataclass(frozen=True)
 class FileEntry:
-    """A file in a commit's tree: its git blob ``oid`` (sha1), ``sha256`` (the blob's address) and ``size``."""
+    """A file in a commit's tree: its git blob ``oid`` (sha1), ``sha256`` (the blob's address) and ``size``.
+
+    ``lfs``: the file was committed through Git LFS (an ``lfsFile`` line). Git then holds a pointer
+    file (see :func:`lfs_pointer`), so ``oid`` is the git blob sha1 of the *pointer*, as on the Hub;
+    the content is the blob ``sha256``.
+    """
 
     oid: str
     sha256: str
     size: int
+    lfs: bool = False
+
+    @property
+    def pointer_size(self) -> int | None:
+        """Size of the LFS pointer file git holds (None for a regular file)."""
+        return len(lfs_pointer(self.sha256, self.size)) if self.lfs else None
 
 
 @dataclass(frozen=True)
@@ -296,7 +289,7 @@ class Commit:
                 "message": self.message,
                 "author": self.author,
                 "date": self.date,
-                "files": {p: [e.oid, e.sha256, e.size] for p, e in sorted(self.files.items())},
+                "files": {p: [e.oid, e.sha256, e.size, *([1] if e.lfs else [])] for p, e in sorted(self.files.items())},
             },
             separators=(",", ":"),
         ).encode()
@@ -312,7 +305,7 @@ class Commit:
             message=d["message"],
             author=d["author"],
             date=d["date"],
-            files={p: FileEntry(*v) for p, v in d["files"].items()},
+            files={p: FileEntry(v[0], v[1], v[2], bool(v[3]) if len(v) > 3 else False) for p, v in d["files"].items()},
         )
 
 
@@ -466,6 +459,10 @@ class HubStore:
         self._cache_guard = threading.Lock()
 
     # -- helpers --
+
+    def scratch_path(self, prefix: str = "") -> Path:
+        """A fresh path under ``tmp/`` (emptied when a store opens: nothing there is ever served)."""
+        return self.root / "tmp" / f"{prefix}{uuid.uuid4().hex}"
 
     def write_atomic(self, path: Path, data: bytes) -> None:
         """Write ``data`` to ``path`` so readers see the old or the new content, never a mix."""
@@ -669,10 +666,32 @@ class Repo:
     def has_blob(self, sha256: str) -> bool:
         return bool(re.fullmatch(r"[0-9a-f]{64}", sha256)) and self._blob_path(sha256).is_file()
 
-    def blob_entry(self, sha256: str) -> FileEntry:
-        """The :class:`FileEntry` of a blob already in the repo, by its sha256."""
+    def blob_size(self, sha256: str) -> int | None:
+        """The size of the blob ``sha256`` in this repo, or None if the repo does not hold it."""
+        if not re.fullmatch(r"[0-9a-f]{64}", sha256):
+            return None
+        try:
+            return self._blob_path(sha256).stat().st_size
+        except FileNotFoundError:
+            return None
+
+    def blob_entry(self, sha256: str, *, lfs: bool = False) -> FileEntry:
+        """The :class:`FileEntry` of a blob already in the repo, by its sha256 (``lfs``: as an LFS file,
+        whose content is never read here)."""
+        if lfs:
+            return lfs_entry(sha256, self._blob_path(sha256).stat().st_size)
         data = self._blob_path(sha256).read_bytes()
         return FileEntry(oid=git_blob_oid(data), sha256=sha256, size=len(data))
+
+    def adopt_blob(self, scratch: Path, sha256: str) -> None:
+        """Move a verified scratch file (under the store's ``tmp/``, its sha256 checked by the caller) to
+        its address; if the blob is there already, the scratch file is dropped."""
+        path = self._blob_path(sha256)
+        if path.exists():
+            scratch.unlink(missing_ok=True)
+            return
+        path.parent.mkdir(exist_ok=True)
+        os.replace(scratch, path)
 
     def open_blob(self, entry: FileEntry):
         """A binary file object on the content of ``entry``."""
