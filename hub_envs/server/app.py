@@ -111,6 +111,7 @@ from hub_envs.server.storage import (
     RepoNotFoundError,
     RevisionNotFoundError,
     StoreError,
+    folders_of,
     format_date,
     now,
     validate_path,
@@ -676,7 +677,7 @@ class HubApp:
         path = path.strip("/")
         if path:
             validate_path(path)
-        folders = _folders(commit.files)
+        folders = folders_of(commit.files)
         if path and path not in folders:
             raise EntryNotFoundError(
                 f"{path} does not exist on {revision!r}" if path not in commit.files else f"{path} is a file, not a folder"
@@ -705,7 +706,7 @@ class HubApp:
             expand = (form.get("expand", ["false"])[-1]).lower() in ("1", "true")
         if not isinstance(paths, list) or not all(isinstance(p, str) for p in paths):
             raise HTTPError(400, "'paths' must be a list of strings.")
-        folders = _folders(commit.files)
+        folders = folders_of(commit.files)
         found = []
         for p in paths:
             p = p.strip("/")
@@ -1187,14 +1188,6 @@ def _sibling_blob(entry) -> dict:
 
 def format_date_now() -> str:
     return format_date(now())
-
-
-def _folders(files) -> set[str]:
-    out: set[str] = set()
-    for p in files:
-        parts = p.split("/")
-        out.update("/".join(parts[:i]) for i in range(1, len(parts)))
-    return out
 
 
 def _is_unicode(text: str) -> bool:

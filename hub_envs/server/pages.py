@@ -53,7 +53,6 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from fnmatch import fnmatchcase
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -77,6 +76,7 @@ from hub_envs.server.storage import (
     RepoNotFoundError,
     RevisionNotFoundError,
     StoreError,
+    folders_of,
     validate_path,
 )
 
@@ -150,42 +150,6 @@ def format_size(n: int) -> str:
         if n < 1024 or unit == "TB":
             return f"{n:.1f} {unit}"
     raise AssertionError("unreachable")
-
-
-def lfs_patterns(gitattributes: str) -> list[str]:
-    """The patterns a ``.gitattributes`` sends through Git LFS (``filter=lfs``).
-
-    >>> lfs_patterns("*.parquet filter=lfs diff=lfs merge=lfs -text\\n# c\\n*.txt text\\n")
-    ['*.parquet']
-    """
-    out = []
-    for line in gitattributes.splitlines():
-        parts = line.split()
-        if parts and not parts[0].startswith("#") and "filter=lfs" in parts[1:]:
-            out.append(parts[0])
-    return out
-
-
-def matches_lfs(path: str, patterns: list[str]) -> bool:
-    """Whether ``path`` matches one of the LFS ``patterns`` (gitattributes rules: a pattern without
-    ``/`` matches the file name in any folder; one with ``/`` matches from the repo root).
-
-    >>> matches_lfs("dataset/data/chunk-000/file-000.parquet", ["*.parquet"])
-    True
-    >>> matches_lfs("saved_model/a/b.pb", ["saved_model/**/*"]), matches_lfs("env.py", ["*.parquet"])
-    (True, False)
-    """
-    name = path.rsplit("/", 1)[-1]
-    for pattern in patterns:
-        if "/" in pattern.rstrip("/"):
-            if fnmatchcase(path, pattern.lstrip("/").replace("**/", "*")):
-                return True
-        elif fnmatchcase(name, pattern):
-            return True
-    return False
-
-
-# --- Markdown ---------------------------------------------------------------------------------
 
 
 def _highlight_code(code: str, lang: str, _attrs: str) -> str:
@@ -476,7 +440,7 @@ class Pages:
             raw = f.read(MAX_CARD_BYTES + 1)
         text = raw[:MAX_CARD_BYTES].decode("utf-8", "replace")
         body = strip_front_matter(text)
-        links = _Links(base, commit.id, _folders(commit.files))
+        links = _Links(base, commit.id, folders_of(commit.files))
         card = _Card(card_title(body), render_markdown(body, links), truncated=len(raw) > MAX_CARD_BYTES)
         with self._guard:
             self._cards[key] = card
@@ -566,11 +530,10 @@ class Pages:
             validate_path(path)
         c = self._context(ctx, repo_type, repo_id, revision)
         repo, commit = c["repo"], c["commit"]
-        folders = _folders(commit.files)
+        folders = folders_of(commit.files)
         if path and path not in folders:
             what = "a file, not a folder" if path in commit.files else "not in this revision"
             raise PageError(404, "Folder not found", f"{path} is {what} ({repo.repo_id} at {c['rev']}).")
-        patterns = lfs_patterns(_read_text(repo, commit, ".gitattributes") or "")
         prefix = f"{path}/" if path else ""
         entries = []
         for p in sorted(folders | set(commit.files)):
@@ -581,9 +544,7 @@ class Pages:
                 count = sum(1 for f in commit.files if f.startswith(p + "/"))
                 entries.append({"name": p[len(prefix) :], "path": p, "folder": True, "count": count})
             else:
-                entries.append(
-                    {"name": p[len(prefix) :], "path": p, "folder": False, "size": entry.size, "lfs": matches_lfs(p, patterns)}
-                )
+                entries.append({"name": p[len(prefix) :], "path": p, "folder": False, "size": entry.size, "lfs": entry.lfs})
         entries.sort(key=lambda e: (not e["folder"], e["name"].lower()))
         card = self._card(repo, commit, c["base"]) if not path else None
         data = self.hub._card_data(repo, commit) if not path else None
@@ -617,7 +578,7 @@ class Pages:
         repo, commit = c["repo"], c["commit"]
         entry = commit.files.get(path)
         if entry is None:
-            if path in _folders(commit.files):
+            if path in folders_of(commit.files):
                 raise PageError(404, "File not found", f"{path} is a folder ({repo.repo_id} at {c['rev']}).")
             raise PageError(404, "File not found", f"No file {path} in {repo.repo_id} at {c['rev']}.")
         ext = posixpath.splitext(path)[1].lower()
@@ -633,7 +594,6 @@ class Pages:
             text = _as_text(data)
             if text is not None:
                 kind, code = "text", self._highlighted(entry.sha256, path, text)
-        patterns = lfs_patterns(_read_text(repo, commit, ".gitattributes") or "")
         return self._render(
             "blob.html",
             **c,
@@ -643,7 +603,7 @@ class Pages:
             kind=kind,
             code=code,
             raw_url=raw_url,
-            lfs=matches_lfs(path, patterns),
+            lfs=entry.lfs,
             media_type=mimetypes.guess_type(path)[0] or "application/octet-stream",
         )
 
@@ -701,14 +661,6 @@ def strip_front_matter(text: str) -> str:
     """
     match = _FRONT_RE.match(text)
     return text[match.end() :] if match else text
-
-
-def _folders(files) -> set[str]:
-    out: set[str] = set()
-    for p in files:
-        parts = p.split("/")
-        out.update("/".join(parts[:i]) for i in range(1, len(parts)))
-    return out
 
 
 def _thumbnail(commit: Commit) -> str | None:

@@ -917,3 +917,16 @@ def _file_folder_clash(files: Mapping[str, FileEntry]) -> str | None:
             if prefix in files:
                 return f"Cannot have both a file {prefix!r} and a file {path!r} under a folder of the same name."
     return None
+
+
+def folders_of(files) -> set[str]:
+    """Every folder that holds one of ``files`` (paths), at any depth: ``{"a", "a/b"}`` for ``a/b/c.txt``.
+
+    >>> sorted(folders_of(["a/b/c.txt", "d.txt"]))
+    ['a', 'a/b']
+    """
+    out: set[str] = set()
+    for p in files:
+        parts = p.split("/")
+        out.update("/".join(parts[:i]) for i in range(1, len(parts)))
+    return out
