@@ -1371,19 +1371,8 @@ def _parse_range(header: str, size: int):
     return max(size - last, 0), size - 1
 
 
-def create_app(
-    root: str | os.PathLike,
-    token: str | None = None,
-    *,
-    page_size: int | None = None,
-    user: str | None = None,
-    fsync: bool | None = None,
-    max_body_mb: float | None = None,
-    max_line_mb: float | None = None,
-    allow_bytecode: bool | None = None,
-    max_lfs_mb: float | None = None,
-) -> Starlette:
-    """A Starlette app serving the repos stored under ``root``.
+def create_app(root: str | os.PathLike, token: str | None = None, **options: Any) -> Starlette:
+    """A Starlette app serving the repos stored under ``root``; ``options`` are :class:`HubApp`'s.
 
     Args:
         root: the store folder (created if missing). One server process per root.
@@ -1404,17 +1393,7 @@ def create_app(
         max_lfs_mb: largest file uploaded through Git LFS, in MiB (default 51200, the Hub's 50 GB; env
             ``HUB_ENVS_SERVER_MAX_LFS_MB``). LFS files stream to disk; see :mod:`hub_envs.server.lfs`.
     """
-    hub = HubApp(
-        root,
-        token,
-        page_size=page_size,
-        user=user,
-        fsync=fsync,
-        max_body_mb=max_body_mb,
-        max_line_mb=max_line_mb,
-        allow_bytecode=allow_bytecode,
-        max_lfs_mb=max_lfs_mb,
-    )
+    hub = HubApp(root, token, **options)
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
     app = Starlette(routes=[Route("/{path:path}", hub.endpoint, methods=methods)])
     app.state.hub = hub
