@@ -388,6 +388,120 @@ def _resolve_local(path: Path) -> tuple[str, str, Path, Manifest, EnvFolder | No
     return f"local/{path.name}", f"local-{manifest.content_digest[:12]}", path, manifest, folder
 
 
+def _checked_config(config_class: type, manifest: Manifest, set_fields: Mapping[str, Any], where: str) -> Any:
+    """The env's config (its defaults with ``set_fields``), refused when it is not what the manifest recorded."""
+    validate_config_class(config_class, where=where)
+    config = instantiate_config(config_class, where=where, overrides=set_fields)
+    if manifest.config:
+        diffs = config_differences(manifest.config, encode_config(config))
+        if diffs:
+            what = "the code's defaults" if not set_fields else f"what the code computes from {dict(set_fields)}"
+            raise InvalidRepoFormatError(
+                f"{where}: the manifest's config values differ from {what}:\n  "
+                + "\n  ".join(diffs)
+                + "\nRe-publish with push_env so the manifest matches the code."
+            )
+    return config
+
+
+def _check_processors(loaded: LoadedEnv, *, dry: bool, where: str) -> None:
+    """The env processors the repo declares: well formed, buildable, and (``dry``) run once on a live observation."""
+    from hub_envs.processors import specs_for, validate_for
+
+    if loaded.isolation is not None and loaded.isolation.isolated:
+        own = [sp.name for sp in specs_for(loaded) if ":" in sp.entry_point]
+        if own:
+            raise IsolationUnavailableError(
+                f"{where} declares env processors from its own code ({', '.join(own)}), which would run in this "
+                f"process; isolation does not support those yet (built-in and LeRobot-registry steps work). "
+                f"Load it with isolation='none'."
+            )
+    validate_for(loaded, dry=dry)  # ProcessorError names the malformed field
+
+
+@dataclasses.dataclass(frozen=True)
+class _Source:
+    """Stages 1-3 of a load, done: where the env comes from (resolved), verified, and its code consented to."""
+
+    repo: str
+    sha: str
+    path: Path
+    manifest: Manifest
+    local_folder: Path | None
+    requested: str | None
+
+
+def _resolve_source(
+    repo_id: str | os.PathLike,
+    *,
+    revision: str | None,
+    trust_remote_code: bool,
+    config: Mapping[str, Any] | None,
+    token: str | None,
+    cache_dir: str | Path | None,
+    report: LoadReport,
+    timings: dict[str, float],
+    t0: float,
+) -> _Source:
+    """Resolve (a local folder, or a Hub repo@revision to a commit), verify (every file against the manifest)
+    and pass the trust gate; nothing of the repo is imported. Fills ``report``'s integrity and trust lines."""
+    local_folder = None
+    original, repo_id = repo_id, os.fspath(repo_id)
+    path_candidate = Path(repo_id).expanduser()
+    if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
+        raise EnvFolderError(
+            f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
+            f"or a Hub repo id such as 'user/name'."
+        )
+    explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
+    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.fullmatch(repo_id))
+    if path_candidate.is_dir() and not use_local:
+        # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
+        # without consent, so it must never be picked by accident
+        warnings.warn(
+            f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
+            f"'./{repo_id}' to load the folder instead.",
+            stacklevel=3,
+        )
+    if config and not use_local:
+        raise ConfigError(
+            f"load_env({repo_id!r}, config=...): config fields can be set for a local folder only; a Hub repo's config "
+            f"is the one it published. Publish a variant with push_env --config.<field>=<value>."
+        )
+    if use_local:
+        repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
+        if config:  # another variant of the folder: other names, so both can be loaded at once
+            variant = json.dumps(dict(config), sort_keys=True, default=str)
+            sha = "local-" + hashlib.sha256(f"{manifest.content_digest}\0{variant}".encode()).hexdigest()[:12]
+            manifest = dataclasses.replace(manifest, config_overrides=dict(config))
+        local_folder = path
+        requested = None
+        if folder is None:
+            manifest.verify_files(path, where=str(path))
+            report.integrity = f"{len(manifest.files)} files match the manifest"
+        else:
+            report.integrity = "local folder (hashed, not verified)"
+        report.trust = "local folder"
+    else:
+        repo, at_rev = hub_io.parse_repo_ref(repo_id)
+        requested = revision or at_rev
+        trusted = trust_list.read_trust_list()  # before any download: nothing a download writes can change it
+        snap, manifest = _fetch_and_verify(repo, requested, token=token, cache_dir=cache_dir)
+        timings["fetch_verify"] = time.perf_counter() - t0
+        report.integrity = f"{len(manifest.files)} files match the manifest"
+        sha, path = snap.sha, snap.path
+        _check_content_tag(requested, manifest, f"{repo}@{sha}")
+        if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
+            warnings.warn(
+                f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
+                f'load_env("{repo}@{sha}")',
+                UnpinnedRevisionWarning,
+                stacklevel=3,
+            )
+        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
+    return _Source(repo, sha, path, manifest, local_folder, requested)
+
+
 def load_env(
     repo_id: str,
     *,
@@ -409,6 +523,10 @@ def load_env(
     sandbox_limits: dict[str, int] | None = None,
 ) -> LoadedEnv:
     """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
+
+    The stages, in order: resolve, verify and trust (:func:`_resolve_source`), requirements, import (from
+    :func:`hub_envs.code_copy.code_copy`) and register with the config checked against the manifest
+    (:func:`_checked_config`), then the load checks and the env processors (:func:`_check_processors`).
 
     Args:
         repo_id: a Hub repo id, optionally ``@revision``, or the path of a local env folder.
@@ -451,64 +569,23 @@ def load_env(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     report = LoadReport()
-    local_folder = None
     if not isinstance(repo_id, (str, os.PathLike)) or not str(repo_id).strip():
         raise ConfigError(
             f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}."
         )
-    original, repo_id = repo_id, os.fspath(repo_id)
-    path_candidate = Path(repo_id).expanduser()
-    if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
-        raise EnvFolderError(
-            f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
-            f"or a Hub repo id such as 'user/name'."
-        )
-    explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
-    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.fullmatch(repo_id))
-    if path_candidate.is_dir() and not use_local:
-        # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
-        # without consent, so it must never be picked by accident
-        warnings.warn(
-            f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
-            f"'./{repo_id}' to load the folder instead.",
-            stacklevel=2,
-        )
-    if config and not use_local:
-        raise ConfigError(
-            f"load_env({repo_id!r}, config=...): config fields can be set for a local folder only; a Hub repo's config "
-            f"is the one it published. Publish a variant with push_env --config.<field>=<value>."
-        )
-    if use_local:
-        repo, sha, path, manifest, folder = _resolve_local(path_candidate.resolve())
-        if config:  # another variant of the folder: other names, so both can be loaded at once
-            variant = json.dumps(dict(config), sort_keys=True, default=str)
-            sha = "local-" + hashlib.sha256(f"{manifest.content_digest}\0{variant}".encode()).hexdigest()[:12]
-            manifest = dataclasses.replace(manifest, config_overrides=dict(config))
-        local_folder = path
-        requested = None
-        if folder is None:
-            manifest.verify_files(path, where=str(path))
-            report.integrity = f"{len(manifest.files)} files match the manifest"
-        else:
-            report.integrity = "local folder (hashed, not verified)"
-        report.trust = "local folder"
-    else:
-        repo, at_rev = hub_io.parse_repo_ref(repo_id)
-        requested = revision or at_rev
-        trusted = trust_list.read_trust_list()  # before any download: nothing a download writes can change it
-        snap, manifest = _fetch_and_verify(repo, requested, token=token, cache_dir=cache_dir)
-        timings["fetch_verify"] = time.perf_counter() - t0
-        report.integrity = f"{len(manifest.files)} files match the manifest"
-        sha, path = snap.sha, snap.path
-        _check_content_tag(requested, manifest, f"{repo}@{sha}")
-        if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
-            warnings.warn(
-                f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
-                f'load_env("{repo}@{sha}")',
-                UnpinnedRevisionWarning,
-                stacklevel=2,
-            )
-        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
+    src = _resolve_source(
+        repo_id,
+        revision=revision,
+        trust_remote_code=trust_remote_code,
+        config=config,
+        token=token,
+        cache_dir=cache_dir,
+        report=report,
+        timings=timings,
+        t0=t0,
+    )
+    repo, sha, path, manifest = src.repo, src.sha, src.path, src.manifest
+    local_folder, requested = src.local_folder, src.requested
     where = f"{repo}@{sha}"
 
     t = time.perf_counter()
@@ -547,22 +624,11 @@ def load_env(
                     f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
                     f"env itself, under names unique to the repo and commit."
                 )
-            if not iso.isolated:
-                validate_config_class(config_class, where=where)
-                set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
-                loaded_config = instantiate_config(config_class, where=where, overrides=set_fields)
+            if iso.isolated:
+                config = isolated_config
             else:
-                set_fields, loaded_config = {}, isolated_config
-            if manifest.config and not iso.isolated:
-                diffs = config_differences(manifest.config, encode_config(loaded_config))
-                if diffs:
-                    what = "the code's defaults" if not set_fields else f"what the code computes from {set_fields}"
-                    raise InvalidRepoFormatError(
-                        f"{where}: the manifest's config values differ from {what}:\n  "
-                        + "\n  ".join(diffs)
-                        + "\nRe-publish with push_env so the manifest matches the code."
-                    )
-            config = loaded_config
+                set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
+                config = _checked_config(config_class, manifest, set_fields, where)
             qualifier = sha[:12] if not sha.startswith("local-") else sha
             suffix = _isolation_suffix(iso) if iso.isolated else ""
             reg = registration.register(
@@ -597,20 +663,8 @@ def load_env(
                 t = time.perf_counter()
                 _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps, key=checks_key, cached=cached_checks)
                 timings["checks"] = time.perf_counter() - t
-            if manifest.processors and iso.isolated:
-                from hub_envs.processors import specs_for
-
-                own = [sp.name for sp in specs_for(loaded) if ":" in sp.entry_point]
-                if own:
-                    raise IsolationUnavailableError(
-                        f"{where} declares env processors from its own code ({', '.join(own)}), which would run in this "
-                        f"process; isolation does not support those yet (built-in and LeRobot-registry steps work). "
-                        f"Load it with isolation='none'."
-                    )
             if manifest.processors:
-                from hub_envs.processors import validate_for
-
-                validate_for(loaded, dry=check)  # ProcessorError names the malformed field
+                _check_processors(loaded, dry=check, where=where)
     except BaseException:
         if not imported_before and not iso.isolated:
             forget_env_folder(key)
