@@ -233,6 +233,24 @@ def _run_episodes(
             rep.close()
 
 
+def _dataset_notes(provenance: dict[str, Any]) -> list[str]:
+    """What the provenance says about the dataset itself: changed after publishing, or recorded by other code."""
+    notes = []
+    published = provenance.get("published_dataset_fingerprint")
+    if published and provenance["dataset_fingerprint"] != published:
+        notes.append(
+            "the dataset's files differ from the fingerprint the manifest was published with: "
+            "the dataset was changed after push_env wrote it"
+        )
+    recorded_by = provenance.get("dataset_code_digest")
+    if recorded_by and recorded_by != provenance["code_digest"]:
+        notes.append(
+            f"the dataset was recorded by other code (code digest {str(recorded_by)[:16]}…) than this commit holds "
+            f"({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded"
+        )
+    return notes
+
+
 def reproduce(
     repo_id: str,
     *,
@@ -255,6 +273,10 @@ def reproduce(
     step_timeout: float | None = None,
 ) -> ReproduceReport:
     """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
+
+    The stages: load (checks on, fingerprint off), provenance and what it says of the dataset
+    (:func:`_dataset_notes`), the fingerprint (:func:`_fingerprint`), the episodes of the replay and the
+    benchmarks in one pass (:func:`_run_episodes`), the report (written unless ``write=False``).
 
     Args:
         repo_id: ``user/name`` (``@rev`` allowed) or a local folder of a published repo.
@@ -301,21 +323,7 @@ def reproduce(
     try:
         dataset_root = loaded.dataset_root
         provenance = _provenance(loaded, dataset_root)
-        notes: list[str] = []
-        if dataset_root is not None:
-            if (
-                provenance.get("published_dataset_fingerprint")
-                and provenance["dataset_fingerprint"] != provenance["published_dataset_fingerprint"]
-            ):
-                notes.append(
-                    "the dataset's files differ from the fingerprint the manifest was published with: "
-                    "the dataset was changed after push_env wrote it"
-                )
-            if provenance.get("dataset_code_digest") and provenance["dataset_code_digest"] != provenance["code_digest"]:
-                notes.append(
-                    f"the dataset was recorded by other code (code digest {str(provenance['dataset_code_digest'])[:16]}…) "
-                    f"than this commit holds ({provenance['code_digest'][:16]}…): the env's code changed after the data was recorded"
-                )
+        notes = _dataset_notes(provenance) if dataset_root is not None else []
         timings["provenance"] = time.perf_counter() - t0 - timings["load"]
         t = time.perf_counter()
         fp = _fingerprint(loaded)
