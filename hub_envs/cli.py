@@ -15,6 +15,7 @@ Every hub-envs error is printed as one message (what failed, what to do next) wi
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
@@ -75,15 +76,7 @@ def serve(args: ServeArgs) -> int:
             f"hub-envs serve needs {exc.name}, which is not installed. Install the server extra: pip install 'hub-envs[server]'"
         ) from None
 
-    run(
-        root=args.root,
-        host=args.host,
-        port=args.port,
-        token=args.token,
-        max_body_mb=args.max_body_mb,
-        max_line_mb=args.max_line_mb,
-        max_lfs_mb=args.max_lfs_mb,
-    )
+    run(**dataclasses.asdict(args))  # ServeArgs' fields are run()'s keywords
     return 0
 
 

@@ -347,25 +347,14 @@ class HubApp:
             # An error answered before the whole body is read is fine: the server (uvicorn) reads
             # and discards the rest, so the client still gets the answer.
             return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
-        if action == "branch" and arg is not None:
-            branch = "/".join(rest[1:])
-            return await self._call(
-                ctx,
-                {
-                    "POST": lambda c: self.create_branch(c, repo_type, repo_id, branch),
-                    "DELETE": lambda c: self.delete_branch(c, repo_type, repo_id, branch),
-                },
-                body=True,
-                write=True,
+        if action in ("branch", "tag") and arg is not None:  # create (POST) or delete (DELETE) a ref
+            ref = "/".join(rest[1:])
+            create, delete = (
+                (self.create_branch, self.delete_branch) if action == "branch" else (self.create_tag, self.delete_tag)
             )
-        if action == "tag" and arg is not None:
-            name = "/".join(rest[1:])
             return await self._call(
                 ctx,
-                {
-                    "POST": lambda c: self.create_tag(c, repo_type, repo_id, name),
-                    "DELETE": lambda c: self.delete_tag(c, repo_type, repo_id, name),
-                },
+                {"POST": lambda c: create(c, repo_type, repo_id, ref), "DELETE": lambda c: delete(c, repo_type, repo_id, ref)},
                 body=True,
                 write=True,
             )
