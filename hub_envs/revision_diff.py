@@ -406,15 +406,15 @@ class DiffReport:
         return "\n".join(out) + "\n"
 
     def _plot(self, path: Path) -> bool:
+        shown = self.diverged[:3]
+        if not shown:  # nothing to plot: no matplotlib import either
+            return False
         try:
             import matplotlib
 
             matplotlib.use("Agg")
             import matplotlib.pyplot as plt
         except ImportError:
-            return False
-        shown = self.diverged[:3]
-        if not shown:
             return False
         fig, axes = plt.subplots(len(shown), 1, figsize=(7, 2.4 * len(shown)), squeeze=False)
         for ax, s in zip(axes[:, 0], shown, strict=True):

@@ -75,8 +75,11 @@ def test_changed_dynamics_exit_1_naming_the_first_divergent_step_and_feature(bas
     else:
         assert (tmp_path / "o" / "report.png").is_file()
     # two different repos compare the same way (the old one's recorded actions drive both)
-    across = diff(f"alice/tiny@{old}", f"alice/tiny@{new}", trust_remote_code=True, write=False, random_episodes=0)
-    assert across.exit_code == 1 and len(across.seeds) == 2
+    other = _push(stronger, "bob/tiny-stronger").sha
+    across = diff(f"alice/tiny@{old}", f"bob/tiny-stronger@{other}", trust_remote_code=True, write=False, random_episodes=0)
+    assert across.exit_code == 1 and len(across.seeds) == 2 and across.new["repo_id"] == "bob/tiny-stronger"
+    assert (across.first_divergence.step, across.first_divergence.feature) == (0, "next.reward")
+    assert across.files["code"]["changed"] == ["dynamics.py"]
 
 
 def test_a_readme_only_change_exits_0_with_the_file_listed(base, tmp_path, capsys):
