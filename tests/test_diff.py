@@ -5,6 +5,8 @@ publishes its own revisions."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -148,3 +150,33 @@ def test_bad_input_exits_2_with_a_typed_error(base, capsys):
     assert "alice/nothing-here" in err and "error:" in err
     with pytest.raises(errors.ConfigError, match="episodes=-1"):
         diff(f"alice/tiny@{sha}", f"alice/tiny@{sha}", episodes=-1, write=False)
+
+
+def test_a_changed_action_shape_is_a_space_change_and_no_episode_is_forced(base, tmp_path):
+    _hub, old = base
+    two_forces = copy_env(
+        tmp_path,
+        edits={
+            "tiny.py": lambda t: (
+                t.replace("spaces.Box(-1.0, 1.0, (1,), np.float32)", "spaces.Box(-1.0, 1.0, (2,), np.float32)")
+                .replace("np.asarray(action, dtype=np.float64)", "np.asarray(action, dtype=np.float64)[:1]")
+                .replace(
+                    "PolicyFeature(type=FeatureType.ACTION, shape=(1,))", "PolicyFeature(type=FeatureType.ACTION, shape=(2,))"
+                )
+            )
+        },
+    )
+    new = _push(two_forces, "alice/tiny-actions").sha
+    report = diff(f"alice/tiny@{old}", f"alice/tiny-actions@{new}", trust_remote_code=True, write=False)
+    assert report.exit_code == 1
+    assert {"space": "action_space", "field": "shape", "old": [1], "new": [2]} in report.spaces
+    assert report.seeds == [] and any("action space changed" in n for n in report.notes)
+
+
+def test_diff_help_imports_neither_torch_nor_lerobot():
+    code = (
+        "import sys\nfrom hub_envs.cli import main\ntry:\n    main(['diff', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print('HEAVY', sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'lerobot', 'gymnasium')))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "HEAVY []" in out.stdout and "--random_episodes" in out.stdout, out.stdout[-500:] + out.stderr[-500:]
