@@ -7,9 +7,9 @@
 2. **Behavioural**: both revisions loaded side by side in this process (each ``repo@sha`` has its own gym
    id), their observation and action spaces compared (a change is reported as a *space change*), then the
    same episodes run on both: the old revision's recorded dataset actions for its first ``episodes``
-   episodes (with their recorded seeds) plus ``random_episodes`` seeded random-action episodes (the old
-   manifest's fingerprint seeds first). Per seed: the first divergent step, feature and element with both
-   values, and the per-step error curves. The golden fingerprints are compared (recorded and recomputed),
+   episodes (with their recorded seeds) plus ``random_episodes`` seeded random-action episodes on other seeds.
+   Per seed: the first divergent step, feature and element with both
+   values, and the per-step error curves. The golden fingerprints are compared (recorded, and recomputed on both),
    and the paired per-seed return / success deltas get a seed-paired bootstrap CI.
 3. ``report.json``, ``report.md`` and (with matplotlib) ``report.png`` in ``out``.
 
@@ -513,8 +513,8 @@ def diff(
     Args:
         old, new: ``user/name@rev`` (a branch, tag or sha; pin shas for a reproducible diff) or local folders.
         episodes: replay the old revision's recorded actions of its first ``episodes`` dataset episodes on both.
-        random_episodes: also run this many seeded random-action episodes on both (the old manifest's
-            fingerprint seeds first, then the next integers).
+        random_episodes: also run this many seeded random-action episodes on both (seeds 0, 1, ... other than the
+            replayed episodes' seeds).
         trust_remote_code: consent to run both revisions' code (or trust each commit with ``hub-envs trust``).
         tolerance: largest absolute difference that still counts as identical (0: bit-exact).
         out: folder for report.json/.md/.png (default ``diff-out/<user>/<name>/``); ``write=False``: none.
@@ -528,7 +528,7 @@ def diff(
         hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
     """
     from hub_envs import __version__
-    from hub_envs.harness.checks import FINGERPRINT_STEPS, fingerprint_of
+    from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
     from hub_envs.harness.provenance import package_versions
     from hub_envs.harness.replay import _env_actions
     from hub_envs.harness.rollout import run_episodes
@@ -568,8 +568,10 @@ def diff(
             recorded = _recorded_actions(a, episodes)
             if episodes and not recorded:
                 notes.append(f"{a.repo_id}@{a.revision[:12]} has no dataset with seeds: no recorded actions to replay")
-            fp_seeds = [int(s) for s in a.manifest.fingerprint.get("seeds", [])]
-            random_seeds = (fp_seeds + [s for s in range(10_000) if s not in fp_seeds])[:random_episodes]
+            # random-action seeds other than the replayed episodes' (push_env records seeded random actions: the same seed
+            # would repeat a recorded episode)
+            used = {s for _, s, _ in recorded}
+            random_seeds = [s for s in range(len(used) + random_episodes + 1) if s not in used][:random_episodes]
             seeds = [s for _, s, _ in recorded] + random_seeds
             policy = [_env_actions(acts, action_space, f"{a.repo_id}@{a.revision[:12]}") for _, _, acts in recorded]
             policy += [None] * len(random_seeds)
@@ -593,13 +595,12 @@ def diff(
             sources = [f"recorded actions of episode {i}" for i, _, _ in recorded] + ["random actions"] * len(random_seeds)
             for ra, rb, src in zip(runs[0], runs[1], sources, strict=True):
                 seeds_out.append(_compare(ra, rb, ra.seed, src, names, tolerance))
-            # the golden fingerprint, recomputed from the random-action episodes when they cover its seeds
+            # the golden fingerprint of both, recomputed here on the old manifest's seeds and steps (a few short episodes)
             fp = a.manifest.fingerprint
-            k = len(recorded)
-            if fp and random_seeds[: len(fp_seeds)] == fp_seeds and fp_seeds:
-                steps = int(fp.get("steps", FINGERPRINT_STEPS))
-                live_a = fingerprint_of(runs[0][k : k + len(fp_seeds)], steps=steps)
-                live_b = fingerprint_of(runs[1][k : k + len(fp_seeds)], steps=steps)
+            if fp and fp.get("seeds"):
+                fp_seeds, steps = [int(s) for s in fp["seeds"]], int(fp.get("steps", FINGERPRINT_STEPS))
+                live_a = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)
+                live_b = golden_fingerprint(b.make, seeds=fp_seeds, steps=steps)
         timings["behaviour"] = time.perf_counter() - t
         deltas: dict[str, Any] = {}
         if seeds_out:

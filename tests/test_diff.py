@@ -42,6 +42,7 @@ def test_a_revision_against_itself_is_identical_and_exits_0(base, tmp_path, caps
     assert [s["source"] for s in report["seeds"]] == ["recorded actions of episode 0", "recorded actions of episode 1"] + [
         "random actions"
     ] * 2
+    assert [s["seed"] for s in report["seeds"]] == [0, 1, 2, 3]  # random actions on seeds the dataset did not replay
     assert not any(s["diverged"] for s in report["seeds"])
     assert report["fingerprint"]["same"] and report["fingerprint"]["live_old"] == report["fingerprint"]["recorded_old"]
     assert report["deltas"]["return"]["mean"] == 0.0 and report["deltas"]["return"]["ci"] == [0.0, 0.0]
