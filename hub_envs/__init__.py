@@ -27,6 +27,8 @@ _EXPORTS = {
     "is_trusted": "hub_envs.trust_list",
     "Manifest": "hub_envs.repo_format",
     "reproduce": "hub_envs.reproduction",
+    "diff": "hub_envs.revision_diff",
+    "DiffReport": "hub_envs.revision_diff",
     "env_from_dataset": "hub_envs.from_dataset",
     "IsolationOptions": "hub_envs.isolation.proxy",
     "IsolatedEnv": "hub_envs.isolation.proxy",
@@ -45,6 +47,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401
     from hub_envs.reproduction import reproduce  # noqa: F401
+    from hub_envs.revision_diff import DiffReport, diff  # noqa: F401
     from hub_envs.trust_list import is_trusted, trust, untrust  # noqa: F401
 
 

@@ -227,6 +227,7 @@ RAW_COMMANDS = {
 #: ``--help`` or the light commands above (each module has a ``CLI_COMMANDS`` table).
 LAZY_COMMANDS = {
     "reproduce": "hub_envs.reproduction",
+    "diff": "hub_envs.revision_diff",
     "train": "hub_envs.lerobot.bridge",
     "eval": "hub_envs.lerobot.bridge",
 }
@@ -237,6 +238,7 @@ SUMMARIES = {
     "trust": "trust one commit of a repo: hub-envs trust user/name@<sha>",
     "untrust": "forget the trust entries of a repo: hub-envs untrust user/name[@<sha>]",
     "reproduce": "re-run what a repo recorded (dataset replay, benchmarks, fingerprint) and report",
+    "diff": "what changed between two revisions (files, manifest, spaces) and where their behaviour diverges",
     "train": "LeRobot's lerobot-train with a hub env (--env.type=hub --env.repo_id=...)",
     "eval": "LeRobot's lerobot-eval with a hub env (--env.type=hub --env.repo_id=...)",
 }

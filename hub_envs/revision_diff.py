@@ -1,0 +1,698 @@
+"""``hub-envs diff``: what changed between two revisions of an env repo (or two env repos), and does it behave differently?
+
+1. **Static** (the two manifests alone, no code run): files added, removed and changed, grouped as
+   ``code`` (``.py``, ``pyproject.toml``), ``assets`` (everything else the publisher wrote), ``dataset``
+   and ``generated`` (card, media, ``env.py``, manifest); manifest fields that changed (config values,
+   dataset features and shapes, fps, requirements, recorded versions, ...), each as ``old -> new``.
+2. **Behavioural**: both revisions loaded side by side in this process (each ``repo@sha`` has its own gym
+   id), their observation and action spaces compared (a change is reported as a *space change*), then the
+   same episodes run on both: the old revision's recorded dataset actions for its first ``episodes``
+   episodes (with their recorded seeds) plus ``random_episodes`` seeded random-action episodes on other seeds.
+   Per seed: the first divergent step, feature and element with both
+   values, and the per-step error curves. The golden fingerprints are compared (recorded, and recomputed on both),
+   and the paired per-seed return / success deltas get a seed-paired bootstrap CI.
+3. ``report.json``, ``report.md`` and (with matplotlib) ``report.png`` in ``out``.
+
+Exit code of ``hub-envs diff``: 0 when behaviour is identical (only docs, data or generated files differ),
+1 when it differs, 2 on error.
+
+    hub-envs diff --old=user/name@A --new=user/name@B [--episodes=2] [--random_episodes=2]
+                  [--trust_remote_code=true] [--tolerance=0] [--out=DIR] [--json=true]
+
+Example:
+    >>> from hub_envs import diff                                                     # doctest: +SKIP
+    >>> report = diff("user/tiny@<A>", "user/tiny@<B>", trust_remote_code=True)      # doctest: +SKIP
+    >>> report.behaviour_identical, report.first_divergence.describe()               # doctest: +SKIP
+    (False, 'seed 0 (recorded actions of episode 0): next.reward diverged at step 0 ...')
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub_envs.errors import ConfigError, HubEnvsError
+from hub_envs.repo_format import (
+    CARD_FILE,
+    DATASET_DIR,
+    ENV_ENTRY_FILE,
+    MANIFEST_FILE,
+    MEDIA_DIR,
+    PROJECT_FILE,
+    Manifest,
+    is_code_file,
+)
+
+__all__ = ["diff", "DiffReport", "SeedDiff", "DiffArgs", "diff_cli", "CLI_COMMANDS", "classify_file", "manifest_changes"]
+
+DEFAULT_OUT = Path("diff-out")
+
+#: manifest fields the file lists already cover (or that only restate them)
+_MANIFEST_SKIP = ("files", "content_digest", "code_digest", "repo_id", "gym_id", "env_type")
+#: manifest fields whose change alters behaviour even when the compared episodes do not show it
+_BEHAVIOUR_FIELDS = ("config", "config_overrides", "dataset.features", "dataset.fps", "env_entry_point", "processors")
+
+
+# --- static part --------------------------------------------------------------------------------
+
+
+def classify_file(path: str) -> str:
+    """``code``, ``assets``, ``dataset`` or ``generated``.
+
+    >>> [classify_file(p) for p in ("dynamics.py", "pyproject.toml", "meshes/arm.stl", "dataset/meta/info.json", "README.md")]
+    ['code', 'code', 'assets', 'dataset', 'generated']
+    """
+    top = path.split("/", 1)[0]
+    if top == DATASET_DIR:
+        return "dataset"
+    if path in (CARD_FILE, ENV_ENTRY_FILE, MANIFEST_FILE) or top == MEDIA_DIR:
+        return "generated"
+    if is_code_file(path) or path == PROJECT_FILE:
+        return "code"
+    return "assets"
+
+
+def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, dict) and value:
+        out: dict[str, Any] = {}
+        for k in sorted(value, key=str):
+            out.update(_flatten(value[k], f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    return {prefix: value}
+
+
+def manifest_changes(old: Manifest, new: Manifest) -> list[dict[str, Any]]:
+    """Every leaf field of the manifests that differs, as ``{"field": "config.fps", "old": 20, "new": 30}``.
+
+    >>> a = Manifest(name="t", env_entry_point="m:E", config_entry_point="m:C", gym_id="g", env_type="t",
+    ...              files={}, content_digest="", config={"fps": 20})
+    >>> manifest_changes(a, Manifest(**{**a.__dict__, "config": {"fps": 30}}))
+    [{'field': 'config.fps', 'old': 20, 'new': 30}]
+    """
+    a = _flatten({k: v for k, v in json.loads(old.to_json()).items() if k not in _MANIFEST_SKIP})
+    b = _flatten({k: v for k, v in json.loads(new.to_json()).items() if k not in _MANIFEST_SKIP})
+    return [{"field": k, "old": a.get(k), "new": b.get(k)} for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def file_changes(old: Manifest, new: Manifest) -> dict[str, dict[str, list[str]]]:
+    """``{group: {"added": [...], "removed": [...], "changed": [...]}}`` from the manifests' file hashes."""
+    a, b = dict(old.files), dict(new.files)
+    a[MANIFEST_FILE] = old.to_json()  # the manifest is not in its own file list: compare its canonical text
+    b[MANIFEST_FILE] = new.to_json()
+    out: dict[str, dict[str, list[str]]] = {}
+    for path in sorted(set(a) | set(b)):
+        kind = "added" if path not in a else "removed" if path not in b else "changed" if a[path] != b[path] else None
+        if kind is None:
+            continue
+        out.setdefault(classify_file(path), {"added": [], "removed": [], "changed": []})[kind].append(path)
+    return out
+
+
+# --- behavioural part ---------------------------------------------------------------------------
+
+
+@dataclass
+class SeedDiff:
+    """One paired episode: the first step where the two revisions differ (or None), and what differs."""
+
+    seed: int
+    source: str  # "recorded actions of episode N" or "random actions"
+    steps_old: int
+    steps_new: int
+    step: int | None = None
+    feature: str | None = None
+    element: list[int] = field(default_factory=list)
+    old: Any = None
+    new: Any = None
+    max_abs_diff: float = 0.0
+    #: per-step max |new - old| of each feature that diverged (over the common length)
+    errors: dict[str, list[float]] = field(default_factory=dict)
+    return_old: float = 0.0
+    return_new: float = 0.0
+    success_old: bool = False
+    success_new: bool = False
+
+    @property
+    def diverged(self) -> bool:
+        return self.step is not None
+
+    def describe(self) -> str:
+        where = f"seed {self.seed} ({self.source})"
+        if not self.diverged:
+            return f"{where}: identical for {self.steps_old} steps"
+        at = f"[{', '.join(map(str, self.element))}]" if self.element else ""
+        return (
+            f"{where}: {self.feature}{at} diverged at step {self.step} "
+            f"(old {_short(self.old)} vs new {_short(self.new)}, |diff| {self.max_abs_diff:.6g})"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "diverged": self.diverged}
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else value
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _space_info(space: Any) -> dict[str, Any]:
+    import gymnasium as gym
+
+    if isinstance(space, gym.spaces.Dict):
+        return {k: _space_info(v) for k, v in space.spaces.items()}
+    return {"type": type(space).__name__, "shape": list(space.shape or ()), "dtype": str(space.dtype)}
+
+
+def _space_changes(old_env: Any, new_env: Any) -> list[dict[str, Any]]:
+    out = []
+    for name in ("observation_space", "action_space"):
+        a, b = _flatten(_space_info(getattr(old_env, name))), _flatten(_space_info(getattr(new_env, name)))
+        for k in sorted(set(a) | set(b)):
+            if a.get(k) != b.get(k):
+                out.append({"space": name, "field": k, "old": a.get(k), "new": b.get(k)})
+    return out
+
+
+def _compare(a: Any, b: Any, seed: int, source: str, names: dict[str, str], tolerance: float) -> SeedDiff:
+    from hub_envs.harness.replay import _step_errors
+
+    n = min(a.length, b.length)
+    out = SeedDiff(
+        seed=seed,
+        source=source,
+        steps_old=a.length,
+        steps_new=b.length,
+        return_old=a.episode_return,
+        return_new=b.episode_return,
+        success_old=a.success,
+        success_new=b.success,
+    )
+    # (rank at equal steps: the observation at step t comes before action t, the rest after it)
+    pairs = [(names.get(k, f"observation.{k}"), 0, a.observations[k], b.observations.get(k)) for k in sorted(a.observations)]
+    pairs += [
+        ("next.reward", 1, a.rewards, b.rewards),
+        ("next.success", 1, a.is_success, b.is_success),
+        ("terminated", 1, a.terminated, b.terminated),
+        ("truncated", 1, a.truncated, b.truncated),
+    ]
+    best: tuple[int, int] | None = None
+    for name, rank, x, y in pairs:
+        if y is None or x.shape[1:] != y.shape[1:]:
+            continue  # a space change, reported as such
+        err = _step_errors(y[:n], x[:n])
+        bad = np.flatnonzero(err > tolerance)
+        if not len(bad):
+            continue
+        out.errors[name] = [float(e) for e in err]
+        t = int(bad[0])
+        if best is None or (t, rank) < best:
+            best = (t, rank)
+            xa, ya = np.asarray(x[t]), np.asarray(y[t])
+            d = np.abs(ya.astype(np.float64) - xa.astype(np.float64)).reshape(-1) if xa.size else np.zeros(0)
+            out.step, out.feature, out.max_abs_diff = t, name, float(err[t])
+            out.element = [int(i) for i in np.unravel_index(int(np.argmax(d)), xa.shape)] if xa.ndim else []
+            out.old, out.new = xa.tolist(), ya.tolist()
+    if best is None and a.length != b.length:
+        out.step, out.feature = n, "episode length"
+        out.old, out.new = a.length, b.length
+    return out
+
+
+def _recorded_actions(loaded: Any, episodes: int) -> list[tuple[int, int, np.ndarray]]:
+    """(episode index, seed, actions) of the first ``episodes`` episodes of the revision's dataset."""
+    from hub_envs.dataset.reader import read_episode_frames, read_episode_meta
+
+    if episodes <= 0 or loaded.dataset_root is None:
+        return []
+    out = []
+    for m in read_episode_meta(loaded.dataset_root)[:episodes]:
+        if m.get("seed") is None:
+            continue
+        frames = read_episode_frames(loaded.dataset_root, int(m["episode_index"]), keys=["action"])
+        out.append((int(m["episode_index"]), int(m["seed"]), np.asarray(frames["action"])))
+    return out
+
+
+# --- the report ---------------------------------------------------------------------------------
+
+
+@dataclass
+class DiffReport:
+    """What :func:`diff` found. ``behaviour_identical`` is the verdict; ``exit_code`` what ``hub-envs diff`` returns."""
+
+    old: dict[str, Any]
+    new: dict[str, Any]
+    files: dict[str, dict[str, list[str]]]
+    manifest: list[dict[str, Any]]
+    spaces: list[dict[str, Any]]
+    seeds: list[SeedDiff]
+    fingerprint: dict[str, Any]
+    deltas: dict[str, Any]
+    notes: list[str]
+    settings: dict[str, Any]
+    provenance: dict[str, Any]
+    timings: dict[str, float] = field(default_factory=dict)
+    paths: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def diverged(self) -> list[SeedDiff]:
+        return [s for s in self.seeds if s.diverged]
+
+    @property
+    def first_divergence(self) -> SeedDiff | None:
+        return self.diverged[0] if self.diverged else None
+
+    @property
+    def behaviour_fields(self) -> list[dict[str, Any]]:
+        return [c for c in self.manifest if any(c["field"] == f or c["field"].startswith(f + ".") for f in _BEHAVIOUR_FIELDS)]
+
+    @property
+    def behaviour_identical(self) -> bool:
+        return not (self.spaces or self.diverged or not self.fingerprint.get("same", True) or self.behaviour_fields)
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.behaviour_identical else 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "verdict": "identical behaviour" if self.behaviour_identical else "behaviour differs",
+            "behaviour_identical": self.behaviour_identical,
+            "old": self.old,
+            "new": self.new,
+            "files": self.files,
+            "manifest": self.manifest,
+            "spaces": self.spaces,
+            "seeds": [s.to_dict() for s in self.seeds],
+            "first_divergence": self.first_divergence.to_dict() if self.first_divergence else None,
+            "fingerprint": self.fingerprint,
+            "deltas": self.deltas,
+            "notes": self.notes,
+            "settings": self.settings,
+            "provenance": self.provenance,
+            "timings": self.timings,
+        }
+
+    def to_json(self) -> str:
+        from hub_envs.harness.report import _jsonable
+
+        return json.dumps(_jsonable(self.to_dict()), indent=2, sort_keys=True) + "\n"
+
+    def _files_lines(self) -> list[str]:
+        lines = []
+        for group in ("code", "assets", "dataset", "generated"):
+            g = self.files.get(group)
+            if not g:
+                continue
+            parts = []
+            for kind, sign in (("added", "+"), ("removed", "-"), ("changed", "~")):
+                names = g[kind]
+                if names:
+                    shown = ", ".join(names[:6]) + (f", … ({len(names) - 6} more)" if len(names) > 6 else "")
+                    parts.append(f"{sign}{len(names)} {kind} ({shown})")
+            lines.append(f"{group}: " + "; ".join(parts))
+        return lines or ["no file differs"]
+
+    def summary(self) -> str:
+        o, n = self.old, self.new
+        lines = [
+            f"hub-envs diff {o['repo_id']}@{o['sha'][:12]} -> {n['repo_id']}@{n['sha'][:12]}: "
+            + ("IDENTICAL BEHAVIOUR" if self.behaviour_identical else "BEHAVIOUR DIFFERS"),
+            "Files:",
+            *(f"  {line}" for line in self._files_lines()),
+        ]
+        if self.manifest:
+            lines.append(f"Manifest: {len(self.manifest)} field(s) changed")
+            lines += [f"  {c['field']}: {_short(c['old'], 40)} -> {_short(c['new'], 40)}" for c in self.manifest[:12]]
+            if len(self.manifest) > 12:
+                lines.append(f"  … {len(self.manifest) - 12} more in the report")
+        for s in self.spaces:
+            lines.append(f"SPACE CHANGE {s['space']} {s['field']}: {s['old']} -> {s['new']}")
+        fp = self.fingerprint
+        lines.append(f"Golden fingerprint: {fp.get('status')}")
+        if self.seeds:
+            lines.append(f"Episodes: {len(self.diverged)} of {len(self.seeds)} paired seeds diverged")
+            lines += [f"  {s.describe()}" for s in self.seeds]
+        d = self.deltas.get("return")
+        if d:
+            lines.append(
+                f"Return delta (new - old, paired over {d['n']} seeds): {d['mean']:+.6g} [95% CI {d['ci'][0]:+.6g}, {d['ci'][1]:+.6g}]"
+            )
+        lines += [f"Note: {x}" for x in self.notes]
+        return "\n".join(lines)
+
+    def to_markdown(self) -> str:
+        o, n = self.old, self.new
+        out = [
+            f"# hub-envs diff: `{o['repo_id']}@{o['sha'][:12]}` → `{n['repo_id']}@{n['sha'][:12]}`",
+            "",
+            f"**Verdict: {'identical behaviour' if self.behaviour_identical else 'behaviour differs'}**",
+            "",
+            "## Files",
+            "",
+            *(f"- {line}" for line in self._files_lines()),
+            "",
+            "## Manifest fields",
+            "",
+        ]
+        if self.manifest:
+            out += ["| field | old | new |", "| --- | --- | --- |"]
+            out += [f"| `{c['field']}` | `{_short(c['old'], 60)}` | `{_short(c['new'], 60)}` |" for c in self.manifest]
+        else:
+            out.append("none changed")
+        out += ["", "## Spaces", ""]
+        if self.spaces:
+            out += ["| space | field | old | new |", "| --- | --- | --- | --- |"]
+            out += [f"| {s['space']} | `{s['field']}` | `{s['old']}` | `{s['new']}` |" for s in self.spaces]
+        else:
+            out.append("unchanged")
+        out += ["", "## Behaviour", "", f"Golden fingerprint: {self.fingerprint.get('status')}", ""]
+        if self.seeds:
+            out += ["| seed | actions | steps old/new | first divergence |", "| --- | --- | --- | --- |"]
+            for s in self.seeds:
+                first = (
+                    f"step {s.step}, {s.feature}{s.element or ''}: {_short(s.old, 40)} → {_short(s.new, 40)}"
+                    if s.diverged
+                    else "identical"
+                )
+                out.append(f"| {s.seed} | {s.source} | {s.steps_old}/{s.steps_new} | {first} |")
+        for key, d in self.deltas.items():
+            out.append(
+                f"\n{key} delta (new − old, paired over {d['n']} seeds): {d['mean']:+.6g}, 95% bootstrap CI "
+                f"[{d['ci'][0]:+.6g}, {d['ci'][1]:+.6g}]"
+            )
+        if self.notes:
+            out += ["", "## Notes", "", *(f"- {x}" for x in self.notes)]
+        p = self.provenance
+        out += [
+            "",
+            "## Provenance",
+            "",
+            f"- old: `{o['repo_id']}@{o['sha']}` (requested `{o['requested']}`)",
+            f"- new: `{n['repo_id']}@{n['sha']}` (requested `{n['requested']}`)",
+            f"- seeds: {[s.seed for s in self.seeds]}; settings: `{json.dumps(self.settings, sort_keys=True)}`",
+            f"- hub-envs {p['hub_envs_version']}; " + ", ".join(f"{k} {v}" for k, v in sorted(p["versions_here"].items())),
+            f"- generated at {p['generated_at']}",
+        ]
+        if self.paths.get("png"):
+            out += ["", f"![per-step error]({Path(self.paths['png']).name})"]
+        return "\n".join(out) + "\n"
+
+    def _plot(self, path: Path) -> bool:
+        shown = self.diverged[:3]
+        if not shown:  # nothing to plot: no matplotlib import either
+            return False
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            return False
+        fig, axes = plt.subplots(len(shown), 1, figsize=(7, 2.4 * len(shown)), squeeze=False)
+        for ax, s in zip(axes[:, 0], shown, strict=True):
+            for name, curve in s.errors.items():
+                ax.plot(np.maximum(np.asarray(curve), 1e-12), label=name)
+            ax.set_yscale("log")
+            ax.set_title(f"seed {s.seed} ({s.source}): first divergence step {s.step}", fontsize=9)
+            ax.set_xlabel("step")
+            ax.set_ylabel("|new - old|")
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        return True
+
+    def write(self, out: str | Path) -> dict[str, str]:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        self.paths = {"json": str(out / "report.json"), "markdown": str(out / "report.md")}
+        if self._plot(out / "report.png"):
+            self.paths["png"] = str(out / "report.png")
+        Path(self.paths["json"]).write_text(self.to_json())
+        Path(self.paths["markdown"]).write_text(self.to_markdown())
+        return self.paths
+
+
+# --- the operation ------------------------------------------------------------------------------
+
+
+def _fingerprints(old: Any, new: Any, live_old: dict | None, live_new: dict | None) -> dict[str, Any]:
+    a, b = old.manifest.fingerprint, new.manifest.fingerprint
+    recorded_same = (a.get("digest") == b.get("digest")) if a and b else None
+    comparable = bool(a and b and a.get("seeds") == b.get("seeds") and a.get("steps") == b.get("steps"))
+    live_same = live_old["digest"] == live_new["digest"] if live_old and live_new else None
+    # the live recomputation is the measurement; the recorded digests decide only when it could not run
+    same = live_same if live_same is not None else (recorded_same if comparable else True)
+    if live_same is not None:
+        status = "same" if live_same else "DIFFERENT"
+        status += f" (recomputed here on seeds {live_old['seeds']} x {live_old['steps']} steps"
+        status += f"; recorded digests {'equal' if recorded_same else 'differ'})" if recorded_same is not None else ")"
+    elif recorded_same is not None:
+        status = ("same" if recorded_same else "DIFFERENT") + " (recorded digests)"
+    else:
+        status = "none recorded"
+    return {
+        "same": bool(same),
+        "status": status,
+        "recorded_old": a.get("digest"),
+        "recorded_new": b.get("digest"),
+        "live_old": live_old and live_old["digest"],
+        "live_new": live_new and live_new["digest"],
+    }
+
+
+def _paired_delta(x: list[float], y: list[float], resamples: int) -> dict[str, Any]:
+    from hub_envs.harness.benchmark import bootstrap_ci
+
+    d = np.asarray(y, dtype=np.float64) - np.asarray(x, dtype=np.float64)
+    lo, hi = bootstrap_ci(d, resamples=resamples, seed=0)
+    return {
+        "n": int(d.size),
+        "mean": float(d.mean()),
+        "ci": [lo, hi],
+        "old_mean": float(np.mean(x)),
+        "new_mean": float(np.mean(y)),
+    }
+
+
+def _ref(loaded: Any) -> dict[str, Any]:
+    return {
+        "repo_id": loaded.repo_id,
+        "requested": loaded.requested_revision,
+        "sha": loaded.revision,
+        "content_digest": loaded.manifest.content_digest,
+        "gym_id": loaded.gym_id,
+    }
+
+
+def diff(
+    old: str,
+    new: str,
+    *,
+    episodes: int = 2,
+    random_episodes: int = 2,
+    trust_remote_code: bool = False,
+    tolerance: float = 0.0,
+    out: str | Path | None = None,
+    write: bool = True,
+    workers: int = 1,
+    resamples: int = 1000,
+    progress: bool = False,
+    token: str | None = None,
+) -> DiffReport:
+    """Compare two revisions of an env repo (``"user/name@A"``, ``"user/name@B"``), or two env repos.
+
+    Args:
+        old, new: ``user/name@rev`` (a branch, tag or sha; pin shas for a reproducible diff) or local folders.
+        episodes: replay the old revision's recorded actions of its first ``episodes`` dataset episodes on both.
+        random_episodes: also run this many seeded random-action episodes on both (seeds 0, 1, ... other than the
+            replayed episodes' seeds).
+        trust_remote_code: consent to run both revisions' code (or trust each commit with ``hub-envs trust``).
+        tolerance: largest absolute difference that still counts as identical (0: bit-exact).
+        out: folder for report.json/.md/.png (default ``diff-out/<user>/<name>/``); ``write=False``: none.
+        workers: processes for the episodes (the result does not depend on it).
+        resamples: bootstrap resamples of the paired deltas' confidence intervals.
+
+    Returns:
+        A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1.
+
+    Raises:
+        hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
+    """
+    from hub_envs import __version__
+    from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
+    from hub_envs.harness.provenance import package_versions
+    from hub_envs.harness.replay import _env_actions
+    from hub_envs.harness.rollout import run_episodes
+    from hub_envs.load import load_env
+
+    for name, v in (("episodes", episodes), ("random_episodes", random_episodes)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ConfigError(f"{name}={v!r}: pass a number of episodes >= 0.")
+    timings: dict[str, float] = {}
+    t0 = t = time.perf_counter()
+    loaded = []
+    try:
+        for ref in (old, new):
+            # fingerprint off: a drifted fingerprint is what a diff reports, not a reason to stop
+            loaded.append(load_env(ref, trust_remote_code=trust_remote_code, check=False, fingerprint="off", token=token))
+        a, b = loaded
+        timings["load"] = time.perf_counter() - t
+        t = time.perf_counter()
+        files = file_changes(a.manifest, b.manifest)
+        fields = manifest_changes(a.manifest, b.manifest)
+        timings["static"] = time.perf_counter() - t
+        t = time.perf_counter()
+        notes: list[str] = []
+        env_a, env_b = a.make(), b.make()
+        try:
+            spaces = _space_changes(env_a, env_b)
+            action_space = env_a.action_space
+        finally:
+            env_a.close()
+            env_b.close()
+        action_change = [s for s in spaces if s["space"] == "action_space"]
+        seeds_out: list[SeedDiff] = []
+        live_a = live_b = None
+        if action_change:
+            notes.append("the action space changed: the same actions cannot drive both revisions, so no episodes were compared")
+        else:
+            recorded = _recorded_actions(a, episodes)
+            if episodes and not recorded:
+                notes.append(f"{a.repo_id}@{a.revision[:12]} has no dataset with seeds: no recorded actions to replay")
+            # random-action seeds other than the replayed episodes' (push_env records seeded random actions: the same seed
+            # would repeat a recorded episode)
+            used = {s for _, s, _ in recorded}
+            random_seeds = [s for s in range(len(used) + random_episodes + 1) if s not in used][:random_episodes]
+            seeds = [s for _, s, _ in recorded] + random_seeds
+            policy = [_env_actions(acts, action_space, f"{a.repo_id}@{a.revision[:12]}") for _, _, acts in recorded]
+            policy += [None] * len(random_seeds)
+            max_steps = max(int(a.config.episode_length), int(b.config.episode_length))
+            runs = []
+            for side in (a, b):
+                runs.append(
+                    run_episodes(
+                        side.make,
+                        seeds,
+                        max_steps=max_steps,
+                        policy=policy if recorded else None,
+                        workers=workers,
+                        progress=progress,
+                        desc=f"{side.repo_id}@{side.revision[:12]}",
+                    )
+                    if seeds
+                    else []
+                )
+            names = dict(a.config.features_map)
+            sources = [f"recorded actions of episode {i}" for i, _, _ in recorded] + ["random actions"] * len(random_seeds)
+            for ra, rb, src in zip(runs[0], runs[1], sources, strict=True):
+                seeds_out.append(_compare(ra, rb, ra.seed, src, names, tolerance))
+            # the golden fingerprint of both, recomputed here on the old manifest's seeds and steps (a few short episodes)
+            fp = a.manifest.fingerprint
+            if fp and fp.get("seeds"):
+                fp_seeds, steps = [int(s) for s in fp["seeds"]], int(fp.get("steps", FINGERPRINT_STEPS))
+                live_a = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)
+                live_b = golden_fingerprint(b.make, seeds=fp_seeds, steps=steps)
+        timings["behaviour"] = time.perf_counter() - t
+        deltas: dict[str, Any] = {}
+        if seeds_out:
+            deltas["return"] = _paired_delta([s.return_old for s in seeds_out], [s.return_new for s in seeds_out], resamples)
+            deltas["success"] = _paired_delta(
+                [float(s.success_old) for s in seeds_out], [float(s.success_new) for s in seeds_out], resamples
+            )
+        obs_change = [s for s in spaces if s["space"] == "observation_space"]
+        if obs_change and seeds_out:
+            notes.append("the observation space changed: the observations whose shape changed were not compared step by step")
+        report = DiffReport(
+            old=_ref(a),
+            new=_ref(b),
+            files=files,
+            manifest=fields,
+            spaces=spaces,
+            seeds=seeds_out,
+            fingerprint=_fingerprints(a, b, live_a, live_b),
+            deltas=deltas,
+            notes=notes,
+            settings={
+                "episodes": episodes,
+                "random_episodes": random_episodes,
+                "tolerance": float(tolerance),
+                "workers": workers,
+                "resamples": resamples,
+            },
+            provenance={
+                "hub_envs_version": __version__,
+                "versions_here": package_versions(tuple(a.manifest.requirements) + tuple(b.manifest.requirements)),
+                "versions_old": dict(a.manifest.versions),
+                "versions_new": dict(b.manifest.versions),
+                "python": sys.version.split()[0],
+                "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
+            },
+        )
+        report.timings = {k: round(v, 4) for k, v in timings.items()}
+        if write:
+            t = time.perf_counter()
+            report.write(Path(out) if out is not None else DEFAULT_OUT.joinpath(*b.repo_id.split("/")))
+            report.timings["report"] = round(time.perf_counter() - t, 4)
+        report.timings["total"] = round(time.perf_counter() - t0, 4)
+        return report
+    finally:
+        for side in loaded:
+            side.unregister()
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class DiffArgs:
+    """Compare two revisions of an env repo (or two repos): files, manifest, spaces, behaviour on the same seeds and actions."""
+
+    old: str | None = None  # user/name@A (pin shas)
+    new: str | None = None  # user/name@B, or another repo
+    episodes: int = 2  # replay the old revision's recorded actions of this many dataset episodes on both
+    random_episodes: int = 2  # plus this many seeded random-action episodes
+    trust_remote_code: bool = False
+    tolerance: float = 0.0  # largest absolute difference still counted as identical (0: exact)
+    workers: int = 1
+    out: Path | None = None  # default diff-out/<user>/<name>/
+    json: bool = False  # print the JSON report to stdout instead of the summary
+
+
+def diff_cli(args: DiffArgs) -> int:
+    """0: identical behaviour; 1: behaviour differs; 2: error (the message says what to do)."""
+    try:
+        if not args.old or not args.new:
+            raise ConfigError("hub-envs diff needs --old=user/name@<sha> and --new=user/name@<sha> (or another repo).")
+        report = diff(
+            args.old,
+            args.new,
+            episodes=args.episodes,
+            random_episodes=args.random_episodes,
+            trust_remote_code=args.trust_remote_code,
+            tolerance=args.tolerance,
+            workers=args.workers,
+            out=args.out,
+        )
+    except HubEnvsError as e:
+        print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
+        return 2
+    print(report.to_json() if args.json else report.summary(), end="\n" if not args.json else "")
+    where = report.paths
+    print(
+        f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
+        + (f", {where['png']} (plot)" if where.get("png") else ""),
+        file=sys.stderr if args.json else sys.stdout,
+    )
+    return report.exit_code
+
+
+CLI_COMMANDS = {"diff": (DiffArgs, diff_cli)}
