@@ -286,15 +286,7 @@ def resolve_snapshot(
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
         ignore = _lazy_patterns(s.rfilename for s in info.siblings or []) if lazy else None
-        path = snapshot_download(
-            repo_id,
-            revision=sha,
-            repo_type=REPO_TYPE,
-            cache_dir=cache_dir,
-            token=token,
-            force_download=force_download,
-            ignore_patterns=ignore,
-        )
+        path = _download(repo_id, sha, token=token, cache_dir=cache_dir, force_download=force_download, ignore_patterns=ignore)
     _check_resolved(repo_id, revision, Path(path).name)
     return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
 
@@ -321,20 +313,23 @@ def _lazy_patterns(files) -> list[str]:
     return sorted(patterns)
 
 
+def _download(
+    repo_id: str, sha: str, *, token: str | None, cache_dir: str | Path | None, force_download: bool, **patterns
+) -> str:
+    """``snapshot_download`` of one commit of an env repo (``patterns``: its allow/ignore patterns)."""
+    return snapshot_download(
+        repo_id, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download, **patterns
+    )
+
+
 def fetch_dataset_files(
     repo_id: str, sha: str, *, token: str | None = None, cache_dir: str | Path | None = None, force_download: bool = False
 ) -> Path:
     """Download the dataset folder of ``repo_id`` at commit ``sha`` into the cache (files already there
     are not fetched again); return the snapshot folder. The caller verifies them against the manifest."""
     with translate_hub_errors(repo_id, sha):
-        path = snapshot_download(
-            repo_id,
-            revision=sha,
-            repo_type=REPO_TYPE,
-            cache_dir=cache_dir,
-            token=token,
-            allow_patterns=[f"{DATASET_DIR}/*"],
-            force_download=force_download,
+        path = _download(
+            repo_id, sha, token=token, cache_dir=cache_dir, force_download=force_download, allow_patterns=[f"{DATASET_DIR}/*"]
         )
     _check_resolved(repo_id, sha, Path(path).name)
     return Path(path)

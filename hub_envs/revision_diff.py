@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs.errors import ConfigError, HubEnvsError
+from hub_envs.harness.report_files import ReportFiles
 from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
@@ -244,7 +245,7 @@ def _recorded_actions(loaded: Any, episodes: int) -> list[tuple[int, int, np.nda
 
 
 @dataclass
-class DiffReport:
+class DiffReport(ReportFiles):
     """What :func:`diff` found. ``behaviour_identical`` is the verdict; ``exit_code`` what ``hub-envs diff`` returns."""
 
     old: dict[str, Any]
@@ -405,17 +406,17 @@ class DiffReport:
             out += ["", f"![per-step error]({Path(self.paths['png']).name})"]
         return "\n".join(out) + "\n"
 
-    def _plot(self, path: Path) -> bool:
+    def plot(self, path: Path) -> Path | None:
         shown = self.diverged[:3]
         if not shown:  # nothing to plot: no matplotlib import either
-            return False
+            return None
         try:
             import matplotlib
 
             matplotlib.use("Agg")
             import matplotlib.pyplot as plt
         except ImportError:
-            return False
+            return None
         fig, axes = plt.subplots(len(shown), 1, figsize=(7, 2.4 * len(shown)), squeeze=False)
         for ax, s in zip(axes[:, 0], shown, strict=True):
             for name, curve in s.errors.items():
@@ -428,17 +429,7 @@ class DiffReport:
         fig.tight_layout()
         fig.savefig(path, dpi=90)
         plt.close(fig)
-        return True
-
-    def write(self, out: str | Path) -> dict[str, str]:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        self.paths = {"json": str(out / "report.json"), "markdown": str(out / "report.md")}
-        if self._plot(out / "report.png"):
-            self.paths["png"] = str(out / "report.png")
-        Path(self.paths["json"]).write_text(self.to_json())
-        Path(self.paths["markdown"]).write_text(self.to_markdown())
-        return self.paths
+        return path
 
 
 # --- the operation ------------------------------------------------------------------------------

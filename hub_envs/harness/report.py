@@ -28,12 +28,9 @@ from typing import Any
 
 from hub_envs.harness.benchmark import BenchmarkResult
 from hub_envs.harness.replay import ReplayResult
+from hub_envs.harness.report_files import REPORT_JSON, REPORT_MD, REPORT_PNG, ReportFiles
 
 __all__ = ["ReproduceReport", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
-
-REPORT_JSON = "report.json"
-REPORT_MD = "report.md"
-REPORT_PNG = "report.png"
 
 
 def _fmt(x: Any, digits: int = 6) -> str:
@@ -57,7 +54,7 @@ def _jsonable(value: Any) -> Any:
 
 
 @dataclass
-class ReproduceReport:
+class ReproduceReport(ReportFiles):
     """What a reproduction found. ``reproduced`` is True when every part that ran passed."""
 
     repo_id: str
@@ -318,18 +315,6 @@ class ReproduceReport:
         fig.savefig(path, dpi=100)
         plt.close(fig)
         return path
-
-    def write(self, out: str | Path) -> dict[str, str]:
-        """Write report.json, report.md and report.png into ``out`` (created); return their paths."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        png = self.plot(out / REPORT_PNG)
-        self.paths = {"json": str(out / REPORT_JSON), "markdown": str(out / REPORT_MD)}
-        if png is not None:
-            self.paths["png"] = str(png)
-        (out / REPORT_MD).write_text(self.to_markdown(), encoding="utf-8")
-        (out / REPORT_JSON).write_text(self.to_json(), encoding="utf-8")
-        return dict(self.paths)
 
 
 def _seeds_text(seeds: list) -> str:
