@@ -59,6 +59,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from hub_envs._compat import processor_step_names
 from hub_envs.errors import HubEnvsError, ProcessorError
 from hub_envs.harness.benchmark import policy_observation
+from hub_envs.harness.episode import SeededEpisode
 
 STAGES = ("pre", "post")
 FIELDS = ("name", "entry_point", "kwargs", "stage")
@@ -351,10 +352,9 @@ def dry_run(
     where: str = "hub_env.json",
 ) -> None:
     """Run every step once on a live observation and a sampled action; a failure names the step."""
-    obs, _ = env.reset(seed=seed)
-    _run_stage(specs, pre, pre.to_transition(policy_observation(obs, task)), "pre", "a live observation", where)
-    env.action_space.seed(seed)
-    action = torch.as_tensor(np.asarray(env.action_space.sample(), dtype=np.float32)).reshape(1, -1)
+    episode = SeededEpisode(env, seed, where=where)
+    _run_stage(specs, pre, pre.to_transition(policy_observation(episode.obs, task)), "pre", "a live observation", where)
+    action = torch.as_tensor(np.asarray(episode.sample(), dtype=np.float32)).reshape(1, -1)
     _run_stage(specs, post, post.to_transition({ACTION: action}), "post", "a sampled action", where)
 
 

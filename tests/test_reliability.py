@@ -528,7 +528,7 @@ CASES: list[Case] = [
     repo_case(
         "step-raises",
         E.EnvCodeError,
-        ("env.step at step 0", "RuntimeError: boom in step", "@", "Fix the env's step"),
+        ("step 0: env.step(action) raised", "RuntimeError: boom in step", "@", "Fix the env's step"),
         replace(
             "tiny.py",
             "        self.pos, self.vel = dynamics_step(",

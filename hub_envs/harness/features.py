@@ -26,8 +26,9 @@ from typing import Any
 import numpy as np
 
 from hub_envs.dataset.layout import BOOKKEEPING_KEYS
-from hub_envs.errors import EnvCodeError, FeatureMismatchError
+from hub_envs.errors import FeatureMismatchError
 from hub_envs.harness.actions import accepts_declared, stored_action, unsupported_reason
+from hub_envs.harness.episode import SeededEpisode
 
 
 @dataclass
@@ -137,32 +138,23 @@ def _type_name(ftype: Any) -> str:
 
 
 def _rollout(env, steps: int, seed: int, where: str = "the env") -> tuple[list[Any], list[Any], list[dict]]:
-    """``steps`` seeded random-action steps; observations include the reset one."""
-    try:
-        obs, info = env.reset(seed=seed)
-    except Exception as e:
-        raise EnvCodeError(
-            f"{where}: env.reset(seed={seed}) raised {type(e).__name__}: {e}. Fix the env's reset "
-            f"(reproduce with env.reset(seed={seed})) and re-publish with push_env."
-        ) from e
-    env.action_space.seed(seed)
-    observations, actions, infos = [obs], [], [info]
-    for i in range(steps):
-        action = env.action_space.sample()
-        try:
-            obs, _, terminated, truncated, info = env.step(action)
-        except Exception as e:
-            raise EnvCodeError(
-                f"{where}: env.step at step {i} (seed {seed}) raised {type(e).__name__}: {e}. Fix the env's "
-                f"step (reproduce with seeded random actions) and re-publish with push_env."
-            ) from e
+    """``steps`` seeded random-action steps, across episode ends (episode ``k`` resets with ``seed + k``);
+    observations and infos include every reset's."""
+    observations: list[Any] = []
+    actions: list[Any] = []
+    infos: list[dict] = []
+    episode, k = None, -1
+    for _ in range(steps):
+        if episode is None or episode.done:
+            k += 1
+            episode = SeededEpisode(env, seed + k, where=f"{where}, seed {seed + k}")
+            observations.append(episode.obs)
+            infos.append(episode.info)
+        action = episode.sample()
+        obs, _, _, _, info = episode.step(action)
         actions.append(action)
         observations.append(obs)
         infos.append(info)
-        if terminated or truncated:
-            obs, info = env.reset()
-            observations.append(obs)
-            infos.append(info)
     return observations, actions, infos
 
 

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs.errors import EnvCodeError
+from hub_envs.harness.episode import SeededEpisode
 
 MAX_SIDE = 160  # px: cards load fast, GIFs stay small
 
@@ -24,33 +25,34 @@ def _downscale(frame: np.ndarray) -> np.ndarray:
     return frame[::step, ::step] if step > 1 else frame
 
 
+def _frame(env: Any) -> np.ndarray:
+    try:
+        frame = env.render()
+    except Exception as exc:
+        raise EnvCodeError(
+            f"env.render() raised {type(exc).__name__}: {exc}. Publishing renders the card's GIF, so "
+            f"what render() needs (e.g. pygame) must be installed and listed in the env's "
+            f"[project] dependencies."
+        ) from exc
+    if not (isinstance(frame, np.ndarray) and frame.ndim == 3 and frame.dtype == np.uint8):
+        raise EnvCodeError(
+            f"env.render() must return an (H, W, 3) uint8 array in rgb_array mode, got "
+            f"{type(frame).__name__} {getattr(frame, 'shape', '')} {getattr(frame, 'dtype', '')}."
+        )
+    return _downscale(frame[..., :3])
+
+
 def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: int, every: int = 1) -> list[np.ndarray]:
-    """Rendered frames of seeded random-action rollouts, one env reset with each seed in turn."""
+    """Rendered frames of seeded random-action episodes (:class:`SeededEpisode`), one per seed in turn."""
     frames = []
     env = make_env()
     try:
         for seed in seeds:
-            env.reset(seed=seed)
-            env.action_space.seed(seed)
-            for step in range(max_steps):
-                if step % every == 0:
-                    try:
-                        frame = env.render()
-                    except Exception as exc:
-                        raise EnvCodeError(
-                            f"env.render() raised {type(exc).__name__}: {exc}. Publishing renders the card's GIF, so "
-                            f"what render() needs (e.g. pygame) must be installed and listed in the env's "
-                            f"[project] dependencies."
-                        ) from exc
-                    if not (isinstance(frame, np.ndarray) and frame.ndim == 3 and frame.dtype == np.uint8):
-                        raise EnvCodeError(
-                            f"env.render() must return an (H, W, 3) uint8 array in rgb_array mode, got "
-                            f"{type(frame).__name__} {getattr(frame, 'shape', '')} {getattr(frame, 'dtype', '')}."
-                        )
-                    frames.append(_downscale(frame[..., :3]))
-                _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-                if terminated or truncated:
-                    break
+            episode = SeededEpisode(env, seed)
+            while episode.t < max_steps and not episode.done:
+                if episode.t % every == 0:
+                    frames.append(_frame(env))
+                episode.step(episode.sample())
     finally:
         env.close()
     return frames

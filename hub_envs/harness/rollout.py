@@ -47,7 +47,6 @@ import hashlib
 import itertools
 import multiprocessing
 import sys
-import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -59,6 +58,7 @@ import numpy as np
 
 from hub_envs._compat import live_children, terminate_new_children
 from hub_envs.errors import ConfigError, EnvCodeError
+from hub_envs.harness.episode import SeededEpisode, exception_text
 
 __all__ = ["EpisodeRollout", "run_episodes", "iter_episodes", "flatten_observation"]
 
@@ -192,19 +192,6 @@ class _Buffer:
 # --- one episode ------------------------------------------------------------------------------
 
 
-def _where(exc: BaseException) -> str:
-    """' (raised at file.py:42 in step)' for the innermost frame of exc's traceback."""
-    frames = traceback.extract_tb(exc.__traceback__)
-    if not frames:
-        return ""
-    f = frames[-1]
-    return f" (raised at {f.filename}:{f.lineno} in {f.name})"
-
-
-def _exc_text(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {exc}{_where(exc)}"
-
-
 def _resolve_get_state(env: Any) -> Callable[[], Any] | None:
     getter = getattr(env, "get_wrapper_attr", None)
     if getter is not None:
@@ -257,7 +244,9 @@ class _Runner:
             try:
                 self.env = self.make_env()
             except Exception as exc:
-                raise EnvCodeError(f"make_env() raised {_exc_text(exc)}. Fix the env constructor; nothing was recorded.") from exc
+                raise EnvCodeError(
+                    f"make_env() raised {exception_text(exc)}. Fix the env constructor; nothing was recorded."
+                ) from exc
             if not hasattr(self.env, "reset") or not hasattr(self.env, "step") or not hasattr(self.env, "action_space"):
                 raise EnvCodeError(
                     f"make_env() returned {type(self.env).__name__}, which is not a gymnasium env "
@@ -295,12 +284,8 @@ class _Runner:
     def run(self, index: int, seed: int) -> EpisodeRollout:
         env = self._ensure_env()
         where = f"episode {index} (seed {seed})"
-        try:
-            obs, _info = env.reset(seed=seed)
-        except Exception as exc:
-            raise EnvCodeError(f"{where}: env.reset(seed={seed}) raised {_exc_text(exc)}. Fix the env's reset.") from exc
-        space = env.action_space
-        space.seed(seed)
+        episode = SeededEpisode(env, seed, where=where)
+        obs, space = episode.obs, episode.space
         action_shape = getattr(space, "shape", None) or ()
         fixed = self._actions_for(index, len(action_shape))
         max_steps = self.max_steps if fixed is None else min(self.max_steps, len(fixed))
@@ -313,7 +298,7 @@ class _Runner:
         try:
             obs_bufs = {k: _Buffer(_get(obs, p), max_steps) for k, p in layout}
         except Exception as exc:
-            raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {_exc_text(exc)}.") from exc
+            raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {exception_text(exc)}.") from exc
         get_state = self.get_state
         state_buf: _Buffer | None = None
         states_problem: str | None = None
@@ -323,8 +308,8 @@ class _Runner:
         truncs: list[bool] = []
         succ: list[bool] = []
         policy_fn = self.policy_fn
-        sample = space.sample
-        step = env.step
+        sample = episode.sample
+        step = episode.step
         for t in range(max_steps):
             # record the observation before action t
             try:
@@ -339,19 +324,19 @@ class _Runner:
                 what = "reset" if t == 0 else f"step {t - 1}"
                 raise EnvCodeError(
                     f"{where}: the observation returned by {what} does not match the reset observation's "
-                    f"keys/shapes/dtypes: {_exc_text(exc)}. Keep the observation layout fixed."
+                    f"keys/shapes/dtypes: {exception_text(exc)}. Keep the observation layout fixed."
                 ) from exc
             if get_state is not None:
                 try:
                     state = get_state()
                 except Exception as exc:
-                    raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {_exc_text(exc)}.") from exc
+                    raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {exception_text(exc)}.") from exc
                 try:
                     if state_buf is None:
                         state_buf = _Buffer(state, max_steps)
                     state_buf.append(state)
                 except (TypeError, ValueError) as exc:  # a state of another shape or kind than the first
-                    states_problem = f"get_state() at step {t} returned a value unlike step 0's ({_exc_text(exc)})"
+                    states_problem = f"get_state() at step {t} returned a value unlike step 0's ({exception_text(exc)})"
                     get_state, state_buf = None, None
 
             if fixed is not None:
@@ -360,10 +345,7 @@ class _Runner:
                 action = policy_fn(obs, t)
             else:
                 action = sample()
-            try:
-                obs, reward, terminated, truncated, info = step(action)
-            except Exception as exc:
-                raise EnvCodeError(f"{where}, step {t}: env.step(action) raised {_exc_text(exc)}. Fix the env's step.") from exc
+            obs, reward, terminated, truncated, info = step(action)
             if fixed is None:  # replayed actions are copied once at the end
                 if act_buf is None:
                     act_buf = _Buffer(action, max_steps)
@@ -381,7 +363,7 @@ class _Runner:
         try:
             reward_arr = np.asarray(rewards, dtype=np.float64)
         except Exception as exc:
-            raise EnvCodeError(f"{where}: env.step returned a reward that is not a number: {_exc_text(exc)}.") from exc
+            raise EnvCodeError(f"{where}: env.step returned a reward that is not a number: {exception_text(exc)}.") from exc
         _check_finite(where, observations, reward_arr)
         return EpisodeRollout(
             index=index,

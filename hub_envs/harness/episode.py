@@ -1,0 +1,94 @@
+"""One seeded episode of an env, stepped by hand: the convention every rollout in hub-envs follows.
+
+``SeededEpisode(env, seed)`` resets ``env`` with ``seed=seed`` and seeds ``env.action_space`` with the
+same seed, so its random actions (:meth:`SeededEpisode.sample`) are reproducible from the seed alone;
+:meth:`SeededEpisode.step` steps the env, turns an exception raised by the env's code into an
+:class:`~hub_envs.errors.EnvCodeError` that says where (episode, seed, step), and tracks whether the
+episode ended. The episode engine (:mod:`hub_envs.harness.rollout`), the feature check
+(:mod:`hub_envs.harness.features`) and the card's GIF (:mod:`hub_envs.harness.media`) all step envs
+through it, so "episode ``i`` with seed ``s``" means the same thing everywhere.
+
+Example:
+    >>> import gymnasium as gym
+    >>> episode = SeededEpisode(gym.make("CartPole-v1"), seed=0)
+    >>> while not episode.done:
+    ...     _ = episode.step(episode.sample())
+    >>> again = SeededEpisode(gym.make("CartPole-v1"), seed=0)
+    >>> while not again.done:
+    ...     _ = again.step(again.sample())
+    >>> episode.t == again.t, episode.terminated
+    (True, True)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hub_envs.errors import EnvCodeError
+
+__all__ = ["SeededEpisode", "exception_text"]
+
+
+def _raised_at(exc: BaseException) -> str:
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return ""
+    f = frames[-1]
+    return f" (raised at {f.filename}:{f.lineno} in {f.name})"
+
+
+def exception_text(exc: BaseException) -> str:
+    """``"TypeName: message (raised at file:line in function)"``: what an error message quotes of env code."""
+    return f"{type(exc).__name__}: {exc}{_raised_at(exc)}"
+
+
+class SeededEpisode:
+    """An episode of ``env`` reset with ``seed``; ``env.action_space`` is seeded with the same seed.
+
+    Attributes after each :meth:`step`: ``obs`` and ``info`` (the latest; the reset ones before the
+    first step), ``t`` (steps taken), ``terminated``/``truncated`` (of the last step) and ``done``.
+    ``where`` names the episode in error messages (e.g. ``"episode 3 (seed 7)"``).
+    """
+
+    __slots__ = ("env", "seed", "where", "space", "obs", "info", "t", "terminated", "truncated", "_step")
+
+    def __init__(self, env: Any, seed: int, *, where: str | None = None):
+        self.env = env
+        self.seed = seed
+        self.where = where or f"seed {seed}"
+        try:
+            self.obs, self.info = env.reset(seed=seed)
+        except Exception as exc:
+            raise EnvCodeError(
+                f"{self.where}: env.reset(seed={seed}) raised {exception_text(exc)}. Fix the env's reset "
+                f"(reproduce with env.reset(seed={seed})) and publish it again with push_env."
+            ) from exc
+        self.space = env.action_space
+        self.space.seed(seed)
+        self.t = 0
+        self.terminated = self.truncated = False
+        self._step = env.step
+
+    @property
+    def done(self) -> bool:
+        """The env ended the episode (terminated or truncated) at the last step."""
+        return self.terminated or self.truncated
+
+    def sample(self) -> Any:
+        """A seeded random action (the next sample of the seeded action space)."""
+        return self.space.sample()
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict]:
+        """``env.step(action)``; returns its ``(obs, reward, terminated, truncated, info)``."""
+        try:
+            result = obs, _reward, terminated, truncated, info = self._step(action)
+        except Exception as exc:
+            raise EnvCodeError(
+                f"{self.where}, step {self.t}: env.step(action) raised {exception_text(exc)}. Fix the env's step "
+                f"(reproduce with env.reset(seed={self.seed}) and the same actions) and publish it again with push_env."
+            ) from exc
+        self.obs, self.info, self.terminated, self.truncated = obs, info, terminated, truncated
+        self.t += 1
+        return result
