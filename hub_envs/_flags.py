@@ -1,16 +1,26 @@
-"""The command-line flags every command that loads an env shares (``hub-envs load``, ``hub-envs reproduce``).
+"""Command-line flags and how they reach the Python API: the flags every command that loads an env
+shares (``hub-envs load``, ``hub-envs reproduce``), and :func:`call_with_flags`, which passes a command's
+flags to the function of the same parameters, so a new flag is one dataclass field, not one more line
+in each command.
 
 A light module (no lerobot, no torch): the CLI's ``--help`` imports it.
 
+    >>> def load(repo_id, *, revision=None, isolation="none", trust_remote_code=False):
+    ...     return repo_id, revision, isolation, trust_remote_code
     >>> flags = EnvFlags(repo_id="user/name", isolation="process")
-    >>> flags.load_kwargs()["isolation"], flags.load_kwargs()["trust_remote_code"]
-    ('process', False)
+    >>> call_with_flags(load, flags, flags.repo_id, trust_remote_code=True)
+    ('user/name', None, 'process', True)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+_KEYWORD = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
 
 
 @dataclass
@@ -25,13 +35,18 @@ class EnvFlags:
     versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
     step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
 
-    def load_kwargs(self) -> dict[str, Any]:
-        """The keyword arguments of ``load_env`` / ``reproduce`` these flags give (all but ``repo_id``)."""
-        return {
-            "revision": self.revision,
-            "trust_remote_code": self.trust_remote_code,
-            "isolation": self.isolation,
-            "sandbox": self.sandbox,
-            "versions": self.versions,
-            "step_timeout": self.step_timeout,
-        }
+
+def call_with_flags(fn: Callable[..., T], flags: Any, *args: Any, **overrides: Any) -> T:
+    """``fn(*args, **kwargs)``: ``kwargs`` are the fields of the dataclass ``flags`` that ``fn`` takes as
+    keyword parameters (and ``args`` do not bind already), then ``overrides`` (a flag's value converted,
+    or a parameter that is no flag). Fields ``fn`` does not take (``--json``, ``--out`` of a printer) stay out.
+    """
+    params = inspect.signature(fn).parameters
+    bound = set(list(params)[: len(args)])
+    kwargs = {
+        f.name: getattr(flags, f.name)
+        for f in fields(flags)
+        if f.name in params and f.name not in bound and params[f.name].kind in _KEYWORD
+    }
+    kwargs.update(overrides)
+    return fn(*args, **kwargs)

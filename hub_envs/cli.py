@@ -23,7 +23,7 @@ from pathlib import Path
 
 import draccus
 
-from hub_envs._flags import EnvFlags
+from hub_envs._flags import EnvFlags, call_with_flags
 
 
 @dataclass
@@ -124,19 +124,7 @@ def push(args: PushArgs, *, config: dict | None = None) -> int:
 
     if args.env_dir is None or args.repo_id is None:
         raise ConfigError("push_env needs --env_dir=PATH and --repo_id=user/name.")
-    result = push_env(
-        args.env_dir,
-        args.repo_id,
-        episodes=args.episodes,
-        seed=args.seed,
-        private=args.private,
-        tag=args.tag,
-        workers=args.workers or None,
-        commit_message=args.commit_message,
-        determinism_steps=args.determinism_steps,
-        force=args.force,
-        config=config or None,
-    )
+    result = call_with_flags(push_env, args, args.env_dir, args.repo_id, workers=args.workers or None, config=config or None)
     print(result.summary())
     return 0
 
@@ -147,7 +135,7 @@ def load(args: LoadArgs) -> int:
 
     if args.repo_id is None:
         raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
-    loaded = load_env(args.repo_id, check=args.check, fingerprint=args.fingerprint, **args.load_kwargs())
+    loaded = call_with_flags(load_env, args, args.repo_id)
     if args.json:
         print(
             json.dumps(

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hub_envs._flags import EnvFlags
+from hub_envs._flags import EnvFlags, call_with_flags
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
@@ -399,17 +399,7 @@ class ReproduceArgs(EnvFlags):
 def reproduce_cli(args: ReproduceArgs) -> int:
     if args.repo_id is None:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
-    report = reproduce(
-        args.repo_id,
-        workers=args.workers or None,
-        tolerance=args.tolerance,
-        out=args.out,
-        replay=args.replay,
-        benchmarks=args.benchmarks,
-        resamples=args.resamples,
-        trust_policy_code=args.trust_policy_code,
-        **args.load_kwargs(),
-    )
+    report = call_with_flags(reproduce, args, args.repo_id, workers=args.workers or None)
     if args.json:
         print(report.to_json(), end="")
     else:

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._flags import call_with_flags
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles
 from hub_envs.repo_format import (
@@ -663,16 +664,7 @@ def diff_cli(args: DiffArgs) -> int:
     try:
         if not args.old or not args.new:
             raise ConfigError("hub-envs diff needs --old=user/name@<sha> and --new=user/name@<sha> (or another repo).")
-        report = diff(
-            args.old,
-            args.new,
-            episodes=args.episodes,
-            random_episodes=args.random_episodes,
-            trust_remote_code=args.trust_remote_code,
-            tolerance=args.tolerance,
-            workers=args.workers,
-            out=args.out,
-        )
+        report = call_with_flags(diff, args, args.old, args.new)
     except HubEnvsError as e:
         print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
         return 2

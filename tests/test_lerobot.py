@@ -113,6 +113,16 @@ def published(hub_module, tmp_path_factory):
     return shas
 
 
+@pytest.fixture(scope="module")
+def one_step_checkpoint(hub_module, published, tmp_path_factory) -> Path:
+    """``hub-envs train`` of a tiny ACT for one step on pendulum-pixels: its ``pretrained_model`` folder."""
+    out = tmp_path_factory.mktemp("train") / "run"
+    args = ["train", *_hub_args("pendulum-pixels", published["pendulum-pixels"]), *TINY_ACT, "--batch_size=4"]
+    args += ["--num_workers=0", f"--{EVAL_FREQ}=0", "--steps=1", "--save_freq=1", f"--output_dir={out}"]
+    assert cli_main(args) == 0
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
 def _hub_args(name: str, sha: str, *extra: str) -> list[str]:
     return ["--env.type=hub", f"--env.repo_id=alice/{name}", f"--env.revision={sha}", "--env.trust_remote_code=true", *extra]
 
@@ -382,7 +392,7 @@ def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, publi
 
 
 @pytest.mark.parametrize("route", ["--env.discover_packages_path", "the lerobot_env_hub plugin"])
-def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_path, route):
+def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, one_step_checkpoint, tmp_path, route):
     """LeRobot's unmodified ``lerobot-eval`` console script, in a fresh process: with LeRobot's plugin flag on
     every version, and with no flag at all from LeRobot 0.5 on (it imports ``lerobot_env_*`` distributions)."""
     plain = route == "the lerobot_env_hub plugin"
@@ -392,29 +402,12 @@ def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_pa
             "on 0.4 the --env.discover_packages_path route is the one"
         )
     sha = published["pendulum-pixels"]
-    train = tmp_path / "train"
-    assert (
-        cli_main(
-            [
-                "train",
-                *_hub_args("pendulum-pixels", sha),
-                *TINY_ACT,
-                "--batch_size=4",
-                "--num_workers=0",
-                f"--{EVAL_FREQ}=0",
-                "--steps=1",
-                "--save_freq=1",
-                f"--output_dir={train}",
-            ]
-        )
-        == 0
-    )
     flags = [] if plain else ["--env.discover_packages_path=hub_envs.lerobot_plugin"]
     cmd = [
         str(Path(sys.executable).with_name("lerobot-eval")),
         *flags,
         *_hub_args("pendulum-pixels", sha, "--env.episode_length=8"),
-        f"--policy.path={train / 'checkpoints' / 'last' / 'pretrained_model'}",
+        f"--policy.path={one_step_checkpoint}",
         "--policy.device=cpu",
         "--eval.n_episodes=2",
         "--eval.batch_size=2",
@@ -426,27 +419,10 @@ def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, tmp_pa
     assert info["overall"]["n_episodes"] == 2 and "pendulum" in info["per_group"]
 
 
-def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, published, tmp_path):
+def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, published, one_step_checkpoint, tmp_path):
     """A shared train_config.json cannot carry consent: it is saved as false, and a file saying true is ignored."""
     sha = published["pendulum-pixels"]
-    out = tmp_path / "train"
-    assert (
-        cli_main(
-            [
-                "train",
-                *_hub_args("pendulum-pixels", sha),
-                *TINY_ACT,
-                "--batch_size=4",
-                "--num_workers=0",
-                f"--{EVAL_FREQ}=0",
-                "--steps=1",
-                "--save_freq=1",
-                f"--output_dir={out}",
-            ]
-        )
-        == 0
-    )
-    saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    saved = json.loads((one_step_checkpoint / "train_config.json").read_text())
     assert saved["env"]["trust_remote_code"] is False and saved["env"]["revision"] == sha
     saved["env"]["trust_remote_code"] = True  # what someone else's config file says
     saved["output_dir"] = str(tmp_path / "again")

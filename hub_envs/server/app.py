@@ -349,12 +349,13 @@ class HubApp:
             return await self.commit(ctx, repo_type, repo_id, "/".join(rest[1:]))
         if action in ("branch", "tag") and arg is not None:  # create (POST) or delete (DELETE) a ref
             ref = "/".join(rest[1:])
-            create, delete = (
-                (self.create_branch, self.delete_branch) if action == "branch" else (self.create_tag, self.delete_tag)
-            )
+            create = self.create_branch if action == "branch" else self.create_tag
             return await self._call(
                 ctx,
-                {"POST": lambda c: create(c, repo_type, repo_id, ref), "DELETE": lambda c: delete(c, repo_type, repo_id, ref)},
+                {
+                    "POST": lambda c: create(c, repo_type, repo_id, ref),
+                    "DELETE": lambda c: self.delete_ref(c, repo_type, repo_id, action, ref),
+                },
                 body=True,
                 write=True,
             )
@@ -801,9 +802,10 @@ class HubApp:
         repo.create_branch(branch, start)
         return _json({})
 
-    def delete_branch(self, ctx: Ctx, repo_type: str, repo_id: str, branch: str) -> Response:
+    def delete_ref(self, ctx: Ctx, repo_type: str, repo_id: str, kind: str, name: str) -> Response:
+        """DELETE .../branch/<name> or .../tag/<name> (``kind``)."""
         repo = self._open(ctx, repo_type, repo_id, write=True)
-        repo.delete_branch(branch)
+        (repo.delete_branch if kind == "branch" else repo.delete_tag)(name)
         return _json({})
 
     def create_tag(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
@@ -814,11 +816,6 @@ class HubApp:
             raise HTTPError(400, "Missing 'tag' in the request body.")
         message = data.get("message")
         repo.create_tag(tag, revision, message if isinstance(message, str) else None)
-        return _json({})
-
-    def delete_tag(self, ctx: Ctx, repo_type: str, repo_id: str, tag: str) -> Response:
-        repo = self._open(ctx, repo_type, repo_id, write=True)
-        repo.delete_tag(tag)
         return _json({})
 
     # -- uploads -------------------------------------------------------------------------------

@@ -505,7 +505,8 @@ class Pages:
         repos.sort(key=lambda r: r["commit"].date, reverse=True)
         return self._render("home.html", repos=repos, query=query, tag=tag)
 
-    def _context(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None) -> dict:
+    def _context(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str = "") -> dict:
+        """What every page of a repo shows: the repo, the revision and its refs, the path and its crumbs."""
         repo = self._open(ctx, repo_type, repo_id)
         rev = revision or DEFAULT_BRANCH
         commit = repo.resolve(rev)
@@ -522,13 +523,15 @@ class Pages:
             "branches": sorted(refs.branches.items()),
             "tags": sorted(refs.tags.items()),
             "private": repo.meta.private,
+            "path": path,
+            "crumbs": _crumbs(path),
         }
 
     def repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
         path = path.strip("/")
         if path:
             validate_path(path)
-        c = self._context(ctx, repo_type, repo_id, revision)
+        c = self._context(ctx, repo_type, repo_id, revision, path)
         repo, commit = c["repo"], c["commit"]
         folders = folders_of(commit.files)
         if path and path not in folders:
@@ -559,8 +562,6 @@ class Pages:
         return self._render(
             "repo.html",
             **c,
-            path=path,
-            crumbs=_crumbs(path),
             entries=entries,
             card=card,
             card_tags=card_tags(data),
@@ -574,7 +575,7 @@ class Pages:
 
     def blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
         validate_path(path)  # before anything: a traversal attempt is a 400, as in the API
-        c = self._context(ctx, repo_type, repo_id, revision)
+        c = self._context(ctx, repo_type, repo_id, revision, path)
         repo, commit = c["repo"], c["commit"]
         entry = commit.files.get(path)
         if entry is None:
@@ -597,8 +598,6 @@ class Pages:
         return self._render(
             "blob.html",
             **c,
-            path=path,
-            crumbs=_crumbs(path),
             entry=entry,
             kind=kind,
             code=code,
