@@ -763,8 +763,10 @@ def _isolated_parts(repo, sha, path, key, manifest, local_folder, iso, overrides
         if iso.versions == "publisher":
             from hub_envs.isolation.venvs import publisher_pins
 
-            reqs, python, minor, notes = publisher_pins(manifest.requirements, dict(manifest.versions))
-            venv, record = venv_for(reqs, where=where, python=python, minor=minor)
+            reqs, constraints, python, minor, notes = publisher_pins(
+                manifest.requirements, dict(manifest.versions), dict(manifest.resolved)
+            )
+            venv, record = venv_for(reqs, where=where, python=python, minor=minor, constraints=constraints)
         else:
             venv, record = venv_for(manifest.requirements, where=where)
         iso = dataclasses.replace(iso, python=str(venv_python(venv)), pythonpath=hub_envs_path())

@@ -48,7 +48,7 @@ from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import write_rollout_gif
-from hub_envs.harness.provenance import package_versions
+from hub_envs.harness.provenance import package_versions, requirement_closure
 from hub_envs.harness.rollout import iter_episodes
 from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
@@ -234,6 +234,7 @@ def _published_unchanged(
         and remote.requirements == tuple(local.requirements)
         and remote.processors == tuple(local.processors)
         and remote.versions == package_versions(local.requirements)
+        and remote.resolved == requirement_closure(local.requirements)
     )
     if not same:
         return None
@@ -379,6 +380,7 @@ def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _
         code_digest=code_digest,
         seeds={"dataset": seeds, "check": seed, "fingerprint": run.golden["seeds"]},
         versions=package_versions(loaded.manifest.requirements),
+        resolved=requirement_closure(loaded.manifest.requirements),
         benchmarks=(_random_benchmark(run.returns, run.successes, seeds),),
         processors=tuple(loaded.manifest.processors),
         files={},

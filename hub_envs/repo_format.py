@@ -52,7 +52,7 @@ from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
 
 #: The manifest format this hub-envs writes; it reads every format from 1 up to this one.
 #: 2 added ``config_overrides`` (config variants published with ``--config.<field>=<value>``).
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 MANIFEST_FILE = "hub_env.json"
 CARD_FILE = "README.md"
 ENV_ENTRY_FILE = "env.py"
@@ -476,6 +476,9 @@ class Manifest:
     #: the config fields the publisher set (``push_env --config.<field>=<value>``); the rest are the code's
     #: defaults. ``config`` holds every resulting value, which load_env checks the code still computes.
     config_overrides: dict[str, Any] = field(default_factory=dict, metadata={"since": 2})
+    #: the installed version of every package in the closure of ``requirements`` (numpy and gymnasium
+    #: included) when push_env ran: ``versions="publisher"`` pins them all, not only the requirements.
+    resolved: dict[str, str] = field(default_factory=dict, metadata={"since": 3})
 
     # -- (de)serialization --
 

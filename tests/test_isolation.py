@@ -469,9 +469,15 @@ def test_versions_publisher_pins_the_recorded_versions_and_python(published, hub
     finally:
         env.close()
 
+    from importlib.metadata import version
+
+    assert loaded.manifest.resolved["cloudpickle"] == version("cloudpickle")  # gymnasium's dependency, recorded
+    assert {"gymnasium", "numpy", "farama-notifications"} <= set(loaded.manifest.resolved)
+
     def as_compat(folder: Path) -> None:
         manifest = json.loads((folder / "hub_env.json").read_text())
         manifest["versions"].update({"python": "3.11.7", "numpy": "2.3.5"})
+        manifest["resolved"].update({"numpy": "2.3.5", "cloudpickle": "3.0.0"})  # a dependency of a dependency
         (folder / "hub_env.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
 
     sha = republish(hub_module.api, "iso/hostile", as_compat)
@@ -486,6 +492,7 @@ def test_versions_publisher_pins_the_recorded_versions_and_python(published, hub
 
     record = worker_versions(compat)
     assert record["python"] == seen["python"]
+    assert "cloudpickle==3.0.0" in record["installed"]  # the closure is held, not only the requirements
     if any("is not installed here" in n for n in record["notes"]):  # no python 3.11 on this machine: said so
         assert seen["python"] == platform.python_version()
     else:

@@ -314,8 +314,12 @@ CASES: list[Case] = [
     repo_case(
         "manifest-newer-writer",
         E.ManifestError,
-        ("hub_env.json", "format_version 3 was written by hub-envs 9.1.0", "pip install -U 'hub-envs>=9.1.0'"),
-        manifest=lambda m: (m.__setitem__("format_version", 3), m["versions"].__setitem__("hub-envs", "9.1.0")),
+        (
+            "hub_env.json",
+            f"format_version {FORMAT_VERSION + 1} was written by hub-envs 9.1.0",
+            "pip install -U 'hub-envs>=9.1.0'",
+        ),
+        manifest=lambda m: (m.__setitem__("format_version", FORMAT_VERSION + 1), m["versions"].__setitem__("hub-envs", "9.1.0")),
     ),
     repo_case(
         "manifest-no-version",
@@ -332,8 +336,8 @@ CASES: list[Case] = [
     repo_case(
         "manifest-field-from-a-later-format",
         E.ManifestError,
-        ("hub_env.json", "unknown field(s) ['config_overrides'] for format_version 1", "push_env"),
-        manifest=setitem("format_version", 1),  # config_overrides came with format 2
+        ("hub_env.json", "unknown field(s) ['config_overrides', 'resolved'] for format_version 1", "push_env"),
+        manifest=setitem("format_version", 1),  # config_overrides came with format 2, resolved with 3
     ),
     repo_case(
         "manifest-unknown-field",

@@ -322,19 +322,22 @@ def test_load_refuses_a_repo_whose_shapes_or_dataset_disagree_with_its_config(hu
 
 
 def test_a_manifest_of_the_first_format_still_loads(hub):
-    """Older formats keep loading: a format_version 1 manifest (no config_overrides) is read with that field's default."""
+    """Older formats keep loading: a format_version 1 manifest (no config_overrides, no resolved) is read with
+    those fields' defaults."""
     _push(TINY, "alice/tiny-v1")
 
     def as_format_1(folder):
         manifest = json.loads((folder / "hub_env.json").read_text())
         manifest["format_version"] = 1
-        del manifest["config_overrides"]
+        del manifest["config_overrides"], manifest["resolved"]
         (folder / "hub_env.json").write_text(json.dumps(manifest))
 
     sha = republish(hub.api, "alice/tiny-v1", as_format_1)
     loaded = load_env(f"alice/tiny-v1@{sha}", trust_remote_code=True)
-    assert loaded.manifest.format_version == 1 and loaded.manifest.config_overrides == {}
-    assert '"config_overrides"' not in loaded.manifest.to_json()  # written back as format 1 wrote it
+    assert loaded.manifest.format_version == 1 and loaded.manifest.config_overrides == {} and loaded.manifest.resolved == {}
+    assert (
+        '"config_overrides"' not in loaded.manifest.to_json() and '"resolved"' not in loaded.manifest.to_json()
+    )  # written back as format 1 wrote it
     loaded.unregister()
 
 

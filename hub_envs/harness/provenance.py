@@ -1,16 +1,21 @@
 """Provenance: the versions of everything a result depends on, recorded and compared.
 
 Example:
-    >>> from hub_envs.harness.provenance import package_versions
+    >>> from hub_envs.harness.provenance import package_versions, requirement_closure
     >>> sorted(package_versions())[:3]
     ['draccus', 'gymnasium', 'hub-envs']
+    >>> closure = requirement_closure(["gymnasium>=1.0"])   # gymnasium and what it pulls in, as installed
+    >>> {"gymnasium", "numpy", "cloudpickle"} <= set(closure), closure["numpy"] == package_versions()["numpy"]
+    (True, True)
 """
 
 from __future__ import annotations
 
 import platform
+from importlib import metadata
 
 from packaging.requirements import InvalidRequirement, Requirement
+from packaging.utils import canonicalize_name
 
 from hub_envs.requirements import installed_version
 
@@ -32,6 +37,43 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
     versions = {name: _version(name) for name in dict.fromkeys(names)}
     versions["python"] = platform.python_version()
     return dict(sorted(versions.items()))
+
+
+def requirement_closure(
+    requirements: tuple[str, ...] | list[str] = (), *, also: tuple[str, ...] = ("numpy", "gymnasium")
+) -> dict[str, str]:
+    """The installed version of every distribution ``requirements`` (and ``also``: what an env worker needs
+    itself) pull in, transitively, with environment markers and extras evaluated as pip would here:
+    ``{canonical name: version}``. What ``versions="publisher"`` pins beyond the requirements themselves.
+    A requirement that is not installed is left out (the preflight reports it)."""
+    pending: list[tuple[Requirement, frozenset[str]]] = []
+    for text in [*requirements, *also]:
+        try:
+            pending.append((Requirement(text), frozenset({""})))
+        except InvalidRequirement:
+            continue
+    closure: dict[str, str] = {}
+    extras_seen: dict[str, set[str]] = {}
+    while pending:
+        req, parent_extras = pending.pop()
+        if req.marker is not None and not any(req.marker.evaluate({"extra": e}) for e in parent_extras):
+            continue
+        name = canonicalize_name(req.name)
+        wanted = set(req.extras) | {""}
+        if name in closure and wanted <= extras_seen[name]:
+            continue
+        try:
+            dist = metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            continue
+        closure[name] = dist.version
+        extras_seen.setdefault(name, set()).update(wanted)
+        for text in dist.requires or ():
+            try:
+                pending.append((Requirement(text), frozenset(extras_seen[name])))
+            except InvalidRequirement:
+                continue
+    return dict(sorted(closure.items()))
 
 
 def version_differences(recorded: dict[str, str], current: dict[str, str]) -> dict[str, tuple[str, str]]:

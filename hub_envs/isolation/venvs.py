@@ -18,10 +18,12 @@ in).
 
 ``versions="publisher"`` (:func:`publisher_pins`) pins every package the manifest records a version of
 (``hub_env.json`` ``versions``: numpy, gymnasium and each requirement's package, the simulator included) to
-that version, and uses the publisher's Python minor when an interpreter of it is found (``uv python find``),
-else this one with a note. What the venv really holds is in its record (``installed``), which the
-reproduce report shows as the worker's versions. The manifest records the requirements' own versions,
-not their whole dependency closure: dependencies of dependencies resolve to the newest compatible.
+that version, holds the rest of the requirements' dependency closure to the versions the publisher had
+(``resolved``, format 3: uv constraints, so a dependency that is not needed here is not installed), and
+uses the publisher's Python minor when an interpreter of it is found (``uv python find``), else this one
+with a note. A manifest of format 1 or 2 has no ``resolved``: dependencies of dependencies then resolve to
+the newest compatible, and the notes say so. What the venv really holds is in its record (``installed``),
+which the reproduce report shows as the worker's versions.
 
 Example:
     >>> from hub_envs.isolation.venvs import venv_digest
@@ -53,8 +55,10 @@ def venvs_root() -> Path:
     return hub_envs_home() / "venvs"
 
 
-def venv_digest(requirements, python_minor: str) -> str:
+def venv_digest(requirements, python_minor: str, constraints=()) -> str:
     data = {"python": python_minor, "requirements": sorted(set(requirements)), "worker": list(WORKER_NEEDS)}
+    if constraints:
+        data["constraints"] = sorted(set(constraints))
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -95,9 +99,12 @@ def hub_envs_path() -> str:
     return str(folder)
 
 
-def publisher_pins(requirements, versions: dict[str, str]) -> tuple[list[str], str | None, str | None, list[str]]:
-    """``(pinned requirements, interpreter, its minor, notes)`` for ``versions="publisher"``."""
+def publisher_pins(
+    requirements, versions: dict[str, str], resolved: dict[str, str] | None = None
+) -> tuple[list[str], list[str], str | None, str | None, list[str]]:
+    """``(pinned requirements, constraints, interpreter, its minor, notes)`` for ``versions="publisher"``."""
     from packaging.requirements import InvalidRequirement, Requirement
+    from packaging.utils import canonicalize_name
 
     pinned, notes = [], []
     names = []
@@ -118,6 +125,13 @@ def publisher_pins(requirements, versions: dict[str, str]) -> tuple[list[str], s
         else:
             pinned.append(text)
             notes.append(f"{req.name}: the publisher recorded no version; the newest compatible was installed")
+    pinned_names = {canonicalize_name(n) for n in names}
+    constraints = [f"{name}=={version}" for name, version in sorted((resolved or {}).items()) if name not in pinned_names]
+    if not resolved:
+        notes.append(
+            "the manifest records no dependency closure (published before hub-envs format 3): dependencies of the "
+            "requirements resolved to the newest compatible"
+        )
     python, minor = None, None
     published = versions.get("python")
     if published:
@@ -134,15 +148,18 @@ def publisher_pins(requirements, versions: dict[str, str]) -> tuple[list[str], s
                     f"{sys.version_info[0]}.{sys.version_info[1]}"
                 )
                 minor = None
-    return pinned, python, minor, notes
+    return pinned, constraints, python, minor, notes
 
 
-def venv_for(requirements, *, where: str, python: str | None = None, minor: str | None = None) -> tuple[Path, dict]:
-    """The venv for ``requirements`` (built if missing): ``(folder, record)``. See the module docstring."""
+def venv_for(
+    requirements, *, where: str, python: str | None = None, minor: str | None = None, constraints=()
+) -> tuple[Path, dict]:
+    """The venv for ``requirements`` (built if missing), holding ``constraints`` (``name==version`` of packages
+    the requirements may pull in): ``(folder, record)``. See the module docstring."""
     python = python or sys.executable
     minor = minor or f"{sys.version_info[0]}.{sys.version_info[1]}"
     reqs = sorted(set(requirements) | set(WORKER_NEEDS))
-    digest = venv_digest(requirements, minor)
+    digest = venv_digest(requirements, minor, constraints)
     root = venvs_root()
     final = root / digest
     record_path = final / RECORD
@@ -158,9 +175,13 @@ def venv_for(requirements, *, where: str, python: str | None = None, minor: str 
         try:
             uv = _uv()
             env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
+            constrain: list[str] = []
+            if constraints:
+                (tmp / "constraints.txt").write_text("".join(f"{c}\n" for c in sorted(set(constraints))))
+                constrain = ["--constraint", str(tmp / "constraints.txt")]
             for cmd in (
                 [*uv, "venv", "--quiet", "--python", python, str(tmp / "venv")],
-                [*uv, "pip", "install", "--quiet", "--python", str(tmp / "venv" / "bin" / "python"), *reqs],
+                [*uv, "pip", "install", "--quiet", "--python", str(tmp / "venv" / "bin" / "python"), *constrain, *reqs],
             ):
                 proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
                 if proc.returncode != 0:
@@ -181,6 +202,7 @@ def venv_for(requirements, *, where: str, python: str | None = None, minor: str 
                 "digest": digest,
                 "python": version or minor,
                 "requirements": list(requirements),
+                "constraints": sorted(set(constraints)),
                 "installed": freeze,
                 "build_seconds": round(time.perf_counter() - t0, 2),
                 "built_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
