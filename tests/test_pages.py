@@ -10,10 +10,12 @@ why, only when it cannot. Playwright's own browser download (``playwright instal
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import shutil
 import subprocess
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -292,10 +294,18 @@ def _install_chromium() -> str | None:
             return "no /usr/bin/chromium, and installing it (apt-get install chromium) needs root or passwordless sudo"
         prefix = ["sudo", "-n"]
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "--no-install-recommends", "chromium"]):
-        done = subprocess.run(prefix + cmd, capture_output=True, text=True, env=env, timeout=900)
-        if done.returncode != 0:
-            return f"apt-get could not install chromium ({' '.join(cmd)}: {done.stderr.strip()[-300:]})"
+    wait = ["-o", "DPkg::Lock::Timeout=900"]  # both legs of make test run at once: one installs, the other waits
+    with open(Path(tempfile.gettempdir()) / "hub-envs-chromium.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if CHROMIUM.exists():
+            return None
+        for cmd in (
+            ["apt-get", *wait, "update", "-qq"],
+            ["apt-get", *wait, "install", "-y", "-qq", "--no-install-recommends", "chromium"],
+        ):
+            done = subprocess.run(prefix + cmd, capture_output=True, text=True, env=env, timeout=900)
+            if done.returncode != 0:
+                return f"apt-get could not install chromium ({' '.join(cmd)}: {done.stderr.strip()[-300:]})"
     return None if CHROMIUM.exists() else "apt-get installed chromium but /usr/bin/chromium is missing"
 
 
