@@ -90,7 +90,10 @@ def instantiate_config(config_class: type, *, where: str, overrides: Mapping[str
 
 
 def encode_config(cfg: EnvConfig) -> dict[str, Any]:
-    """The config's field values as JSON-ready data (draccus encoding), plus its ``gym_kwargs``."""
+    """The config's field values as JSON-ready data (draccus encoding), plus its ``gym_kwargs``. An isolated
+    load's config (:class:`~hub_envs.isolation.config.ManifestConfig`) is those values already."""
+    if not dataclasses.is_dataclass(cfg) and callable(getattr(cfg, "to_dict", None)):
+        return json.loads(json.dumps(cfg.to_dict(), sort_keys=True))
     out = {f.name: draccus.encode(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
     out["gym_kwargs"] = draccus.encode(cfg.gym_kwargs)
     # round-trip through JSON so tuples/lists compare equal to what a manifest holds

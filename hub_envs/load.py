@@ -193,6 +193,37 @@ class LoadedEnv:
         self._dataset_verified = True
         return root
 
+    def config_with(self, fields: Mapping[str, Any]) -> Any:
+        """The config with ``fields`` set (values decoded as LeRobot's ``--env.<field>=<value>`` flags are), on
+        top of a published variant's own (``manifest.config_overrides``), before the config's ``__post_init__``.
+
+        In-process: an instance of :attr:`config_class`. Isolated: the repo's config class runs in a worker
+        (the parent never imports the repo's code) and what it computed comes back as a read-only
+        :class:`~hub_envs.isolation.config.ManifestConfig`; the envs made from it follow it the same way.
+        A field the config does not have is a :class:`~hub_envs.errors.ConfigError` naming its fields.
+        """
+        where = str(self.local_folder) if self.is_local else f"{self.repo_id}@{self.revision}"
+        fields = {**self.manifest.config_overrides, **fields}
+        if self.config_class is not None:
+            return instantiate_config(self.config_class, where=where, overrides=fields)
+        from hub_envs import errors
+        from hub_envs.isolation.config import ManifestConfig
+        from hub_envs.isolation.proxy import Worker
+
+        factory = gym.spec(self.gym_id).entry_point
+        worker = Worker(factory.target, self.isolation)
+        try:
+            answer = worker.request("config", self.manifest.config_entry_point, fields, timeout=self.isolation.start_timeout)
+        finally:
+            worker.close()
+        if "error" in answer:
+            name, message = answer["error"]
+            error = getattr(errors, name, None)
+            if not (isinstance(error, type) and issubclass(error, errors.HubEnvsError)):
+                error = errors.EnvCodeError
+            raise error(message)
+        return ManifestConfig(answer["values"], where=f"{where}: its config with {sorted(fields)}")
+
     def load_line(self) -> str:
         if self.is_local:
             return f'load_env("{self.local_folder}")'

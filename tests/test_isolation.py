@@ -560,5 +560,33 @@ def test_lerobot_hub_env_config_takes_the_isolation_fields(published):
     finally:
         va.close()
         vb.close()
-    with pytest.raises(errors.IsolationUnavailableError, match="overrides"):
-        HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, isolation="process", overrides={"g": 3.0})
+
+
+def test_config_overrides_on_an_isolated_load_run_the_config_class_in_a_worker(published):
+    """``--env.overrides`` / ``--env.episode_length`` with isolation: the repo's config class computes them in
+    a worker (the parent imports none of the repo's code), and the envs follow them as in-process ones do."""
+
+    from hub_envs.lerobot.env import HubEnv
+
+    repo, sha = published["pendulum"].split("@")
+    fields = {"overrides": {"g": "3.0", "obs_type": "pixels_agent_pos"}, "episode_length": 7}
+    here = HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, **fields)
+    isolated = HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, isolation="process", check=False, **fields)
+    assert isolated.loaded.config_class is None  # the parent has the values only, computed in a worker
+    assert isolated.env_config.g == 3.0 and isolated.episode_length == 7
+    assert isolated.features == here.features and "pixels" in isolated.features  # __post_init__ ran on the override
+    assert isolated.gym_kwargs == here.gym_kwargs
+    (va,) = here.create_envs(1)[here.loaded.manifest.name].values()
+    (vb,) = isolated.create_envs(1)[isolated.loaded.manifest.name].values()
+    try:
+        assert _same(vb.reset(seed=5), va.reset(seed=5))
+        for t in range(7):
+            out_a, out_b = va.step(np.array([[1.0]])), vb.step(np.array([[1.0]]))
+            assert _same(out_b[:4], out_a[:4]), t  # gravity 3.0 in both
+        assert bool(out_b[3][0]) and bool(out_a[3][0])  # truncated at the overridden episode length
+        assert _same(out_b[4]["final_obs"][0], out_a[4]["final_obs"][0])
+    finally:
+        va.close()
+        vb.close()
+    with pytest.raises(errors.ConfigError, match=r"no field\(s\) \['gravity'\]"):
+        HubEnv(repo_id=repo, revision=sha, trust_remote_code=True, isolation="process", overrides={"gravity": 3.0})

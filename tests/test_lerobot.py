@@ -419,6 +419,31 @@ def test_lerobots_own_eval_cli_evaluates_a_hub_env(hub_module, published, one_st
     assert info["overall"]["n_episodes"] == 2 and "pendulum" in info["per_group"]
 
 
+def _results_only(info):
+    """LeRobot's eval_info without what differs between identical runs (timings, video paths)."""
+    if isinstance(info, dict):
+        return {k: _results_only(v) for k, v in info.items() if k not in ("eval_s", "eval_ep_s") and "video" not in k}
+    if isinstance(info, list):
+        return [_results_only(v) for v in info]
+    return info
+
+
+def test_hub_envs_eval_of_a_policy_on_an_isolated_env_matches_in_process(hub_module, published, one_step_checkpoint, tmp_path):
+    """``hub-envs eval`` with ``--env.isolation=process`` and config fields set (the env's code and its config
+    class run in workers only): the same per-episode results as the env evaluated in this process."""
+    # pendulum with the pixels variant's fields: the checkpoint's features, without the variant's own processors
+    env = _hub_args("pendulum", published["pendulum"], "--env.overrides={obs_type: pixels_agent_pos}", "--env.episode_length=6")
+    runs = {}
+    for isolation in ("none", "process"):
+        out = tmp_path / isolation
+        args = ["eval", *env, f"--env.isolation={isolation}", f"--policy.path={one_step_checkpoint}", "--policy.device=cpu"]
+        assert cli_main([*args, "--eval.n_episodes=2", "--eval.batch_size=2", "--seed=3", f"--output_dir={out}"]) == 0
+        runs[isolation] = json.loads((out / "eval_info.json").read_text())
+    results = {k: _results_only({n: v[n] for n in ("per_task", "per_group", "overall") if n in v}) for k, v in runs.items()}
+    assert results["process"] == results["none"] and runs["none"]["overall"]["n_episodes"] == 2
+    assert runs["process"]["provenance"]["env"]["config"]["episode_length"] == 6
+
+
 def test_consent_is_never_read_from_or_saved_into_a_config_file(hub_module, published, one_step_checkpoint, tmp_path):
     """A shared train_config.json cannot carry consent: it is saved as false, and a file saying true is ignored."""
     sha = published["pendulum-pixels"]

@@ -60,7 +60,7 @@ class Server:
 
         self.where = init["where"]
         self.conn = conn
-        package = import_env_folder(init["path"], init["key"])
+        package = self.package = import_env_folder(init["path"], init["key"])
         self.env_class = resolve_entry_point(package, init["entry_point"], where=f"{self.where}: env entry point")
         self.envs: dict[int, Any] = {}
         self.vec = None
@@ -150,6 +150,31 @@ class Server:
 
     def op_ping(self):
         return os.getpid()
+
+    # -- the config with a user's field values (LeRobot's --env.<field> flags on an isolated load) --
+    def op_config(self, entry_point: str, overrides: dict) -> dict:
+        """The config's values (:func:`hub_envs.envconfig.encode_config`) with ``overrides`` set before its
+        ``__post_init__``, which runs here, not in the parent. Imports the config module, and so lerobot.
+        Answers ``{"values": ...}`` or ``{"error": (hub-envs error class name, message)}``."""
+        from hub_envs.errors import HubEnvsError
+        from hub_envs.importing import resolve_entry_point
+
+        try:
+            try:
+                from hub_envs.envconfig import encode_config, instantiate_config
+            except ImportError as e:
+                return {
+                    "error": (
+                        "IsolationUnavailableError",
+                        f"{self.where}: setting config fields ({sorted(overrides)}) runs the env's config class, which "
+                        f"needs lerobot, and the worker cannot import it ({e}). With isolation='venv', list lerobot in "
+                        f"the env's requirements, or use isolation='process'.",
+                    )
+                }
+            cls = resolve_entry_point(self.package, entry_point, where=f"{self.where}: config entry point")
+            return {"values": encode_config(instantiate_config(cls, where=self.where, overrides=overrides))}
+        except HubEnvsError as e:
+            return {"error": (type(e).__name__, str(e))}
 
 
 def serve(conn, init: dict[str, Any]) -> None:

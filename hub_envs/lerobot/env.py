@@ -139,8 +139,8 @@ class HubEnv(EnvConfig):
         fingerprint: ``error`` / ``warn`` / ``off``, what a drifted golden rollout does at load.
         check: run load_env's feature and fingerprint checks.
         isolation, sandbox, versions: run the env in worker processes / a sandbox / a venv of the publisher's
-            versions (see :func:`hub_envs.load_env`); ``overrides`` are not available with isolation (the
-            repo's config class is not imported here).
+            versions (see :func:`hub_envs.load_env`). With isolation, ``overrides`` / ``task`` / ``fps`` /
+            ``episode_length`` are applied by the repo's config class in a worker (it is not imported here).
     """
 
     repo_id: str | None = None
@@ -179,22 +179,10 @@ class HubEnv(EnvConfig):
                 loaded.config_class is not None or getattr(self, name) != getattr(loaded.config, name, None)
             ):
                 overrides.setdefault(name, getattr(self, name))
-        if overrides and loaded.config_class is None:
-            from hub_envs.errors import IsolationUnavailableError
-
-            raise IsolationUnavailableError(
-                f"{where}: --env.overrides / task / fps / episode_length ({sorted(overrides)}) need the repo's config class, "
-                f"which an isolated load does not import; not available with isolation yet. Drop them or use --env.isolation=none."
-            )
-        overrides = _typed_overrides(loaded.config_class, overrides, where=where) if overrides else {}
-        from hub_envs.envconfig import instantiate_config
-
-        published = dict(loaded.manifest.config_overrides)  # a published variant's fields, then the user's
-        env_cfg = (
-            instantiate_config(loaded.config_class, where=where, overrides={**published, **overrides})
-            if overrides
-            else loaded.config
-        )
+        if overrides and loaded.config_class is not None:
+            overrides = _typed_overrides(loaded.config_class, overrides, where=where)
+        # in-process, the repo's config class; isolated, what it computed in a worker (see LoadedEnv.config_with)
+        env_cfg = loaded.config_with(overrides) if overrides else loaded.config
         self._loaded = loaded
         self._env_config = env_cfg
         if not loaded.is_local:
