@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hub_envs._flags import EnvFlags
+from hub_envs._flags import EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles
 
@@ -461,17 +461,8 @@ class CompareArgs(EnvFlags):
 def compare_cli(args: CompareArgs) -> int:
     if args.repo_id is None or not args.policies:
         raise ConfigError("hub-envs compare needs --repo_id=user/name@<sha> and --policies=A,B (random, a folder, a repo id).")
-    report = compare(
-        args.repo_id,
-        [p for p in args.policies.split(",") if p.strip()],
-        episodes=args.episodes,
-        seed=args.seed,
-        trust_policy_code=args.trust_policy_code,
-        workers=args.workers or None,
-        resamples=args.resamples,
-        out=args.out,
-        **args.load_kwargs(),
-    )
+    policies = [p for p in args.policies.split(",") if p.strip()]
+    report = call_with_flags(compare, args, args.repo_id, policies, workers=args.workers or None)
     if args.json:
         print(report.to_json(), end="")
     else:
