@@ -21,8 +21,8 @@ Output: a terminal summary, ``report.json``, ``report.md`` and ``report.png`` (m
 
 Example:
     >>> from hub_envs.policy_compare import episodes_for_half_width
-    >>> episodes_for_half_width([0.0, 1.0] * 10, half_width=0.05)  # p = 0.5 needs ~400 episodes for ±5 points
-    400
+    >>> episodes_for_half_width([0.0, 1.0] * 10, half_width=0.05)  # a 50 % success rate: ~400 episodes for ±5 points
+    405
 """
 
 from __future__ import annotations
