@@ -429,13 +429,13 @@ def compare(
                 "half_width": HALF_WIDTH,
             },
         )
+        report.timings = {k: round(v, 4) for k, v in timings.items()}  # in the files: load and each policy
         if write:
             t = time.perf_counter()
             parts = [p for p in loaded.repo_id.split("/") if p not in ("", ".", "..")]
             report.write(Path(out) if out is not None else DEFAULT_OUT.joinpath(*parts))
-            timings["report"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - t0
-        report.timings = {k: round(v, 4) for k, v in timings.items()}
+            report.timings["report"] = round(time.perf_counter() - t, 4)
+        report.timings["total"] = round(time.perf_counter() - t0, 4)
         return report
     finally:
         loaded.unregister()

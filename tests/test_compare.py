@@ -73,6 +73,7 @@ def test_random_against_itself_differs_by_exactly_zero_on_paired_seeds(hub_modul
     assert "random - random (2) (paired over seeds): success +0.0 points" in printed
     assert (tmp_path / "report.md").read_text().startswith("# Policy comparison on `alice/reach-compare`")
     assert (tmp_path / "report.png").stat().st_size > 0
+    assert {"load", "policy random", "policy random (2)"} <= set(data["timings"])
     assert data["provenance"]["versions"]["pybullet"] and data["provenance"]["content_digest"] == reach.manifest.content_digest
 
 
