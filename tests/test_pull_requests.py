@@ -87,6 +87,11 @@ def test_only_the_owner_merges_or_writes_and_anyone_opens(two_users):
         bob.merge_pull_request(repo, pr.pr_num)
     assert err.value.response.status_code == 403 and "only its owner" in str(err.value)
     assert owner.repo_info(repo).sha == head and owner.get_discussion_details(repo, pr.pr_num).status == "open"
+    for attempt in (lambda: bob.delete_repo(repo), lambda: bob.create_repo("alice/not-bobs")):
+        with pytest.raises(HfHubHTTPError) as err:
+            attempt()
+        assert err.value.response.status_code == 403
+    assert owner.repo_info(repo).sha == head
     # bob owns his namespace: there he commits and merges
     bob.create_repo("bob/own")
     bob.create_commit("bob/own", [_add("a.txt", b"a")], commit_message="start")

@@ -600,6 +600,8 @@ class HubApp:
         if organization is not None and not isinstance(organization, str):
             raise HTTPError(400, "'organization' must be a string.")
         repo_id = f"{organization or user}/{name}"
+        if user != self.user and (organization or user).lower() != user.lower():  # another account: its namespace only
+            raise HTTPError(403, f"{user} cannot create repos in the namespace {organization!r}: only in {user!r}.")
         private = _requested_private(data, repo_type)
         try:
             repo = self.store.create_repo(repo_type, repo_id, author=user, private=bool(private), sdk=sdk)
@@ -622,7 +624,9 @@ class HubApp:
         repo_type = data.get("type") or "model"
         if repo_type not in REPO_TYPES:
             raise HTTPError(400, f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
-        self.store.delete_repo(repo_type, f"{organization or user}/{name}")
+        repo_id = f"{organization or user}/{name}"
+        self._require_manage(ctx, self.store.open(repo_type, repo_id), "delete")
+        self.store.delete_repo(repo_type, repo_id)
         return _json({})
 
     def list_repos(self, ctx: Ctx, repo_type: str) -> Response:
