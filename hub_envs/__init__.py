@@ -29,6 +29,10 @@ _EXPORTS = {
     "reproduce": "hub_envs.reproduction",
     "diff": "hub_envs.revision_diff",
     "DiffReport": "hub_envs.revision_diff",
+    "compare": "hub_envs.policy_compare",
+    "CompareReport": "hub_envs.policy_compare",
+    "attest": "hub_envs.attestation",
+    "Attestation": "hub_envs.attestation",
     "env_from_dataset": "hub_envs.from_dataset",
     "IsolationOptions": "hub_envs.isolation.proxy",
     "IsolatedEnv": "hub_envs.isolation.proxy",
@@ -39,11 +43,13 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["errors", "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover
+    from hub_envs.attestation import Attestation, attest  # noqa: F401
     from hub_envs.from_dataset import env_from_dataset  # noqa: F401
     from hub_envs.isolation.proxy import IsolatedEnv, IsolationOptions  # noqa: F401
     from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401
     from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
     from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401
+    from hub_envs.policy_compare import CompareReport, compare  # noqa: F401
     from hub_envs.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo_format import Manifest  # noqa: F401
     from hub_envs.reproduction import reproduce  # noqa: F401

@@ -76,12 +76,47 @@ def describe_space(space) -> str:
     return str(space)
 
 
-def render_card(manifest: Manifest, *, env_class: type, env, content_tag: str, license: str | None = None) -> str:
+def reproduced_table(attestations) -> str:
+    """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.attestation.Attestation`),
+    oldest first; "" without any.
+
+    >>> reproduced_table([])
+    ''
+    """
+    rows = sorted(attestations, key=lambda a: (a.created_at, a.stack_digest))
+    if not rows:
+        return ""
+    out = [
+        "| date | verdict | commit | stack | python | lerobot | torch | numpy | gymnasium | simulator | platform / CPU | by |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for a in rows:
+        pk = a.stack.get("packages", {})
+        sim = ", ".join(f"{k} {v}" for k, v in sorted(a.stack.get("simulator", {}).items())) or "-"
+        system = f"{str(a.stack.get('platform', '-')).split('-')[0]} {a.stack.get('machine', '')}, {a.stack.get('cpu', '-')}"
+        out.append(
+            f"| {a.created_at[:10]} | {'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()} | `{a.sha[:12]}` | `{a.stack_digest}` | "
+            f"{a.stack.get('python', '-')} | {pk.get('lerobot', '-')} | {pk.get('torch', '-')} | {pk.get('numpy', '-')} | "
+            f"{pk.get('gymnasium', '-')} | {sim} | {system} | {a.attested_by or '-'} |"
+        )
+    return "\n".join(out)
+
+
+def render_card(
+    manifest: Manifest,
+    *,
+    env_class: type,
+    env,
+    content_tag: str,
+    license: str | None = None,
+    reproductions: list | tuple = (),
+) -> str:
     """Render README.md for a repo about to be published, from its manifest (``files`` not final yet: the
     card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
-    claims none.
+    claims none. ``reproductions``: merged attestations (:class:`hub_envs.attestation.Attestation`); those of this
+    content (its digest) make the "Reproduced on" table.
     """
 
     repo_id = manifest.repo_id
@@ -151,5 +186,6 @@ def render_card(manifest: Manifest, *, env_class: type, env, content_tag: str, l
         fingerprint_digest=manifest.fingerprint.get("digest", "-"),
         versions=manifest.versions,
         processors=list(manifest.processors),
+        reproduced_table=reproduced_table([a for a in reproductions if a.content_digest == manifest.content_digest]),
     )
     return str(card)

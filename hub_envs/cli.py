@@ -6,7 +6,9 @@ Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` 
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
-    hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true
+    hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true]
+    hub-envs attestations --repo_id=user/pendulum-lerobot [--verify=true --allowed_signers=FILE]
+    hub-envs compare --repo_id=user/pendulum-lerobot@<sha> --policies=random,path/to/pretrained_model [--episodes=20]
     hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.type=act ...
     hub-envs eval --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.path=...
 
@@ -216,6 +218,8 @@ RAW_COMMANDS = {
 LAZY_COMMANDS = {
     "reproduce": "hub_envs.reproduction",
     "diff": "hub_envs.revision_diff",
+    "attestations": "hub_envs.attestation",
+    "compare": "hub_envs.policy_compare",
     "train": "hub_envs.lerobot.bridge",
     "eval": "hub_envs.lerobot.bridge",
 }
@@ -227,6 +231,8 @@ SUMMARIES = {
     "untrust": "forget the trust entries of a repo: hub-envs untrust user/name[@<sha>]",
     "reproduce": "re-run what a repo recorded (dataset replay, benchmarks, fingerprint) and report",
     "diff": "what changed between two revisions (files, manifest, spaces) and where their behaviour diverges",
+    "attestations": "a repo's reproduction attestations (merged and in open PRs): env revision x stack -> verdict",
+    "compare": "evaluate policies (LeRobot checkpoints, random) on the same seeds: rates, CIs, paired difference",
     "train": "LeRobot's lerobot-train with a hub env (--env.type=hub --env.repo_id=...)",
     "eval": "LeRobot's lerobot-eval with a hub env (--env.type=hub --env.repo_id=...)",
 }

@@ -114,6 +114,10 @@ class ConfigError(HubEnvsError, ValueError):
     """A configuration value (CLI flag, EnvConfig field, setting) is invalid."""
 
 
+class AttestationError(HubEnvsError, ValueError):
+    """A reproduction attestation is malformed, or could not be signed, verified or published."""
+
+
 class ProcessorError(InvalidRepoFormatError):
     """An env processor declared in the manifest is malformed or cannot be built."""
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs import hub_io
-from hub_envs.card import render_card
+from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, unrecordable_reason, write_env_states
 from hub_envs.dataset.writer import (
@@ -198,8 +198,33 @@ def _code_files(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
     return dict(sorted(files.items()))
 
 
+def _attestation_file(path: str) -> bool:
+    """A reproduction attestation (``reproductions/``): merged through pull requests, kept by every push."""
+    return path.startswith("reproductions/")
+
+
+def _merged_attestations(repo_id: str, token: str | None) -> list:
+    """The valid attestations on main (:func:`hub_envs.attestation.merged_attestations`); invalid ones are skipped."""
+    from hub_envs.attestation import merged_attestations
+
+    return [e.attestation for e in merged_attestations(repo_id, token=token) if e.attestation is not None]
+
+
+def _card_shows(repo_id: str, sha: str, table: str, token: str | None) -> bool:
+    """Whether the card at ``sha`` already shows ``table`` (the "Reproduced on" table; "" for none)."""
+    card = hub_io.read_remote_text(repo_id, CARD_FILE, revision=sha, token=token) or ""
+    return table in card if table else "## Reproduced on" not in card
+
+
 def _published_unchanged(
-    loaded: LoadedEnv, repo_id: str, *, episodes: int, seed: int, fingerprint_seeds: int, token: str | None
+    loaded: LoadedEnv,
+    repo_id: str,
+    *,
+    episodes: int,
+    seed: int,
+    fingerprint_seeds: int,
+    token: str | None,
+    attestations: list = (),  # type: ignore[assignment]
 ) -> tuple[str, Manifest] | None:
     """``(sha, manifest)`` of main when it already holds what this push would build, else None.
 
@@ -208,7 +233,8 @@ def _published_unchanged(
     versions (hub-envs' own included, so a new hub-envs regenerates); and main holds exactly the files its
     manifest lists. Generated files (dataset, GIF, card) are not rebuilt to compare them: they follow from
     the above, and a hand edit of them that also rewrote the manifest is for ``hub-envs reproduce`` to find
-    (``force=True`` regenerates anyway).
+    (``force=True`` regenerates anyway). The card must also show the merged ``attestations`` of this content
+    ("Reproduced on"): one merged since the last push makes the push rebuild, so the card shows it.
     """
     head = hub_io.remote_head(repo_id, token=token)
     if head is None:
@@ -238,8 +264,11 @@ def _published_unchanged(
     )
     if not same:
         return None
-    remote_files = set(hub_io.list_remote_files(repo_id, head, token=token)) - set(HUB_FILES)
-    return (head, remote) if remote_files == set(remote.files) | {MANIFEST_FILE} else None
+    remote_files = {p for p in hub_io.list_remote_files(repo_id, head, token=token) if not _attestation_file(p)} - set(HUB_FILES)
+    if remote_files != set(remote.files) | {MANIFEST_FILE}:
+        return None
+    table = reproduced_table([a for a in attestations if a.content_digest == remote.content_digest])
+    return (head, remote) if _card_shows(repo_id, head, table, token) else None
 
 
 def _generated(path: str) -> bool:
@@ -399,6 +428,7 @@ def build_repo(
     determinism_steps: int | None = None,
     fingerprint_seeds: int = FINGERPRINT_SEEDS,
     progress: bool = True,
+    attestations: list | tuple = (),
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
@@ -443,6 +473,7 @@ def build_repo(
             env=env,
             content_tag=content_tag(manifest.content_digest),
             license=EnvFolder.read(loaded.local_folder).license,
+            reproductions=attestations,
         )
         (staging / CARD_FILE).write_text(card, encoding="utf-8")
     finally:
@@ -501,11 +532,18 @@ def push_env(
     t0 = time.perf_counter()
     loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
+        attestations = _merged_attestations(repo_id, token)
         unchanged = (
             None
             if force
             else _published_unchanged(
-                loaded, repo_id, episodes=episodes, seed=seed, fingerprint_seeds=FINGERPRINT_SEEDS, token=token
+                loaded,
+                repo_id,
+                episodes=episodes,
+                seed=seed,
+                fingerprint_seeds=FINGERPRINT_SEEDS,
+                token=token,
+                attestations=attestations,
             )
         )
         if unchanged is not None:
@@ -528,13 +566,15 @@ def push_env(
                 workers=workers or _default_workers(),
                 determinism_steps=determinism_steps,
                 progress=progress,
+                attestations=attestations,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()
             _stage_printer(progress)(f"Publishing to {repo_id} at {hub_io.endpoint()}")
             head = hub_io.remote_head(repo_id, token=token)
             remote_manifest = _remote_manifest(repo_id, head, token) if head is not None else None
-            remote_files = hub_io.list_remote_files(repo_id, head, token=token)
+            # the attestations merged on main stay: they are not the env's files, and the push neither lists nor deletes them
+            remote_files = [p for p in hub_io.list_remote_files(repo_id, head, token=token) if not _attestation_file(p)]
             same_files = set(remote_files) - {".gitattributes"} == set(manifest.files) | {MANIFEST_FILE}
             if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files:
                 sha, created = head, False

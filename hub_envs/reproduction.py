@@ -366,6 +366,7 @@ def reproduce(
                 "benchmarks": benchmarks,
                 "isolation": isolation + ("+sandbox" if sandbox else ""),
                 "versions": versions,
+                "source": "folder" if loaded.local_folder is not None else "hub",
             },
         )
         report.timings = {k: round(v, 4) for k, v in timings.items()}
@@ -394,11 +395,36 @@ class ReproduceArgs(EnvFlags):
     benchmarks: bool = True
     resamples: int = 1000
     json: bool = False  # also print the JSON report to stdout
+    attest: bool = False  # publish the outcome as reproductions/<date>-<stack>.json through a pull request on the repo
+    sign_key: Path | None = None  # with --attest: sign it with this OpenSSH private key (ssh-keygen -Y sign)
+
+
+def command_line(args: ReproduceArgs, sha: str) -> list[str]:
+    """The ``hub-envs reproduce`` command that re-runs this reproduction: the flags that differ from their defaults,
+    the revision pinned to the commit that was reproduced (``--attest``/``--sign_key``/``--json``/``--out`` left out).
+
+    >>> command_line(ReproduceArgs(repo_id="u/e", trust_remote_code=True, attest=True), "ab" * 20)[2:]
+    ['--repo_id=u/e', '--revision=abababababababababababababababababababab', '--trust_remote_code=true']
+    """
+    import dataclasses
+
+    out = ["hub-envs", "reproduce", f"--repo_id={args.repo_id.split('@')[0] if args.repo_id else ''}", f"--revision={sha}"]
+    for f in dataclasses.fields(args):
+        if f.name in ("repo_id", "revision", "attest", "sign_key", "json", "out"):
+            continue
+        value = getattr(args, f.name)
+        if value != f.default:
+            out.append(f"--{f.name}={str(value).lower() if isinstance(value, bool) else value}")
+    return out
 
 
 def reproduce_cli(args: ReproduceArgs) -> int:
     if args.repo_id is None:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
+    if args.sign_key is not None and not args.attest:
+        raise ConfigError("--sign_key signs an attestation: add --attest=true (or drop --sign_key).")
+    if args.sign_key is not None and not Path(args.sign_key).expanduser().is_file():
+        raise ConfigError(f"--sign_key={args.sign_key}: no such file; pass an OpenSSH private key. Nothing was run.")
     report = call_with_flags(reproduce, args, args.repo_id, workers=args.workers or None)
     if args.json:
         print(report.to_json(), end="")
@@ -410,6 +436,11 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         + (f", {where['png']} (plot)" if where.get("png") else ""),
         file=sys.stderr if args.json else sys.stdout,
     )
+    if args.attest:
+        from hub_envs.attestation import attest
+
+        result = attest(report, command=command_line(args, report.sha), sign_key=args.sign_key)
+        print(result.summary(), file=sys.stderr if args.json else sys.stdout)
     return 0 if report.reproduced else 1
 
 

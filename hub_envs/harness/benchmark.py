@@ -187,20 +187,31 @@ def _check_policy_consent(repo_id: str, revision: str, path: str, trusted: Any, 
 def _checkpoint_policy(
     spec: dict[str, Any], loaded: Any, *, token: str | None = None, trust_policy_code: bool = False
 ) -> Callable[[Any, int], np.ndarray]:
-    """A LeRobot pretrained policy at a pinned commit, as the rollout engine's ``(obs, t) -> action``."""
+    """A LeRobot pretrained policy at a pinned commit (``"checkpoint": "user/policy@<sha>"``), or in a local
+    ``pretrained_model`` folder (``"path": ...``: the caller's own files, loaded without a consent check), as
+    the rollout engine's ``(obs, t) -> action``."""
     from hub_envs import hub_io
     from hub_envs.repo_format import is_commit_sha
 
+    local = spec.get("path")
     ref = spec.get("checkpoint") or spec.get("repo_id")
-    if not isinstance(ref, str):
+    if isinstance(local, str):
+        ref = local
+        if not (Path(local) / "config.json").is_file():
+            raise ReproductionError(
+                f"policy folder {local}: no config.json in it. Pass a LeRobot `pretrained_model` folder "
+                "(e.g. outputs/train/checkpoints/last/pretrained_model) or a Hub repo id."
+            )
+    elif not isinstance(ref, str):
         raise ReproductionError(f'benchmark policy {spec!r}: a checkpoint policy needs "checkpoint": "user/policy@<sha>".')
-    repo_id, revision = hub_io.parse_repo_ref(ref)
-    revision = spec.get("revision") or revision
-    if not is_commit_sha(revision):
-        raise ReproductionError(
-            f"benchmark policy {ref!r} is not pinned to a commit: a benchmark result is only reproducible against the exact "
-            f'weights. Declare it as "{repo_id}@<40-hex sha>".'
-        )
+    else:
+        repo_id, revision = hub_io.parse_repo_ref(ref)
+        revision = spec.get("revision") or revision
+        if not is_commit_sha(revision):
+            raise ReproductionError(
+                f"benchmark policy {ref!r} is not pinned to a commit: a benchmark result is only reproducible against the "
+                f'exact weights. Declare it as "{repo_id}@<40-hex sha>".'
+            )
     try:
         import torch
         from huggingface_hub import snapshot_download
@@ -210,10 +221,13 @@ def _checkpoint_policy(
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
     from hub_envs.trust_list import read_trust_list
 
-    trusted = read_trust_list()  # before the download, as load_env does
-    with hub_io.translate_hub_errors(repo_id, revision):
-        path = snapshot_download(repo_id, revision=revision, token=token)
-    _check_policy_consent(repo_id, revision, path, trusted, trust_policy_code)
+    if isinstance(local, str):
+        path, repo_id, revision = str(local), str(local), "local"
+    else:
+        trusted = read_trust_list()  # before the download, as load_env does
+        with hub_io.translate_hub_errors(repo_id, revision):
+            path = snapshot_download(repo_id, revision=revision, token=token)
+        _check_policy_consent(repo_id, revision, path, trusted, trust_policy_code)
     torch.set_num_threads(1)  # see act(): identical results in every worker, no OpenMP pool across fork
     try:
         cfg = PreTrainedConfig.from_pretrained(path)

@@ -20,6 +20,14 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
   streamed to disk, sha256-checked) and an ``lfsFile`` commit line: see :mod:`hub_envs.server.lfs`.
   Xet is not offered (``xetEnabled: false``; ``/xet-*-token`` answers 501 naming ``HF_HUB_DISABLE_XET=1``).
 * A stale ``parentCommit`` is refused with 412 and the Hub's message.
+* Pull requests: ``commit/<branch>?create_pr=1`` opens ``refs/pr/N`` (from the branch head, or from
+  ``parentCommit``) and answers its ``pullRequestUrl`` (``.../discussions/N``); a commit to
+  ``refs/pr/N`` adds to an open one; ``/discussions`` lists them (paged by ``p``, 50 a page),
+  ``/discussions/N`` details them (events, ``changes.base``, ``mergeCommitId``), ``/discussions/N/merge``
+  merges (a merge commit; 409 with ``filesWithConflicts`` when the branch changed the same files) and
+  ``/discussions/N/status`` closes or reopens. Any account may open one on a repo it can read; only the
+  owner merges, and the owner or its author closes. Every read takes ``revision=refs/pr/N``.
+  Plain discussions (comments without changes) are not kept.
 * ``/resolve`` answers HEAD and GET with ``X-Repo-Commit``, ``ETag`` (the git blob sha1; for an
   LFS file its sha256, also in ``X-Linked-Etag``, with ``X-Linked-Size``), ``Content-Length`` and
   ``Accept-Ranges``, and serves single ``Range`` requests with 206.
@@ -104,7 +112,10 @@ from hub_envs.server.storage import (
     InvalidNameError,
     InvalidOperationError,
     InvalidPathError,
+    MergeConflictError,
     ParentMismatchError,
+    PullRequest,
+    PullRequestNotFoundError,
     RefExistsError,
     Repo,
     RepoExistsError,
@@ -122,6 +133,7 @@ logger = logging.getLogger("hub_envs.server")
 DEFAULT_USER = "local"
 TREE_PAGE_SIZE = 1000
 COMMITS_PAGE_SIZE = 50
+DISCUSSIONS_PAGE_SIZE = 50
 _CHUNK = 1024 * 1024
 _PLURAL = {"models": "model", "datasets": "dataset", "spaces": "space"}
 _URL_PREFIX = {"model": "", "dataset": "datasets/", "space": "spaces/"}
@@ -216,6 +228,7 @@ class HubApp:
         max_line_mb: float | None = None,
         allow_bytecode: bool | None = None,
         max_lfs_mb: float | None = None,
+        users: dict[str, str] | None = None,
     ):
         if fsync is None:
             fsync = os.environ.get("HUB_ENVS_SERVER_FSYNC", "1").lower() not in ("0", "false", "no")
@@ -228,6 +241,8 @@ class HubApp:
         self.tree_page_size = page_size or TREE_PAGE_SIZE
         self.commits_page_size = page_size or COMMITS_PAGE_SIZE
         self.user = user or os.environ.get("HUB_ENVS_SERVER_USER") or DEFAULT_USER
+        # more accounts (token -> name): each owns its own namespace only; see _can_manage
+        self.users = dict(users) if users is not None else _users_from_env(os.environ.get("HUB_ENVS_SERVER_USERS", ""))
         self.max_body = _limit_bytes(max_body_mb, "HUB_ENVS_SERVER_MAX_BODY_MB", DEFAULT_MAX_BODY_MB, "max_body_mb")
         self.max_line = _limit_bytes(max_line_mb, "HUB_ENVS_SERVER_MAX_LINE_MB", DEFAULT_MAX_LINE_MB, "max_line_mb")
         if allow_bytecode is None:
@@ -260,12 +275,15 @@ class HubApp:
             return _error_response(HTTPError(500, _INTERNAL_ERROR))
 
     def _caller(self, request: Request) -> str | None:
+        header = (request.headers.get("authorization") or "").strip()
+        for token, name in self.users.items():  # the other accounts, with or without a server token
+            if header and hmac.compare_digest(header.encode(), f"Bearer {token}".encode()):
+                return name
         if self.token is None:
-            return self.user  # open server: everyone is the server's user
-        header = request.headers.get("authorization")
+            return self.user  # open server: everyone else is the server's user
         if not header:
             return None
-        if not hmac.compare_digest(header.strip().encode(), f"Bearer {self.token}".encode()):
+        if not hmac.compare_digest(header.encode(), f"Bearer {self.token}".encode()):
             raise HTTPError(401, _INVALID_CREDENTIALS)
         return self.user
 
@@ -282,6 +300,10 @@ class HubApp:
             return HTTPError(409, message)
         if isinstance(err, ParentMismatchError):
             return HTTPError(412, message)
+        if isinstance(err, PullRequestNotFoundError):
+            return HTTPError(404, message)
+        if isinstance(err, MergeConflictError):
+            return HTTPError(409, message, extra={"filesWithConflicts": err.files})
         if isinstance(err, (InvalidPathError, InvalidNameError, InvalidOperationError)):
             return HTTPError(400, message)
         logger.error("Store error on %s %s: %s", request.method, request.url.path, message)
@@ -359,11 +381,30 @@ class HubApp:
                 body=True,
                 write=True,
             )
+        if action == "discussions":
+            return await self._discussions_api(ctx, repo_type, repo_id, rest[1:])
         if action in ("xet-write-token", "xet-read-token"):  # Xet is not offered: say what to do instead
             return await self._call(ctx, {m: self.lfs.no_xet for m in ("GET", "POST")})
         if action == "settings" and arg is None:
             return await self._call(ctx, {"PUT": lambda c: self.settings(c, repo_type, repo_id)}, body=True, write=True)
         raise HTTPError(404, f"Unknown API route /{'/'.join(ctx.segs)}.")
+
+    async def _discussions_api(self, ctx: Ctx, repo_type: str, repo_id: str, rest: list[str]) -> Response:
+        """``/discussions`` (list), ``/discussions/<num>`` (details), ``/discussions/<num>/merge`` and ``/status``."""
+        if not rest:
+            return await self._call(ctx, {"GET": lambda c: self.list_discussions(c, repo_type, repo_id)})
+        if not rest[0].isdigit() or len(rest[0]) > 9 or int(rest[0]) < 1:
+            raise HTTPError(400, f"Invalid discussion number {rest[0][:20]!r}: expected a positive integer.")
+        num = int(rest[0])
+        if len(rest) == 1:
+            return await self._call(ctx, {"GET": lambda c: self.discussion_details(c, repo_type, repo_id, num)})
+        if len(rest) == 2 and rest[1] == "merge":
+            return await self._call(ctx, {"POST": lambda c: self.merge_pr(c, repo_type, repo_id, num)}, body=True, write=True)
+        if len(rest) == 2 and rest[1] == "status":
+            return await self._call(
+                ctx, {"POST": lambda c: self.discussion_status(c, repo_type, repo_id, num)}, body=True, write=True
+            )
+        raise HTTPError(404, f"Unknown API route /{'/'.join(ctx.segs)}: this server has pull requests, not comments.")
 
     async def _call(self, ctx: Ctx, handlers: dict[str, Callable], body: bool = False, write: bool = False) -> Response:
         """Run the handler of ``ctx.method`` in a worker thread; ``write``: authenticate first;
@@ -411,6 +452,21 @@ class HubApp:
                 "must send it (`Authorization: Bearer <token>`). Set HF_TOKEN to that token, or pass token=...",
             )
         return ctx.user
+
+    def _can_manage(self, user: str | None, repo: Repo) -> bool:
+        """Whether ``user`` may write to ``repo`` directly, merge or close its pull requests: the server's own
+        account manages every repo (a single-user server as before); another account (``users``) its namespace."""
+        if user is None:
+            return False
+        return user == self.user or user.lower() == repo.repo_id.split("/")[0].lower()
+
+    def _require_manage(self, ctx: Ctx, repo: Repo, what: str) -> None:
+        if not self._can_manage(ctx.user, repo):
+            raise HTTPError(
+                403,
+                f"{ctx.user} cannot {what} {repo.repo_id}: only its owner can. "
+                "Open a pull request instead (create_commit(..., create_pr=True)).",
+            )
 
     def _open(self, ctx: Ctx, repo_type: str, repo_id: str, write: bool = False) -> Repo:
         if write:
@@ -544,6 +600,8 @@ class HubApp:
         if organization is not None and not isinstance(organization, str):
             raise HTTPError(400, "'organization' must be a string.")
         repo_id = f"{organization or user}/{name}"
+        if user != self.user and (organization or user).lower() != user.lower():  # another account: its namespace only
+            raise HTTPError(403, f"{user} cannot create repos in the namespace {organization!r}: only in {user!r}.")
         private = _requested_private(data, repo_type)
         try:
             repo = self.store.create_repo(repo_type, repo_id, author=user, private=bool(private), sdk=sdk)
@@ -566,7 +624,9 @@ class HubApp:
         repo_type = data.get("type") or "model"
         if repo_type not in REPO_TYPES:
             raise HTTPError(400, f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
-        self.store.delete_repo(repo_type, f"{organization or user}/{name}")
+        repo_id = f"{organization or user}/{name}"
+        self._require_manage(ctx, self.store.open(repo_type, repo_id), "delete")
+        self.store.delete_repo(repo_type, repo_id)
         return _json({})
 
     def list_repos(self, ctx: Ctx, repo_type: str) -> Response:
@@ -633,6 +693,7 @@ class HubApp:
 
     def settings(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
         repo = self._open(ctx, repo_type, repo_id, write=True)
+        self._require_manage(ctx, repo, "change the settings of")
         data = self._body_json(ctx)
         if data.get("gated") not in (None, False, "false"):
             raise HTTPError(400, "Gated repos are not supported by the hub-envs server.")
@@ -768,7 +829,12 @@ class HubApp:
                 "branches": [{"name": n, "ref": f"refs/heads/{n}", "targetCommit": s} for n, s in sorted(refs.branches.items())],
                 "converts": [],
                 "tags": [{"name": n, "ref": f"refs/tags/{n}", "targetCommit": s} for n, s in sorted(refs.tags.items())],
-                "pullRequests": [],
+                "pullRequests": [
+                    {"name": f"refs/pr/{pr.num}", "ref": f"refs/pr/{pr.num}", "targetCommit": pr.head}
+                    for pr in sorted(repo.pull_requests(), key=lambda pr: pr.num)
+                ]
+                if ctx.flag("include_prs")
+                else [],
             }
         )
 
@@ -793,6 +859,7 @@ class HubApp:
 
     def create_branch(self, ctx: Ctx, repo_type: str, repo_id: str, branch: str) -> Response:
         repo = self._open(ctx, repo_type, repo_id, write=True)
+        self._require_manage(ctx, repo, "create branches on")
         data = self._body_json(ctx)
         if data.get("emptyBranch"):
             raise HTTPError(400, "Empty (orphan) branches are not supported by the hub-envs server.")
@@ -805,11 +872,13 @@ class HubApp:
     def delete_ref(self, ctx: Ctx, repo_type: str, repo_id: str, kind: str, name: str) -> Response:
         """DELETE .../branch/<name> or .../tag/<name> (``kind``)."""
         repo = self._open(ctx, repo_type, repo_id, write=True)
+        self._require_manage(ctx, repo, f"delete {kind}es of" if kind == "branch" else f"delete {kind}s of")
         (repo.delete_branch if kind == "branch" else repo.delete_tag)(name)
         return _json({})
 
     def create_tag(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
         repo = self._open(ctx, repo_type, repo_id, write=True)
+        self._require_manage(ctx, repo, "tag")
         data = self._body_json(ctx)
         tag = data.get("tag")
         if not isinstance(tag, str) or not tag:
@@ -848,10 +917,11 @@ class HubApp:
         self._require_write(ctx)
         self._check_declared_length(ctx, self.max_body, f"the request body limit of this server ({_BODY_SETTING})")
         repo = await run_in_threadpool(self._open, ctx, repo_type, repo_id, True)
-        if ctx.flag("create_pr"):
-            raise HTTPError(400, "Pull requests (create_pr=True) are not supported by the hub-envs server.")
+        create_pr = ctx.flag("create_pr")
         branch = revision[len("refs/heads/") :] if revision.startswith("refs/heads/") else revision
-        builder = _CommitBuilder(repo, branch)
+        if not create_pr and not branch.startswith("refs/pr/"):  # anyone may open a PR or push to an open one
+            self._require_manage(ctx, repo, "commit to")
+        builder = _CommitBuilder(repo, branch, check_parent=not create_pr)
         async for lines in _ndjson_lines(ctx.request, self.max_body, self.max_line):
             await run_in_threadpool(builder.feed, lines)
         header = builder.header
@@ -866,17 +936,33 @@ class HubApp:
         for text in (title, description):
             if not _is_unicode(text):
                 raise HTTPError(400, "The commit summary and description must be valid Unicode (no lone surrogates).")
-        commit = await run_in_threadpool(
-            lambda: repo.commit(
-                branch,
-                builder.operations,
-                title=title,
-                message=description,
-                author=ctx.user or self.user,
-                parent=header.get("parentCommit"),
-                check=None if self.allow_bytecode else _refuse_bytecode_in_env_repos,
+        check = None if self.allow_bytecode else _refuse_bytecode_in_env_repos
+        pr_url = None
+        if create_pr:  # the Hub opens refs/pr/N from the branch head (or from parentCommit); the branch stays
+            commit, pr = await run_in_threadpool(
+                lambda: repo.open_pull_request(
+                    branch,
+                    builder.operations,
+                    title=title,
+                    message=description,
+                    author=ctx.user or self.user,
+                    parent=header.get("parentCommit"),
+                    check=check,
+                )
             )
-        )
+            pr_url = f"{self._repo_url(ctx, repo)}/discussions/{pr.num}"
+        else:
+            commit = await run_in_threadpool(
+                lambda: repo.commit(
+                    branch,
+                    builder.operations,
+                    title=title,
+                    message=description,
+                    author=ctx.user or self.user,
+                    parent=header.get("parentCommit"),
+                    check=check,
+                )
+            )
         return _json(
             {
                 "success": True,
@@ -884,18 +970,106 @@ class HubApp:
                 "commitUrl": f"{self._repo_url(ctx, repo)}/commit/{commit.id}",
                 "commitMessage": title,
                 "hookOutput": "",
-                "pullRequestUrl": None,
+                "pullRequestUrl": pr_url,
             }
         )
+
+    # -- pull requests (discussions) -----------------------------------------------------------
+
+    def _discussion(self, ctx: Ctx, repo: Repo, pr: PullRequest) -> dict:
+        return {
+            "num": pr.num,
+            "title": pr.title,
+            "author": {"name": pr.author, "type": "user"},
+            "createdAt": pr.created_at,
+            "status": pr.status,
+            "isPullRequest": True,
+            "pinned": False,
+            "numComments": sum(1 for e in pr.events if e.get("type") == "comment"),
+            "repo": {"name": repo.repo_id, "type": repo.repo_type},
+        }
+
+    def list_discussions(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        """The Hub's listing: ``{"discussions": [...], "count", "start", "numClosedDiscussions"}``, 50 a page (``p``)."""
+        repo = self._open(ctx, repo_type, repo_id)
+        prs = repo.pull_requests()
+        kind, status, author = ctx.query("type"), ctx.query("status"), ctx.query("author")
+        if kind == "discussion":
+            prs = []
+        if status == "open":
+            prs = [pr for pr in prs if pr.status == "open"]
+        elif status == "closed":  # the client's filters are all, open and closed: merged ones count as closed
+            prs = [pr for pr in prs if pr.status != "open"]
+        if author:
+            prs = [pr for pr in prs if pr.author == author]
+        try:
+            page = max(int(ctx.query("p") or 0), 0)
+        except ValueError:
+            raise HTTPError(400, "Invalid 'p' query parameter: expected a page number.") from None
+        size = DISCUSSIONS_PAGE_SIZE
+        items = prs[page * size : (page + 1) * size]
+        return _json(
+            {
+                "discussions": [self._discussion(ctx, repo, pr) for pr in items],
+                "count": len(prs),
+                "start": page * size,
+                "numClosedDiscussions": sum(1 for pr in prs if pr.status != "open"),
+            }
+        )
+
+    def discussion_details(self, ctx: Ctx, repo_type: str, repo_id: str, num: int) -> Response:
+        repo = self._open(ctx, repo_type, repo_id)
+        pr = repo.pull_request(num)
+        changes: dict[str, Any] = {"base": f"refs/heads/{pr.target}"}
+        if pr.merge_commit:
+            changes["mergeCommitId"] = pr.merge_commit
+        base, head = repo.load_commit(pr.base), repo.load_commit(pr.head)
+        changed = sorted(p for p in set(base.files) | set(head.files) if base.files.get(p) != head.files.get(p))
+        return _json(
+            {
+                **self._discussion(ctx, repo, pr),
+                "events": list(pr.events),
+                "changes": changes,
+                "filesWithConflicts": [],
+                "diff": "".join(f"diff --git a/{p} b/{p}\n" for p in changed),
+            }
+        )
+
+    def merge_pr(self, ctx: Ctx, repo_type: str, repo_id: str, num: int) -> Response:
+        repo = self._open(ctx, repo_type, repo_id, write=True)
+        self._require_manage(ctx, repo, "merge pull requests of")
+        comment = self._body_json(ctx).get("comment")
+        _, pr = repo.merge_pull_request(num, author=ctx.user or self.user, comment=comment if isinstance(comment, str) else None)
+        return _json({"newStatus": pr.events[-1]})
+
+    def discussion_status(self, ctx: Ctx, repo_type: str, repo_id: str, num: int) -> Response:
+        repo = self._open(ctx, repo_type, repo_id, write=True)
+        data = self._body_json(ctx)
+        status = data.get("status")
+        if status not in ("open", "closed"):
+            raise HTTPError(400, f"Invalid status {str(status)[:20]!r}: expected 'open' or 'closed'.")
+        pr = repo.pull_request(num)
+        if not (self._can_manage(ctx.user, repo) or ctx.user == pr.author):  # as on the Hub: the owner or the PR's author
+            raise HTTPError(
+                403,
+                f"{ctx.user} cannot change the status of pull request #{num} on {repo.repo_id}: only "
+                "the repo's owner or the pull request's author can.",
+            )
+        comment = data.get("comment")
+        pr = repo.set_pull_request_status(
+            num, status, author=ctx.user or self.user, comment=comment if isinstance(comment, str) else None
+        )
+        return _json({"newStatus": pr.events[-1]})
 
 
 class _CommitBuilder:
     """The lines of one commit payload, applied in order in a worker thread: the header (and its
     ``parentCommit`` check, before any blob is written), then each operation, its blob stored."""
 
-    def __init__(self, repo: Repo, branch: str):
+    def __init__(self, repo: Repo, branch: str, check_parent: bool = True):
         self.repo = repo
         self.branch = branch
+        self.check_parent = check_parent  # not for create_pr: there parentCommit is where the PR starts
         self.header: dict | None = None
         self.operations: list = []
 
@@ -917,7 +1091,7 @@ class _CommitBuilder:
             if parent is not None:
                 if not isinstance(parent, str) or not re.fullmatch(r"[0-9a-fA-F]{5,40}", parent):
                     raise HTTPError(400, f"Invalid parentCommit {parent!r}: expected 5 to 40 hex digits.")
-                if not self.repo.resolve(self.branch).id.startswith(parent.lower()):  # before any blob
+                if self.check_parent and not self.repo.resolve(self.branch).id.startswith(parent.lower()):  # before any blob
                     raise ParentMismatchError("The branch was updated since you opened this page. Please refresh and try again.")
             self.header = value
             return
@@ -1357,6 +1531,17 @@ def _parse_range(header: str, size: int):
     return max(size - last, 0), size - 1
 
 
+def _users_from_env(text: str) -> dict[str, str]:
+    """``HUB_ENVS_SERVER_USERS="bob:TOKEN_B,carol:TOKEN_C"`` -> ``{token: name}``: more accounts on this server."""
+    users = {}
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        name, sep, token = item.partition(":")
+        if not sep or not name or not token:
+            raise ValueError(f"HUB_ENVS_SERVER_USERS: {item!r} is not 'name:token'.")
+        users[token] = name
+    return users
+
+
 def create_app(root: str | os.PathLike, token: str | None = None, **options: Any) -> Starlette:
     """A Starlette app serving the repos stored under ``root``; ``options`` are :class:`HubApp`'s.
 
@@ -1378,6 +1563,10 @@ def create_app(root: str | os.PathLike, token: str | None = None, **options: Any
             with a repo the real Hub would serve.
         max_lfs_mb: largest file uploaded through Git LFS, in MiB (default 51200, the Hub's 50 GB; env
             ``HUB_ENVS_SERVER_MAX_LFS_MB``). LFS files stream to disk; see :mod:`hub_envs.server.lfs`.
+        users: more accounts, ``{token: name}`` (env ``HUB_ENVS_SERVER_USERS="bob:TOKEN,..."``). A caller sending
+            one of these tokens acts as that name: it may write to repos of its own namespace, open pull requests
+            on any repo it can read, and close its own pull requests; merging needs the repo's owner (or the
+            server's own ``user``, who manages every repo).
     """
     hub = HubApp(root, token, **options)
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]

@@ -9,7 +9,8 @@ A store is one folder (``root``) holding every repo the server serves::
       trash/                                 deleted repos on their way out; emptied when a store opens
       repos/<type>s/<namespace>/<name>/      one folder per repo (lower-cased: repo ids are case-insensitive)
         repo.json                            id (original casing), type, private, createdAt, author, sdk
-        refs.json                            {"branches": {name: sha}, "tags": {name: {"target": sha, ...}}}
+        refs.json                            {"branches": {name: sha}, "tags": {name: {"target": sha, ...}},
+                                              "pulls": {num: pull request}}
         commits/<sha[:2]>/<sha>.json         immutable commit objects
         blobs/<sha256[:2]>/<sha256>          immutable file contents, addressed by their sha256
 
@@ -22,8 +23,11 @@ Durability and concurrency:
 * Every file is written to ``tmp/``, fsynced, then moved into place with :func:`os.replace`.
 * A commit writes its blobs, then its commit object, and moves the branch in ``refs.json`` last;
   a crash at any point leaves the branch at its previous commit (unreferenced blobs are harmless).
-* Read-modify-write of ``refs.json`` (commits, branches, tags) holds a per-repo lock; readers never
-  lock, they see the old or the new ``refs.json``.
+* Read-modify-write of ``refs.json`` (commits, branches, tags, pull requests) holds a per-repo lock;
+  readers never lock, they see the old or the new ``refs.json``.
+* Pull requests (``refs/pr/N``) live in ``refs.json`` beside the branches: opening one, committing to
+  it, merging it (main and the pull request's status move together) and closing it are each one
+  atomic write of ``refs.json``.
 * One server process per root: the locks are in-process (threads), not across processes; a second
   process opening the same root is refused (an exclusive ``flock`` on ``root/LOCK``).
 
@@ -51,7 +55,7 @@ import threading
 import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -59,6 +63,7 @@ FORMAT = "hub-envs-store 1"
 REPO_TYPES = ("model", "dataset", "space")
 DEFAULT_BRANCH = "main"
 _HEX40 = re.compile(r"^[0-9a-f]{40}$")
+_PR_REF = re.compile(r"^refs/pr/[1-9][0-9]{0,8}$")
 _NAME_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9._-]{0,95})$")
 _RESERVED_NAMESPACES = {"api", "models", "datasets", "spaces", "resolve", "tree", "blob"}
 _MAX_PATH_LEN = 1024
@@ -130,6 +135,18 @@ class ParentMismatchError(StoreError):
 
 class InvalidOperationError(StoreError, ValueError):
     """A commit operation or ref change that cannot be applied (file/folder clash, deleting main...)."""
+
+
+class PullRequestNotFoundError(StoreError, LookupError):
+    """No pull request (discussion) with this number in the repo."""
+
+
+class MergeConflictError(StoreError):
+    """A pull request changes files its target branch changed too since the pull request started."""
+
+    def __init__(self, message: str, files: Sequence[str]):
+        super().__init__(message)
+        self.files = list(files)
 
 
 # --- identifiers ------------------------------------------------------------------------------
@@ -339,24 +356,82 @@ class RepoMeta:
         return cls(d["type"], d["id"], bool(d["private"]), d["createdAt"], d["author"], d.get("sdk"))
 
 
+PR_STATUSES = ("open", "closed", "merged")
+
+
+@dataclass(frozen=True)
+class PullRequest:
+    """A pull request: ``refs/pr/<num>``, its ``head`` commit, the branch it targets and its story.
+
+    ``base`` is the commit of ``target`` it started from (the merge base); ``events`` are the Hub's
+    discussion events (``{"id", "type", "createdAt", "author", "data"}``: the opening comment, commits,
+    status changes).
+    """
+
+    num: int
+    title: str
+    author: str
+    created_at: str
+    status: str
+    target: str
+    base: str
+    head: str
+    events: tuple[dict, ...] = ()
+    merge_commit: str | None = None
+
+    def to_json_obj(self) -> dict:
+        return {
+            "num": self.num,
+            "title": self.title,
+            "author": self.author,
+            "createdAt": self.created_at,
+            "status": self.status,
+            "target": self.target,
+            "base": self.base,
+            "head": self.head,
+            "events": list(self.events),
+            "mergeCommitId": self.merge_commit,
+        }
+
+    @classmethod
+    def from_json_obj(cls, d: dict) -> PullRequest:
+        return cls(
+            int(d["num"]),
+            d["title"],
+            d["author"],
+            d["createdAt"],
+            d["status"],
+            d["target"],
+            d["base"],
+            d["head"],
+            tuple(d.get("events", ())),
+            d.get("mergeCommitId"),
+        )
+
+
 @dataclass
 class Refs:
-    """Branches (name -> sha) and tags (name -> sha, with an optional message)."""
+    """Branches (name -> sha), tags (name -> sha, with an optional message) and pull requests (num -> PR)."""
 
     branches: dict[str, str] = field(default_factory=dict)
     tags: dict[str, str] = field(default_factory=dict)
     tag_messages: dict[str, str] = field(default_factory=dict)
+    pulls: dict[int, PullRequest] = field(default_factory=dict)
 
     def to_json(self) -> bytes:
         tags = {name: {"target": sha, "message": self.tag_messages.get(name)} for name, sha in self.tags.items()}
-        return json.dumps({"branches": self.branches, "tags": tags}, indent=1, sort_keys=True).encode()
+        data: dict = {"branches": self.branches, "tags": tags}
+        if self.pulls:
+            data["pulls"] = {str(n): pr.to_json_obj() for n, pr in self.pulls.items()}
+        return json.dumps(data, indent=1, sort_keys=True).encode()
 
     @classmethod
     def from_json(cls, data: bytes) -> Refs:
         d = json.loads(data)
         tags = {name: t["target"] for name, t in d.get("tags", {}).items()}
         messages = {name: t["message"] for name, t in d.get("tags", {}).items() if t.get("message")}
-        return cls(dict(d.get("branches", {})), tags, messages)
+        pulls = {int(n): PullRequest.from_json_obj(v) for n, v in d.get("pulls", {}).items()}
+        return cls(dict(d.get("branches", {})), tags, messages, pulls)
 
 
 # Commit operations, applied in order by Repo.commit.
@@ -758,6 +833,9 @@ class Repo:
             sha = refs.branches.get(name[len("refs/heads/") :])
         elif name.startswith("refs/tags/"):
             sha = refs.tags.get(name[len("refs/tags/") :])
+        elif _PR_REF.match(name):
+            pr = refs.pulls.get(int(name[len("refs/pr/") :]))
+            sha = pr.head if pr is not None else None
         else:
             sha = refs.branches.get(name) or refs.tags.get(name)
             if sha is None and _HEX40.match(name.lower()):
@@ -871,41 +949,192 @@ class Repo:
             raise InvalidOperationError("The commit title (summary) cannot be empty.")
         with self.store.lock(self.key):
             refs = self.refs()
-            if branch not in refs.branches:
+            pr: PullRequest | None = None
+            if _PR_REF.match(branch):  # a commit to an open pull request moves refs/pr/N
+                pr = refs.pulls.get(int(branch[len("refs/pr/") :]))
+                if pr is None:
+                    raise RevisionNotFoundError(f"Invalid rev id: {branch}")
+                if pr.status != "open":
+                    raise InvalidOperationError(f"Cannot commit to {branch}: the pull request is {pr.status}.")
+                head_sha = pr.head
+            elif branch not in refs.branches:
                 if branch in refs.tags or _HEX40.match(branch.lower()):
                     raise InvalidOperationError(f"Cannot commit to {branch!r}: commits go to a branch.")
                 raise RevisionNotFoundError(f"Invalid rev id: {branch}")
-            head_sha = refs.branches[branch]
+            else:
+                head_sha = refs.branches[branch]
             if parent is not None and not head_sha.startswith(parent.lower()):
                 raise ParentMismatchError("The branch was updated since you opened this page. Please refresh and try again.")
             head = self.load_commit(head_sha)
-            files = dict(head.files)
-            for op in operations:
-                validate_path(op.path)
-                if isinstance(op, AddFile):
-                    files[op.path] = op.entry
-                elif isinstance(op, DeleteFile):
-                    if files.pop(op.path, None) is None:
-                        raise EntryNotFoundError(f"Cannot delete {op.path}: A file with this name doesn't exist on {branch!r}.")
-                elif isinstance(op, DeleteFolder):
-                    prefix = op.path.rstrip("/") + "/"
-                    doomed = [p for p in files if p.startswith(prefix)]
-                    if not doomed:
-                        raise EntryNotFoundError(f"Cannot delete folder {op.path}: no file under it on {branch!r}.")
-                    for p in doomed:
-                        del files[p]
-                else:  # pragma: no cover - programming error
-                    raise TypeError(f"Unknown operation {op!r}")
+            files = self._apply(head.files, operations, branch)
+            if check is not None:
+                check(files)
+            when = now()
+            commit = self._new_commit(files, (head_sha,), title, message, author, when)
+            self._write_commit(commit)
+            if pr is not None:
+                event = _event("commit", author, when, {"subject": title, "oid": commit.id})
+                refs.pulls[pr.num] = replace(pr, head=commit.id, events=(*pr.events, event))
+            else:
+                refs.branches[branch] = commit.id  # the ref moves last: a crash before this changes nothing
+            self._write_refs(refs)
+            return commit
+
+    def _apply(self, start: Mapping[str, FileEntry], operations: Sequence[Operation], branch: str) -> dict[str, FileEntry]:
+        """The tree ``start`` with ``operations`` applied; raises on a bad path, a missing file, a file/folder clash."""
+        files = dict(start)
+        for op in operations:
+            validate_path(op.path)
+            if isinstance(op, AddFile):
+                files[op.path] = op.entry
+            elif isinstance(op, DeleteFile):
+                if files.pop(op.path, None) is None:
+                    raise EntryNotFoundError(f"Cannot delete {op.path}: A file with this name doesn't exist on {branch!r}.")
+            elif isinstance(op, DeleteFolder):
+                prefix = op.path.rstrip("/") + "/"
+                doomed = [p for p in files if p.startswith(prefix)]
+                if not doomed:
+                    raise EntryNotFoundError(f"Cannot delete folder {op.path}: no file under it on {branch!r}.")
+                for p in doomed:
+                    del files[p]
+            else:  # pragma: no cover - programming error
+                raise TypeError(f"Unknown operation {op!r}")
+        clash = _file_folder_clash(files)
+        if clash:
+            raise InvalidOperationError(clash)
+        return files
+
+    # -- pull requests --
+
+    def open_pull_request(
+        self,
+        target: str,
+        operations: Sequence[Operation],
+        *,
+        title: str,
+        message: str = "",
+        author: str,
+        parent: str | None = None,
+        check: Callable[[Mapping[str, FileEntry]], None] | None = None,
+    ) -> tuple[Commit, PullRequest]:
+        """Open pull request ``refs/pr/<next number>`` with one commit applying ``operations`` on top of
+        ``target`` (or of ``parent``, a commit of it, as the Hub does); ``target`` does not move.
+
+        The commit object is written first, then ``refs.json`` with the new pull request: a crash in
+        between leaves no pull request (an unreferenced commit is harmless).
+        """
+        if not title:
+            raise InvalidOperationError("The pull request title (commit summary) cannot be empty.")
+        with self.store.lock(self.key):
+            refs = self.refs()
+            if target not in refs.branches:
+                raise RevisionNotFoundError(f"Invalid rev id: {target}: a pull request targets a branch.")
+            start = self.resolve(parent) if parent is not None else self.load_commit(refs.branches[target])
+            files = self._apply(start.files, operations, target)
+            if check is not None:
+                check(files)
+            when = now()
+            commit = self._new_commit(files, (start.id,), title, message, author, when)
+            self._write_commit(commit)
+            num = max([0, *refs.pulls]) + 1
+            opening = _event("comment", author, when, {"edited": False, "hidden": False, "latest": {"raw": message or title}})
+            pushed = _event("commit", author, when, {"subject": title, "oid": commit.id})
+            pr = PullRequest(num, title, author, format_date(when), "open", target, start.id, commit.id, (opening, pushed))
+            refs.pulls[num] = pr
+            self._write_refs(refs)  # the pull request appears last
+            return commit, pr
+
+    def pull_requests(self) -> list[PullRequest]:
+        """Every pull request, newest first."""
+        return sorted(self.refs().pulls.values(), key=lambda pr: -pr.num)
+
+    def pull_request(self, num: int) -> PullRequest:
+        pr = self.refs().pulls.get(int(num))
+        if pr is None:
+            raise PullRequestNotFoundError(f"Discussion #{num} not found in {self.repo_id}.")
+        return pr
+
+    def merge_pull_request(self, num: int, *, author: str, comment: str | None = None) -> tuple[Commit, PullRequest]:
+        """Merge pull request ``num`` into its target branch: a merge commit (parents: the branch head, the
+        pull request's head) whose tree is the branch with the pull request's changes applied.
+
+        :class:`MergeConflictError` when the branch changed a file the pull request changed too since it started
+        (to another content). The branch and the status move together, in one write of ``refs.json``.
+        """
+        with self.store.lock(self.key):
+            refs = self.refs()
+            pr = refs.pulls.get(int(num))
+            if pr is None:
+                raise PullRequestNotFoundError(f"Discussion #{num} not found in {self.repo_id}.")
+            if pr.status != "open":
+                raise InvalidOperationError(f"Pull request #{num} is {pr.status}: only an open pull request can be merged.")
+            if pr.target not in refs.branches:
+                raise RevisionNotFoundError(f"Invalid rev id: {pr.target} (the target of pull request #{num})")
+            ours = self.load_commit(refs.branches[pr.target])
+            base, theirs = self.load_commit(pr.base), self.load_commit(pr.head)
+            files = dict(ours.files)
+            conflicts = []
+            for path in sorted(set(base.files) | set(theirs.files)):
+                was, pr_has, branch_has = base.files.get(path), theirs.files.get(path), ours.files.get(path)
+                if pr_has == was:
+                    continue  # the pull request did not touch it
+                if branch_has != was and branch_has != pr_has:
+                    conflicts.append(path)
+                elif pr_has is None:
+                    files.pop(path, None)
+                else:
+                    files[path] = pr_has
+            if conflicts:
+                raise MergeConflictError(
+                    f"Pull request #{num} conflicts with {pr.target}: {', '.join(conflicts)} changed on both sides.", conflicts
+                )
             clash = _file_folder_clash(files)
             if clash:
                 raise InvalidOperationError(clash)
-            if check is not None:
-                check(files)
-            commit = self._new_commit(files, (head_sha,), title, message, author, now())
-            self._write_commit(commit)
-            refs.branches[branch] = commit.id  # the ref moves last: a crash before this changes nothing
+            when = now()
+            merge = self._new_commit(files, (ours.id, theirs.id), pr.title, f"Merge pull request #{num}", author, when)
+            self._write_commit(merge)
+            events = [*pr.events]
+            if comment:
+                events.append(_event("comment", author, when, {"edited": False, "hidden": False, "latest": {"raw": comment}}))
+            events.append(_event("status-change", author, when, {"status": "merged"}))
+            pr = replace(pr, status="merged", merge_commit=merge.id, events=tuple(events))
+            refs.pulls[pr.num] = pr
+            refs.branches[pr.target] = merge.id
+            self._write_refs(refs)  # the branch and the status move together
+            return merge, pr
+
+    def set_pull_request_status(self, num: int, status: str, *, author: str, comment: str | None = None) -> PullRequest:
+        """Close (``closed``) or reopen (``open``) a pull request; a merged one stays merged."""
+        if status not in ("open", "closed"):
+            raise InvalidOperationError(f"Invalid status {status!r}: expected 'open' or 'closed'.")
+        with self.store.lock(self.key):
+            refs = self.refs()
+            pr = refs.pulls.get(int(num))
+            if pr is None:
+                raise PullRequestNotFoundError(f"Discussion #{num} not found in {self.repo_id}.")
+            if pr.status == "merged":
+                raise InvalidOperationError(f"Pull request #{num} is merged: its status cannot change.")
+            when = now()
+            events = [*pr.events]
+            if comment:
+                events.append(_event("comment", author, when, {"edited": False, "hidden": False, "latest": {"raw": comment}}))
+            events.append(_event("status-change", author, when, {"status": status}))
+            pr = replace(pr, status=status, events=tuple(events))
+            refs.pulls[pr.num] = pr
             self._write_refs(refs)
-            return commit
+            return pr
+
+
+def _event(kind: str, author: str, when: datetime, data: dict) -> dict:
+    """A discussion event as the Hub sends it (``huggingface_hub.community.deserialize_event`` reads it)."""
+    return {
+        "id": uuid.uuid4().hex[:24],
+        "type": kind,
+        "createdAt": format_date(when),
+        "author": {"name": author},
+        "data": data,
+    }
 
 
 def _file_folder_clash(files: Mapping[str, FileEntry]) -> str | None:

@@ -1,0 +1,658 @@
+"""Reproduction attestations: "this env, at this commit, reproduced (or not) on this stack", published on the
+env's own repo through a Hub pull request, so anyone can attest and the owner merges.
+
+An :class:`Attestation` is one JSON file, ``reproductions/<date>-<stack digest>.json``: the verdict, the replay
+and benchmark summaries with their confidence intervals, the env's commit, content digest and dataset
+fingerprint, the stack it ran on (python, platform, CPU model, the versions of lerobot/torch/numpy/gymnasium, the
+simulator and the env's whole requirement closure, hub-envs), the command line that reproduces it, and the
+sha256 of the full ``report.json``. It is typed and validated like the manifest
+(:class:`hub_envs.repo_format.Manifest`): a reader refuses a malformed file with an :class:`AttestationError`.
+
+``--sign_key=PATH`` adds ``<file>.sig``, an OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of the file's
+bytes; :func:`verify_signature` checks it against an ``allowed_signers`` file (``ssh-keygen -Y verify``).
+
+    hub-envs reproduce --repo_id=user/name@<sha> --trust_remote_code=true --attest=true [--sign_key=~/.ssh/id_ed25519]
+    hub-envs attestations --repo_id=user/name [--verify=true --allowed_signers=FILE] [--json=true]
+
+``hub-envs attestations`` prints the matrix env revision x stack -> verdict over the merged attestations (on
+main) and those of open pull requests; ``push_env`` renders the merged ones for the same content in the card
+("Reproduced on").
+
+Example:
+    >>> from hub_envs.attestation import stack_digest
+    >>> stack_digest({"python": "3.13.1", "packages": {"numpy": "2.2.6"}})
+    '19efa394d727'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hub_envs.errors import AttestationError, ConfigError
+
+__all__ = [
+    "Attestation",
+    "AttestationEntry",
+    "AttestResult",
+    "FORMAT_VERSION",
+    "REPRODUCTIONS_DIR",
+    "attest",
+    "collect_attestations",
+    "merged_attestations",
+    "sign_file",
+    "stack_digest",
+    "verify_signature",
+    "describe_stack",
+    "matrix_text",
+    "CLI_COMMANDS",
+]
+
+FORMAT_VERSION = 1
+KIND = "hub-envs reproduction attestation"
+REPRODUCTIONS_DIR = "reproductions"
+SIGNATURE_NAMESPACE = "hub-envs"
+SIGNATURE_SUFFIX = ".sig"
+VERDICTS = ("REPRODUCED", "NOT REPRODUCED")
+_HEX40 = re.compile(r"^[0-9a-f]{40}$")
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
+_NAME = re.compile(r"^reproductions/\d{4}-\d{2}-\d{2}-[0-9a-f]{12}\.json$")
+
+
+def stack_digest(stack: dict[str, Any]) -> str:
+    """12 hex digits naming a stack: the sha256 of its canonical JSON."""
+    return hashlib.sha256(json.dumps(stack, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:12]
+
+
+def current_stack(provenance: dict[str, Any], requirements: tuple[str, ...] | list[str]) -> dict[str, Any]:
+    """The stack a reproduction ran on: python, platform, CPU model, the packages it depends on (core, simulator,
+    the env's requirement closure). ``provenance`` is the report's (its ``versions_here`` honour a venv worker)."""
+    import platform
+
+    from hub_envs.harness.provenance import CORE_PACKAGES, cpu_model, requirement_closure
+
+    here = dict(provenance.get("versions_here") or {})
+    python = here.pop("python", platform.python_version())
+    simulator = {k: v for k, v in here.items() if k not in CORE_PACKAGES}
+    return {
+        "python": python,
+        "implementation": platform.python_implementation(),
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "cpu": cpu_model(),
+        "packages": {k: v for k, v in here.items() if k in CORE_PACKAGES},
+        "simulator": simulator,
+        "requirement_closure": requirement_closure(requirements),
+    }
+
+
+def describe_stack(stack: dict[str, Any]) -> str:
+    """One line: ``python 3.13.1, lerobot 0.6.1, torch 2.11.0, numpy 2.2.6, pybullet 3.2.7 on Linux x86_64 (AMD EPYC)``."""
+    pk = stack.get("packages", {})
+    parts = [f"python {stack.get('python')}"]
+    parts += [f"{n} {pk[n]}" for n in ("lerobot", "torch", "numpy", "gymnasium") if n in pk]
+    parts += [f"{n} {v}" for n, v in sorted(stack.get("simulator", {}).items())]
+    system = str(stack.get("platform", "")).split("-")[0]
+    return ", ".join(parts) + f" on {system} {stack.get('machine')} ({stack.get('cpu')})"
+
+
+# --- the format ---------------------------------------------------------------------------------
+
+
+def _replay_summary(replay: dict[str, Any] | None) -> dict[str, Any] | None:
+    if replay is None:
+        return None
+    episodes = replay.get("episodes", [])
+    diverged = [e for e in episodes if not e.get("ok")]
+    first = None
+    for e in diverged:
+        if e.get("divergences"):
+            d = e["divergences"][0]
+            first = {"episode": e.get("episode"), "step": d.get("step"), "feature": d.get("feature")}
+            break
+    return {
+        "ok": bool(replay.get("ok")),
+        "episodes": len(episodes),
+        "frames": sum(int(e.get("length", 0)) for e in episodes),
+        "diverged": len(diverged),
+        "tolerance": replay.get("tolerance"),
+        "features": sorted(replay.get("features", {})),
+        "first_divergence": first,
+    }
+
+
+def _benchmark_summary(b: dict[str, Any]) -> dict[str, Any]:
+    keep = ("name", "published", "reproduced", "ci_low", "ci_high", "tolerance", "passed")
+    return {
+        "name": b.get("name"),
+        "policy": b.get("policy"),
+        "passed": bool(b.get("passed")),
+        "error": b.get("error"),
+        "episodes": len(b.get("seeds", [])),
+        "seeds": list(b.get("seeds", [])),
+        "confidence": b.get("confidence"),
+        "resamples": b.get("resamples"),
+        "metrics": [{k: m.get(k) for k in keep} for m in b.get("metrics", [])],
+    }
+
+
+@dataclass(frozen=True)
+class Attestation:
+    """One reproduction attestation: what ``reproductions/<date>-<stack digest>.json`` holds. Frozen."""
+
+    repo_id: str
+    sha: str
+    content_digest: str
+    dataset_fingerprint: str | None
+    verdict: str
+    reproduced: bool
+    checks: dict[str, bool]
+    replay: dict[str, Any] | None
+    benchmarks: tuple[dict[str, Any], ...]
+    fingerprint: dict[str, Any]
+    stack: dict[str, Any]
+    stack_digest: str
+    hub_envs_version: str
+    command: tuple[str, ...]
+    report_sha256: str
+    created_at: str
+    attested_by: str | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
+    format_version: int = FORMAT_VERSION
+    kind: str = KIND
+
+    @property
+    def path(self) -> str:
+        """Where it goes in the env repo: ``reproductions/<date>-<stack digest>.json``."""
+        return f"{REPRODUCTIONS_DIR}/{self.created_at[:10]}-{self.stack_digest}.json"
+
+    @classmethod
+    def from_report(
+        cls,
+        report: Any,
+        *,
+        requirements: tuple[str, ...] | list[str] = (),
+        command: list[str] | tuple[str, ...],
+        attested_by: str | None = None,
+    ) -> Attestation:
+        """The attestation of a :class:`hub_envs.harness.report.ReproduceReport` (its written ``report.json`` is hashed)."""
+        data = report.to_dict()
+        written = report.paths.get("json") if getattr(report, "paths", None) else None
+        raw = Path(written).read_bytes() if written and Path(written).is_file() else report.to_json().encode()
+        prov = data.get("provenance", {})
+        stack = current_stack(prov, requirements)
+        now = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+        return cls(
+            repo_id=data["repo_id"],
+            sha=data["sha"],
+            content_digest=str(prov.get("content_digest", "")),
+            dataset_fingerprint=prov.get("dataset_fingerprint"),
+            verdict=data["verdict"],
+            reproduced=bool(data["reproduced"]),
+            checks=dict(data.get("checks", {})),
+            replay=_replay_summary(data.get("replay")),
+            benchmarks=tuple(_benchmark_summary(b) for b in data.get("benchmarks", [])),
+            fingerprint={k: data.get("fingerprint", {}).get(k) for k in ("status", "ok", "digest")},
+            stack=stack,
+            stack_digest=stack_digest(stack),
+            hub_envs_version=str(prov.get("hub_envs_version", "")),
+            command=tuple(command),
+            report_sha256=hashlib.sha256(raw).hexdigest(),
+            created_at=now,
+            attested_by=attested_by,
+            settings={k: v for k, v in data.get("settings", {}).items() if k != "source"},
+        ).validated()
+
+    # -- (de)serialization --
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["benchmarks"] = list(self.benchmarks)
+        d["command"] = list(self.command)
+        return d
+
+    def to_json(self) -> str:
+        """Canonical JSON (sorted keys, fixed indentation): the bytes that are hashed and signed."""
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+    def validated(self, *, where: str = "attestation") -> Attestation:
+        return type(self).from_dict(self.to_dict(), where=where)
+
+    @classmethod
+    def from_json(cls, text: str | bytes, *, where: str = "attestation") -> Attestation:
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError) as e:
+            raise AttestationError(f"{where}: not valid JSON ({e}). Re-attest with hub-envs reproduce --attest=true.") from None
+        return cls.from_dict(data, where=where)
+
+    @classmethod
+    def from_dict(cls, data: Any, *, where: str = "attestation") -> Attestation:
+        """Read and check an attestation; :class:`AttestationError` names the field that is wrong."""
+
+        def bad(what: str) -> AttestationError:
+            return AttestationError(f"{where}: {what}. Re-attest with `hub-envs reproduce --attest=true`.")
+
+        if not isinstance(data, dict):
+            raise bad(f"must be a JSON object, got {type(data).__name__}")
+        if data.get("kind") != KIND:
+            raise bad(f"'kind' is {str(data.get('kind'))[:60]!r}, not {KIND!r}")
+        version = data.get("format_version")
+        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+            raise bad(f"format_version {version!r} is not supported (this hub-envs reads 1 to {FORMAT_VERSION}; upgrade it)")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise bad(f"unknown field(s) {unknown}")
+        required = {
+            f.name
+            for f in dataclasses.fields(cls)
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        }
+        missing = sorted(required - set(data))
+        if missing:
+            raise bad(f"missing field(s) {missing}")
+        checks: list[tuple[str, Any, bool]] = [
+            ("repo_id", data["repo_id"], isinstance(data["repo_id"], str) and data["repo_id"].count("/") == 1),
+            ("sha", data["sha"], isinstance(data["sha"], str) and bool(_HEX40.match(data["sha"]))),
+            ("content_digest", data["content_digest"], isinstance(data["content_digest"], str)),
+            (
+                "dataset_fingerprint",
+                data["dataset_fingerprint"],
+                data["dataset_fingerprint"] is None or isinstance(data["dataset_fingerprint"], str),
+            ),
+            ("verdict", data["verdict"], data["verdict"] in VERDICTS),
+            ("reproduced", data["reproduced"], isinstance(data["reproduced"], bool)),
+            (
+                "checks",
+                data["checks"],
+                isinstance(data["checks"], dict) and all(isinstance(v, bool) for v in data["checks"].values()),
+            ),
+            ("replay", data["replay"], data["replay"] is None or isinstance(data["replay"], dict)),
+            (
+                "benchmarks",
+                data["benchmarks"],
+                isinstance(data["benchmarks"], list) and all(isinstance(b, dict) for b in data["benchmarks"]),
+            ),
+            ("fingerprint", data["fingerprint"], isinstance(data["fingerprint"], dict)),
+            ("stack", data["stack"], isinstance(data["stack"], dict) and isinstance(data["stack"].get("packages"), dict)),
+            ("stack_digest", data["stack_digest"], isinstance(data["stack_digest"], str)),
+            ("hub_envs_version", data["hub_envs_version"], isinstance(data["hub_envs_version"], str)),
+            ("command", data["command"], isinstance(data["command"], list) and all(isinstance(c, str) for c in data["command"])),
+            (
+                "report_sha256",
+                data["report_sha256"],
+                isinstance(data["report_sha256"], str) and bool(_HEX64.match(data["report_sha256"])),
+            ),
+            (
+                "created_at",
+                data["created_at"],
+                isinstance(data["created_at"], str) and bool(re.match(r"^\d{4}-\d{2}-\d{2}T", data["created_at"])),
+            ),
+            ("attested_by", data.get("attested_by"), data.get("attested_by") is None or isinstance(data.get("attested_by"), str)),
+            ("settings", data.get("settings", {}), isinstance(data.get("settings", {}), dict)),
+        ]
+        for name, value, ok in checks:
+            if not ok:
+                raise bad(f"field {name!r} has an invalid value {str(value)[:80]!r}")
+        if (data["verdict"] == "REPRODUCED") != data["reproduced"]:
+            raise bad(f"'verdict' {data['verdict']!r} contradicts 'reproduced' {data['reproduced']!r}")
+        if data["reproduced"] != all(data["checks"].values()):
+            raise bad("'reproduced' contradicts 'checks'")
+        if stack_digest(data["stack"]) != data["stack_digest"]:
+            raise bad(f"'stack_digest' {data['stack_digest']!r} is not the digest of 'stack' ({stack_digest(data['stack'])})")
+        values = {k: data[k] for k in names if k in data}
+        values["benchmarks"] = tuple(data["benchmarks"])
+        values["command"] = tuple(data["command"])
+        return cls(**values)
+
+    # -- text --
+
+    def summary(self) -> str:
+        return f"{self.verdict}: {self.repo_id}@{self.sha[:12]} on {describe_stack(self.stack)}"
+
+
+# --- signatures (OpenSSH) -----------------------------------------------------------------------
+
+
+def _ssh_keygen() -> str:
+    exe = shutil.which("ssh-keygen")
+    if exe is None:
+        raise AttestationError(
+            "ssh-keygen is not installed: signing and verifying attestations need OpenSSH's ssh-keygen "
+            "(Debian/Ubuntu: apt-get install openssh-client; macOS has it)."
+        )
+    return exe
+
+
+def sign_file(data: bytes, key: str | Path) -> bytes:
+    """The OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of ``data`` with the private key ``key``."""
+    key = Path(key).expanduser()
+    if not key.is_file():
+        raise AttestationError(f"--sign_key={key}: no such file. Pass an OpenSSH private key (e.g. ~/.ssh/id_ed25519).")
+    with tempfile.TemporaryDirectory(prefix="hub-envs-sign-") as tmp:
+        target = Path(tmp) / "attestation.json"
+        target.write_bytes(data)
+        out = subprocess.run(
+            [_ssh_keygen(), "-Y", "sign", "-f", str(key), "-n", SIGNATURE_NAMESPACE, str(target)],
+            capture_output=True,
+            text=True,
+            stdin=subprocess.DEVNULL,
+            timeout=60,
+        )
+        sig = target.with_name(target.name + SIGNATURE_SUFFIX)
+        if out.returncode != 0 or not sig.is_file():
+            raise AttestationError(
+                f"ssh-keygen could not sign with {key}: {out.stderr.strip() or out.stdout.strip()}. "
+                "Pass an unencrypted OpenSSH private key, or one your ssh-agent holds."
+            )
+        return sig.read_bytes()
+
+
+def verify_signature(data: bytes, signature: bytes, allowed_signers: str | Path) -> tuple[bool, str]:
+    """Check ``signature`` of ``data`` against ``allowed_signers`` (ssh-keygen's format: ``principal key-type key``).
+
+    Returns ``(ok, who or why not)``: the principal whose key signed it, or ssh-keygen's message.
+    """
+    allowed = Path(allowed_signers).expanduser()
+    if not allowed.is_file():
+        raise AttestationError(f"--allowed_signers={allowed}: no such file (lines of 'principal key-type base64-key').")
+    exe = _ssh_keygen()
+    with tempfile.TemporaryDirectory(prefix="hub-envs-verify-") as tmp:
+        sig = Path(tmp) / "attestation.json.sig"
+        sig.write_bytes(signature)
+        found = subprocess.run(
+            [exe, "-Y", "find-principals", "-s", str(sig), "-f", str(allowed)], capture_output=True, text=True, timeout=60
+        )
+        principals = [p for p in found.stdout.split() if p]
+        if found.returncode != 0 or not principals:
+            return False, "signed by a key that is not in the allowed signers" if found.returncode else "no principal"
+        for principal in principals:
+            out = subprocess.run(
+                [exe, "-Y", "verify", "-f", str(allowed), "-I", principal, "-n", SIGNATURE_NAMESPACE, "-s", str(sig)],
+                input=data,
+                capture_output=True,
+                timeout=60,
+            )
+            if out.returncode == 0:
+                return True, principal
+        return False, (out.stderr or out.stdout).decode("utf-8", "replace").strip() or "signature does not match"
+
+
+# --- publishing ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AttestResult:
+    """What :func:`attest` published: the attestation, its path, the pull request."""
+
+    attestation: Attestation
+    path: str
+    signed: bool
+    pr_url: str
+    pr_num: int
+    commit: str
+
+    def summary(self) -> str:
+        return (
+            f"Attested {self.attestation.verdict} for {self.attestation.repo_id}@{self.attestation.sha[:12]} "
+            f"(stack {self.attestation.stack_digest}{', signed' if self.signed else ''}): pull request #{self.pr_num} "
+            f"adds {self.path}\n  {self.pr_url}\n  The repo's owner merges it: "
+            f"huggingface_hub.HfApi().merge_pull_request({self.attestation.repo_id!r}, {self.pr_num})"
+        )
+
+
+def _whoami(token: str | None) -> str | None:
+    from hub_envs import hub_io
+
+    try:
+        return str(hub_io.api(token).whoami().get("name")) or None
+    except Exception:  # noqa: BLE001 - anonymous: the PR would be refused anyway, with the Hub's message
+        return None
+
+
+def attest(
+    report: Any,
+    *,
+    command: list[str] | tuple[str, ...],
+    sign_key: str | Path | None = None,
+    requirements: tuple[str, ...] | list[str] | None = None,
+    token: str | None = None,
+) -> AttestResult:
+    """Publish the attestation of ``report`` (a :class:`~hub_envs.harness.report.ReproduceReport` of a Hub repo) on
+    the env repo through a pull request (``create_commit(create_pr=True)``): anyone may open one on a public repo.
+
+    ``sign_key``: an OpenSSH private key; the signature goes next to the file (``.json.sig``).
+    """
+    from huggingface_hub import CommitOperationAdd
+
+    from hub_envs import hub_io
+    from hub_envs._compat import lfs_instead_of_xet
+
+    if report.settings.get("source") == "folder":
+        raise ConfigError(
+            f"{report.repo_id} was reproduced from a local folder: an attestation names a Hub repo and commit. "
+            "Reproduce --repo_id=user/name@<sha> to attest."
+        )
+    if requirements is None:
+        from hub_envs.repo_format import Manifest
+
+        requirements = Manifest.from_json(hub_io.read_manifest_text(report.repo_id, report.sha, token=token)).requirements
+    att = Attestation.from_report(report, requirements=requirements, command=command, attested_by=_whoami(token))
+    data = att.to_json().encode("utf-8")
+    ops = [CommitOperationAdd(path_in_repo=att.path, path_or_fileobj=data)]
+    if sign_key is not None:
+        ops.append(CommitOperationAdd(path_in_repo=att.path + SIGNATURE_SUFFIX, path_or_fileobj=sign_file(data, sign_key)))
+    client = hub_io.api(token)
+    with hub_io.translate_hub_errors(report.repo_id, "main"), lfs_instead_of_xet(True):
+        info = client.create_commit(
+            report.repo_id,
+            operations=ops,
+            commit_message=f"Reproduction attestation: {att.verdict} at {att.sha[:12]} (stack {att.stack_digest})",
+            commit_description=f"{att.summary()}\n\nCommand: {' '.join(att.command)}\nReport sha256: {att.report_sha256}",
+            repo_type=hub_io.REPO_TYPE,
+            create_pr=True,
+        )
+    if info.pr_url is None or info.pr_num is None:
+        raise AttestationError(f"{report.repo_id}: the Hub did not open a pull request for {att.path}; nothing to merge.")
+    return AttestResult(att, att.path, sign_key is not None, str(info.pr_url), int(info.pr_num), info.oid)
+
+
+# --- reading them back --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AttestationEntry:
+    """One attestation file as found on the Hub: where (``merged`` on main, or an open pull request), and either
+    the parsed attestation or why it could not be read."""
+
+    path: str
+    where: str  # "merged" or "PR #N (open)"
+    revision: str  # the commit it was read at
+    attestation: Attestation | None
+    error: str | None
+    data: bytes
+    signature: bytes | None
+    pr_num: int | None = None
+
+    @property
+    def merged(self) -> bool:
+        return self.pr_num is None
+
+
+def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | None:
+    from huggingface_hub import hf_hub_download
+
+    from hub_envs import hub_io
+    from hub_envs.errors import HubError
+
+    try:
+        with hub_io.translate_hub_errors(repo_id, revision):
+            local = hf_hub_download(repo_id, path, revision=revision, repo_type=hub_io.REPO_TYPE, token=token)
+    except HubError:
+        return None
+    return Path(local).read_bytes()
+
+
+def _entries_at(
+    repo_id: str, revision: str, where: str, pr_num: int | None, token: str | None, skip=None
+) -> list[AttestationEntry]:
+    from hub_envs import hub_io
+
+    files = hub_io.list_remote_files(repo_id, revision, token=token)
+    out = []
+    for path in sorted(files):
+        if not (path.startswith(f"{REPRODUCTIONS_DIR}/") and path.endswith(".json")):
+            continue
+        data = _read(repo_id, path, revision, token)
+        if data is None or (skip is not None and skip.get(path) == data):
+            continue  # unchanged from main: listed once, as merged
+        sig = _read(repo_id, path + SIGNATURE_SUFFIX, revision, token) if path + SIGNATURE_SUFFIX in files else None
+        where_text = f"{repo_id}@{revision[:12]}:{path}" if pr_num is None else f"{repo_id} refs/pr/{pr_num}:{path}"
+        try:
+            att, error = Attestation.from_json(data, where=where_text), None
+            if att.repo_id.lower() != repo_id.lower():
+                att, error = None, f"{where_text}: attests {att.repo_id}, not {repo_id}"
+        except AttestationError as e:
+            att, error = None, str(e)
+        out.append(AttestationEntry(path, where, revision, att, error, data, sig, pr_num))
+    return out
+
+
+def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:
+    """The attestations on main (or at ``revision``): those merged by the repo's owner."""
+    from hub_envs import hub_io
+
+    head = revision or hub_io.remote_head(repo_id, token=token)
+    if head is None:
+        return []
+    return _entries_at(repo_id, head, "merged", None, token)
+
+
+def collect_attestations(repo_id: str, *, token: str | None = None) -> list[AttestationEntry]:
+    """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
+    from hub_envs import hub_io
+
+    merged = merged_attestations(repo_id, token=token)
+    on_main = {e.path: e.data for e in merged}
+    out = list(merged)
+    client = hub_io.api(token)
+    with hub_io.translate_hub_errors(repo_id, "main"):
+        prs = [
+            d
+            for d in client.get_repo_discussions(repo_id, repo_type=hub_io.REPO_TYPE, discussion_status="open")
+            if d.is_pull_request
+        ]
+    for d in sorted(prs, key=lambda d: d.num):
+        with hub_io.translate_hub_errors(repo_id, f"refs/pr/{d.num}"):
+            head = client.repo_info(repo_id, revision=f"refs/pr/{d.num}", repo_type=hub_io.REPO_TYPE).sha
+        out += _entries_at(repo_id, head, f"PR #{d.num} (open, by {d.author})", d.num, token, skip=on_main)
+    return out
+
+
+def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool, str]] | None = None) -> str:
+    """The matrix env revision x stack -> verdict, the stacks' legend, and one line per file."""
+    good = [e for e in entries if e.attestation is not None]
+    if not entries:
+        return "No attestations yet: hub-envs reproduce --repo_id=<repo>@<sha> --trust_remote_code=true --attest=true"
+    lines = []
+    if good:
+        revisions = list(dict.fromkeys(e.attestation.sha for e in good))  # type: ignore[union-attr]
+        stacks = list(dict.fromkeys(e.attestation.stack_digest for e in good))  # type: ignore[union-attr]
+        cells: dict[tuple[str, str], list[str]] = {}
+        for e in good:
+            a = e.attestation
+            mark = ("✓" if a.reproduced else "✗") + ("" if e.merged else f" (PR #{e.pr_num})")  # type: ignore[union-attr]
+            cells.setdefault((a.sha, a.stack_digest), []).append(mark)  # type: ignore[union-attr]
+        header = ["env revision \\ stack", *stacks]
+        rows = [[sha[:12], *[", ".join(cells.get((sha, st), ["–"])) for st in stacks]] for sha in revisions]
+        widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+        lines.append("  ".join(h.ljust(w) for h, w in zip(header, widths)))
+        lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+        lines += ["", "✓ reproduced, ✗ did not; (PR #N): in an open pull request, not merged yet", "", "stacks:"]
+        for st in stacks:
+            a = next(e.attestation for e in good if e.attestation.stack_digest == st)  # type: ignore[union-attr]
+            lines.append(f"  {st}  {describe_stack(a.stack)}")  # type: ignore[union-attr]
+    lines += ["", "files:"]
+    for i, e in enumerate(entries):
+        if e.attestation is None:
+            lines.append(f"  {e.path} [{e.where}]: INVALID: {e.error}")
+            continue
+        a = e.attestation
+        sig = "unsigned" if e.signature is None else "signed"
+        if verified is not None and i in verified:
+            ok, who = verified[i]
+            sig = f"signature verified ({who})" if ok else f"SIGNATURE FAILED ({who})"
+        lines.append(f"  {e.path} [{e.where}]: {a.verdict} at {a.sha[:12]}, by {a.attested_by or '?'}, {a.created_at}; {sig}")
+    return "\n".join(lines)
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class AttestationsArgs:
+    """List a repo's reproduction attestations (merged and in open pull requests) as a matrix."""
+
+    repo_id: str | None = None
+    verify: bool = False  # check each signature with ssh-keygen -Y verify against --allowed_signers
+    allowed_signers: Path | None = None
+    json: bool = False
+
+
+def attestations_cli(args: AttestationsArgs) -> int:
+    from hub_envs import hub_io
+
+    if args.repo_id is None:
+        raise ConfigError("hub-envs attestations needs --repo_id=user/name.")
+    if args.verify and args.allowed_signers is None:
+        raise ConfigError("--verify=true needs --allowed_signers=FILE (ssh-keygen's format: 'principal key-type key').")
+    repo_id, rev = hub_io.parse_repo_ref(args.repo_id)
+    if rev is not None:
+        raise ConfigError(f"hub-envs attestations lists every revision: pass --repo_id={repo_id} without '@{rev}'.")
+    entries = collect_attestations(repo_id)
+    verified: dict[int, tuple[bool, str]] = {}
+    if args.verify:
+        for i, e in enumerate(entries):
+            if e.signature is not None:
+                verified[i] = verify_signature(e.data, e.signature, args.allowed_signers)  # type: ignore[arg-type]
+    if args.json:
+        print(
+            json.dumps(
+                [
+                    {
+                        "path": e.path,
+                        "where": e.where,
+                        "pr_num": e.pr_num,
+                        "revision": e.revision,
+                        "error": e.error,
+                        "signed": e.signature is not None,
+                        "signature": (None if i not in verified else {"ok": verified[i][0], "detail": verified[i][1]}),
+                        "attestation": e.attestation.to_dict() if e.attestation is not None else None,
+                    }
+                    for i, e in enumerate(entries)
+                ],
+                indent=2,
+            )
+        )
+    else:
+        print(f"Reproduction attestations of {repo_id}:\n")
+        print(matrix_text(entries, verified if args.verify else None))
+    failed = [i for i, (ok, _) in verified.items() if not ok]
+    if failed:
+        print(f"\n{len(failed)} signature(s) failed verification.", file=sys.stderr)
+        return 1
+    return 0
+
+
+CLI_COMMANDS = {"attestations": (AttestationsArgs, attestations_cli)}

@@ -1,0 +1,478 @@
+"""``hub-envs compare``: evaluate policies on the same seeds of one env commit and say, with a confidence interval,
+how they differ.
+
+Each policy (``random``; a LeRobot checkpoint: a local ``pretrained_model`` folder, or a Hub repo id, resolved to
+its commit) runs the same episodes (the same reset seeds, the env's episode length) through the benchmark
+harness (:class:`hub_envs.harness.benchmark.BenchmarkRun`: the rollout engine, LeRobot's own observation
+conversion, the checkpoint's pre/post-processors). Reported:
+
+* per policy: success rate and mean return, each with a seeded bootstrap confidence interval;
+* per pair: the paired difference (A - B, seed by seed) of both, with a **seed-paired bootstrap** interval (the
+  seeds are resampled, each keeping both policies' episodes), which is far tighter than two independent intervals
+  when the seeds explain much of the variance;
+* how many episodes would give a ±5-point half-width on a success rate (or on the paired difference), from the
+  observed per-episode variance (normal approximation).
+
+Output: a terminal summary, ``report.json``, ``report.md`` and ``report.png`` (matplotlib, the ``plots`` extra) in
+``--out`` (default ``compare-out/<user>/<name>/``).
+
+    hub-envs compare --repo_id=user/name@<sha> --policies=random,outputs/train/checkpoints/last/pretrained_model
+                     [--episodes=20] [--seed=0] [--trust_remote_code=true] [--trust_policy_code=true]
+
+Example:
+    >>> from hub_envs.policy_compare import episodes_for_half_width
+    >>> episodes_for_half_width([0.0, 1.0] * 10, half_width=0.05)  # a 50 % success rate: ~400 episodes for ±5 points
+    405
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs.errors import ConfigError, ReproductionError
+from hub_envs.harness.report_files import ReportFiles
+
+__all__ = ["compare", "CompareReport", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
+
+DEFAULT_OUT = Path("compare-out")
+HALF_WIDTH = 0.05  # ±5 points of a rate
+
+
+def episodes_for_half_width(values, half_width: float = HALF_WIDTH, confidence: float = 0.95) -> int | None:
+    """Episodes whose mean has a ``confidence`` interval of ± ``half_width``, from the sample standard deviation of
+    ``values`` (normal approximation); None when the values do not vary (no estimate from them)."""
+    values = [float(v) for v in values]
+    if len(values) < 2:
+        return None
+    sd = statistics.stdev(values)
+    if sd == 0:
+        return None
+    z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
+    return math.ceil((z * sd / half_width) ** 2)
+
+
+@dataclass(frozen=True)
+class PolicyResult:
+    """One policy over the compared seeds."""
+
+    label: str
+    spec: dict[str, Any]
+    returns: tuple[float, ...]
+    successes: tuple[bool, ...]
+    mean_return: float
+    return_ci: tuple[float, float]
+    success_rate: float
+    success_ci: tuple[float, float]
+    episodes_for_5_points: int | None  # on the success rate
+    seconds: float
+
+    def summary(self) -> str:
+        return (
+            f"{self.label}: success {100 * self.success_rate:.1f} % [{100 * self.success_ci[0]:.1f}, "
+            f"{100 * self.success_ci[1]:.1f}], mean return {self.mean_return:.4g} [{self.return_ci[0]:.4g}, "
+            f"{self.return_ci[1]:.4g}]"
+        )
+
+
+@dataclass(frozen=True)
+class PairedDifference:
+    """``a - b`` seed by seed, with seed-paired bootstrap intervals."""
+
+    a: str
+    b: str
+    return_differences: tuple[float, ...]
+    success_differences: tuple[float, ...]
+    mean_return_difference: float
+    return_ci: tuple[float, float]
+    success_rate_difference: float
+    success_ci: tuple[float, float]
+    episodes_for_5_points: int | None  # on the success-rate difference
+
+    def summary(self) -> str:
+        return (
+            f"{self.a} - {self.b} (paired over seeds): success {100 * self.success_rate_difference:+.1f} points "
+            f"[{100 * self.success_ci[0]:+.1f}, {100 * self.success_ci[1]:+.1f}], mean return "
+            f"{self.mean_return_difference:+.4g} [{self.return_ci[0]:+.4g}, {self.return_ci[1]:+.4g}]"
+        )
+
+
+@dataclass
+class CompareReport(ReportFiles):
+    """What ``hub-envs compare`` found."""
+
+    repo_id: str
+    sha: str
+    seeds: list[int]
+    policies: list[PolicyResult]
+    differences: list[PairedDifference]
+    provenance: dict[str, Any]
+    settings: dict[str, Any]
+    paths: dict[str, str] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def _needed(self, n: int | None) -> str:
+        return f"~{n}" if n is not None else f"no estimate (no variation in {len(self.seeds)} episodes)"
+
+    def summary(self) -> str:
+        conf = int(100 * self.settings["confidence"])
+        lines = [f"Compared on {self.repo_id}@{self.sha}: {len(self.seeds)} episodes, seeds {_seeds_text(self.seeds)}"]
+        lines += [f"  {p.summary()}" for p in self.policies]
+        lines += [f"  {d.summary()}" for d in self.differences]
+        lines.append(f"  ({conf}% bootstrap intervals, {self.settings['resamples']} resamples)")
+        for p in self.policies:
+            lines.append(f"  episodes for ±5 points on {p.label}'s success rate: {self._needed(p.episodes_for_5_points)}")
+        for d in self.differences:
+            lines.append(f"  episodes for ±5 points on {d.a} - {d.b}: {self._needed(d.episodes_for_5_points)}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "repo_id": self.repo_id,
+            "sha": self.sha,
+            "seeds": self.seeds,
+            "policies": [asdict(p) for p in self.policies],
+            "differences": [asdict(d) for d in self.differences],
+            "provenance": self.provenance,
+            "settings": self.settings,
+            "timings": self.timings,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+    def to_markdown(self) -> str:
+        conf = int(100 * self.settings["confidence"])
+        out = [
+            f"# Policy comparison on `{self.repo_id}`",
+            "",
+            f"Commit `{self.sha}`, {len(self.seeds)} episodes per policy on the same reset seeds ({_seeds_text(self.seeds)}), "
+            f"{conf}% bootstrap intervals ({self.settings['resamples']} resamples, seeded).",
+            "",
+            "| policy | success rate | CI | mean return | CI | episodes for ±5 points |",
+            "|---|---|---|---|---|---|",
+        ]
+        for p in self.policies:
+            out.append(
+                f"| {p.label} | {100 * p.success_rate:.1f} % | [{100 * p.success_ci[0]:.1f}, {100 * p.success_ci[1]:.1f}] | "
+                f"{p.mean_return:.4g} | [{p.return_ci[0]:.4g}, {p.return_ci[1]:.4g}] | {self._needed(p.episodes_for_5_points)} |"
+            )
+        out += [
+            "",
+            "## Paired differences",
+            "",
+            "Seed by seed (the same reset seed for both policies), resampling seeds in the bootstrap.",
+            "",
+            "| A - B | success rate (points) | CI | mean return | CI | episodes for ±5 points |",
+            "|---|---|---|---|---|---|",
+        ]
+        for d in self.differences:
+            out.append(
+                f"| {d.a} - {d.b} | {100 * d.success_rate_difference:+.1f} | [{100 * d.success_ci[0]:+.1f}, "
+                f"{100 * d.success_ci[1]:+.1f}] | {d.mean_return_difference:+.4g} | [{d.return_ci[0]:+.4g}, {d.return_ci[1]:+.4g}] | "
+                f"{self._needed(d.episodes_for_5_points)} |"
+            )
+        p = self.provenance
+        out += [
+            "",
+            "## Provenance",
+            "",
+            f"- env: `{self.repo_id}@{self.sha}` (content digest `{p.get('content_digest')}`)",
+            *[f"- policy {q.label}: `{json.dumps(q.spec, sort_keys=True)}`" for q in self.policies],
+            f"- versions: {', '.join(f'{k} {v}' for k, v in sorted(p.get('versions', {}).items()))}",
+            f"- generated {p.get('generated_at')} with hub-envs {p.get('hub_envs_version')}",
+            "",
+        ]
+        if self.paths.get("png"):
+            out += [f"![success rates, returns and paired differences]({Path(self.paths['png']).name})", ""]
+        return "\n".join(out)
+
+    def plot(self, path: str | Path) -> Path | None:
+        try:
+            import matplotlib
+        except ModuleNotFoundError:
+            return None
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+        import numpy as np
+
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+        labels = [p.label if len(p.label) <= 24 else "…" + p.label[-23:] for p in self.policies]
+        x = np.arange(len(self.policies))
+        for ax, (value, ci, title) in zip(
+            axes[:2],
+            [
+                ([100 * p.success_rate for p in self.policies], [(100 * p.success_ci[0], 100 * p.success_ci[1]) for p in self.policies], "success rate (%)"),
+                ([p.mean_return for p in self.policies], [p.return_ci for p in self.policies], "mean return"),
+            ],
+        ):  # fmt: skip
+            v = np.asarray(value, dtype=float)
+            lo = v - np.asarray([c[0] for c in ci]), np.asarray([c[1] for c in ci]) - v
+            ax.bar(x, v, yerr=np.abs(np.asarray(lo)), capsize=6, color="tab:blue", alpha=0.7)
+            ax.set_xticks(x, labels, rotation=15, fontsize=8)
+            ax.set_title(title)
+        ax = axes[2]
+        if self.differences:
+            d = self.differences[0]
+            diffs = np.asarray(d.return_differences, dtype=float)
+            ax.plot(np.arange(len(diffs)), diffs, "o", ms=4)
+            ax.axhline(d.mean_return_difference, color="black", lw=1)
+            ax.axhspan(d.return_ci[0], d.return_ci[1], color="tab:orange", alpha=0.3, label="paired 95% CI of the mean")
+            ax.axhline(0, color="grey", lw=0.8, ls=":")
+            ax.set_xlabel("episode (seed order)")
+            ax.set_title(f"return: {labels[0]} - {labels[1]}", fontsize=9)
+            ax.legend(fontsize=7, loc="best")
+        fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {len(self.seeds)} paired episodes", fontsize=10)
+        fig.tight_layout()
+        path = Path(path)
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        return path
+
+
+def _seeds_text(seeds: list[int]) -> str:
+    return f"{seeds[0]}…{seeds[-1]}" if len(seeds) > 3 else ", ".join(map(str, seeds))
+
+
+def policy_spec(text: str, *, token: str | None = None) -> dict[str, Any]:
+    """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha)."""
+    from hub_envs import hub_io
+
+    text = text.strip()
+    if text.lower() == "random":
+        return {"type": "random"}
+    path = Path(text).expanduser()
+    if path.is_dir():
+        return {"type": "lerobot", "path": str(path.resolve())}
+    if text.startswith((".", "/", "~")) or text.count("/") != 1 and "@" not in text:
+        raise ConfigError(
+            f"--policies: {text!r} is neither 'random', an existing folder (a LeRobot pretrained_model), nor a Hub repo "
+            "id user/name[@revision]."
+        )
+    repo_id, rev = hub_io.parse_repo_ref(text)
+    with hub_io.translate_hub_errors(repo_id, rev or "main"):
+        sha = hub_io.api(token).repo_info(repo_id, revision=rev).sha
+    return {"type": "lerobot", "checkpoint": f"{repo_id}@{sha}"}
+
+
+def _labels(names: list[str]) -> list[str]:
+    out: list[str] = []
+    for name in names:
+        label, n = name, 2
+        while label in out:
+            label, n = f"{name} ({n})", n + 1
+        out.append(label)
+    return out
+
+
+def _run_policy(loaded: Any, label: str, spec: dict, seeds: list[int], **kw: Any) -> PolicyResult:
+    from hub_envs.harness.benchmark import BenchmarkRun
+
+    bench = {"name": label, "policy": spec, "seeds": seeds, "metrics": {"mean_return": 0.0, "success_rate": 0.0}}
+    run = BenchmarkRun(
+        loaded,
+        bench,
+        resamples=kw["resamples"],
+        confidence=kw["confidence"],
+        seed=kw["bootstrap_seed"],
+        token=kw["token"],
+        trust_policy_code=kw["trust_policy_code"],
+    )
+    if not run.runnable:
+        raise ReproductionError(f"policy {label}: {run.result.error}")
+    result = run.run(loaded.make, workers=kw["workers"], progress=kw["progress"])
+    metrics = {m.name: m for m in result.metrics}
+    returns = tuple(float(r) for r in result.reproduced_per_episode["return"])
+    successes = tuple(bool(s) for s in result.reproduced_per_episode["success"])
+    return PolicyResult(
+        label=label,
+        spec=spec,
+        returns=returns,
+        successes=successes,
+        mean_return=metrics["mean_return"].reproduced,
+        return_ci=(metrics["mean_return"].ci_low, metrics["mean_return"].ci_high),
+        success_rate=metrics["success_rate"].reproduced,
+        success_ci=(metrics["success_rate"].ci_low, metrics["success_rate"].ci_high),
+        episodes_for_5_points=episodes_for_half_width(successes, confidence=kw["confidence"]),
+        seconds=round(result.seconds, 4),
+    )
+
+
+def _paired(a: PolicyResult, b: PolicyResult, *, resamples: int, confidence: float, seed: int) -> PairedDifference:
+    from hub_envs.harness.benchmark import bootstrap_ci
+
+    dr = [x - y for x, y in zip(a.returns, b.returns)]
+    ds = [float(x) - float(y) for x, y in zip(a.successes, b.successes)]
+    return PairedDifference(
+        a=a.label,
+        b=b.label,
+        return_differences=tuple(dr),
+        success_differences=tuple(ds),
+        mean_return_difference=float(statistics.fmean(dr)),
+        # resampling the differences resamples seeds: each draw keeps both policies' episodes of one seed
+        return_ci=bootstrap_ci(dr, resamples=resamples, confidence=confidence, seed=seed),
+        success_rate_difference=float(statistics.fmean(ds)),
+        success_ci=bootstrap_ci(ds, resamples=resamples, confidence=confidence, seed=seed),
+        episodes_for_5_points=episodes_for_half_width(ds, confidence=confidence),
+    )
+
+
+def compare(
+    repo_id: str,
+    policies: list[str],
+    *,
+    episodes: int = 20,
+    seed: int = 0,
+    revision: str | None = None,
+    trust_remote_code: bool = False,
+    trust_policy_code: bool = False,
+    workers: int | None = None,
+    resamples: int = 1000,
+    confidence: float = 0.95,
+    out: str | Path | None = None,
+    write: bool = True,
+    progress: bool = True,
+    token: str | None = None,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
+    step_timeout: float | None = None,
+) -> CompareReport:
+    """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired.
+
+    Args:
+        repo_id: ``user/name@<sha>`` (pin it: the comparison names the commit), or a local folder.
+        policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder, a Hub repo id.
+        trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
+        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`).
+    """
+    from hub_envs import __version__
+    from hub_envs.harness.provenance import package_versions
+    from hub_envs.load import load_env
+
+    if len(policies) < 2:
+        raise ConfigError(f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH.")
+    if episodes < 2:
+        raise ConfigError(f"--episodes={episodes}: a confidence interval needs at least 2 episodes (20 or more is sensible).")
+    if not 0 < confidence < 1:
+        raise ConfigError(f"confidence={confidence}: pass a level between 0 and 1, e.g. 0.95.")
+    workers = int(workers) if workers else max(1, min(2, __import__("os").cpu_count() or 1))
+    t0 = time.perf_counter()
+    specs = [policy_spec(p, token=token) for p in policies]
+    labels = _labels([p.strip() for p in policies])
+    loaded = load_env(
+        repo_id,
+        revision=revision,
+        trust_remote_code=trust_remote_code,
+        fingerprint="off",
+        token=token,
+        isolation=isolation,
+        sandbox=sandbox,
+        versions=versions,
+        step_timeout=step_timeout,
+    )
+    timings = {"load": time.perf_counter() - t0}
+    try:
+        seeds = [seed + i for i in range(episodes)]
+        kw = dict(
+            resamples=resamples,
+            confidence=confidence,
+            bootstrap_seed=seed,
+            token=token,
+            trust_policy_code=trust_policy_code,
+            workers=workers,
+            progress=progress,
+        )
+        results = []
+        for label, spec in zip(labels, specs):
+            t = time.perf_counter()
+            results.append(_run_policy(loaded, label, spec, seeds, **kw))
+            timings[f"policy {label}"] = time.perf_counter() - t
+        diffs = [
+            _paired(results[i], results[j], resamples=resamples, confidence=confidence, seed=seed)
+            for i in range(len(results))
+            for j in range(i + 1, len(results))
+        ]
+        m = loaded.manifest
+        report = CompareReport(
+            repo_id=loaded.repo_id,
+            sha=loaded.revision,
+            seeds=seeds,
+            policies=results,
+            differences=diffs,
+            provenance={
+                "repo_id": loaded.repo_id,
+                "sha": loaded.revision,
+                "content_digest": m.content_digest,
+                "dataset_fingerprint": m.dataset.get("fingerprint"),
+                "episode_length": int(loaded.config.episode_length),
+                "seeds": seeds,
+                "versions": package_versions(m.requirements),
+                "hub_envs_version": __version__,
+                "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
+            },
+            settings={
+                "episodes": episodes,
+                "seed": seed,
+                "resamples": resamples,
+                "confidence": confidence,
+                "workers": workers,
+                "isolation": isolation + ("+sandbox" if sandbox else ""),
+                "half_width": HALF_WIDTH,
+            },
+        )
+        report.timings = {k: round(v, 4) for k, v in timings.items()}  # in the files: load and each policy
+        if write:
+            t = time.perf_counter()
+            parts = [p for p in loaded.repo_id.split("/") if p not in ("", ".", "..")]
+            report.write(Path(out) if out is not None else DEFAULT_OUT.joinpath(*parts))
+            report.timings["report"] = round(time.perf_counter() - t, 4)
+        report.timings["total"] = round(time.perf_counter() - t0, 4)
+        return report
+    finally:
+        loaded.unregister()
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class CompareArgs(EnvFlags):
+    """Evaluate policies on the same seeds; report rates and returns with CIs and the seed-paired difference."""
+
+    policies: str | None = None  # comma-separated: random, a pretrained_model folder, a Hub repo id
+    episodes: int = 20
+    seed: int = 0
+    trust_policy_code: bool = False  # consent to load Hub checkpoints (other repos than the env)
+    workers: int = 0  # 0: up to 2 processes
+    resamples: int = 1000
+    out: Path | None = None  # default compare-out/<user>/<name>/
+    json: bool = False
+
+
+def compare_cli(args: CompareArgs) -> int:
+    if args.repo_id is None or not args.policies:
+        raise ConfigError("hub-envs compare needs --repo_id=user/name@<sha> and --policies=A,B (random, a folder, a repo id).")
+    policies = [p for p in args.policies.split(",") if p.strip()]
+    report = call_with_flags(compare, args, args.repo_id, policies, workers=args.workers or None)
+    if args.json:
+        print(report.to_json(), end="")
+    else:
+        print(report.summary())
+    print(
+        f"Reports: {report.paths.get('markdown')} (people), {report.paths.get('json')} (machines)"
+        + (f", {report.paths['png']} (plot)" if report.paths.get("png") else ""),
+        file=sys.stderr if args.json else sys.stdout,
+    )
+    return 0
+
+
+CLI_COMMANDS = {"compare": (CompareArgs, compare_cli)}

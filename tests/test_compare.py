@@ -1,0 +1,108 @@
+"""``hub-envs compare``: policies on the same seeds of one env commit, each with CIs, and the seed-paired difference.
+
+The trained policy is a real (tiny) ACT from ``hub-envs train`` (LeRobot's lerobot-train), one step on reach's
+bundled dataset: trained or not, it acts differently from the random policy, which is all the paired CI needs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from helpers import copy_env
+from test_lerobot import EVAL_FREQ, TINY_ACT
+
+from hub_envs import compare, errors, push_env
+from hub_envs.cli import main as cli_main
+
+ENVS = Path(__file__).resolve().parent.parent / "envs"
+
+
+@pytest.fixture(scope="module")
+def reach(hub_module, tmp_path_factory):
+    folder = copy_env(
+        tmp_path_factory.mktemp("reach"),
+        ENVS / "reach",
+        "reach",
+        edits={"config.py": lambda s: s.replace("episode_length: int = 100", "episode_length: int = 12")},
+    )
+    return push_env(folder, "alice/reach-compare", episodes=1, progress=False)
+
+
+@pytest.fixture(scope="module")
+def act_checkpoint(reach, tmp_path_factory) -> Path:
+    """A one-step ACT trained by ``hub-envs train`` on reach's bundled dataset: a real pretrained_model folder."""
+    out = tmp_path_factory.mktemp("act") / "train"
+    args = [
+        "train",
+        "--env.type=hub",
+        "--env.repo_id=alice/reach-compare",
+        f"--env.revision={reach.sha}",
+        "--env.trust_remote_code=true",
+        *TINY_ACT,
+        "--batch_size=4",
+        "--num_workers=0",
+        "--log_freq=100",
+        f"--{EVAL_FREQ}=0",
+        "--steps=1",
+        "--save_freq=1",
+        f"--output_dir={out}",
+    ]
+    assert cli_main(args) == 0
+    model = out / "checkpoints" / "last" / "pretrained_model"
+    assert (model / "config.json").is_file()
+    return model
+
+
+def test_random_against_itself_differs_by_exactly_zero_on_paired_seeds(hub_module, reach, tmp_path, capsys):
+    code = cli_main(
+        ["compare", f"--repo_id=alice/reach-compare@{reach.sha}", "--policies=random,random", "--episodes=4",
+         "--seed=3", "--trust_remote_code=true", "--workers=1", f"--out={tmp_path}"]
+    )  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    data = json.loads((tmp_path / "report.json").read_text())
+    assert data["sha"] == reach.sha and data["seeds"] == [3, 4, 5, 6]
+    a, b = data["policies"]
+    assert (a["label"], b["label"]) == ("random", "random (2)")
+    assert a["returns"] == b["returns"] and a["successes"] == b["successes"]
+    (d,) = data["differences"]
+    assert d["return_differences"] == [0.0] * 4 and d["mean_return_difference"] == 0.0
+    assert d["return_ci"] == [0.0, 0.0] and d["success_ci"] == [0.0, 0.0] and d["success_rate_difference"] == 0.0
+    assert "random - random (2) (paired over seeds): success +0.0 points" in printed
+    assert (tmp_path / "report.md").read_text().startswith("# Policy comparison on `alice/reach-compare`")
+    assert (tmp_path / "report.png").stat().st_size > 0
+    assert {"load", "policy random", "policy random (2)"} <= set(data["timings"])
+    assert data["provenance"]["versions"]["pybullet"] and data["provenance"]["content_digest"] == reach.manifest.content_digest
+
+
+def test_a_trained_act_against_random_on_reach_reports_a_paired_ci(hub_module, reach, act_checkpoint, tmp_path):
+    report = compare(
+        f"alice/reach-compare@{reach.sha}",
+        [str(act_checkpoint), "random"],
+        episodes=4,
+        trust_remote_code=True,
+        workers=1,
+        out=tmp_path,
+        progress=False,
+    )
+    act, rnd = report.policies
+    assert act.spec == {"type": "lerobot", "path": str(act_checkpoint.resolve())} and rnd.spec == {"type": "random"}
+    assert len(act.returns) == len(rnd.returns) == 4 and act.returns != rnd.returns
+    (d,) = report.differences
+    assert d.return_differences == tuple(x - y for x, y in zip(act.returns, rnd.returns))
+    assert d.return_ci[0] <= d.mean_return_difference <= d.return_ci[1] and d.return_ci[0] < d.return_ci[1]
+    assert act.return_ci[0] <= act.mean_return <= act.return_ci[1]
+    assert d.episodes_for_5_points is None or d.episodes_for_5_points >= 1
+    md = (tmp_path / "report.md").read_text()
+    assert "## Paired differences" in md and f"| {act_checkpoint} - random |" in md
+
+
+def test_compare_refuses_bad_input_with_a_clear_error(hub_module, reach, tmp_path):
+    with pytest.raises(errors.ConfigError, match="at least two"):
+        compare(f"alice/reach-compare@{reach.sha}", ["random"], trust_remote_code=True)
+    with pytest.raises(errors.ConfigError, match="neither 'random'"):
+        compare(f"alice/reach-compare@{reach.sha}", ["random", "./no/such/folder"], trust_remote_code=True)
+    with pytest.raises(errors.ReproductionError, match="config.json"):
+        compare(f"alice/reach-compare@{reach.sha}", ["random", str(tmp_path)], trust_remote_code=True, write=False)
