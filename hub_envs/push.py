@@ -198,8 +198,24 @@ def _code_files(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
     return dict(sorted(files.items()))
 
 
+def _has_cameras(cfg: Any) -> bool:
+    """Whether the env's config declares a VISUAL feature (a camera: stored as video by default, as LeRobot does)."""
+    return any(str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL") for ft in cfg.features.values())
+
+
+def _dataset_uses_video(dataset: dict[str, Any]) -> bool:
+    return any(isinstance(ft, dict) and ft.get("dtype") == "video" for ft in (dataset.get("features") or {}).values())
+
+
 def _published_unchanged(
-    loaded: LoadedEnv, repo_id: str, *, episodes: int, seed: int, fingerprint_seeds: int, token: str | None
+    loaded: LoadedEnv,
+    repo_id: str,
+    *,
+    episodes: int,
+    seed: int,
+    fingerprint_seeds: int,
+    token: str | None,
+    video: bool = False,
 ) -> tuple[str, Manifest] | None:
     """``(sha, manifest)`` of main when it already holds what this push would build, else None.
 
@@ -229,6 +245,7 @@ def _published_unchanged(
         and remote.seeds.get("dataset") == seeds
         and remote.seeds.get("check") == seed
         and remote.dataset.get("episodes") == episodes
+        and _dataset_uses_video(remote.dataset) == (video and _has_cameras(loaded.config))
         and remote.fingerprint.get("seeds") == seeds[:fingerprint_seeds]
         and (remote.name, remote.version, remote.description) == (local.name, local.version, local.description)
         and remote.requirements == tuple(local.requirements)
@@ -399,6 +416,7 @@ def build_repo(
     determinism_steps: int | None = None,
     fingerprint_seeds: int = FINGERPRINT_SEEDS,
     progress: bool = True,
+    video: bool = False,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
@@ -423,7 +441,7 @@ def build_repo(
             workers=workers,
             code_digest=code_digest,
             fingerprint_seeds=fingerprint_seeds,
-            features=dataset_features_from_config(cfg, action=stored_action(env.action_space)),
+            features=dataset_features_from_config(cfg, action=stored_action(env.action_space), video=video),
             where=where,
             progress=progress,
         )
@@ -477,6 +495,7 @@ def push_env(
     determinism_steps: int | None = None,
     force: bool = False,
     config: dict[str, Any] | None = None,
+    video: bool | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -486,7 +505,10 @@ def push_env(
     ``force=True`` rebuilds and compares everything. ``determinism_steps`` caps the determinism check
     (default: a whole episode, for two seeds). ``config`` sets fields of the env's config before its
     ``__post_init__`` (``{"obs_type": "pixels_agent_pos"}``; the CLI's ``--config.<field>=<value>``): the
-    variant is published from the same folder, and load_env rebuilds it from the manifest.
+    variant is published from the same folder, and load_env rebuilds it from the manifest. ``video``: store
+    camera (VISUAL) features as MP4 videos encoded by LeRobot's own encoder (dtype ``"video"``, LeRobot's default
+    for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features.
+    Replay compares video frames within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE` (the codec is lossy).
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -501,11 +523,18 @@ def push_env(
     t0 = time.perf_counter()
     loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
+        video = _has_cameras(loaded.config) if video is None else bool(video)
         unchanged = (
             None
             if force
             else _published_unchanged(
-                loaded, repo_id, episodes=episodes, seed=seed, fingerprint_seeds=FINGERPRINT_SEEDS, token=token
+                loaded,
+                repo_id,
+                episodes=episodes,
+                seed=seed,
+                fingerprint_seeds=FINGERPRINT_SEEDS,
+                token=token,
+                video=video,
             )
         )
         if unchanged is not None:
@@ -528,6 +557,7 @@ def push_env(
                 workers=workers or _default_workers(),
                 determinism_steps=determinism_steps,
                 progress=progress,
+                video=video,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()
