@@ -47,7 +47,7 @@ from hub_envs.errors import ConfigError, EnvCheckError, EnvFolderError, StatesNo
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
-from hub_envs.harness.media import write_rollout_gif
+from hub_envs.harness.media import render_size_overrides, write_rollout_media
 from hub_envs.harness.provenance import package_versions, requirement_closure
 from hub_envs.harness.rollout import iter_episodes
 from hub_envs.importing import forget_env_folder, module_key
@@ -61,6 +61,7 @@ from hub_envs.repo_format import (
     HUB_FILES,
     MANIFEST_FILE,
     MEDIA_DIR,
+    MP4_FILE,
     EnvFolder,
     Manifest,
     check_publishable,
@@ -448,8 +449,14 @@ def build_repo(
         check_features(cfg, env, read_info(staging / DATASET_DIR)["features"], seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
         seeds = list(run.summary.seeds)
-        write_rollout_gif(
-            loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length))
+        size = render_size_overrides(cfg.gym_kwargs)  # the card's media at >= 256 px, rendered by the env at that size
+        write_rollout_media(
+            lambda: loaded.make(**size),
+            staging / GIF_FILE,
+            seeds=seeds[:3],
+            fps=int(cfg.fps),
+            max_steps=min(60, int(cfg.episode_length)),
+            mp4_path=staging / MP4_FILE if video and _has_cameras(cfg) else None,
         )
         manifest = _draft_manifest(loaded, repo_id=repo_id, code_digest=code_digest, run=run, seed=seed)
         manifest = replace(

@@ -213,6 +213,24 @@ def read_episode_video(root: str | os.PathLike, info: Mapping, key: str, meta: M
     )
 
 
+def check_videos(root: str | os.PathLike) -> int:
+    """Open every MP4 the dataset's video features use and decode its last episode's frames (the part a
+    truncation cuts off first); returns how many files were checked (0: no video features).
+
+    Raises :class:`hub_envs.errors.IntegrityError` for a missing, truncated or undecodable file."""
+    info = read_info(root)
+    keys = [k for k, ft in info["features"].items() if isinstance(ft, dict) and ft.get("dtype") == "video"]
+    if not keys:
+        return 0
+    last: dict[tuple[str, Any, Any], dict] = {}
+    for m in read_episode_meta(root):
+        for key in keys:
+            last[(key, m.get(f"videos/{key}/chunk_index"), m.get(f"videos/{key}/file_index"))] = m
+    for (key, _, _), m in last.items():
+        read_episode_video(root, info, key, m)
+    return len(last)
+
+
 def read_episode_meta(root: str | os.PathLike) -> list[dict]:
     """One dict per episode (sorted by ``episode_index``): the episodes metadata without stats.
 

@@ -16,7 +16,7 @@ video feature frame by frame with :func:`frame_errors` (mean absolute difference
 states, PNG images) stays exact. A frame that is a different picture (an object moved) differs by far more.
 
     >>> VIDEO_TOLERANCE.max_mean_abs_error
-    6.0
+    8.0
     >>> import numpy as np
     >>> a = np.zeros((2, 4, 4, 3), np.uint8); b = a.copy(); b[1] += 10
     >>> frame_errors(a, b).tolist()
@@ -67,9 +67,10 @@ class VideoTolerance:
         }
 
 
-#: The bound replay applies to video features (measured on the example envs at LeRobot's CRF 30:
-#: reach 96x96 frames decode within ~1.5 mean abs error, worst frame < 3; README "Video datasets").
-VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=6.0)
+#: The bound replay applies to video features. Measured at LeRobot's CRF 30 (``benchmarks/bench_video.py``):
+#: reach's 96x96 camera, 2000 frames, median 3.8 and worst 4.8 mean abs error (lowest PSNR 27.5 dB); 8 leaves
+#: room for other renders while a different picture (a moved camera, other colours) is far above it.
+VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=8.0)
 
 
 def frame_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
