@@ -257,3 +257,32 @@ def test_truncated_video_in_a_published_repo_is_refused(hub_module, reach_video,
         loaded.open_dataset()
     assert mp4.split("/")[-1] in str(e.value)
     loaded.unregister()
+
+
+def test_card_media_is_big_real_time_and_has_an_mp4(hub_module, reach_video):
+    """The GIF is >= 256 px wide as rendered by the env (reach's render_width knob, not an upscale), shows
+    three episodes at the env's real speed, stays small; the MP4 sits beside it; card and page show both."""
+    import av
+    import imageio.v3 as iio
+    import requests
+
+    _, pushed = reach_video
+    api = hub_module.api
+    gif_path = api.hf_hub_download("alice/reach-video", "media/rollout.gif", revision=pushed.sha)
+    frames = iio.imread(gif_path, index=None)
+    assert frames.shape[1:3] == (256, 256)
+    assert len(frames) == 3 * 12 // 2  # 3 episodes of 12 steps, every 2nd step (20 fps -> 10 frames per second)
+    assert iio.immeta(gif_path)["duration"] == 100  # ms per frame: real time
+    assert Path(gif_path).stat().st_size < 3 * 2**20
+    # rendered, not repeated pixels: neighbouring columns differ somewhere (a 3x upscale of 96 px would not)
+    assert (frames[:, :, 0::3] != frames[:, :, 1::3]).any()
+    assert "media/rollout.mp4" in pushed.manifest.files
+    with av.open(api.hf_hub_download("alice/reach-video", "media/rollout.mp4", revision=pushed.sha)) as mp4:
+        stream = mp4.streams.video[0]
+        assert (stream.width, stream.height, int(stream.base_rate)) == (256, 256, 10)
+    card = Path(api.hf_hub_download("alice/reach-video", "README.md", revision=pushed.sha)).read_text()
+    assert "](media/rollout.gif)" in card and "](media/rollout.mp4)" in card and "real time (20 fps)" in card
+    page = requests.get(
+        f"{hub_module.endpoint}/alice/reach-video/tree/{pushed.sha}", headers={"Accept": "text/html"}, timeout=30
+    ).text
+    assert f'<video src="/alice/reach-video/resolve/{pushed.sha}/media/rollout.mp4"' in page
