@@ -143,10 +143,12 @@ class ReplayResult:
         frames = sum(e.length for e in self.episodes)
         how = "exactly" if self.tolerance == 0 else f"within {self.tolerance:g}"
         if self.ok:
-            text = f"replay: all {n} episodes ({frames} frames) reproduce {how} ({', '.join(self.features)})"
+            videos = set(self.video["keys"]) if self.video else set()
+            exact = ", ".join(k for k in self.features if k not in videos)
+            text = f"replay: all {n} episodes ({frames} frames) reproduce {how} ({exact})"
             if self.video:
                 text += (
-                    f"; video {', '.join(self.video['keys'])} within mean abs error "
+                    f", video {', '.join(self.video['keys'])} within mean abs error "
                     f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g})"
                 )
             return text
