@@ -231,6 +231,9 @@ def test_reproduce_reach_video_within_the_tolerance(hub_module, reach_video, tmp
         assert all(v == 0.0 for k, v in e.max_abs_diff.items() if k != "observation.image"), e.max_abs_diff
     assert "env_state" in replay.features
     assert "within mean abs error" in replay.summary()
+    # and beyond the tolerance: the replayed frames, re-encoded with the same encoder, decode bit for bit
+    assert replay.video["bit_exact_after_reencode"] and all(e.video_exact == {"observation.image": True} for e in replay.episodes)
+    assert "re-encoded, bit for bit" in replay.summary()
 
 
 def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach_video):

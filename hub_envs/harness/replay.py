@@ -97,6 +97,9 @@ class EpisodeReplay:
     max_abs_diff: dict[str, float] = field(default_factory=dict)  # over the whole episode, per feature
     error_curve: dict[str, list[float]] = field(default_factory=dict)  # per-step max |diff| (diverged episodes)
     localization: dict[str, Any] | None = None
+    #: per video feature: the replayed frames, encoded with the same (deterministic) encoder, decode to exactly
+    #: the dataset's decoded frames
+    video_exact: dict[str, bool] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -149,7 +152,9 @@ class ReplayResult:
             if self.video:
                 text += (
                     f", video {', '.join(self.video['keys'])} within mean abs error "
-                    f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g})"
+                    f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g}"
+                    + ("; re-encoded, bit for bit" if self.video.get("bit_exact_after_reencode") else "")
+                    + ")"
                 )
             return text
         first = self.first_divergence
@@ -269,6 +274,7 @@ class _Plan:
     actions: list[np.ndarray]  # as recorded, per episode
     states: dict[int, np.ndarray] | None
     frames: DatasetFrames
+    fps: int = 1
 
 
 def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[int] | None) -> _Plan:
@@ -323,7 +329,20 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
             raise DatasetError(
                 f"{dataset_root}: the recorded env states do not cover episodes {missing}. Re-publish the env with push_env."
             )
-    return _Plan(Path(dataset_root), features, image_keys, video_keys, skipped, action_key, metas, seeds, actions, states, frames)
+    return _Plan(
+        Path(dataset_root),
+        features,
+        image_keys,
+        video_keys,
+        skipped,
+        action_key,
+        metas,
+        seeds,
+        actions,
+        states,
+        frames,
+        int(info.get("fps") or 1),
+    )
 
 
 def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
@@ -376,6 +395,8 @@ def _compare_episode(
             continue
         video = key in plan.video_keys
         errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
+        if video and len(rep) == len(dat):
+            result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps)
         curves[key] = errors
         result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
         limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
@@ -411,6 +432,23 @@ def _compare_episode(
     if result.divergences and keep_curves:
         result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
     return result
+
+
+def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int) -> bool:
+    """Whether the replayed frames, encoded as push_env encoded the dataset's, decode to exactly ``decoded``.
+
+    The encoder is deterministic, so with the same encoder build identical frames give identical video: a
+    bit-exact check on top of the tolerance (a different libsvtav1 build may give False with equal frames)."""
+    import tempfile
+
+    from hub_envs.dataset.video import decode_episode, encode_episode
+
+    if replay.dtype != np.uint8 or replay.ndim != 4 or replay.shape[-1] != 3:
+        return False
+    with tempfile.TemporaryDirectory(prefix="hub-envs-reencode-") as tmp:
+        path, _, _ = encode_episode(np.ascontiguousarray(replay), Path(tmp) / "episode.mp4", fps)
+        again = decode_episode(path, from_timestamp=0.0, length=len(replay), fps=fps, shape=replay.shape[1:], where="replay")
+    return bool(np.array_equal(again, decoded))
 
 
 def _feature_rank(feature: str) -> int:
@@ -691,7 +729,13 @@ class Replay:
         video = None
         if plan.video_keys:
             worst = max((e.max_abs_diff.get(k, 0.0) for e in results for k in plan.video_keys), default=0.0)
-            video = {"keys": sorted(plan.video_keys), "tolerance": VIDEO_TOLERANCE.to_dict(), "worst": worst}
+            exact = all(e.video_exact.get(k, False) for e in results for k in plan.video_keys)
+            video = {
+                "keys": sorted(plan.video_keys),
+                "tolerance": VIDEO_TOLERANCE.to_dict(),
+                "worst": worst,
+                "bit_exact_after_reencode": exact,
+            }
         if plan.states is not None and self.record_states:
             features[STATE_FEATURE] = None
         self._seconds += time.perf_counter() - t
