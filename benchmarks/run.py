@@ -39,6 +39,7 @@ MODULES: dict[str, dict] = {
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
     "bench_isolation": {"repeats": 5},
     "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 9},
+    "bench_video": {"episodes": 20},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -87,6 +88,10 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "lfs_upload_vs_regular": ("bench_lfs", None, "64 MiB file up through LFS ÷ inline base64 (MiB/s)"),
     "lfs_download_mb_s": ("bench_lfs", None, "MiB/s: hf_hub_download of that LFS file"),
     "cold_load_big_vs_small": ("bench_lfs", (LE, 1.1), "cold load_env, 200 MiB dataset ÷ 1 MiB dataset (same env)"),
+    "video_size_ratio": ("bench_video", (LE, 0.2), "dataset bytes, reach 20 eps: camera as MP4 ÷ as PNG"),
+    "video_write_vs_png": ("bench_video", None, "seconds writing that dataset: MP4 ÷ PNG"),
+    "video_worst_mean_abs_error": ("bench_video", None, "worst decoded frame's mean |error| (0-255; replay accepts <= 8)"),
+    "video_min_psnr_db": ("bench_video", None, "lowest per-frame PSNR of the decoded frames (dB)"),
 }
 
 

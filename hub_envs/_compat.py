@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import sys
+from pathlib import Path
 from typing import Any
 
 from packaging.version import Version
@@ -248,6 +249,8 @@ def lerobot_dataset_layout() -> dict[str, Any]:
         "CHUNK_FILE_PATTERN": utils.CHUNK_FILE_PATTERN,
         "EPISODES_PATH": utils.DEFAULT_EPISODES_PATH,
         "DATA_PATH": utils.DEFAULT_DATA_PATH,
+        "VIDEO_DIR": utils.VIDEO_DIR,
+        "VIDEO_PATH": utils.DEFAULT_VIDEO_PATH,
         "DEFAULT_FEATURES": {k: {**v, "shape": list(v["shape"])} for k, v in DEFAULT_FEATURES.items()},
     }
 
@@ -300,6 +303,49 @@ def env_configs_create_envs() -> bool:
     from lerobot.envs.configs import EnvConfig
 
     return hasattr(EnvConfig, "create_envs") and hasattr(EnvConfig, "get_env_processors")
+
+
+def lerobot_video_utils():
+    """``lerobot.datasets.video_utils`` (the same module path in 0.4 and 0.6): LeRobot's own video encoder
+    (``encode_video_frames``: a folder of ``frame-000000.png`` files -> one MP4 with pyav; default libsvtav1,
+    yuv420p, GOP 2, CRF 30 in both), ``concatenate_video_files`` (remux, no re-encode) and
+    ``get_video_duration_in_s``, all with the same signatures in the calls hub-envs makes."""
+    from lerobot.datasets import video_utils
+
+    return video_utils
+
+
+def lerobot_video_info(video_path: str | Path) -> dict[str, Any]:
+    """The ``info`` of a video feature as the installed LeRobot's writer records it in ``info.json``.
+
+    0.4: ``get_video_info(path)`` = the stream's values plus ``video.is_depth_map: false``. From 0.5:
+    ``get_video_info(path, video_encoder=rgb_encoder_defaults())`` = the stream's values, the encoder's
+    settings (``video.g``, ``video.crf``, ``video.preset``, ...) and ``is_depth_map: false``.
+    """
+    video_utils = lerobot_video_utils()
+    try:
+        from lerobot.configs.video import rgb_encoder_defaults
+    except ImportError:
+        return dict(video_utils.get_video_info(video_path))
+    return dict(video_utils.get_video_info(video_path, video_encoder=rgb_encoder_defaults()))
+
+
+def video_backend() -> str:
+    """The LeRobot video decoding backend that works here: ``"torchcodec"`` if it loads, else ``"pyav"``.
+
+    LeRobot 0.4's default (``get_safe_default_codec``) picks torchcodec whenever the package is installed,
+    even when its FFmpeg libraries are missing and it cannot load (then every video read fails); 0.6's
+    ``get_safe_default_video_backend`` tries to import it and falls back to pyav. This is 0.6's rule, on both.
+    """
+    from importlib.util import find_spec
+
+    if find_spec("torchcodec") is None:
+        return "pyav"
+    try:
+        import torchcodec.decoders  # noqa: F401
+    except Exception:  # noqa: BLE001 - ImportError, OSError, RuntimeError: the FFmpeg libraries are missing
+        return "pyav"
+    return "torchcodec"
 
 
 # --- stdlib ------------------------------------------------------------------------------------

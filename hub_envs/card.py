@@ -18,7 +18,7 @@ from pathlib import Path
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from hub_envs.errors import InvalidRepoFormatError
-from hub_envs.repo_format import Manifest
+from hub_envs.repo_format import GIF_FILE, MP4_FILE, Manifest
 
 TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"]
 
@@ -165,8 +165,10 @@ def render_card(
         template_path=str(template_path()),
         title=f"{manifest.name} — a hub-envs environment",
         description=manifest.description or "A gymnasium environment in LeRobot's format, shared with hub-envs.",
-        gif_path="media/rollout.gif",
+        gif_path=GIF_FILE,
         gif_caption="Random-action rollouts",
+        gif_note=f": {min(3, len(seeds))} episodes, real time ({config.get('fps')} fps)",
+        mp4_path=MP4_FILE if any(ft.get("dtype") == "video" for ft in ds_features.values()) else None,
         repo_id=repo_id,
         content_tag=content_tag,
         content_digest=manifest.content_digest,

@@ -267,14 +267,23 @@ class LoadedEnv:
 
     def open_dataset(self, **kwargs):
         """The bundled random-action dataset as a ``LeRobotDataset``, read from the snapshot; its data
-        files are fetched and verified first if load_env left them out (see :meth:`fetch_dataset`)."""
+        files are fetched and verified first if load_env left them out (see :meth:`fetch_dataset`). Video
+        features decode with the backend that works here (torchcodec if it loads, else pyav:
+        :func:`hub_envs._compat.video_backend`) unless ``video_backend=`` is given. The MP4s of video features
+        are checked to decode (a truncated or damaged file raises :class:`IntegrityError`, not a decode crash
+        inside a DataLoader)."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        from hub_envs._compat import video_backend
+        from hub_envs.dataset.reader import check_videos
 
         root = self.fetch_dataset()
         if root is None:
             raise InvalidRepoFormatError(
                 f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env)."
             )
+        if check_videos(root):
+            kwargs.setdefault("video_backend", video_backend())
         return LeRobotDataset(self.repo_id, root=root, **kwargs)
 
     def processors(self, cfg=None):

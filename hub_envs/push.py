@@ -47,7 +47,7 @@ from hub_envs.errors import ConfigError, EnvCheckError, EnvFolderError, StatesNo
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
-from hub_envs.harness.media import write_rollout_gif
+from hub_envs.harness.media import render_size_overrides, write_rollout_media
 from hub_envs.harness.provenance import package_versions, requirement_closure
 from hub_envs.harness.rollout import iter_episodes
 from hub_envs.importing import forget_env_folder, module_key
@@ -61,6 +61,7 @@ from hub_envs.repo_format import (
     HUB_FILES,
     MANIFEST_FILE,
     MEDIA_DIR,
+    MP4_FILE,
     EnvFolder,
     Manifest,
     check_publishable,
@@ -214,6 +215,13 @@ def _card_shows(repo_id: str, sha: str, table: str, token: str | None) -> bool:
     """Whether the card at ``sha`` already shows ``table`` (the "Reproduced on" table; "" for none)."""
     card = hub_io.read_remote_text(repo_id, CARD_FILE, revision=sha, token=token) or ""
     return table in card if table else "## Reproduced on" not in card
+def _has_cameras(cfg: Any) -> bool:
+    """Whether the env's config declares a VISUAL feature (a camera: stored as video by default, as LeRobot does)."""
+    return any(str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL") for ft in cfg.features.values())
+
+
+def _dataset_uses_video(dataset: dict[str, Any]) -> bool:
+    return any(isinstance(ft, dict) and ft.get("dtype") == "video" for ft in (dataset.get("features") or {}).values())
 
 
 def _published_unchanged(
@@ -225,6 +233,7 @@ def _published_unchanged(
     fingerprint_seeds: int,
     token: str | None,
     attestations: list = (),  # type: ignore[assignment]
+    video: bool = False,
 ) -> tuple[str, Manifest] | None:
     """``(sha, manifest)`` of main when it already holds what this push would build, else None.
 
@@ -255,6 +264,7 @@ def _published_unchanged(
         and remote.seeds.get("dataset") == seeds
         and remote.seeds.get("check") == seed
         and remote.dataset.get("episodes") == episodes
+        and _dataset_uses_video(remote.dataset) == (video and _has_cameras(loaded.config))
         and remote.fingerprint.get("seeds") == seeds[:fingerprint_seeds]
         and (remote.name, remote.version, remote.description) == (local.name, local.version, local.description)
         and remote.requirements == tuple(local.requirements)
@@ -429,6 +439,7 @@ def build_repo(
     fingerprint_seeds: int = FINGERPRINT_SEEDS,
     progress: bool = True,
     attestations: list | tuple = (),
+    video: bool = False,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
@@ -453,15 +464,21 @@ def build_repo(
             workers=workers,
             code_digest=code_digest,
             fingerprint_seeds=fingerprint_seeds,
-            features=dataset_features_from_config(cfg, action=stored_action(env.action_space)),
+            features=dataset_features_from_config(cfg, action=stored_action(env.action_space), video=video),
             where=where,
             progress=progress,
         )
         check_features(cfg, env, read_info(staging / DATASET_DIR)["features"], seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
         seeds = list(run.summary.seeds)
-        write_rollout_gif(
-            loaded.make, staging / GIF_FILE, seeds=seeds[:2], fps=int(cfg.fps), max_steps=min(90, int(cfg.episode_length))
+        size = render_size_overrides(cfg.gym_kwargs)  # the card's media at >= 256 px, rendered by the env at that size
+        write_rollout_media(
+            lambda: loaded.make(**size),
+            staging / GIF_FILE,
+            seeds=seeds[:3],
+            fps=int(cfg.fps),
+            max_steps=min(60, int(cfg.episode_length)),
+            mp4_path=staging / MP4_FILE if video and _has_cameras(cfg) else None,
         )
         manifest = _draft_manifest(loaded, repo_id=repo_id, code_digest=code_digest, run=run, seed=seed)
         manifest = replace(
@@ -508,6 +525,7 @@ def push_env(
     determinism_steps: int | None = None,
     force: bool = False,
     config: dict[str, Any] | None = None,
+    video: bool | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -517,7 +535,10 @@ def push_env(
     ``force=True`` rebuilds and compares everything. ``determinism_steps`` caps the determinism check
     (default: a whole episode, for two seeds). ``config`` sets fields of the env's config before its
     ``__post_init__`` (``{"obs_type": "pixels_agent_pos"}``; the CLI's ``--config.<field>=<value>``): the
-    variant is published from the same folder, and load_env rebuilds it from the manifest.
+    variant is published from the same folder, and load_env rebuilds it from the manifest. ``video``: store
+    camera (VISUAL) features as MP4 videos encoded by LeRobot's own encoder (dtype ``"video"``, LeRobot's default
+    for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features.
+    Replay compares video frames within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE` (the codec is lossy).
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -533,6 +554,7 @@ def push_env(
     loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
         attestations = _merged_attestations(repo_id, token)
+        video = _has_cameras(loaded.config) if video is None else bool(video)
         unchanged = (
             None
             if force
@@ -544,6 +566,7 @@ def push_env(
                 fingerprint_seeds=FINGERPRINT_SEEDS,
                 token=token,
                 attestations=attestations,
+                video=video,
             )
         )
         if unchanged is not None:
@@ -567,6 +590,7 @@ def push_env(
                 determinism_steps=determinism_steps,
                 progress=progress,
                 attestations=attestations,
+                video=video,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()

@@ -18,6 +18,7 @@ file                   what it holds                                            
 ``dataset/``           the random-action dataset in LeRobot v3 format (meta/,       push_env
                        data/), each episode's reset seed recorded
 ``media/rollout.gif``  a few random-action rollouts, rendered                      push_env
+``media/rollout.mp4``  the same rollouts as video (when the dataset stores video)  push_env
 ``README.md``          the env card, rendered from ``templates/env_card.md.j2``           push_env
 =====================  ===========================================================  ====================
 
@@ -60,6 +61,7 @@ PROJECT_FILE = "pyproject.toml"
 DATASET_DIR = "dataset"
 MEDIA_DIR = "media"
 GIF_FILE = f"{MEDIA_DIR}/rollout.gif"
+MP4_FILE = f"{MEDIA_DIR}/rollout.mp4"
 
 #: Files push_env generates; an env folder must not contain them (they would be overwritten).
 GENERATED = (MANIFEST_FILE, CARD_FILE, ENV_ENTRY_FILE, DATASET_DIR, MEDIA_DIR)

@@ -430,9 +430,9 @@ def test_failure_mid_write_leaves_nothing(tmp_path, state_rollouts):
     with pytest.raises(DatasetError, match="missing"):
         write_lerobot_dataset(root, repo_id="t/x", fps=30, features=feats, episodes=[bad], task=TASK, progress=False)
     assert list(root.parent.iterdir()) == []
-    with pytest.raises(ConfigError, match="video"):
+    with pytest.raises(ConfigError, match=r"Video feature 'cam'.*\[height, width, 3\]"):  # video is RGB (yuv420p)
         write_lerobot_dataset(
-            root, repo_id="t/x", fps=30, features={"cam": {"dtype": "video", "shape": [4, 4, 3]}}, episodes=[], task=TASK
+            root, repo_id="t/x", fps=30, features={"cam": {"dtype": "video", "shape": [4, 4, 4]}}, episodes=[], task=TASK
         )
 
 

@@ -204,7 +204,7 @@ def test_a_config_variant_publishes_from_the_same_folder_and_loads_everywhere(hu
         assert loaded.manifest.config_overrides == {"episode_length": 40, "obs_type": "pixels_agent_pos"}
         assert loaded.config.obs_type == "pixels_agent_pos" and loaded.config.episode_length == 40
         assert "pixels" in loaded.config.features  # computed in __post_init__ from the field set at push
-        assert loaded.manifest.dataset["features"]["observation.image"]["dtype"] == "image"
+        assert loaded.manifest.dataset["features"]["observation.image"]["dtype"] == "video"  # a camera: video by default
         obs, _ = loaded.make().reset(seed=0)
         assert obs["pixels"].ndim == 3
     finally:

@@ -87,7 +87,7 @@ def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_pat
     if not (ENVS / name).is_dir():
         pytest.skip(f"envs/{name} is not there")
     folder = _reach_small(tmp_path) if name == "reach" else ENVS / name
-    pushed = _push(folder, f"alice/{name}")
+    pushed = _push(folder, f"alice/{name}", video=False)  # PNG images: exact (tests/test_video.py: the video default)
     before = snapshot_registries()
     report = reproduce(
         f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False

@@ -28,6 +28,8 @@ class ReachEnvConfig(EnvConfig):
     obs_type: str = "pixels_agent_pos"
     observation_height: int = 96
     observation_width: int = 96
+    render_height: int = 96  # env.render() (the card's media): the same camera, at this size
+    render_width: int = 96
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(NUM_JOINTS,)),
@@ -61,5 +63,7 @@ class ReachEnvConfig(EnvConfig):
             "obs_type": self.obs_type,
             "observation_height": self.observation_height,
             "observation_width": self.observation_width,
+            "render_height": self.render_height,
+            "render_width": self.render_width,
             "fps": self.fps,
         }

@@ -25,8 +25,8 @@ in front of it at every reset. Physics at 240 Hz, control at ``fps`` (20 by defa
   100 steps = 5 s at 20 fps) is added by hub-envs.
 * **Start** joints at the home pose ``(0, 0.5, 0, -1.5, 0, 1.1, 0)`` rad plus ``U(-0.1, 0.1)`` each,
   at rest; the end effector starts around ``(0.57, 0, 0.48)`` m.
-* **Rendering** ``render()`` returns the camera image (the same picture as ``pixels``, pybullet's
-  ER_TINY_RENDERER).
+* **Rendering** ``render()`` returns the camera image (the same camera as ``pixels``, pybullet's
+  ER_TINY_RENDERER), ``(render_height, render_width, 3)`` (96x96 by default, as ``pixels``).
 * **State** ``get_state()`` = ``[q (7), q_dot (7), target xyz (3)]`` float64; ``reset_to(state)``
   restores it exactly. After every control step the env reads the joint state, writes it back and
   drops pybullet's persistent arm-ground contact points, so the pybullet state at a step boundary
@@ -89,6 +89,8 @@ class ReachEnv(gym.Env):
         observation_width: int = 96,
         fps: int = 20,
         render_mode: str | None = "rgb_array",
+        render_height: int | None = None,
+        render_width: int | None = None,
     ):
         self.obs_type = check_obs_type(obs_type)
         self.physics_steps_per_control = check_fps(fps)
@@ -98,6 +100,9 @@ class ReachEnv(gym.Env):
         self.fps = int(fps)
         self.metadata = {**type(self).metadata, "render_fps": self.fps}
         self.height, self.width = int(observation_height), int(observation_width)
+        # render(): the same camera, at the observation's size unless asked otherwise (the card's GIF asks for 256 px)
+        self.render_height = int(render_height) if render_height else self.height
+        self.render_width = int(render_width) if render_width else self.width
 
         self._client = p.connect(p.DIRECT)
         c = self._client
@@ -177,16 +182,24 @@ class ReachEnv(gym.Env):
         return self._get_obs(), -distance, success, False, {"is_success": success}
 
     def render(self) -> np.ndarray:
+        return self._camera(self.render_height, self.render_width)
+
+    def _camera(self, height: int, width: int) -> np.ndarray:
+        proj = self._proj
+        if (height, width) != (self.height, self.width):
+            proj = p.computeProjectionMatrixFOV(
+                fov=50, aspect=width / height, nearVal=0.05, farVal=10.0, physicsClientId=self._client
+            )
         _, _, rgba, _, _ = p.getCameraImage(
-            self.width,
-            self.height,
+            width,
+            height,
             viewMatrix=self._view,
-            projectionMatrix=self._proj,
+            projectionMatrix=proj,
             renderer=p.ER_TINY_RENDERER,
             flags=p.ER_NO_SEGMENTATION_MASK,
             physicsClientId=self._client,
         )
-        rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
         return np.ascontiguousarray(rgba[..., :3])
 
     def close(self):
@@ -241,7 +254,7 @@ class ReachEnv(gym.Env):
     def _get_obs(self) -> dict[str, np.ndarray]:
         obs = {"agent_pos": np.clip(self._joints, self._obs_low, self._obs_high).astype(np.float32)}
         if self.obs_type == "pixels_agent_pos":
-            obs["pixels"] = self.render()
+            obs["pixels"] = self._camera(self.height, self.width)
         else:
             obs["environment_state"] = np.clip(self._target, WORKSPACE_LOW, WORKSPACE_HIGH).astype(np.float32)
         return obs

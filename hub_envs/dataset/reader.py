@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs.dataset.codec import decode_pngs
-from hub_envs.dataset.layout import DATA_PATH, EPISODES_DIR, INFO_PATH
+from hub_envs.dataset.layout import DATA_PATH, EPISODES_DIR, INFO_PATH, VIDEO_PATH
 from hub_envs.errors import DatasetError
 
 # --- files ------------------------------------------------------------------------------------
@@ -62,7 +62,7 @@ def _check_path_template(path: Path, key: str, template: Any) -> None:
     fix = (
         f"Do not use this dataset; its publisher must re-publish it with push_env (which writes {key} = {DATA_PATH!r})."
         if key == "data_path"
-        else "Do not use this dataset; its publisher must re-publish it with push_env (which writes no videos)."
+        else f"Do not use this dataset; its publisher must re-publish it with push_env (which writes {key} = {VIDEO_PATH!r})."
     )
     if not isinstance(template, str) or not template:
         raise DatasetError(f"{path}: {key} must be a non-empty path template string, got {safe_text(repr(template))}. {fix}")
@@ -161,6 +161,76 @@ def data_file(root: str | os.PathLike, info: Mapping, chunk_index: Any, file_ind
     return root.joinpath(*parts)
 
 
+def video_file(root: str | os.PathLike, info: Mapping, key: str, meta: Mapping) -> Path:
+    """The MP4 of video feature ``key`` that holds the episode ``meta`` (a :func:`read_episode_meta` row),
+    checked as :func:`data_file` checks data files."""
+    root = Path(root)
+    values = []
+    for name in ("chunk_index", "file_index"):
+        value = meta.get(f"videos/{key}/{name}")
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise DatasetError(
+                f"{root / EPISODES_DIR}: videos/{key}/{name} of episode {meta.get('episode_index')} is {value!r}, not a "
+                f"non-negative integer. The dataset is corrupt; re-download it or re-publish the env with push_env."
+            )
+        values.append(int(value))
+    template = info.get("video_path") or VIDEO_PATH
+    _check_path_template(root / INFO_PATH, "video_path", template)
+    rel = template.format(video_key=key, chunk_index=values[0], file_index=values[1])
+    parts = rel.split("/")
+    if rel.startswith("/") or "\\" in rel or any(p in ("", ".", "..") for p in parts):  # the key is checked by read_info
+        raise DatasetError(
+            f"{root / INFO_PATH}: video_path resolves to {rel!r}, outside the dataset folder. Re-publish with push_env."
+        )
+    return root.joinpath(*parts)
+
+
+def read_episode_video(root: str | os.PathLike, info: Mapping, key: str, meta: Mapping) -> np.ndarray:
+    """The decoded frames (uint8 ``(T, H, W, 3)``) of video feature ``key`` for the episode ``meta``.
+
+    Raises :class:`hub_envs.errors.IntegrityError` for a missing, truncated or undecodable file."""
+    from hub_envs.dataset.video import decode_episode
+    from hub_envs.errors import IntegrityError
+
+    path = video_file(root, info, key, meta)
+    where = f"episode {meta['episode_index']}, {key}"
+    if not path.is_file():
+        raise IntegrityError(
+            f"{path} ({where}) is missing. Fetch the dataset again (LoadedEnv.fetch_dataset()) or re-publish the env with push_env."
+        )
+    start = meta.get(f"videos/{key}/from_timestamp")
+    if not isinstance(start, (int, float)) or isinstance(start, bool) or not np.isfinite(start) or start < 0:
+        raise DatasetError(
+            f"{root / EPISODES_DIR}: videos/{key}/from_timestamp of {where} is {start!r}. Re-publish with push_env."
+        )
+    return decode_episode(
+        path,
+        from_timestamp=float(start),
+        length=int(meta["length"]),
+        fps=int(info["fps"]),
+        shape=tuple(info["features"][key]["shape"]),
+        where=where,
+    )
+
+
+def check_videos(root: str | os.PathLike) -> int:
+    """Open every MP4 the dataset's video features use and decode its last episode's frames (the part a
+    truncation cuts off first); returns how many files were checked (0: no video features).
+
+    Raises :class:`hub_envs.errors.IntegrityError` for a missing, truncated or undecodable file."""
+    info = read_info(root)
+    keys = [k for k, ft in info["features"].items() if isinstance(ft, dict) and ft.get("dtype") == "video"]
+    if not keys:
+        return 0
+    last: dict[tuple[str, Any, Any], dict] = {}
+    for m in read_episode_meta(root):
+        for key in keys:
+            last[(key, m.get(f"videos/{key}/chunk_index"), m.get(f"videos/{key}/file_index"))] = m
+    for (key, _, _), m in last.items():
+        read_episode_video(root, info, key, m)
+    return len(last)
+
+
 def read_episode_meta(root: str | os.PathLike) -> list[dict]:
     """One dict per episode (sorted by ``episode_index``): the episodes metadata without stats.
 
@@ -206,7 +276,7 @@ def _decode_column(col: Any, ft: Mapping, n: int) -> np.ndarray:
 
 
 def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-    """The frames of one episode: ``{dataset_key: (T, *feature shape) array}`` (images decoded, uint8 HWC).
+    """The frames of one episode: ``{dataset_key: (T, *feature shape) array}`` (images and videos decoded, uint8 HWC).
 
     Reads only that episode's data file with pyarrow (row-group pruning on ``episode_index``);
     LeRobot's default columns are included. ``keys`` restricts the columns returned.
@@ -234,12 +304,17 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
         raise DatasetError(
             f"Episode {episode_index} has {n} rows in {path} but its metadata says {m['length']}. The dataset is corrupt; regenerate it."
         )
-    return {key: _decode_column(table.column(key).combine_chunks(), features[key], n) for key in wanted}
+    out = {key: _decode_column(table.column(key).combine_chunks(), features[key], n) for key in wanted}
+    for key, ft in features.items():
+        if ft.get("dtype") == "video" and (selected is None or key in selected):
+            out[key] = read_episode_video(root, info, key, m)
+    return out
 
 
 class DatasetFrames:
     """Many episodes' frames of some keys: each data file read once, numeric columns decoded up front,
-    images kept as PNG bytes and decoded per episode by :meth:`episode` (thread-safe, read only).
+    images kept as PNG bytes and decoded per episode by :meth:`episode`, videos decoded per episode from
+    their MP4 (thread-safe, read only).
 
     ``metas`` are :func:`read_episode_meta` rows of the episodes wanted; every episode must have exactly the
     rows its metadata says, in its data file.
@@ -251,6 +326,10 @@ class DatasetFrames:
         root = Path(root)
         features = info["features"]
         self.features = features
+        self.root, self.info = root, info
+        self.video_keys = [k for k in keys if features[k].get("dtype") == "video"]
+        keys = [k for k in keys if k not in self.video_keys]
+        self.metas = {m["episode_index"]: m for m in metas}
         self.numeric: dict[int, dict[str, np.ndarray]] = {}
         self.images: dict[int, dict[str, Any]] = {}
         by_file: dict[tuple[int, int], list[int]] = {}
@@ -291,4 +370,7 @@ class DatasetFrames:
         for key, col in self.images[ep].items():
             if keys is None or key in keys:
                 out[key] = decode_pngs(col.to_pylist(), tuple(self.features[key]["shape"]))
+        for key in self.video_keys:
+            if keys is None or key in keys:
+                out[key] = read_episode_video(self.root, self.info, key, self.metas[ep])
         return out

@@ -14,7 +14,10 @@ metadata after every episode). The files are those LeRobot writes for a dataset 
     data/chunk-000/file-000.parquet              one row per frame, schema of datasets.Features (the
                                                  "huggingface" schema metadata included)
 
-Image features use dtype ``"image"``: each frame is stored inside the data parquet as the
+Video features (dtype ``"video"``, LeRobot's default for cameras) are MP4 files
+``videos/<key>/chunk-000/file-000.mp4`` encoded by LeRobot's own encoder (:mod:`hub_envs.dataset.video`),
+each episode's span in the episodes metadata (``videos/<key>/from_timestamp``...) and the stream's
+``info`` in ``info.json``, as LeRobot's ``save_episode`` writes them. Image features use dtype ``"image"``: each frame is stored inside the data parquet as the
 ``datasets.Image`` struct ``{bytes: PNG, path: "frame-000012.png"}``, exactly the layout LeRobot's
 ``embed_images`` produces, so LeRobot decodes them with PIL to the same tensors. PNGs are written
 by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at level 6: same pixels,
@@ -72,6 +75,7 @@ from hub_envs.dataset.layout import (
     NEXT_FEATURES,
     STATS_PATH,
     TASKS_PATH,
+    VIDEO_PATH,
 )
 from hub_envs.dataset.reader import dataset_fingerprint
 from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats
@@ -160,12 +164,17 @@ def rollout_to_frames(
 
 
 def dataset_features_from_config(
-    cfg: Any, *, names: Mapping[str, list[str]] | None = None, action: tuple[tuple[int, ...], str] | None = None
+    cfg: Any,
+    *,
+    names: Mapping[str, list[str]] | None = None,
+    action: tuple[tuple[int, ...], str] | None = None,
+    video: bool = False,
 ) -> dict[str, dict]:
     """info.json-style features for a LeRobot ``EnvConfig`` (its ``features`` and ``features_map``).
 
     VISUAL features become ``{"dtype": "image", "shape": [H, W, C], "names": ["height", "width",
-    "channels"]}`` (channel-first shapes are turned channel-last); STATE/ACTION/ENV features become
+    "channels"]}`` (channel-first shapes are turned channel-last; dtype ``"video"`` with ``video=True``, for
+    3-channel features); STATE/ACTION/ENV features become
     float32 with ``names`` (from ``names[dataset_key]`` or ``<env_key>_<i>`` for 1-D shapes).
     ``next.reward`` (float32), ``next.done`` and ``next.success`` (bool) are appended. ``action`` is the
     ``(shape, dtype)`` the env's action space is stored as (:func:`hub_envs.harness.actions.stored_action`:
@@ -194,7 +203,8 @@ def dataset_features_from_config(
                 raise ConfigError(f"Visual feature '{env_key}' has shape {tuple(shape)}; images need 3 dimensions (H, W, C).")
             if shape[0] in (1, 3, 4) and shape[2] not in (1, 3, 4):
                 shape = [shape[1], shape[2], shape[0]]
-            out[key] = {"dtype": "image", "shape": shape, "names": ["height", "width", "channels"]}
+            dtype = "video" if video and shape[2] == 3 else "image"
+            out[key] = {"dtype": dtype, "shape": shape, "names": ["height", "width", "channels"]}
         else:
             feature_names = names.get(key)
             if feature_names is None and len(shape) == 1:
@@ -257,17 +267,16 @@ def _normalize_features(features: Mapping[str, Mapping]) -> dict[str, dict]:
         dtype = ft["dtype"]
         shape = [int(d) for d in ft["shape"]]
         if dtype == "video":
-            raise ConfigError(
-                f"Feature '{key}' has dtype 'video'; hub-envs writes camera frames as dtype 'image' (PNG in parquet)."
-            )
-        if dtype == "image":
+            if len(shape) != 3 or shape[2] != 3:
+                raise ConfigError(f"Video feature '{key}' has shape {shape}; use [height, width, 3] (RGB).")
+        elif dtype == "image":
             if len(shape) != 3 or shape[2] not in PNG_CHANNELS:
                 raise ConfigError(f"Image feature '{key}' has shape {shape}; use [height, width, channels] with 1-4 channels.")
         elif dtype not in _NUMERIC_DTYPES:
-            raise ConfigError(f"Feature '{key}' has dtype {dtype!r}; supported: 'image' and {sorted(_NUMERIC_DTYPES)}.")
+            raise ConfigError(f"Feature '{key}' has dtype {dtype!r}; supported: 'image', 'video' and {sorted(_NUMERIC_DTYPES)}.")
         if not shape or any(d < 1 for d in shape):
             raise ConfigError(f"Feature '{key}' has shape {shape}; use a non-empty list of positive sizes ([1] for scalars).")
-        out[key] = {**dict(ft), "dtype": dtype, "shape": shape, "names": ft.get("names")}
+        out[key] = {**{k: v for k, v in ft.items() if k != "info"}, "dtype": dtype, "shape": shape, "names": ft.get("names")}
     for key, ft in DEFAULT_FEATURES.items():
         out[key] = {**ft, "shape": list(ft["shape"])}
     return out
@@ -280,6 +289,8 @@ def _hf_features(features: dict[str, dict]):
     hf = {}
     for key, ft in features.items():
         shape = tuple(ft["shape"])
+        if ft["dtype"] == "video":  # stored as MP4 files beside the data, not as a column
+            continue
         if ft["dtype"] == "image":
             hf[key] = datasets.Image()
         elif shape == (1,):
@@ -318,11 +329,21 @@ class _Episode:
     length: int
     columns: dict[str, np.ndarray]  # numeric columns, cast; images as uint8 (T, H, W, C)
     pngs: dict[str, list[bytes]] = field(default_factory=dict)
+    videos: dict[str, tuple[Path, float, int]] = field(default_factory=dict)  # key -> (mp4, duration s, bytes)
     stats: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 class _Writer:
-    def __init__(self, tmp: Path, features: dict[str, dict], fps: int, task: str, chunks_size: int, file_mb: float):
+    def __init__(
+        self,
+        tmp: Path,
+        features: dict[str, dict],
+        fps: int,
+        task: str,
+        chunks_size: int,
+        file_mb: float,
+        video_file_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+    ):
         import pyarrow as pa
 
         self.tmp = tmp
@@ -337,6 +358,13 @@ class _Writer:
         self.hf = _hf_features(features)
         self.schema = self.hf.arrow_schema  # carries the "huggingface" features metadata, no fingerprint
         self.image_keys = [k for k, ft in features.items() if ft["dtype"] == "image"]
+        self.video_keys = [k for k, ft in features.items() if ft["dtype"] == "video"]
+        # video files: per key, the file being filled and the episode MP4s it will join
+        self.video_file_mb = video_file_mb
+        self.video_pos = {k: (0, 0) for k in self.video_keys}
+        self.video_parts: dict[str, list[Path]] = {k: [] for k in self.video_keys}
+        self.video_bytes = dict.fromkeys(self.video_keys, 0)
+        self.video_seconds = dict.fromkeys(self.video_keys, 0.0)
         self.pa = pa
         # data files
         self.data_pos = (0, 0)
@@ -391,7 +419,7 @@ class _Writer:
             if length is None:
                 length = arr.shape[0] if arr.ndim else 0
             shape = tuple(ft["shape"])
-            if ft["dtype"] == "image":
+            if ft["dtype"] in ("image", "video"):
                 arr = self._image(where, key, arr, shape)
             else:
                 if arr.shape == (length,) and shape == (1,):
@@ -452,12 +480,18 @@ class _Writer:
         return np.ascontiguousarray(arr)
 
     def encode(self, ep: _Episode) -> _Episode:
-        """PNG-encode images and compute episode stats (thread-safe, no shared state)."""
+        """PNG-encode images, video-encode video features (one MP4 per episode and key, joined into the
+        dataset's files by :meth:`write`) and compute episode stats (thread-safe, no shared state)."""
+        from hub_envs.dataset.video import encode_episode
+
         for key in self.image_keys:
             ep.pngs[key] = encode_png(ep.columns[key])
+        for key in self.video_keys:
+            part = self.tmp / ".video-parts" / key / f"episode-{ep.index:06d}.mp4"
+            ep.videos[key] = encode_episode(ep.columns[key], part, self.fps)
         for key, ft in self.features.items():
             col = ep.columns[key]
-            ep.stats[key] = image_stats(col) if ft["dtype"] == "image" else vector_stats(col)
+            ep.stats[key] = image_stats(col) if ft["dtype"] in ("image", "video") else vector_stats(col)
         return ep
 
     # -- sequential part: write --
@@ -467,6 +501,8 @@ class _Writer:
         n = ep.length
         arrays = []
         for key, ft in self.features.items():
+            if ft["dtype"] == "video":
+                continue
             col = ep.columns[key]
             typ = self.schema.field(key).type
             if ft["dtype"] == "image":
@@ -504,6 +540,8 @@ class _Writer:
             "dataset_from_index": self.total_frames,
             "dataset_to_index": self.total_frames + n,
         }
+        for key in self.video_keys:
+            row.update(self._place_video(key, ep.videos[key]))
         for key in self.features:
             for stat, value in ep.stats[key].items():
                 row[f"stats/{key}/{stat}"] = value.tolist()
@@ -520,6 +558,33 @@ class _Writer:
             self.returns.append(float(ep.columns["next.reward"].sum(dtype=np.float64)))
         if "next.success" in ep.columns:
             self.successes.append(bool(ep.columns["next.success"].any()))
+
+    def _place_video(self, key: str, part: tuple[Path, float, int]) -> dict[str, Any]:
+        """Put one episode's MP4 into the key's current file (a new file when it would reach the size
+        limit: LeRobot's rule), and return its episodes-metadata columns."""
+        path, duration, size = part
+        if self.video_parts[key] and self.video_bytes[key] + size >= self.video_file_mb * 2**20:
+            self._close_video_file(key)
+            self.video_pos[key] = _next_file(*self.video_pos[key], self.chunks_size)
+        start = self.video_seconds[key]
+        self.video_parts[key].append(path)
+        self.video_bytes[key] += size
+        self.video_seconds[key] = start + duration
+        chunk, file = self.video_pos[key]
+        return {
+            f"videos/{key}/chunk_index": chunk,
+            f"videos/{key}/file_index": file,
+            f"videos/{key}/from_timestamp": start,
+            f"videos/{key}/to_timestamp": start + duration,
+        }
+
+    def _close_video_file(self, key: str) -> None:
+        from hub_envs.dataset.video import join_videos
+
+        if self.video_parts[key]:
+            chunk, file = self.video_pos[key]
+            join_videos(self.video_parts[key], self.tmp / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file))
+        self.video_parts[key], self.video_bytes[key], self.video_seconds[key] = [], 0, 0.0
 
     def _fold_stats(self) -> None:
         """Aggregate the pending episode stats (in batches, so memory stays bounded) into self.stats."""
@@ -589,7 +654,15 @@ class _Writer:
     def finish(self, *, robot_type: str | None, extra_info: Mapping | None) -> None:
         import pandas as pd
 
+        from hub_envs._compat import lerobot_video_info
+
         self._close_data_file()
+        for key in self.video_keys:
+            self._close_video_file(key)
+        shutil.rmtree(self.tmp / ".video-parts", ignore_errors=True)
+        for key in self.video_keys:  # what LeRobot's update_video_info records, from the first file
+            first = self.tmp / VIDEO_PATH.format(video_key=key, chunk_index=0, file_index=0)
+            self.features[key] = {**self.features[key], "info": lerobot_video_info(first)}
         self._flush_meta()
         self._fold_stats()
         if self.meta_writer is not None:
@@ -614,11 +687,11 @@ class _Writer:
             "total_tasks": 1,
             "chunks_size": self.chunks_size,
             "data_files_size_in_mb": self.file_mb,
-            "video_files_size_in_mb": DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+            "video_files_size_in_mb": self.video_file_mb,
             "fps": self.fps,
             "splits": {"train": f"0:{self.n_episodes}"},
             "data_path": DATA_PATH,
-            "video_path": None,
+            "video_path": VIDEO_PATH if self.video_keys else None,
             "features": self.features,
             "hub_envs": hub_envs_info,
         }
@@ -668,6 +741,7 @@ def write_lerobot_dataset(
     overwrite: bool = False,
     chunks_size: int = DEFAULT_CHUNK_SIZE,
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
+    video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     encode_threads: int | None = None,
 ) -> DatasetSummary:
     """Write ``episodes`` as a LeRobot v3.0 dataset folder at ``root`` and summarize it.
@@ -679,15 +753,16 @@ def write_lerobot_dataset(
         fps: frames per second; ``timestamp = frame_index / fps``.
         features: info.json-style features of the recorded keys (not LeRobot's defaults
             ``timestamp``/``frame_index``/``episode_index``/``index``/``task_index``, added here).
-            dtype ``"image"`` (shape ``[H, W, C]``) or a numpy dtype name; no ``"video"``.
+            dtype ``"image"`` (shape ``[H, W, C]``, PNG in the parquet), ``"video"`` (shape ``[H, W, 3]``,
+            MP4 files encoded by LeRobot's own encoder: :mod:`hub_envs.dataset.video`) or a numpy dtype name.
         episodes: :class:`EpisodeFrames`, consumed one at a time (memory stays bounded).
         task: the natural-language task of every frame (``meta/tasks.parquet``).
         robot_type: ``info.json["robot_type"]``.
         extra_info: merged into ``info.json["hub_envs"]`` next to ``"seeds"`` (JSON values only).
         progress: show a progress bar.
         overwrite: replace an existing folder at ``root`` (only once the new one is complete).
-        chunks_size, data_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).
-        encode_threads: threads that PNG-encode and compute stats of image episodes while the
+        chunks_size, data_files_size_in_mb, video_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).
+        encode_threads: threads that PNG/video-encode and compute stats of camera episodes while the
             next episode is produced; 0 does it inline. Default 1 (0 on a single core).
 
     Raises:
@@ -701,8 +776,8 @@ def write_lerobot_dataset(
         raise ConfigError(f"fps={fps!r}: pass a positive integer.")
     if not isinstance(task, str) or not task:
         raise ConfigError("task must be a non-empty string (LeRobot stores one task per frame).")
-    if chunks_size < 1 or data_files_size_in_mb <= 0:
-        raise ConfigError("chunks_size and data_files_size_in_mb must be positive.")
+    if chunks_size < 1 or data_files_size_in_mb <= 0 or video_files_size_in_mb <= 0:
+        raise ConfigError("chunks_size, data_files_size_in_mb and video_files_size_in_mb must be positive.")
     feats = _normalize_features(features)
     if root.exists() and not overwrite:
         raise DatasetError(f"{root} already exists. Delete it, choose another folder, or pass overwrite=True.")
@@ -713,7 +788,7 @@ def write_lerobot_dataset(
     except OSError as exc:
         raise DatasetError(f"Cannot create the dataset folder next to {root}: {exc}. Check the path and permissions.") from exc
 
-    writer = _Writer(tmp, feats, int(fps), task, int(chunks_size), data_files_size_in_mb)
+    writer = _Writer(tmp, feats, int(fps), task, int(chunks_size), data_files_size_in_mb, video_files_size_in_mb)
     try:
         total = len(episodes)  # type: ignore[arg-type]
     except TypeError:
@@ -744,7 +819,7 @@ def write_lerobot_dataset(
 
 def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], n_threads: int, bar: Any) -> None:
     """Prepare, encode (PNG and stats, on ``n_threads`` threads when there are images) and write, in order."""
-    if not writer.image_keys or n_threads <= 0:
+    if not (writer.image_keys or writer.video_keys) or n_threads <= 0:
         for ep in episodes:
             writer.write(writer.encode(writer.prepare(ep)))
             bar.update(1)

@@ -1,13 +1,25 @@
-"""Pictures of an env: a GIF of a few random-action rollouts, from ``env.render()``.
+"""Pictures of an env for its card: a GIF (and an MP4) of a few random-action rollouts, from ``env.render()``.
+
+Card media must be big enough to see: at least :data:`MIN_WIDTH` px wide, rendered at that size by the env
+itself, not upscaled. :func:`render_size_overrides` finds the env's render-size knob among its gym kwargs
+(LeRobot's ``visualization_width``/``visualization_height``, ``render_width``/``render_height``, or
+``observation_width``/``observation_height`` for envs whose ``render()`` is their camera) and asks for
+:data:`MIN_WIDTH` px; an env without such a knob renders at its own size and frames narrower than
+:data:`MIN_WIDTH` are enlarged by whole-pixel repetition (crisp pixels, no interpolation). The GIF plays
+at the env's real fps (frames subsampled to at most ~15 per second, each shown for its sim time).
 
 Example:
-    >>> from hub_envs.harness.media import write_rollout_gif
-    >>> write_rollout_gif(lambda: loaded.make(), "rollout.gif", seeds=[0, 1], fps=30)   # doctest: +SKIP
+    >>> render_size_overrides({"fps": 20, "observation_height": 96, "observation_width": 96})
+    {'observation_width': 256, 'observation_height': 256}
+    >>> render_size_overrides({"render_width": 640, "render_height": 480})
+    {}
+    >>> from hub_envs.harness.media import write_rollout_media
+    >>> write_rollout_media(loaded.make, "media/rollout.gif", seeds=[0, 1, 2], fps=30)   # doctest: +SKIP
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -16,13 +28,37 @@ import numpy as np
 from hub_envs.errors import EnvCodeError
 from hub_envs.harness.episode import SeededEpisode
 
-MAX_SIDE = 160  # px: cards load fast, GIFs stay small
+MIN_WIDTH = 256  # px: visible on a Hub page
+MAX_SIDE = 512  # px: larger renders are subsampled, so GIFs stay a few MB
+GIF_MAX_FPS = 15  # frames per second of the GIF (the env's time is kept: each frame lasts its sim time)
+#: gym kwargs that set what ``render()`` returns, in the order they are looked for
+RENDER_SIZE_KNOBS = (
+    ("visualization_width", "visualization_height"),  # LeRobot's PushT / gym-pusht
+    ("render_width", "render_height"),
+    ("observation_width", "observation_height"),  # envs whose render() is their camera
+)
 
 
-def _downscale(frame: np.ndarray) -> np.ndarray:
+def render_size_overrides(gym_kwargs: Mapping[str, Any], min_width: int = MIN_WIDTH) -> dict[str, int]:
+    """The gym kwargs that make the env render at least ``min_width`` px wide (same aspect), or ``{}``."""
+    for wk, hk in RENDER_SIZE_KNOBS:
+        w, h = gym_kwargs.get(wk), gym_kwargs.get(hk)
+        if isinstance(w, int) and isinstance(h, int) and w > 0 and h > 0:
+            if w >= min_width:
+                return {}
+            return {wk: int(min_width), hk: int(round(h * min_width / w))}
+    return {}
+
+
+def _fit(frame: np.ndarray) -> np.ndarray:
     h, w = frame.shape[:2]
-    step = int(np.ceil(max(h, w) / MAX_SIDE))
-    return frame[::step, ::step] if step > 1 else frame
+    if max(h, w) > MAX_SIDE:
+        step = int(np.ceil(max(h, w) / MAX_SIDE))
+        return frame[::step, ::step]
+    if w < MIN_WIDTH:  # no render-size knob: whole-pixel repetition, no interpolation blur
+        k = int(np.ceil(MIN_WIDTH / w))
+        return np.repeat(np.repeat(frame, k, axis=0), k, axis=1)
+    return frame
 
 
 def _frame(env: Any) -> np.ndarray:
@@ -39,7 +75,7 @@ def _frame(env: Any) -> np.ndarray:
             f"env.render() must return an (H, W, 3) uint8 array in rgb_array mode, got "
             f"{type(frame).__name__} {getattr(frame, 'shape', '')} {getattr(frame, 'dtype', '')}."
         )
-    return _downscale(frame[..., :3])
+    return _fit(np.ascontiguousarray(frame[..., :3]))
 
 
 def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: int, every: int = 1) -> list[np.ndarray]:
@@ -58,13 +94,46 @@ def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: 
     return frames
 
 
-def write_rollout_gif(make_env: Callable[[], Any], path: str | Path, *, seeds: list[int], fps: int, max_steps: int = 90) -> Path:
-    """Render random-action rollouts of ``seeds`` to a looping GIF (deterministic bytes for the same frames)."""
+def media_step(fps: int) -> int:
+    """Render every ``media_step(fps)``-th step: the smallest divisor of ``fps`` that gives at most
+    :data:`GIF_MAX_FPS` frames per second (an integer frame rate, so the MP4 plays at the env's real speed).
+
+    >>> media_step(20), media_step(30), media_step(50), media_step(7)
+    (2, 2, 5, 1)
+    """
+    fps = max(int(fps), 1)
+    return next(d for d in range(1, fps + 1) if fps % d == 0 and fps // d <= GIF_MAX_FPS)
+
+
+def write_rollout_media(
+    make_env: Callable[[], Any],
+    gif_path: str | Path,
+    *,
+    seeds: list[int],
+    fps: int,
+    max_steps: int = 60,
+    mp4_path: str | Path | None = None,
+) -> list[Path]:
+    """Render random-action rollouts of ``seeds`` to a looping GIF at the env's real speed (deterministic bytes for
+    the same frames) and, with ``mp4_path``, to an MP4 of the same frames (LeRobot's video encoder)."""
     import imageio.v3 as iio
 
-    every = max(1, fps // 15)  # ~15 frames per second of sim time
-    frames = rollout_frames(make_env, seeds=seeds, max_steps=max_steps, every=every)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, np.stack(frames), extension=".gif", duration=int(1000 * every / max(fps, 1)), loop=0)
-    return path
+    fps = max(int(fps), 1)
+    every = media_step(fps)
+    frames = np.stack(rollout_frames(make_env, seeds=seeds, max_steps=max_steps, every=every))
+    gif_path = Path(gif_path)
+    gif_path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(gif_path, frames, extension=".gif", duration=int(round(1000 * every / fps)), loop=0)
+    written = [gif_path]
+    if mp4_path is not None:
+        from hub_envs.dataset.video import encode_episode
+
+        h, w = (frames.shape[1] // 2) * 2, (frames.shape[2] // 2) * 2  # yuv420p needs even sizes
+        encode_episode(np.ascontiguousarray(frames[:, :h, :w]), Path(mp4_path), fps // every)
+        written.append(Path(mp4_path))
+    return written
+
+
+def write_rollout_gif(make_env: Callable[[], Any], path: str | Path, *, seeds: list[int], fps: int, max_steps: int = 90) -> Path:
+    """The GIF of :func:`write_rollout_media` alone."""
+    return write_rollout_media(make_env, path, seeds=seeds, fps=fps, max_steps=max_steps)[0]

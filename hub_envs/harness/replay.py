@@ -6,6 +6,8 @@ compares what comes out with what the dataset holds, frame by frame: every obser
 ``features_map`` maps to a dataset key (images too), ``next.reward``, ``next.done``,
 ``next.success`` and, when push_env recorded them (:mod:`hub_envs.dataset.states`), the simulator states.
 Exactly by default; within an absolute ``tolerance`` if one is given (booleans are always exact).
+Video features (dtype ``"video"``, lossy-encoded) are the one exception: a frame matches when its mean
+absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`.
 
 A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
 so a changed transition at step ``t`` shows in ``next.*`` at frame ``t`` and in the observations at
@@ -39,6 +41,7 @@ import numpy as np
 from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
 from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
 from hub_envs.dataset.states import read_env_states
+from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors
 from hub_envs.dataset.writer import rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
 from hub_envs.harness.actions import to_env_actions
@@ -94,6 +97,9 @@ class EpisodeReplay:
     max_abs_diff: dict[str, float] = field(default_factory=dict)  # over the whole episode, per feature
     error_curve: dict[str, list[float]] = field(default_factory=dict)  # per-step max |diff| (diverged episodes)
     localization: dict[str, Any] | None = None
+    #: per video feature: the replayed frames, encoded with the same (deterministic) encoder, decode to exactly
+    #: the dataset's decoded frames
+    video_exact: dict[str, bool] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -120,6 +126,7 @@ class ReplayResult:
     states: str  # how recorded states were used
     steps: int  # env steps taken by the open-loop replay
     seconds: float
+    video: dict[str, Any] | None = None  # video features compared: keys and the tolerance (VideoTolerance.to_dict())
 
     @property
     def ok(self) -> bool:
@@ -139,7 +146,17 @@ class ReplayResult:
         frames = sum(e.length for e in self.episodes)
         how = "exactly" if self.tolerance == 0 else f"within {self.tolerance:g}"
         if self.ok:
-            return f"replay: all {n} episodes ({frames} frames) reproduce {how} ({', '.join(self.features)})"
+            videos = set(self.video["keys"]) if self.video else set()
+            exact = ", ".join(k for k in self.features if k not in videos)
+            text = f"replay: all {n} episodes ({frames} frames) reproduce {how} ({exact})"
+            if self.video:
+                text += (
+                    f", video {', '.join(self.video['keys'])} within mean abs error "
+                    f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g}"
+                    + ("; re-encoded, bit for bit" if self.video.get("bit_exact_after_reencode") else "")
+                    + ")"
+                )
+            return text
         first = self.first_divergence
         return f"replay: {len(self.diverged)} of {n} episodes diverge; first: {first.describe()}"
 
@@ -150,6 +167,7 @@ class ReplayResult:
             "features": self.features,
             "skipped": self.skipped,
             "states": self.states,
+            "video": self.video,
             "episodes_total": len(self.episodes),
             "episodes_diverged": [e.episode for e in self.diverged],
             "frames": sum(e.length for e in self.episodes),
@@ -247,7 +265,8 @@ def _element(replay_frame: np.ndarray, data_frame: np.ndarray) -> list[int]:
 class _Plan:
     root: Path
     features: dict[str, str | None]  # dataset key -> env key
-    image_keys: set[str]
+    image_keys: set[str]  # images and videos (uint8 frames)
+    video_keys: set[str]  # compared within VIDEO_TOLERANCE
     skipped: dict[str, str]
     action_key: str
     metas: list[dict]
@@ -255,6 +274,7 @@ class _Plan:
     actions: list[np.ndarray]  # as recorded, per episode
     states: dict[int, np.ndarray] | None
     frames: DatasetFrames
+    fps: int = 1
 
 
 def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[int] | None) -> _Plan:
@@ -287,17 +307,15 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
     features: dict[str, str | None] = {}
     skipped: dict[str, str] = {}
     mapped = {v: k for k, v in features_map.items() if k != "action"}
-    for key, ft in ds_features.items():
+    for key in ds_features:
         if key in mapped:
-            if ft.get("dtype") == "video":
-                skipped[key] = "video features are lossy-encoded; not compared"
-            else:
-                features[key] = mapped[key]
+            features[key] = mapped[key]
         elif key in NEXT_KEYS:
             features[key] = None
         elif key not in ("timestamp", "frame_index", "episode_index", "index", "task_index", action_key):
             skipped[key] = "not in the config's features_map"
-    image_keys = {k for k in features if ds_features[k].get("dtype") == "image"}
+    image_keys = {k for k in features if ds_features[k].get("dtype") in ("image", "video")}
+    video_keys = {k for k in features if ds_features[k].get("dtype") == "video"}
     frames = DatasetFrames(Path(dataset_root), info, metas, [action_key, *features])
     actions = [frames.numeric[m["episode_index"]][action_key] for m in metas]
     states = read_env_states(dataset_root)
@@ -311,7 +329,20 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
             raise DatasetError(
                 f"{dataset_root}: the recorded env states do not cover episodes {missing}. Re-publish the env with push_env."
             )
-    return _Plan(Path(dataset_root), features, image_keys, skipped, action_key, metas, seeds, actions, states, frames)
+    return _Plan(
+        Path(dataset_root),
+        features,
+        image_keys,
+        video_keys,
+        skipped,
+        action_key,
+        metas,
+        seeds,
+        actions,
+        states,
+        frames,
+        int(info.get("fps") or 1),
+    )
 
 
 def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
@@ -362,10 +393,14 @@ def _compare_episode(
         if rep.shape[1:] != dat.shape[1:]:
             whole(key, f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}", "the feature's shape changed")
             continue
-        errors = _step_errors(rep[:n], dat[:n])
+        video = key in plan.video_keys
+        errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
+        if video and len(rep) == len(dat):
+            result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps)
         curves[key] = errors
         result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
-        bad = np.flatnonzero(errors > tolerance) if dat.dtype.kind != "b" else np.flatnonzero(errors > 0)
+        limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
+        bad = np.flatnonzero(errors > limit) if dat.dtype.kind != "b" else np.flatnonzero(errors > 0)
         if len(bad):
             t = int(bad[0])
             note = ""
@@ -385,13 +420,35 @@ def _compare_episode(
                     _element(rep[t], dat[t]),
                     _value(dat[t], image),
                     _value(rep[t], image),
-                    note=note,
+                    note=note
+                    or (
+                        f"video frame: mean abs error above {limit:g} (the codec's tolerance, hub_envs.dataset.video)"
+                        if video
+                        else ""
+                    ),
                 )
             )
     result.divergences.sort(key=lambda d: (d.step, _feature_rank(d.feature)))
     if result.divergences and keep_curves:
         result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
     return result
+
+
+def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int) -> bool:
+    """Whether the replayed frames, encoded as push_env encoded the dataset's, decode to exactly ``decoded``.
+
+    The encoder is deterministic, so with the same encoder build identical frames give identical video: a
+    bit-exact check on top of the tolerance (a different libsvtav1 build may give False with equal frames)."""
+    import tempfile
+
+    from hub_envs.dataset.video import decode_episode, encode_episode
+
+    if replay.dtype != np.uint8 or replay.ndim != 4 or replay.shape[-1] != 3:
+        return False
+    with tempfile.TemporaryDirectory(prefix="hub-envs-reencode-") as tmp:
+        path, _, _ = encode_episode(np.ascontiguousarray(replay), Path(tmp) / "episode.mp4", fps)
+        again = decode_episode(path, from_timestamp=0.0, length=len(replay), fps=fps, shape=replay.shape[1:], where="replay")
+    return bool(np.array_equal(again, decoded))
 
 
 def _feature_rank(feature: str) -> int:
@@ -435,7 +492,11 @@ def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, 
                 if env_key is None or env_key not in flat:
                     continue
                 rep = _as_dataset_layout(np.asarray(flat[env_key])[None], data[key][t + 1 : t + 2], key in plan.image_keys)
-                errs[key] = float(_step_errors(rep, data[key][t + 1 : t + 2])[0])
+                if key in plan.video_keys:  # within the codec's tolerance counts as no error
+                    err = float(frame_errors(rep, data[key][t + 1 : t + 2])[0])
+                    errs[key] = err if err > VIDEO_TOLERANCE.max_mean_abs_error else 0.0
+                else:
+                    errs[key] = float(_step_errors(rep, data[key][t + 1 : t + 2])[0])
             if get_state is not None:
                 errs[STATE_FEATURE] = float(_step_errors(np.asarray(get_state())[None], states[t + 1 : t + 2])[0])
             if "next.done" in data:
@@ -665,6 +726,16 @@ class Replay:
                 "; divergences localized by state-restored playback" if self.can_restore else ""
             )
         features = dict(plan.features)
+        video = None
+        if plan.video_keys:
+            worst = max((e.max_abs_diff.get(k, 0.0) for e in results for k in plan.video_keys), default=0.0)
+            exact = all(e.video_exact.get(k, False) for e in results for k in plan.video_keys)
+            video = {
+                "keys": sorted(plan.video_keys),
+                "tolerance": VIDEO_TOLERANCE.to_dict(),
+                "worst": worst,
+                "bit_exact_after_reencode": exact,
+            }
         if plan.states is not None and self.record_states:
             features[STATE_FEATURE] = None
         self._seconds += time.perf_counter() - t
@@ -676,6 +747,7 @@ class Replay:
             states=states_note,
             steps=self.steps,
             seconds=self._seconds + episodes_seconds,
+            video=video,
         )
 
 

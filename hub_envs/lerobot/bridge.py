@@ -135,7 +135,21 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
             argv += [f"--dataset.repo_id={loaded.repo_id}", f"--dataset.root={loaded.dataset_root}"]
         elif ds_repo == loaded.repo_id and flag(argv, "dataset.root") is None:
             argv.append(f"--dataset.root={loaded.dataset_root}")
+        if flag(argv, "dataset.video_backend") is None and _has_video(loaded.dataset_meta_root):
+            # LeRobot 0.4 defaults to torchcodec whenever it is installed, even when it cannot load
+            from hub_envs._compat import video_backend
+
+            argv.append(f"--dataset.video_backend={video_backend()}")
     return argv, loaded
+
+
+def _has_video(dataset_meta_root) -> bool:
+    from hub_envs.dataset.reader import read_info
+
+    if dataset_meta_root is None:
+        return False
+    features = read_info(dataset_meta_root)["features"]
+    return any(isinstance(ft, dict) and ft.get("dtype") == "video" for ft in features.values())
 
 
 @contextlib.contextmanager

@@ -114,6 +114,7 @@ COMMITS_PAGE = 50
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".svg", ".ico"}
 _VIDEO_EXT = {".mp4", ".webm", ".ogv"}
 _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
+_ROLLOUT_VIDEO = "media/rollout.mp4"  # beside it when the dataset stores video: shown under the card
 _CACHE_SIZE = 1024
 _HIGHLIGHT_CACHE_SIZE = 64  # highlighted files (each at most a few MB of HTML)
 
@@ -570,6 +571,7 @@ class Pages:
             load_line=load_line(repo.repo_id, repo_type, commit),
             recent=recent,
             reproductions=reproductions,
+            rollout_video=_ROLLOUT_VIDEO if not path and _ROLLOUT_VIDEO in commit.files else None,
             total_size=sum(e.size for e in commit.files.values()),
         )
 

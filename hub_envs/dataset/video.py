@@ -1,0 +1,179 @@
+"""Camera features as video: LeRobot's own encoder in, pyav frames out, and how close "the same" is.
+
+LeRobot stores camera features as MP4 by default (dtype ``"video"``): one file per camera and file index,
+``videos/<key>/chunk-000/file-000.mp4``, episodes one after another, each episode's span recorded in the
+episodes metadata as ``videos/<key>/from_timestamp`` / ``to_timestamp`` (seconds into the file). hub-envs
+writes them the way LeRobot's ``save_episode`` does: each episode's frames become PNG files that
+``lerobot.datasets.video_utils.encode_video_frames`` encodes (LeRobot's defaults: AV1 via libsvtav1,
+yuv420p, GOP 2, CRF 30), and the episodes of one file are joined with LeRobot's ``concatenate_video_files``
+(a remux, no re-encode). The encoder output is byte-deterministic for the same frames (tested: same bytes run
+to run and across the two supported LeRobot stacks, whose pyav/libsvtav1 are the same), so datasets keep one
+fingerprint.
+
+The codec is lossy, so a replayed camera frame cannot equal the stored one bit for bit. Replay compares a
+video feature frame by frame with :func:`frame_errors` (mean absolute difference over the frame's pixels, in
+0-255 units) and accepts up to :data:`VIDEO_TOLERANCE`; everything else (states, actions, rewards, simulator
+states, PNG images) stays exact. A frame that is a different picture (an object moved) differs by far more.
+
+    >>> VIDEO_TOLERANCE.max_mean_abs_error
+    8.0
+    >>> import numpy as np
+    >>> a = np.zeros((2, 4, 4, 3), np.uint8); b = a.copy(); b[1] += 10
+    >>> frame_errors(a, b).tolist()
+    [0.0, 10.0]
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hub_envs.dataset.codec import encode_png
+from hub_envs.errors import DatasetError, IntegrityError
+
+# libsvtav1 prints its configuration to stderr at info level for every file; errors only (LeRobot's own
+# logging setting for libav is WARNING). An explicit setting by the user wins.
+os.environ.setdefault("SVT_LOG", "1")
+
+__all__ = ["VideoTolerance", "VIDEO_TOLERANCE", "frame_errors", "psnr", "encode_episode", "join_videos", "decode_episode"]
+
+
+@dataclass(frozen=True)
+class VideoTolerance:
+    """How far a decoded video frame may be from the frame the env renders, for replay to call them equal.
+
+    ``max_mean_abs_error``: the mean over the frame's pixels and channels of ``|replay - decoded|`` (0-255).
+    ``min_psnr_db`` is what that bound means as a peak signal-to-noise ratio for an error spread evenly
+    (``20 log10(255 / max_mean_abs_error)``), stated for readers used to PSNR.
+    """
+
+    max_mean_abs_error: float
+    codec: str = "av1 (libsvtav1), yuv420p, GOP 2, CRF 30: LeRobot's defaults"
+
+    @property
+    def min_psnr_db(self) -> float:
+        return float(20 * np.log10(255.0 / self.max_mean_abs_error))
+
+    def to_dict(self) -> dict:
+        return {
+            "metric": "per-frame mean |replay - decoded| over pixels and channels, 0-255",
+            "max_mean_abs_error": self.max_mean_abs_error,
+            "min_psnr_db": round(self.min_psnr_db, 2),
+            "codec": self.codec,
+        }
+
+
+#: The bound replay applies to video features. Measured at LeRobot's CRF 30 (``benchmarks/bench_video.py``):
+#: reach's 96x96 camera, 2000 frames, median 3.8 and worst 4.8 mean abs error (lowest PSNR 27.5 dB); 8 leaves
+#: room for other renders while a different picture (a moved camera, other colours) is far above it.
+VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=8.0)
+
+
+def frame_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Per-frame mean ``|replay - data|`` (uint8 frames ``(T, H, W, C)``) as float64."""
+    n = min(len(replay), len(data))
+    if n == 0:
+        return np.zeros(0)
+    diff = np.abs(replay[:n].astype(np.int16) - data[:n].astype(np.int16))
+    return diff.reshape(n, -1).mean(axis=1, dtype=np.float64)
+
+
+def psnr(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Per-frame PSNR in dB (``inf`` for identical frames)."""
+    n = min(len(replay), len(data))
+    mse = ((replay[:n].astype(np.float64) - data[:n]) ** 2).reshape(n, -1).mean(axis=1)
+    with np.errstate(divide="ignore"):
+        return 10 * np.log10(255.0**2 / mse)
+
+
+# --- writing ----------------------------------------------------------------------------------
+
+
+def encode_episode(frames: np.ndarray, out: Path, fps: int) -> tuple[Path, float, int]:
+    """Encode one episode's ``(T, H, W, 3)`` uint8 frames to ``out`` with LeRobot's ``encode_video_frames``.
+
+    The frames go through PNG files in a scratch folder beside ``out`` (the encoder's input, as in LeRobot's
+    ``save_episode``; removed after). Returns ``(out, duration in seconds as LeRobot probes it, size in bytes)``.
+    """
+    from hub_envs._compat import lerobot_video_utils
+
+    video_utils = lerobot_video_utils()
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
+        raise DatasetError(f"{out.name}: video frames must be uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}.")
+    scratch = out.parent / f".{out.stem}-frames"
+    scratch.mkdir(parents=True, exist_ok=True)
+    try:
+        for i, png in enumerate(encode_png(frames)):
+            (scratch / f"frame-{i:06d}.png").write_bytes(png)
+        video_utils.encode_video_frames(scratch, out, fps, overwrite=True)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return out, float(video_utils.get_video_duration_in_s(out)), out.stat().st_size
+
+
+def join_videos(parts: list[Path], out: Path) -> None:
+    """``out`` = the episode videos ``parts`` one after another (LeRobot's ``concatenate_video_files``, a remux;
+    a single part is moved, as LeRobot does for a file's first episode). The parts are removed."""
+    from hub_envs._compat import lerobot_video_utils
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if len(parts) == 1:
+        os.replace(parts[0], out)
+        return
+    lerobot_video_utils().concatenate_video_files(list(parts), out)
+    for part in parts:
+        part.unlink(missing_ok=True)
+
+
+# --- reading ----------------------------------------------------------------------------------
+
+
+def decode_episode(path: Path, *, from_timestamp: float, length: int, fps: int, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """The ``length`` frames of one episode, starting ``from_timestamp`` seconds into ``path``: uint8 ``(T, H, W, C)``.
+
+    Frames are matched by their presentation time (frame ``i`` at ``from_timestamp + i / fps``, within half a
+    frame). A file that cannot be opened or decoded, or that holds fewer frames than the metadata says
+    (truncated), raises :class:`IntegrityError` naming the file.
+    """
+    import av
+
+    fix = (
+        "The video file is truncated or corrupt: delete it and fetch the dataset again (LoadedEnv.fetch_dataset() "
+        "checks every file against the manifest), or re-publish the env with push_env."
+    )
+    out = np.empty((length, *shape), dtype=np.uint8)
+    seen = np.zeros(length, dtype=bool)
+    try:
+        with av.open(str(path), "r") as container:
+            stream = container.streams.video[0]
+            tb = float(stream.time_base)
+            if from_timestamp > 0:
+                container.seek(int(from_timestamp / tb), stream=stream, backward=True, any_frame=False)
+            end = from_timestamp + (length - 0.5) / fps
+            for frame in container.decode(stream):
+                if frame.pts is None:
+                    continue
+                t = frame.pts * tb
+                if t > end:
+                    break
+                i = round((t - from_timestamp) * fps)
+                if i < 0 or i >= length or abs(t - from_timestamp - i / fps) > 0.5 / fps:
+                    continue
+                img = frame.to_ndarray(format="rgb24")
+                if img.shape != tuple(shape):
+                    raise IntegrityError(f"{path} ({where}): frames are {img.shape}, the dataset declares {tuple(shape)}. {fix}")
+                out[i] = img
+                seen[i] = True
+    except IntegrityError:
+        raise
+    except (OSError, ValueError, IndexError, av.FFmpegError) as exc:
+        raise IntegrityError(f"{path} ({where}) cannot be decoded: {type(exc).__name__}: {exc}. {fix}") from None
+    if not seen.all():
+        raise IntegrityError(
+            f"{path} ({where}) holds {int(seen.sum())} of the episode's {length} frames from {from_timestamp:.4f} s. {fix}"
+        )
+    return out

@@ -1,0 +1,292 @@
+"""Video datasets: camera features encoded by LeRobot's own encoder, decoded by LeRobotDataset, replayed
+within the codec's declared tolerance; a damaged MP4 is an integrity error.
+
+One module-scoped Hub and one push of a short reach (2 episodes x 12 steps, 96x96 camera) serve the push,
+load, reproduce and LeRobotDataset tests; the writer tests use a small numpy-drawn camera (32x32).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import copy_env
+
+from hub_envs import errors, load_env, push_env, reproduce
+from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_info
+from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors
+from hub_envs.dataset.writer import EpisodeFrames, write_lerobot_dataset
+
+ENVS = Path(__file__).resolve().parent.parent / "envs"
+S = 32
+FPS = 10
+
+
+def _frames(i: int, n: int) -> np.ndarray:
+    """A camera: a moving square on a colour ramp (smooth enough for a lossy codec to keep close)."""
+    yy, xx = np.mgrid[0:S, 0:S]
+    out = np.zeros((n, S, S, 3), np.uint8)
+    for t in range(n):
+        out[t, ..., 0] = xx * 4 + t * 3 + i * 10
+        out[t, ..., 1] = yy * 6
+        out[t, ..., 2] = 90
+        x = (t * 2 + i) % (S - 8)
+        out[t, 10:18, x : x + 8] = (250, 250, 40)
+    return out
+
+
+FEATURES = {
+    "observation.state": {"dtype": "float32", "shape": [2], "names": ["x", "v"]},
+    "observation.image": {"dtype": "video", "shape": [S, S, 3], "names": ["height", "width", "channels"]},
+    "action": {"dtype": "float32", "shape": [1], "names": ["u"]},
+}
+LENGTHS = [10, 13, 7]
+
+
+def _episodes(features=FEATURES):
+    for i, n in enumerate(LENGTHS):
+        frames = {
+            "observation.state": np.full((n, 2), i, np.float32),
+            "observation.image": _frames(i, n),
+            "action": np.arange(n, dtype=np.float32)[:, None],
+        }
+        yield EpisodeFrames(i, seed=100 + i, frames=frames)
+
+
+def _write(root: Path, features=FEATURES, **kw):
+    return write_lerobot_dataset(
+        root, repo_id="test/cam", fps=FPS, features=features, episodes=_episodes(features), task="watch", progress=False, **kw
+    )
+
+
+@pytest.fixture(scope="module")
+def video_ds(tmp_path_factory):
+    root = tmp_path_factory.mktemp("video") / "ds"
+    return root, _write(root)
+
+
+def test_video_layout_is_lerobots_v3(video_ds):
+    root, summary = video_ds
+    assert (root / "videos/observation.image/chunk-000/file-000.mp4").is_file()
+    info = read_info(root)
+    assert info["video_path"] == "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+    ft = info["features"]["observation.image"]
+    assert ft["dtype"] == "video" and ft["shape"] == [S, S, 3]
+    assert ft["info"]["video.codec"] == "av1" and ft["info"]["video.fps"] == FPS and ft["info"]["video.pix_fmt"] == "yuv420p"
+    import pyarrow.parquet as pq
+
+    assert "observation.image" not in pq.read_schema(root / "data/chunk-000/file-000.parquet").names
+    meta = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    starts = np.cumsum([0, *LENGTHS[:-1]]) / FPS
+    np.testing.assert_allclose(meta["videos/observation.image/from_timestamp"], starts)
+    np.testing.assert_allclose(meta["videos/observation.image/to_timestamp"], starts + np.array(LENGTHS) / FPS)
+    assert summary.frames == sum(LENGTHS)
+
+
+def test_reader_decodes_each_episode_within_the_tolerance(video_ds):
+    root, _ = video_ds
+    for i, n in enumerate(LENGTHS):
+        got = read_episode_frames(root, i)
+        assert got["observation.image"].shape == (n, S, S, 3)
+        errors_ = frame_errors(got["observation.image"], _frames(i, n))
+        assert errors_.max() <= VIDEO_TOLERANCE.max_mean_abs_error, errors_
+        # each decoded frame is closest to its own source frame, not a neighbour's (no off-by-one)
+        if n > 1:
+            shifted = frame_errors(got["observation.image"][1:], _frames(i, n)[:-1])
+            assert (shifted > errors_[1:]).all()
+        np.testing.assert_array_equal(got["action"][:, 0], np.arange(n))
+
+
+def test_video_dataset_matches_lerobot_own_writer(tmp_path, video_ds):
+    """Same frames through LeRobot's add_frame/save_episode (video on) and ours: same files, same metadata
+    columns, same video info, the same decoded tensors from LeRobotDataset (our MP4s are LeRobot's bytes)."""
+    import pyarrow.parquet as pq
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from hub_envs._compat import video_backend
+
+    ours, _ = video_ds
+    theirs = tmp_path / "theirs"
+    ref = LeRobotDataset.create(
+        "test/ref",
+        fps=FPS,
+        features={k: {**f, "shape": tuple(f["shape"])} for k, f in FEATURES.items()},
+        root=theirs,
+        use_videos=True,
+    )
+    for ep in _episodes():
+        for t in range(ep.length):
+            ref.add_frame({k: (v[t] if v.ndim > 1 else v[t : t + 1]) for k, v in ep.frames.items()} | {"task": "watch"})
+        ref.save_episode()
+    ref.finalize()
+    files = sorted(str(p.relative_to(theirs)) for p in theirs.rglob("*") if p.is_file() and "images" not in p.parts)
+    assert files == sorted(str(p.relative_to(ours)) for p in ours.rglob("*") if p.is_file())
+    video = "videos/observation.image/chunk-000/file-000.mp4"
+    assert (ours / video).read_bytes() == (theirs / video).read_bytes()  # LeRobot's encoder, LeRobot's bytes
+    info_a, info_b = read_info(ours), read_info(theirs)
+    assert info_a["features"] == json.loads(json.dumps(info_b["features"]))
+    assert info_a["video_path"] == info_b["video_path"]
+    ma = pq.read_schema(ours / "meta/episodes/chunk-000/file-000.parquet")
+    mb = pq.read_schema(theirs / "meta/episodes/chunk-000/file-000.parquet")
+    assert [n for n in ma.names if n != "seed"] == mb.names
+    ta = pq.read_table(ours / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    tb = pq.read_table(theirs / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    for col in (c for c in mb.names if c.startswith("videos/")):
+        np.testing.assert_allclose(ta[col], tb[col], err_msg=col)
+    backend = video_backend()
+    a = LeRobotDataset("test/ours", root=ours, video_backend=backend)
+    b = LeRobotDataset("test/ref", root=theirs, video_backend=backend)
+    assert len(a) == len(b) == sum(LENGTHS)
+    for i in (0, 9, 10, 22, len(a) - 1):
+        x, y = a[i], b[i]
+        assert x.keys() == y.keys()
+        assert torch.equal(x["observation.image"], y["observation.image"]), i
+        assert torch.equal(x["action"], y["action"])
+    # our reader decodes what LeRobotDataset decodes
+    frame = (a[22]["observation.image"] * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+    assert np.abs(frame.astype(int) - read_episode_frames(ours, 1)["observation.image"][12]).max() <= 1
+
+
+def test_video_datasets_are_byte_deterministic(tmp_path, video_ds):
+    root, summary = video_ds
+    again = _write(tmp_path / "again", encode_threads=0)
+    assert again.fingerprint == summary.fingerprint == dataset_fingerprint(root)
+
+
+def test_small_video_files_roll_over_and_decode(tmp_path):
+    """Past video_files_size_in_mb a new file starts; each episode decodes from the file its metadata names."""
+    root = tmp_path / "many"
+    _write(root, video_files_size_in_mb=0.000001)
+    files = sorted((root / "videos/observation.image/chunk-000").glob("*.mp4"))
+    assert len(files) == len(LENGTHS)
+    for i, n in enumerate(LENGTHS):
+        assert (
+            frame_errors(read_episode_frames(root, i)["observation.image"], _frames(i, n)).max()
+            <= VIDEO_TOLERANCE.max_mean_abs_error
+        )
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage"])
+def test_damaged_video_is_an_integrity_error(tmp_path, video_ds, damage):
+    root = tmp_path / "ds"
+    shutil.copytree(video_ds[0], root)
+    path = root / "videos/observation.image/chunk-000/file-000.mp4"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) * 2 // 3] if damage == "truncate" else data[:64] + b"\0" * (len(data) - 64))
+    with pytest.raises(errors.IntegrityError) as e:
+        for i in range(len(LENGTHS)):
+            read_episode_frames(root, i)
+    assert "file-000.mp4" in str(e.value) and "fetch" in str(e.value)
+    path.unlink()
+    with pytest.raises(errors.IntegrityError, match="missing"):
+        read_episode_frames(root, 0)
+
+
+# --- push_env --video on the reach example env ---------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def reach_video(hub_module, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("reach")
+    folder = copy_env(
+        tmp,
+        ENVS / "reach",
+        "reach",
+        edits={"config.py": lambda s: s.replace("episode_length: int = 100", "episode_length: int = 12")},
+    )
+    pushed = push_env(folder, "alice/reach-video", episodes=2, progress=False)  # video: default for a camera env
+    return folder, pushed
+
+
+def test_push_reach_defaults_to_video_and_lerobot_decodes_it(hub_module, reach_video, tmp_path):
+    from hub_envs._compat import video_backend
+
+    _, pushed = reach_video
+    features = pushed.manifest.dataset["features"]
+    assert features["observation.image"]["dtype"] == "video"
+    assert any(p.startswith("dataset/videos/observation.image/") and p.endswith(".mp4") for p in pushed.manifest.files)
+    loaded = load_env(f"alice/reach-video@{pushed.sha}", trust_remote_code=True)
+    ds = loaded.open_dataset()  # the video backend that works here
+    assert ds.meta.video_keys == ["observation.image"]
+    item = ds[5]
+    assert tuple(item["observation.image"].shape) == (3, 96, 96) and item["observation.image"].dtype.is_floating_point
+    assert video_backend() in ("pyav", "torchcodec")
+    loaded.unregister()
+
+
+def test_reproduce_reach_video_within_the_tolerance(hub_module, reach_video, tmp_path):
+    _, pushed = reach_video
+    report = reproduce(f"alice/reach-video@{pushed.sha}", trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    assert report.reproduced, report.summary()
+    replay = report.replay
+    assert "observation.image" in replay.features and replay.video["keys"] == ["observation.image"]
+    worst = max(e.max_abs_diff["observation.image"] for e in replay.episodes)
+    assert 0 < worst <= VIDEO_TOLERANCE.max_mean_abs_error  # lossy, within the bound
+    # everything else stays exact
+    for e in replay.episodes:
+        assert all(v == 0.0 for k, v in e.max_abs_diff.items() if k != "observation.image"), e.max_abs_diff
+    assert "env_state" in replay.features
+    assert "within mean abs error" in replay.summary()
+    # and beyond the tolerance: the replayed frames, re-encoded with the same encoder, decode bit for bit
+    assert replay.video["bit_exact_after_reencode"] and all(e.video_exact == {"observation.image": True} for e in replay.episodes)
+    assert "re-encoded, bit for bit" in replay.summary()
+
+
+def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach_video):
+    folder, pushed = reach_video
+    again = push_env(folder, "alice/reach-video", episodes=2, progress=False)
+    assert again.sha == pushed.sha and not again.created_commit  # the fast path knows video was on
+    pngs = push_env(folder, "alice/reach-video", episodes=2, progress=False, video=False)
+    assert pngs.created_commit and pngs.manifest.dataset["features"]["observation.image"]["dtype"] == "image"
+    assert not any(p.startswith("dataset/videos/") for p in pngs.manifest.files)
+
+
+def test_truncated_video_in_a_published_repo_is_refused(hub_module, reach_video, tmp_path):
+    """A commit that truncates the MP4 (the manifest not fixed up) is refused when the data is fetched."""
+    _, pushed = reach_video
+    api = hub_module.api
+    mp4 = next(p for p in pushed.manifest.files if p.endswith(".mp4"))
+    data = Path(api.hf_hub_download("alice/reach-video", mp4, revision=pushed.sha)).read_bytes()
+    api.create_branch("alice/reach-video", branch="cut", revision=pushed.sha)
+    commit = api.upload_file(
+        path_or_fileobj=data[: len(data) // 2], path_in_repo=mp4, repo_id="alice/reach-video", revision="cut"
+    )
+    loaded = load_env(f"alice/reach-video@{commit.oid}", trust_remote_code=True)
+    with pytest.raises(errors.IntegrityError) as e:
+        loaded.open_dataset()
+    assert mp4.split("/")[-1] in str(e.value)
+    loaded.unregister()
+
+
+def test_card_media_is_big_real_time_and_has_an_mp4(hub_module, reach_video):
+    """The GIF is >= 256 px wide as rendered by the env (reach's render_width knob, not an upscale), shows
+    the first episodes (up to 3) at the env's real speed, stays small; the MP4 sits beside it; card and page show both."""
+    import av
+    import imageio.v3 as iio
+    import requests
+
+    _, pushed = reach_video
+    api = hub_module.api
+    gif_path = api.hf_hub_download("alice/reach-video", "media/rollout.gif", revision=pushed.sha)
+    frames = iio.imread(gif_path, index=None)
+    assert frames.shape[1:3] == (256, 256)
+    # the first 3 dataset episodes (this push has 2) of 12 steps, every 2nd step (20 fps -> 10 frames per second)
+    assert len(frames) == 2 * 12 // 2
+    assert iio.immeta(gif_path)["duration"] == 100  # ms per frame: real time
+    assert Path(gif_path).stat().st_size < 3 * 2**20
+    # rendered, not repeated pixels: neighbouring columns differ somewhere (a 3x upscale of 96 px would not)
+    assert (frames[:, :, 0:255:3] != frames[:, :, 1:256:3]).any()
+    assert "media/rollout.mp4" in pushed.manifest.files
+    with av.open(api.hf_hub_download("alice/reach-video", "media/rollout.mp4", revision=pushed.sha)) as mp4:
+        stream = mp4.streams.video[0]
+        assert (stream.width, stream.height, int(stream.base_rate)) == (256, 256, 10)
+    card = Path(api.hf_hub_download("alice/reach-video", "README.md", revision=pushed.sha)).read_text()
+    assert "](media/rollout.gif)" in card and "](media/rollout.mp4)" in card and "real time (20 fps)" in card
+    page = requests.get(
+        f"{hub_module.endpoint}/alice/reach-video/tree/{pushed.sha}", headers={"Accept": "text/html"}, timeout=30
+    ).text
+    assert f'<video src="/alice/reach-video/resolve/{pushed.sha}/media/rollout.mp4"' in page
