@@ -215,6 +215,8 @@ def _card_shows(repo_id: str, sha: str, table: str, token: str | None) -> bool:
     """Whether the card at ``sha`` already shows ``table`` (the "Reproduced on" table; "" for none)."""
     card = hub_io.read_remote_text(repo_id, CARD_FILE, revision=sha, token=token) or ""
     return table in card if table else "## Reproduced on" not in card
+
+
 def _has_cameras(cfg: Any) -> bool:
     """Whether the env's config declares a VISUAL feature (a camera: stored as video by default, as LeRobot does)."""
     return any(str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL") for ft in cfg.features.values())
