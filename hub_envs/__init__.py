@@ -27,6 +27,9 @@ _EXPORTS = {
     "is_trusted": "hub_envs.trust_list",
     "Manifest": "hub_envs.repo_format",
     "reproduce": "hub_envs.reproduction",
+    "evaluate": "hub_envs.evaluation",
+    "EvalResult": "hub_envs.evaluation",
+    "make_backend": "hub_envs.backends",
     "diff": "hub_envs.revision_diff",
     "DiffReport": "hub_envs.revision_diff",
     "compare": "hub_envs.policy_compare",
@@ -44,6 +47,8 @@ __all__ = sorted(_EXPORTS) + ["errors", "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.attestation import Attestation, attest  # noqa: F401
+    from hub_envs.backends import make_backend  # noqa: F401
+    from hub_envs.evaluation import EvalResult, evaluate  # noqa: F401
     from hub_envs.from_dataset import env_from_dataset  # noqa: F401
     from hub_envs.isolation.proxy import IsolatedEnv, IsolationOptions  # noqa: F401
     from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401

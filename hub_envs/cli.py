@@ -3,12 +3,13 @@
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
     hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024] [--max_lfs_mb=51200]
-    push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false]
+    push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false] [--backend=ray]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
-    hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true]
+    hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true] [--backend=ray]
     hub-envs attestations --repo_id=user/pendulum-lerobot [--verify=true --allowed_signers=FILE]
     hub-envs compare --repo_id=user/pendulum-lerobot@<sha> --policies=random,path/to/pretrained_model [--episodes=20]
+    hub-envs evaluate --repo_id=user/pendulum-lerobot@<sha> --trust_remote_code=true --episodes=100 [--backend=ray]
     hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.type=act ...
     hub-envs eval --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.path=...
 
@@ -51,7 +52,10 @@ class PushArgs:
     seed: int = 0
     private: bool = False
     tag: str | None = None
-    workers: int = 0  # 0: as many as useful on this machine
+    workers: int = 0  # 0: as many as useful on this machine (local), the cluster's CPUs (ray)
+    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
+    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
+    out: Path | None = None  # --backend=ray: keep finished shards here; the same push started again skips them
     commit_message: str | None = None
     determinism_steps: int | None = None  # cap of the determinism check; default: a whole episode (two seeds)
     force: bool = False  # rebuild even when main already holds this code, config, seeds and versions
@@ -218,6 +222,7 @@ RAW_COMMANDS = {
 #: ``--help`` or the light commands above (each module has a ``CLI_COMMANDS`` table).
 LAZY_COMMANDS = {
     "reproduce": "hub_envs.reproduction",
+    "evaluate": "hub_envs.evaluation",
     "diff": "hub_envs.revision_diff",
     "attestations": "hub_envs.attestation",
     "compare": "hub_envs.policy_compare",
@@ -231,6 +236,7 @@ SUMMARIES = {
     "trust": "trust one commit of a repo: hub-envs trust user/name@<sha>",
     "untrust": "forget the trust entries of a repo: hub-envs untrust user/name[@<sha>]",
     "reproduce": "re-run what a repo recorded (dataset replay, benchmarks, fingerprint) and report",
+    "evaluate": "a policy over N seeded episodes, locally or on a Ray cluster (--backend=ray)",
     "diff": "what changed between two revisions (files, manifest, spaces) and where their behaviour diverges",
     "attestations": "a repo's reproduction attestations (merged and in open PRs): env revision x stack -> verdict",
     "compare": "evaluate policies (LeRobot checkpoints, random) on the same seeds: rates, CIs, paired difference",

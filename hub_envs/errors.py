@@ -118,6 +118,10 @@ class AttestationError(HubEnvsError, ValueError):
     """A reproduction attestation is malformed, or could not be signed, verified or published."""
 
 
+class ClusterUnreachableError(HubEnvsError, ConnectionError):
+    """``--backend=ray``: nothing answers at the Ray address (``--ray_address`` or ``RAY_ADDRESS``); the message names it."""
+
+
 class ProcessorError(InvalidRepoFormatError):
     """An env processor declared in the manifest is malformed or cannot be built."""
 

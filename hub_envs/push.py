@@ -19,7 +19,6 @@ Example:
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs import hub_io
+from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, unrecordable_reason, write_env_states
@@ -49,7 +49,6 @@ from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episod
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import render_size_overrides, write_rollout_media
 from hub_envs.harness.provenance import package_versions, requirement_closure
-from hub_envs.harness.rollout import iter_episodes
 from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
 from hub_envs.repo_format import (
@@ -109,10 +108,6 @@ def _stage_printer(enabled: bool):
             print(message, file=sys.stderr, flush=True)
 
     return say
-
-
-def _default_workers() -> int:
-    return max(1, min(2, os.cpu_count() or 1))
 
 
 def _random_benchmark(returns: list[float], successes: list[bool], seeds: list[int]) -> dict[str, Any]:
@@ -315,7 +310,7 @@ def _generate_dataset(
     *,
     repo_id: str,
     seeds: list[int],
-    workers: int,
+    backend: Backend,
     code_digest: str,
     fingerprint_seeds: int,
     features: dict[str, dict],
@@ -332,11 +327,10 @@ def _generate_dataset(
     first: list[Any] = []  # the fingerprint's episodes
 
     def frames():
-        for rollout in iter_episodes(
-            loaded.make,
+        for rollout in backend.episodes(
+            loaded,
             seeds,
             max_steps=int(cfg.episode_length),
-            workers=workers,
             progress=progress,
             desc=f"Generating {len(seeds)} episodes",
             record_states=True,
@@ -436,20 +430,23 @@ def build_repo(
     repo_id: str,
     episodes: int,
     seed: int,
-    workers: int,
+    workers: int = 1,
     determinism_steps: int | None = None,
     fingerprint_seeds: int = FINGERPRINT_SEEDS,
     progress: bool = True,
     attestations: list | tuple = (),
     video: bool = False,
+    backend: Backend | None = None,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
     The stages, in order: check the env (:func:`_check_env`), copy the code (:func:`_write_code`), the one
     rollout pass (:func:`_generate_dataset`: dataset, states, returns, fingerprint), the dataset half of the
     feature check, the GIF, the manifest and the card. Returns the manifest it wrote (validated as load_env
-    validates it).
+    validates it). The episodes run on ``backend`` (default: ``workers`` local processes); the repo content
+    does not depend on where they ran.
     """
+    backend = backend if backend is not None else LocalBackend(workers=workers)
     where = f"{loaded.local_folder} (for {repo_id})"
     cfg = loaded.config
     say = _stage_printer(progress)
@@ -457,13 +454,14 @@ def build_repo(
     env = _check_env(loaded, seed=seed, determinism_steps=determinism_steps, where=where)
     try:
         code_digest = _write_code(loaded, staging, repo_id)
-        say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps, {workers} worker(s)")
+        where_run = ", ".join(f"{k}={v}" for k, v in backend.settings().items() if v is not None)
+        say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps ({where_run})")
         run = _generate_dataset(
             loaded,
             staging,
             repo_id=repo_id,
             seeds=[seed + i for i in range(episodes)],
-            workers=workers,
+            backend=backend,
             code_digest=code_digest,
             fingerprint_seeds=fingerprint_seeds,
             features=dataset_features_from_config(cfg, action=stored_action(env.action_space), video=video),
@@ -528,6 +526,9 @@ def push_env(
     force: bool = False,
     config: dict[str, Any] | None = None,
     video: bool | None = None,
+    backend: str | Backend = "local",
+    ray_address: str | None = None,
+    out: str | Path | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -541,12 +542,19 @@ def push_env(
     camera (VISUAL) features as MP4 videos encoded by LeRobot's own encoder (dtype ``"video"``, LeRobot's default
     for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features.
     Replay compares video frames within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE` (the codec is lossy).
+
+    ``backend="ray"`` generates the dataset on a Ray cluster (``ray_address``, default ``$RAY_ADDRESS`` or a
+    local Ray started for the push; :mod:`hub_envs.backends`): the folder's files travel with the job, the
+    dataset and the content tag are identical to the local backend's. ``out``: a folder where a Ray run keeps
+    its finished shards (the same push started again skips them). Nothing is committed until every
+    episode is written: an interrupted push leaves no commit and no partial dataset.
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
     repo_id, rev = hub_io.parse_repo_ref(repo_id)
     if rev is not None:
         raise ConfigError(f"push_env publishes to main; drop '@{rev}' from {repo_id}@{rev} (use --tag to name the commit).")
+    runner = make_backend(backend, workers=workers, ray_address=ray_address, checkpoint_dir=out)
     env_dir = Path(env_dir)
     if not env_dir.is_dir():
         raise EnvFolderError(f"Env folder {env_dir} does not exist. Pass --env_dir=PATH to the folder with pyproject.toml.")
@@ -579,7 +587,7 @@ def push_env(
             return PushResult(
                 repo_id=repo_id, sha=sha, created_commit=False, content_tag=tags[0], manifest=manifest, timings=timings, tags=tags
             )
-        with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp:
+        with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp, runner:
             staging = Path(tmp) / "repo"
             staging.mkdir()
             manifest = build_repo(
@@ -588,11 +596,11 @@ def push_env(
                 repo_id=repo_id,
                 episodes=episodes,
                 seed=seed,
-                workers=workers or _default_workers(),
                 determinism_steps=determinism_steps,
                 progress=progress,
                 attestations=attestations,
                 video=video,
+                backend=runner,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()

@@ -16,7 +16,7 @@ For one env repo at one commit:
 
 Episodes run in parallel across ``workers`` processes; the report does not depend on their number.
 
-    hub-envs reproduce --repo_id=user/name [--revision=<sha>] [--trust_remote_code=true] [--workers=2]
+    hub-envs reproduce --repo_id=user/name [--revision=<sha>] [--trust_remote_code=true] [--workers=2] [--backend=ray]
                        [--tolerance=0] [--out=DIR] [--isolation=process] [--sandbox=true]
 
 exits 0 when everything reproduces, 1 when anything diverged or failed (or on any hub-envs error).
@@ -31,7 +31,6 @@ Example:
 from __future__ import annotations
 
 import datetime as _dt
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs.backends import Backend, make_backend
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
@@ -47,7 +47,6 @@ from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
-from hub_envs.harness.rollout import iter_episodes
 
 __all__ = [
     "reproduce",
@@ -65,10 +64,6 @@ DEFAULT_OUT = Path("reproduce-out")
 def default_out_dir(repo_id: str) -> Path:
     """``reproduce-out/<user>/<name>/`` (local folders: ``reproduce-out/local/<folder>/``)."""
     return DEFAULT_OUT.joinpath(*[p for p in repo_id.split("/") if p not in ("", ".", "..")])
-
-
-def _default_workers() -> int:
-    return max(1, min(2, os.cpu_count() or 1))
 
 
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
@@ -155,7 +150,7 @@ def _run_episodes(
     replay: bool,
     benchmarks: bool,
     tolerance: float,
-    workers: int,
+    backend: Backend,
     episodes: list[int] | None,
     resamples: int,
     progress: bool,
@@ -199,13 +194,12 @@ def _run_episodes(
         t = time.perf_counter()
         if seeds:
             for i, rollout in enumerate(
-                iter_episodes(
-                    loaded.make,
+                backend.episodes(
+                    loaded,
                     seeds,
                     max_steps=longest,
                     policy=policy if n_replay else None,
                     record_states=rep.record_states if rep is not None else False,
-                    workers=workers,
                     progress=progress,
                     desc=desc[:1].upper() + desc[1:],
                 )
@@ -225,7 +219,7 @@ def _run_episodes(
             if r in joint:
                 results.append(r.finish(episodes_seconds=joint_seconds * (1 - replay_share) / max(1, len(joint))))
             else:  # a checkpoint policy (or an unusual max_steps): its own pass
-                results.append(r.run(loaded.make, workers=workers, progress=progress))
+                results.append(r.run(loaded, backend=backend, progress=progress))
         timings["benchmarks"] = sum(b.seconds for b in results)
         return replay_result, results
     finally:
@@ -271,6 +265,8 @@ def reproduce(
     sandbox: bool = False,
     versions: str = "current",
     step_timeout: float | None = None,
+    backend: str | Backend = "local",
+    ray_address: str | None = None,
 ) -> ReproduceReport:
     """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
 
@@ -282,7 +278,8 @@ def reproduce(
         repo_id: ``user/name`` (``@rev`` allowed) or a local folder of a published repo.
         revision: branch, tag or sha; pin a sha to reproduce exactly what was published.
         trust_remote_code: consent to run the repo's code (or trust the commit with ``hub-envs trust``).
-        workers: processes for the episodes (default: up to 2); the report does not depend on it.
+        workers: processes for the episodes (default: up to 2; on Ray: actors, default the cluster's CPUs);
+            the report does not depend on it.
         tolerance: largest absolute difference accepted in the replay (0: bit-exact).
         out: folder for report.json/.md/.png (default ``reproduce-out/<user>/<name>/``).
         replay, benchmarks: run those parts.
@@ -291,6 +288,10 @@ def reproduce(
         progress: progress bars. write: write the report files.
         isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`); the
             replay, the benchmarks and the fingerprint all step the env through its worker processes.
+        backend: where the replay and benchmark episodes run: ``"local"`` (this machine's processes) or ``"ray"``
+            (a Ray cluster: ``ray_address``, default ``$RAY_ADDRESS``, else a local Ray for the run). The report is
+            the same (timings aside). On Ray, an explicit ``out`` also keeps the finished shards in ``out/shards/``,
+            so the same command started again skips them.
         trust_policy_code: consent to load the LeRobot policy checkpoints the benchmarks name (other repos than
             the env: loading one can import code its processor config names). Or trust each with ``hub-envs trust``.
 
@@ -302,9 +303,14 @@ def reproduce(
     """
     from hub_envs.load import load_env
 
-    workers = _default_workers() if not workers else int(workers)
-    if workers < 1:
+    if workers is not None and int(workers) < 0:
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
+    runner = make_backend(
+        backend,
+        workers=int(workers) if workers else None,
+        ray_address=ray_address,
+        checkpoint_dir=Path(out) / "shards" if out is not None and backend == "ray" else None,
+    )
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
     loaded = load_env(
@@ -335,19 +341,20 @@ def reproduce(
         if benchmarks and not loaded.manifest.benchmarks:
             notes.append("the manifest declares no benchmark results")
         t = time.perf_counter()
-        replay_result, bench_results = _run_episodes(
-            loaded,
-            replay=replay and dataset_root is not None,
-            benchmarks=benchmarks,
-            tolerance=tolerance,
-            workers=workers,
-            episodes=episodes,
-            resamples=resamples,
-            progress=progress,
-            token=token,
-            timings=timings,
-            trust_policy_code=trust_policy_code,
-        )
+        with runner:
+            replay_result, bench_results = _run_episodes(
+                loaded,
+                replay=replay and dataset_root is not None,
+                benchmarks=benchmarks,
+                tolerance=tolerance,
+                backend=runner,
+                episodes=episodes,
+                resamples=resamples,
+                progress=progress,
+                token=token,
+                timings=timings,
+                trust_policy_code=trust_policy_code,
+            )
         timings["episodes"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id,
@@ -359,7 +366,7 @@ def reproduce(
             notes=notes,
             settings={
                 "tolerance": float(tolerance),
-                "workers": workers,
+                **runner.settings(),
                 "resamples": resamples,
                 "episodes": episodes,
                 "replay": replay,
@@ -388,7 +395,9 @@ class ReproduceArgs(EnvFlags):
     """Replay a repo's dataset and re-run its benchmarks; write JSON, Markdown and a plot."""
 
     trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints the benchmarks name (other repos)
-    workers: int = 0  # 0: up to 2 processes
+    workers: int = 0  # 0: up to 2 processes (local), the cluster's CPUs (ray)
+    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
+    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
     out: Path | None = None  # default reproduce-out/<user>/<name>/
     replay: bool = True

@@ -45,7 +45,6 @@ import numpy as np
 
 from hub_envs._text import safe_text
 from hub_envs.errors import ReproductionError, UntrustedCodeError
-from hub_envs.harness.rollout import iter_episodes
 
 __all__ = ["MetricResult", "BenchmarkResult", "BenchmarkRun", "bootstrap_ci", "reproduce_benchmark", "METRICS"]
 
@@ -363,17 +362,21 @@ class BenchmarkRun:
             key, get = METRICS[m]
             self.per_episode[key].append(get(rollout))
 
-    def run(self, make_env: Callable[[], Any], *, workers: int = 1, progress: bool = True) -> BenchmarkResult:
-        """Run this benchmark's episodes in a pass of its own, and :meth:`finish`."""
+    def run(self, loaded: Any, *, workers: int = 1, progress: bool = True, backend: Any = None) -> BenchmarkResult:
+        """Run this benchmark's episodes of ``loaded``'s env in a pass of its own, and :meth:`finish`.
+
+        ``backend`` (:mod:`hub_envs.backends`): where the episodes run (default: ``workers`` local processes)."""
+        from hub_envs.backends import LocalBackend
+
+        backend = backend if backend is not None else LocalBackend(workers=workers)
         t = time.perf_counter()
         try:
             if self.runnable:
-                for rollout in iter_episodes(
-                    make_env,
+                for rollout in backend.episodes(
+                    loaded,
                     self.seeds,
                     max_steps=self.max_steps,
                     policy=self.policy,
-                    workers=workers,
                     progress=progress,
                     desc=f"Benchmark {self.name}",
                 ):
@@ -431,4 +434,4 @@ def reproduce_benchmark(
     run = BenchmarkRun(
         loaded, benchmark, resamples=resamples, confidence=confidence, seed=seed, token=token, trust_policy_code=trust_policy_code
     )
-    return run.run(loaded.make, workers=workers, progress=progress)
+    return run.run(loaded, workers=workers, progress=progress)

@@ -281,11 +281,14 @@ class _Runner:
             self.episode_actions = None
         return self.shared_actions
 
-    def run(self, index: int, seed: int) -> EpisodeRollout:
+    def run(self, index: int, seed: int, *, episode: int | None = None) -> EpisodeRollout:
+        """Run episode ``index`` of this runner's seeds (its actions, if replayed); ``episode``: the number it
+        is recorded and reported under (default ``index``; a shard of a larger run passes its global index)."""
         env = self._ensure_env()
-        where = f"episode {index} (seed {seed})"
-        episode = SeededEpisode(env, seed, where=where)
-        obs, space = episode.obs, episode.space
+        number = index if episode is None else int(episode)
+        where = f"episode {number} (seed {seed})"
+        episode_run = SeededEpisode(env, seed, where=where)
+        obs, space = episode_run.obs, episode_run.space
         action_shape = getattr(space, "shape", None) or ()
         fixed = self._actions_for(index, len(action_shape))
         max_steps = self.max_steps if fixed is None else min(self.max_steps, len(fixed))
@@ -308,8 +311,8 @@ class _Runner:
         truncs: list[bool] = []
         succ: list[bool] = []
         policy_fn = self.policy_fn
-        sample = episode.sample
-        step = episode.step
+        sample = episode_run.sample
+        step = episode_run.step
         for t in range(max_steps):
             # record the observation before action t
             try:
@@ -366,7 +369,7 @@ class _Runner:
             raise EnvCodeError(f"{where}: env.step returned a reward that is not a number: {exception_text(exc)}.") from exc
         _check_finite(where, observations, reward_arr)
         return EpisodeRollout(
-            index=index,
+            index=number,
             seed=seed,
             observations=observations,
             actions=act_buf.array() if fixed is None else np.array(fixed[: len(rewards)]),

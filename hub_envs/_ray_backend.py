@@ -1,0 +1,351 @@
+"""The Ray backend: episodes sharded by index across Ray actors, consumed in order on the driver.
+
+How a run goes (:meth:`RayBackend.episodes`):
+
+1. connect: ``ray_address`` (or ``$RAY_ADDRESS``) is probed first, so an unreachable cluster is one
+   :class:`~hub_envs.errors.ClusterUnreachableError` naming it; with neither, a local Ray is started for
+   the run (dashboard off) and stopped after it. ``import ray`` happens here, and only here.
+2. shards run as Ray tasks (one CPU each; Ray retries a task whose worker process died). A worker gets
+   the env the way a user does: ``load_env("user/name@<sha>")`` in the worker (the Hub distributes the
+   code, integrity is verified there), or, for ``push_env`` of a local folder, the folder's files shipped
+   through Ray's object store. Ray reuses a worker process for the tasks of a job, and each worker keeps
+   the run's env (and policy) in a small cache: they are built once per worker, not per shard or episode.
+3. episodes are cut into shards of consecutive indices (their seeds and, for a replay, their recorded
+   actions go with them); shard ``k`` goes to actor ``k mod workers``; at most ``2 x workers`` shards are
+   in flight, and the driver consumes them **in shard order**, so what it writes (a dataset, a report)
+   is written incrementally and is byte-identical to the local backend's.
+4. ``checkpoint_dir``: each finished shard is saved (atomically) under a key of everything that
+   determines it (env content, seeds, steps, policy, shard size); the same run started again loads
+   those shards instead of running them.
+5. a shard whose worker process dies is retried by Ray (``max_retries``); the result is the same because a shard is a pure function of its inputs.
+   Ctrl-C (or closing the iterator) cancels the shards in flight: nothing is left running.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import socket
+import sys
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub_envs.backends import Backend, EnvSource
+from hub_envs.errors import ClusterUnreachableError, ConfigError, EnvCodeError, HubEnvsError, MissingRequirementsError
+from hub_envs.harness.rollout import EpisodeRollout, _check_seeds, _progress, _Runner
+
+PIP_LINE = "pip install 'hub-envs[ray]'"
+#: retries of a shard whose worker process died
+MAX_RESTARTS = 3
+MAX_SHARD_SIZE = 32
+
+
+def import_ray():
+    """``ray``, or a :class:`MissingRequirementsError` with the pip line."""
+    try:
+        import ray
+    except ModuleNotFoundError as exc:
+        if exc.name != "ray":
+            raise
+        raise MissingRequirementsError(
+            f"--backend=ray needs Ray, which is not installed in this Python ({sys.executable}). "
+            f"Install the extra: {PIP_LINE} (or use --backend=local)."
+        ) from None
+    return ray
+
+
+def _probe(address: str, timeout: float = 5.0) -> None:
+    """Raise ClusterUnreachableError unless something listens at ``host:port`` (ray:// too)."""
+    if address in ("auto", "local"):
+        return
+    hostport = address.split("://", 1)[-1]
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not port.isdigit():
+        raise ConfigError(f"ray_address={address!r}: write it as host:port (or ray://host:port), e.g. 127.0.0.1:6379.")
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise ClusterUnreachableError(
+            f"No Ray cluster answers at {address} ({exc.strerror or exc}). Start one there (ray start --head), "
+            "fix --ray_address / RAY_ADDRESS, or leave both unset to start a local Ray for the run."
+        ) from None
+
+
+# --- the worker side ------------------------------------------------------------------------------
+
+#: this worker process's envs (and policies), by run: (source identity, policy digest) -> _Loaded.
+#: Ray reuses a worker process for the tasks of a job, so an env is loaded once per worker, not per shard.
+_LOADED: dict[tuple[str, str], Any] = {}
+_KEEP = 2  # runs whose envs a worker keeps (a reproduce runs a replay pass, then maybe a checkpoint policy)
+
+
+class _Loaded:
+    """One run's env in this worker: loaded from its source (or the typed error that says why not)."""
+
+    def __init__(self, source: EnvSource, policy: Any):
+        self.error: HubEnvsError | None = None
+        self.env = None
+        self.policy = policy
+        try:
+            self.loaded = source.load()
+            if isinstance(policy, dict):  # a policy spec: built here, once per worker
+                from hub_envs.harness.benchmark import _policy_for
+
+                self.policy = _policy_for(policy, self.loaded, source.token, True)  # consent was checked on the driver
+            self.env = self.loaded.make()
+        except HubEnvsError as exc:  # raised for every shard, naming this node
+            self.error = type(exc)(f"on Ray node {_node_ip()}: {exc}")
+        except Exception as exc:  # noqa: BLE001
+            self.error = EnvCodeError(f"on Ray node {_node_ip()}: building the env raised {type(exc).__name__}: {exc}")
+
+    def close(self) -> None:
+        if self.env is not None:
+            try:
+                self.env.close()
+            except Exception:  # noqa: BLE001
+                pass
+            self.env = None
+
+
+def run_shard(
+    key: tuple[str, str], source: EnvSource, policy: Any, max_steps: int, record_states: bool, start: int, seeds: list, actions
+) -> list[EpisodeRollout]:
+    """Episodes ``start, start + 1, ...`` (one per seed) on this worker's env for the run ``key``."""
+    here = _LOADED.get(key)
+    if here is None:
+        while len(_LOADED) >= _KEEP:
+            _LOADED.pop(next(iter(_LOADED))).close()
+        here = _LOADED[key] = _Loaded(source, policy)
+    if here.error is not None:
+        raise here.error
+    env = here.env
+    runner = _Runner(lambda: env, max_steps, actions if actions is not None else here.policy, record_states, len(seeds))
+    return [runner.run(i, seed, episode=start + i) for i, seed in enumerate(seeds)]
+
+
+def _node_ip() -> str:
+    try:
+        import ray
+
+        return ray.util.get_node_ip_address()
+    except Exception:  # noqa: BLE001
+        return socket.gethostname()
+
+
+# --- the driver side ------------------------------------------------------------------------------
+
+
+def _policy_parts(policy: Any, n: int) -> tuple[Any, list | None]:
+    """(what every actor gets once, per-episode actions to ship with each shard or None)."""
+    if isinstance(policy, (list, tuple)) and len(policy) == n and all(p is None or isinstance(p, np.ndarray) for p in policy):
+        return None, list(policy)
+    return policy, None
+
+
+def _digest(obj: Any) -> str:
+    from ray import cloudpickle
+
+    return hashlib.sha256(cloudpickle.dumps(obj)).hexdigest()
+
+
+class RayRun:
+    """One run's iterator of rollouts (in episode order); ``stats`` counts shards run and resumed."""
+
+    def __init__(self, it: Iterator[EpisodeRollout], stats: dict[str, int]):
+        self._it = it
+        self.stats = stats
+
+    def __iter__(self) -> RayRun:
+        return self
+
+    def __next__(self) -> EpisodeRollout:
+        return next(self._it)
+
+    def close(self) -> None:
+        self._it.close()
+
+
+class RayBackend(Backend):
+    """Episodes on a Ray cluster (see the module docstring). Results equal :class:`~hub_envs.backends.LocalBackend`'s."""
+
+    name = "ray"
+
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int | None = None,
+        checkpoint_dir: str | Path | None = None,
+        shard_size: int | None = None,
+        object_store_memory: int | None = None,
+    ):
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+            raise ConfigError(f"workers={workers!r}: pass a positive number of Ray actors (0 or None: the cluster's CPUs).")
+        if shard_size is not None and shard_size < 1:
+            raise ConfigError(f"shard_size={shard_size!r}: pass a positive number of episodes per shard.")
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self.workers = workers or None
+        self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
+        self.shard_size = shard_size
+        self.object_store_memory = object_store_memory
+        self._depth = 0
+        self._started = False
+        self.startup_seconds: float | None = None
+
+    def __repr__(self) -> str:
+        return f"RayBackend(address={self.address!r}, workers={self.workers!r})"
+
+    # -- the connection --
+    def __enter__(self) -> RayBackend:
+        import time
+
+        ray = import_ray()
+        if self._depth == 0 and self.address:
+            _probe(self.address)  # also when connected already: a wrong address is never silently ignored
+        if self._depth == 0 and not ray.is_initialized():
+            t = time.perf_counter()
+            os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+            if self.address:
+                try:
+                    ray.init(address=self.address, log_to_driver=False, logging_level="warning")
+                except ConnectionError as exc:
+                    raise ClusterUnreachableError(f"Ray at {self.address} refused the connection: {exc}") from None
+            else:
+                ray.init(
+                    address="local",  # a new Ray for this run, never a cluster some earlier ray.init left behind
+                    num_cpus=self.workers or None,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    logging_level="warning",
+                    object_store_memory=self.object_store_memory,
+                )
+            self._started = True
+            self.startup_seconds = time.perf_counter() - t
+        self._depth += 1
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._depth -= 1
+        if self._depth == 0 and self._started:
+            import ray
+
+            ray.shutdown()
+            self._started = False
+
+    def settings(self) -> dict[str, Any]:
+        return {"backend": self.name, "workers": self.workers, "address": self.address}
+
+    def _n_workers(self, ray: Any, n_episodes: int) -> int:
+        n = self.workers or int(ray.cluster_resources().get("CPU", 1))
+        return max(1, min(n, n_episodes))
+
+    # -- a run --
+    def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts") -> RayRun:
+        seeds = _check_seeds(seeds)
+        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+            raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
+        if getattr(loaded, "isolation", None) is not None:
+            from hub_envs.errors import IsolationUnavailableError
+
+            raise IsolationUnavailableError(
+                f"{loaded.repo_id}@{loaded.revision}: --backend=ray with --isolation is not implemented yet; "
+                "run it with --backend=local, or on Ray without --isolation."
+            )
+        stats = {"episodes": len(seeds), "shards": 0, "shards_run": 0, "shards_resumed": 0}
+        return RayRun(self._run(loaded, seeds, int(max_steps), policy, bool(record_states), progress, desc, stats), stats)
+
+    def _run(self, loaded, seeds, max_steps, policy, record_states, progress, desc, stats) -> Iterator[EpisodeRollout]:
+        with self:
+            ray = import_ray()
+            n = len(seeds)
+            workers = self._n_workers(ray, n)
+            size = self.shard_size or max(1, min(MAX_SHARD_SIZE, -(-n // (4 * workers))))
+            shards = [(s, seeds[s : s + size]) for s in range(0, n, size)]
+            stats["shards"] = len(shards)
+            shared, per_episode = _policy_parts(policy, n)
+            source = EnvSource.from_loaded(loaded)
+            ckpt = self._checkpoints(source, seeds, max_steps, policy, record_states, size)
+            done = {k for k in range(len(shards)) if ckpt is not None and (ckpt / f"shard-{k:06d}.pkl").is_file()}
+            todo = deque(k for k in range(len(shards)) if k not in done)
+            bar = _progress(n, desc, progress)
+            bar.set_postfix_str(f"ray workers={workers}, resumed shards={len(done)}", refresh=False)
+            pending: dict[int, Any] = {}
+            task = ray.remote(num_cpus=1, max_retries=MAX_RESTARTS)(run_shard)
+            source_ref = ray.put(source)
+            policy_ref = ray.put(shared)
+            key = (source.identity, _digest(shared))
+            window = 2 * workers
+            try:
+
+                def submit() -> None:
+                    while todo and len(pending) < window:
+                        k = todo.popleft()
+                        start, shard_seeds = shards[k]
+                        actions = per_episode[start : start + len(shard_seeds)] if per_episode is not None else None
+                        pending[k] = task.remote(
+                            key, source_ref, policy_ref, max_steps, record_states, start, shard_seeds, actions
+                        )
+
+                for k in range(len(shards)):
+                    submit()
+                    if k in done:
+                        rollouts = pickle.loads((ckpt / f"shard-{k:06d}.pkl").read_bytes())
+                        stats["shards_resumed"] += 1
+                    else:
+                        rollouts = self._get(ray, pending.pop(k), loaded)
+                        stats["shards_run"] += 1
+                        if ckpt is not None:
+                            tmp = ckpt / f".shard-{k:06d}.pkl.tmp"
+                            tmp.write_bytes(pickle.dumps(rollouts, protocol=pickle.HIGHEST_PROTOCOL))
+                            os.replace(tmp, ckpt / f"shard-{k:06d}.pkl")
+                    for rollout in rollouts:
+                        bar.update(1)
+                        yield rollout
+            finally:
+                for ref in pending.values():  # also on Ctrl-C / an early close: nothing keeps running
+                    ray.cancel(ref, force=True)
+                bar.close()
+
+    @staticmethod
+    def _get(ray: Any, ref: Any, loaded: Any) -> list[EpisodeRollout]:
+        try:
+            return ray.get(ref)
+        except ray.exceptions.RayTaskError as exc:
+            cause = getattr(exc, "cause", None)
+            if isinstance(cause, HubEnvsError):
+                raise cause from None
+            raise EnvCodeError(f"{loaded.repo_id}@{loaded.revision}: a Ray worker raised: {exc}") from None
+        except (ray.exceptions.WorkerCrashedError, ray.exceptions.RayActorError) as exc:
+            raise EnvCodeError(
+                f"{loaded.repo_id}@{loaded.revision}: a Ray worker could not start, or died {MAX_RESTARTS + 1} times "
+                f"running the same shard (the env crashes the interpreter, the node ran out of memory, or the policy "
+                f"cannot be unpickled there): {exc}. Run with --backend=local --workers=1 to see the failure in this process."
+            ) from None
+
+    def _checkpoints(self, source: EnvSource, seeds, max_steps, policy, record_states, size) -> Path | None:
+        if self.checkpoint_dir is None:
+            return None
+        key = hashlib.sha256(
+            json.dumps(
+                {
+                    "env": source.identity,
+                    "config": source.config,
+                    "seeds": seeds,
+                    "max_steps": max_steps,
+                    "record_states": record_states,
+                    "shard_size": size,
+                    "policy": _digest(policy),
+                },
+                sort_keys=True,
+                default=str,
+            ).encode()
+        ).hexdigest()[:20]
+        folder = self.checkpoint_dir / f"run-{key}"
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder

@@ -1,0 +1,190 @@
+"""Where episodes run: this machine's processes (``local``) or a Ray cluster (``ray``).
+
+One concept: an *execution backend* turns ``(env, seeds, max_steps, policy)`` into the episodes' rollouts,
+**in episode order**, whatever runs them. Dataset generation (:func:`hub_envs.push_env`), reproduction
+(:func:`hub_envs.reproduce`) and policy evaluation (:func:`hub_envs.evaluate`) consume that iterator and
+never know which backend produced it; the results are identical on every backend for any number of
+workers (an episode is fully determined by its seed, its policy and ``max_steps``:
+:mod:`hub_envs.harness.rollout`).
+
+* :class:`LocalBackend`: the rollout engine's process pool on this machine (``workers`` processes).
+* ``RayBackend`` (:mod:`hub_envs._ray_backend`, needs ``pip install 'hub-envs[ray]'``): episodes sharded by
+  index across Ray actors that each ``load_env`` the repo the way a user does (or unpack the local env
+  folder ``push_env`` ships), results consumed in order with a bounded number of shards in flight,
+  finished shards checkpointed for a resumed run, Ray's retries when a worker dies.
+
+Backends are context managers: ``with backend:`` keeps a Ray connection (or the local Ray it started)
+for several runs; without it each run connects and disconnects by itself.
+
+Example:
+    >>> from hub_envs.backends import make_backend
+    >>> make_backend("local", workers=2)
+    LocalBackend(workers=2)
+    >>> make_backend("spark")
+    Traceback (most recent call last):
+    ...
+    hub_envs.errors.ConfigError: backend='spark': choose 'local' (this machine's processes) or 'ray' (a Ray cluster).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tarfile
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hub_envs.errors import ConfigError
+from hub_envs.harness.rollout import EpisodeRollout, iter_episodes
+
+__all__ = ["Backend", "LocalBackend", "EnvSource", "make_backend", "BACKENDS"]
+
+BACKENDS = ("local", "ray")
+
+
+def _default_local_workers() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+@dataclass(frozen=True)
+class EnvSource:
+    """How a worker on another machine gets the env the way a user does.
+
+    ``ref`` is ``user/name@<sha>`` for a Hub repo (the worker calls ``load_env`` on it: the Hub distributes
+    the code and integrity is verified there), or the folder name of a local env folder whose files travel
+    with the job as ``folder`` (a tar archive, through Ray's object store). ``config`` is the variant's
+    config fields (a local folder); ``identity`` names the exact content (for checkpoints).
+    """
+
+    ref: str
+    identity: str
+    folder: bytes | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+    trust_remote_code: bool = False
+    token: str | None = None
+
+    @classmethod
+    def from_loaded(cls, loaded: Any) -> EnvSource:
+        """The source of an env this process loaded (consent given here carries over to the workers)."""
+        if loaded.local_folder is not None:
+            from hub_envs.envconfig import encode_config
+
+            values = encode_config(loaded.config)
+            config = {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
+            return cls(
+                ref=Path(loaded.local_folder).name,
+                identity=f"{loaded.repo_id}@{loaded.revision}",
+                folder=_tar_folder(Path(loaded.local_folder)),
+                config=config,
+            )
+        ref = f"{loaded.repo_id}@{loaded.revision}"
+        return cls(ref=ref, identity=ref, trust_remote_code=True, token=getattr(loaded, "_token", None))
+
+    def load(self) -> Any:
+        """``load_env`` in this (worker) process; checks already ran where the run was started."""
+        from hub_envs.load import load_env
+
+        if self.folder is None:
+            return load_env(self.ref, trust_remote_code=self.trust_remote_code, check=False, fingerprint="off", token=self.token)
+        root = Path(tempfile.mkdtemp(prefix="hub-envs-worker-"))
+        with tarfile.open(fileobj=io.BytesIO(self.folder), mode="r") as tar:
+            tar.extractall(root, filter="data")
+        return load_env(root / self.ref, check=False, config=self.config or None)
+
+
+def _tar_folder(folder: Path) -> bytes:
+    from hub_envs.repo_format import list_files
+
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for rel in list_files(folder):
+            tar.add(folder / rel, arcname=f"{folder.name}/{rel}", recursive=False)
+    return buf.getvalue()
+
+
+class Backend:
+    """Runs episodes of a loaded env and yields their rollouts in episode order (see the module docstring)."""
+
+    name = "backend"
+
+    def __enter__(self) -> Backend:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        return None
+
+    def episodes(
+        self,
+        loaded: Any,
+        seeds: Sequence[int],
+        *,
+        max_steps: int,
+        policy: Any = None,
+        record_states: bool = False,
+        progress: bool = True,
+        desc: str = "rollouts",
+    ) -> Iterator[EpisodeRollout]:
+        """Rollouts of ``loaded``'s env, one per seed, in seed order (``policy`` as in :func:`~hub_envs.harness.rollout.run_episodes`)."""
+        raise NotImplementedError
+
+    def settings(self) -> dict[str, Any]:
+        """What a report records about where the episodes ran (the results do not depend on it)."""
+        return {"backend": self.name}
+
+
+@dataclass(frozen=True)
+class LocalBackend(Backend):
+    """Episodes in ``workers`` processes of this machine (:func:`hub_envs.harness.rollout.iter_episodes`)."""
+
+    workers: int = 1
+    name = "local"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ConfigError(f"workers={self.workers!r}: pass a positive number of processes.")
+
+    def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts"):
+        return iter_episodes(
+            loaded.make,
+            seeds,
+            max_steps=max_steps,
+            policy=policy,
+            record_states=record_states,
+            workers=self.workers,
+            progress=progress,
+            desc=desc,
+        )
+
+    def settings(self) -> dict[str, Any]:
+        return {"backend": self.name, "workers": self.workers}
+
+
+def make_backend(
+    backend: str | Backend = "local",
+    *,
+    workers: int | None = None,
+    ray_address: str | None = None,
+    checkpoint_dir: str | Path | None = None,
+) -> Backend:
+    """The backend named by ``backend`` (``"local"`` or ``"ray"``), or ``backend`` itself if it is one.
+
+    Args:
+        workers: processes (local; default up to 2) or Ray actors (default: the cluster's CPUs).
+        ray_address: the Ray cluster (``host:port`` or ``ray://host:port``); default ``$RAY_ADDRESS`` if set,
+            else a local Ray started for the run and stopped after it. Ray only.
+        checkpoint_dir: where a Ray run keeps its finished shards; the same run started again skips them.
+    """
+    if isinstance(backend, Backend):
+        return backend
+    if backend == "local":
+        if ray_address is not None:
+            raise ConfigError(f"ray_address={ray_address!r} is for --backend=ray; drop it or pass --backend=ray.")
+        return LocalBackend(workers=int(workers) if workers else _default_local_workers())
+    if backend == "ray":
+        from hub_envs._ray_backend import RayBackend
+
+        return RayBackend(address=ray_address, workers=workers, checkpoint_dir=checkpoint_dir)
+    raise ConfigError(f"backend={backend!r}: choose 'local' (this machine's processes) or 'ray' (a Ray cluster).")

@@ -1,0 +1,209 @@
+"""Evaluate a policy over N seeded episodes of a Hub env, on this machine or on a Ray cluster.
+
+One concept: an *evaluation* is ``episodes`` episodes with reset seeds ``seed, seed + 1, ...`` of the env at
+an exact commit, each run by the policy for at most ``max_steps`` steps (default: the config's
+``episode_length``); its result is the per-episode return and success, and their mean. An episode is a pure
+function of its seed and the policy (:mod:`hub_envs.harness.rollout`), so the metrics are identical on every
+backend (:mod:`hub_envs.backends`) for any number of workers.
+
+Policies: ``None`` / ``"random"`` (the action space sampled, seeded by each episode's seed), a LeRobot
+checkpoint ``"user/policy@<40-hex sha>"`` (loaded once per worker; consent as in ``hub-envs reproduce``:
+``trust_policy_code`` or ``hub-envs trust``), or a Python callable ``(obs, step_index) -> action`` that keeps
+no state across episodes (on Ray it is pickled to each worker once, so it must be importable there).
+
+    hub-envs evaluate --repo_id=user/hover@<sha> --trust_remote_code=true --episodes=500 --backend=ray
+
+This is not LeRobot's ``lerobot-eval`` (``hub-envs eval``), which steps a batch of envs in one process with
+its own seeding: the same seeds give other episodes there.
+
+Example:
+    >>> from hub_envs import evaluate                                                  # doctest: +SKIP
+    >>> evaluate("user/hover@<sha>", episodes=100, backend="ray").mean_return          # doctest: +SKIP
+    -12.3
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs.backends import Backend, make_backend
+from hub_envs.errors import ConfigError
+
+__all__ = ["EvalResult", "evaluate", "EvaluateArgs", "CLI_COMMANDS"]
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """What an evaluation measured (and everything it depended on)."""
+
+    repo_id: str
+    sha: str
+    policy: str
+    seeds: tuple[int, ...]
+    max_steps: int
+    returns: tuple[float, ...]
+    successes: tuple[bool, ...]
+    lengths: tuple[int, ...]
+    versions: dict[str, str]
+    backend: dict[str, Any]
+
+    @property
+    def metrics(self) -> dict[str, float]:
+        """``mean_return``, ``success_rate`` and ``mean_length`` over the episodes."""
+        return {
+            "mean_return": float(np.mean(self.returns)),
+            "success_rate": float(np.mean(self.successes)),
+            "mean_length": float(np.mean(self.lengths)),
+        }
+
+    @property
+    def mean_return(self) -> float:
+        return self.metrics["mean_return"]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["metrics"] = self.metrics
+        return d
+
+    def summary(self) -> str:
+        m = self.metrics
+        return (
+            f"{self.repo_id}@{self.sha}: {len(self.seeds)} episodes of policy {self.policy} "
+            f"(seeds {self.seeds[0]}..{self.seeds[-1]}): mean return {m['mean_return']:.6g}, "
+            f"success rate {m['success_rate']:.3g}, mean length {m['mean_length']:.4g}"
+        )
+
+
+def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust_policy_code: bool) -> tuple[Any, str]:
+    """(what the backend runs, a name for the result)."""
+    if policy is None or policy == "random":
+        return None, "random"
+    if callable(policy):
+        return policy, getattr(policy, "__qualname__", type(policy).__name__)
+    if isinstance(policy, str):
+        from hub_envs.harness.benchmark import _policy_for
+
+        spec = {"type": "lerobot", "checkpoint": policy}
+        built = _policy_for(spec, loaded, token, trust_policy_code)  # consent and loading errors surface here
+        # on a local backend the built policy runs here; a remote worker builds its own from the spec, once
+        return (built if backend.name == "local" else spec), policy
+    raise ConfigError(
+        f"policy={policy!r}: pass None or 'random', a LeRobot checkpoint 'user/policy@<sha>', or a callable (obs, t) -> action."
+    )
+
+
+def evaluate(
+    repo_id: str,
+    *,
+    policy: Any = None,
+    episodes: int = 10,
+    seed: int = 0,
+    max_steps: int | None = None,
+    revision: str | None = None,
+    trust_remote_code: bool = False,
+    trust_policy_code: bool = False,
+    token: str | None = None,
+    backend: str | Backend = "local",
+    workers: int | None = None,
+    ray_address: str | None = None,
+    out: str | Path | None = None,
+    progress: bool = True,
+) -> EvalResult:
+    """Run ``policy`` for ``episodes`` seeded episodes of ``repo_id`` and return the metrics.
+
+    Args:
+        repo_id: ``user/name`` (``@rev`` allowed) or a local env folder. Pin a sha for a reproducible result.
+        policy: see the module docstring.
+        episodes, seed: episode ``i`` resets with seed ``seed + i``.
+        max_steps: at most this many steps per episode (default: the env config's ``episode_length``).
+        backend: ``"local"`` (``workers`` processes) or ``"ray"`` (``ray_address``, default ``$RAY_ADDRESS``, else
+            a local Ray for the run); the result does not depend on it.
+        out: Ray: keep finished shards here (the same evaluation started again skips them), and write
+            ``eval.json``; local: write ``eval.json`` only.
+
+    Raises:
+        hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
+    """
+    from hub_envs.harness.provenance import package_versions
+    from hub_envs.load import load_env
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ConfigError(f"episodes={episodes!r}: pass a positive number of episodes.")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed={seed!r}: pass a non-negative integer (episode i resets with seed + i).")
+    runner = make_backend(
+        backend,
+        workers=workers,
+        ray_address=ray_address,
+        checkpoint_dir=Path(out) / "shards" if out is not None and backend == "ray" else None,
+    )
+    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, fingerprint="off", token=token)
+    try:
+        run_policy, name = _policy(policy, loaded, runner, token, trust_policy_code)
+        steps = int(max_steps) if max_steps is not None else int(loaded.config.episode_length)
+        seeds = [seed + i for i in range(episodes)]
+        returns, successes, lengths = [], [], []
+        with runner:
+            for rollout in runner.episodes(
+                loaded, seeds, max_steps=steps, policy=run_policy, progress=progress, desc=f"Evaluating {name}"
+            ):
+                returns.append(rollout.episode_return)
+                successes.append(rollout.success)
+                lengths.append(rollout.length)
+        result = EvalResult(
+            repo_id=loaded.repo_id,
+            sha=loaded.revision,
+            policy=name,
+            seeds=tuple(seeds),
+            max_steps=steps,
+            returns=tuple(returns),
+            successes=tuple(successes),
+            lengths=tuple(lengths),
+            versions=package_versions(loaded.manifest.requirements),
+            backend=runner.settings(),
+        )
+    finally:
+        loaded.unregister()
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "eval.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
+    return result
+
+
+# --- CLI ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class EvaluateArgs(EnvFlags):
+    """Evaluate a policy over N seeded episodes of an env repo (locally or on a Ray cluster)."""
+
+    policy: str = "random"  # 'random' or a LeRobot checkpoint user/policy@<sha>
+    trust_policy_code: bool = False  # consent to load the policy checkpoint (another repo than the env)
+    episodes: int = 10
+    seed: int = 0  # episode i resets with seed + i
+    max_steps: int | None = None  # default: the env config's episode_length
+    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
+    workers: int = 0  # 0: up to 2 processes (local), the cluster's CPUs (ray)
+    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
+    out: Path | None = None  # eval.json here; on Ray also the finished shards (a re-run skips them)
+    json: bool = False  # print the result as JSON
+
+
+def evaluate_cli(args: EvaluateArgs) -> int:
+    if args.repo_id is None:
+        raise ConfigError("hub-envs evaluate needs --repo_id=user/name@<sha> (or a local folder).")
+    if args.isolation != "none" or args.sandbox:
+        raise ConfigError("hub-envs evaluate: --isolation/--sandbox are not supported yet; drop them.")
+    result = call_with_flags(evaluate, args, args.repo_id, workers=args.workers or None)
+    print(json.dumps(result.to_dict(), indent=2) if args.json else result.summary(), file=sys.stdout)
+    return 0
+
+
+CLI_COMMANDS = {"evaluate": (EvaluateArgs, evaluate_cli)}
