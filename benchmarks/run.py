@@ -40,6 +40,7 @@ MODULES: dict[str, dict] = {
     "bench_isolation": {"repeats": 5},
     "bench_lfs": {"push_mb": 1024, "size_mb": 64, "big_mb": 200, "repeats": 9},
     "bench_video": {"episodes": 20},
+    "bench_ray": {"repeats": 2},
 }
 
 GE, LE, EQ = (">=", operator.ge), ("<=", operator.le), ("==", operator.eq)
@@ -92,6 +93,15 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "video_write_vs_png": ("bench_video", None, "seconds writing that dataset: MP4 ÷ PNG"),
     "video_worst_mean_abs_error": ("bench_video", None, "worst decoded frame's mean |error| (0-255; replay accepts <= 8)"),
     "video_min_psnr_db": ("bench_video", None, "lowest per-frame PSNR of the decoded frames (dB)"),
+    "ray_vs_local_reproduce": (
+        "bench_ray",
+        (GE, 0.8),
+        "episodes/s, 200-episode hover reproduce: local Ray (2 CPUs) ÷ local backend (2 workers)",
+    ),
+    "ray_startup_s": ("bench_ray", None, "seconds: ray.init of that local Ray"),
+    "ray_first_run_s": ("bench_ray", None, "seconds: its first reproduce (workers start, import, load the env)"),
+    "ray_episode_ms": ("bench_ray", None, "ms of wall time per reproduced episode on Ray (2 workers)"),
+    "local_episode_ms": ("bench_ray", None, "  same, local backend"),
 }
 
 
