@@ -29,6 +29,23 @@ ENVS = Path(__file__).resolve().parent.parent / "envs"
 NODE = {"num_cpus": 1, "object_store_memory": 80 * 2**20}
 
 
+def _start_cluster(attempts: int = 3) -> Cluster:
+    """A head and one more node. Ray gives a raylet 30 s (hard-coded) to register: on a saturated machine
+    that can run out, so a failed start is cleaned up and tried again."""
+    for attempt in range(attempts):
+        c = Cluster(initialize_head=False)
+        try:
+            c.add_node(**NODE, include_dashboard=False)  # the first node is the head
+            c.add_node(**NODE)
+            c.wait_for_nodes()
+            return c
+        except Exception:
+            c.shutdown()
+            if attempt == attempts - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
 @pytest.fixture(scope="module")
 def cluster(hub_module):
     # Ray replaces 127.0.0.1 by this machine's outward address (services.resolve_ip_for_localhost) unless
@@ -37,10 +54,8 @@ def cluster(hub_module):
         mp.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # for the cluster's processes
         mp.setattr(ray._private.ray_constants, "ENABLE_RAY_CLUSTER", False)  # for this driver (read at import)
         mp.setenv("RAY_DEDUP_LOGS", "0")
-        c = Cluster(initialize_head=True, head_node_args={**NODE, "include_dashboard": False})
+        c = _start_cluster()
         try:
-            c.add_node(**NODE)
-            c.wait_for_nodes()
             assert c.address.startswith("127.0.0.1:")
             # one driver connection for the module: every run below reuses it (a run connects by itself otherwise)
             ray.init(address=c.address, log_to_driver=False, logging_level="warning")
