@@ -288,7 +288,7 @@ def _run_policy(loaded: Any, label: str, spec: dict, seeds: list[int], **kw: Any
     )
     if not run.runnable:
         raise ReproductionError(f"policy {label}: {run.result.error}")
-    result = run.run(loaded.make, workers=kw["workers"], progress=kw["progress"])
+    result = run.run(loaded, workers=kw["workers"], progress=kw["progress"])
     metrics = {m.name: m for m in result.metrics}
     returns = tuple(float(r) for r in result.reproduced_per_episode["return"])
     successes = tuple(bool(s) for s in result.reproduced_per_episode["success"])
