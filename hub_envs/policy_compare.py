@@ -39,7 +39,7 @@ from typing import Any
 
 from hub_envs._flags import EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError, ReproductionError
-from hub_envs.harness.report_files import ReportFiles
+from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 
 __all__ = ["compare", "CompareReport", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
 
@@ -124,7 +124,7 @@ class CompareReport(ReportFiles):
 
     def summary(self) -> str:
         conf = int(100 * self.settings["confidence"])
-        lines = [f"Compared on {self.repo_id}@{self.sha}: {len(self.seeds)} episodes, seeds {_seeds_text(self.seeds)}"]
+        lines = [f"Compared on {self.repo_id}@{self.sha}: {len(self.seeds)} episodes, seeds {seeds_text(self.seeds)}"]
         lines += [f"  {p.summary()}" for p in self.policies]
         lines += [f"  {d.summary()}" for d in self.differences]
         lines.append(f"  ({conf}% bootstrap intervals, {self.settings['resamples']} resamples)")
@@ -146,15 +146,12 @@ class CompareReport(ReportFiles):
             "timings": self.timings,
         }
 
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
-
     def to_markdown(self) -> str:
         conf = int(100 * self.settings["confidence"])
         out = [
             f"# Policy comparison on `{self.repo_id}`",
             "",
-            f"Commit `{self.sha}`, {len(self.seeds)} episodes per policy on the same reset seeds ({_seeds_text(self.seeds)}), "
+            f"Commit `{self.sha}`, {len(self.seeds)} episodes per policy on the same reset seeds ({seeds_text(self.seeds)}), "
             f"{conf}% bootstrap intervals ({self.settings['resamples']} resamples, seeded).",
             "",
             "| policy | success rate | CI | mean return | CI | episodes for ±5 points |",
@@ -231,15 +228,7 @@ class CompareReport(ReportFiles):
             ax.set_title(f"return: {labels[0]} - {labels[1]}", fontsize=9)
             ax.legend(fontsize=7, loc="best")
         fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {len(self.seeds)} paired episodes", fontsize=10)
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        return path
-
-
-def _seeds_text(seeds: list[int]) -> str:
-    return f"{seeds[0]}…{seeds[-1]}" if len(seeds) > 3 else ", ".join(map(str, seeds))
+        return save_figure(fig, path)
 
 
 def policy_spec(text: str, *, token: str | None = None) -> dict[str, Any]:
@@ -429,13 +418,8 @@ def compare(
                 "half_width": HALF_WIDTH,
             },
         )
-        report.timings = {k: round(v, 4) for k, v in timings.items()}  # in the files: load and each policy
-        if write:
-            t = time.perf_counter()
-            parts = [p for p in loaded.repo_id.split("/") if p not in ("", ".", "..")]
-            report.write(Path(out) if out is not None else DEFAULT_OUT.joinpath(*parts))
-            report.timings["report"] = round(time.perf_counter() - t, 4)
-        report.timings["total"] = round(time.perf_counter() - t0, 4)
+        # in the files: load and each policy
+        report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
     finally:
         loaded.unregister()

@@ -47,6 +47,7 @@ from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
+from hub_envs.harness.report_files import default_out_dir
 
 __all__ = [
     "reproduce",
@@ -59,11 +60,6 @@ __all__ = [
 ]
 
 DEFAULT_OUT = Path("reproduce-out")
-
-
-def default_out_dir(repo_id: str) -> Path:
-    """``reproduce-out/<user>/<name>/`` (local folders: ``reproduce-out/local/<folder>/``)."""
-    return DEFAULT_OUT.joinpath(*[p for p in repo_id.split("/") if p not in ("", ".", "..")])
 
 
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
@@ -376,12 +372,7 @@ def reproduce(
                 "source": "folder" if loaded.local_folder is not None else "hub",
             },
         )
-        report.timings = {k: round(v, 4) for k, v in timings.items()}
-        if write:
-            t = time.perf_counter()
-            report.write(Path(out) if out is not None else default_out_dir(loaded.repo_id))
-            report.timings["report"] = round(time.perf_counter() - t, 4)  # not in the files: they are written by then
-        report.timings["total"] = round(time.perf_counter() - t0, 4)
+        report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
     finally:
         loaded.unregister()

@@ -40,7 +40,7 @@ import numpy as np
 
 from hub_envs._flags import call_with_flags
 from hub_envs.errors import ConfigError, HubEnvsError
-from hub_envs.harness.report_files import ReportFiles
+from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
 from hub_envs.repo_format import (
     CARD_FILE,
     DATASET_DIR,
@@ -427,10 +427,7 @@ class DiffReport(ReportFiles):
             ax.set_xlabel("step")
             ax.set_ylabel("|new - old|")
             ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        return path
+        return save_figure(fig, path, dpi=90)
 
 
 # --- the operation ------------------------------------------------------------------------------
@@ -629,12 +626,7 @@ def diff(
                 "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
             },
         )
-        report.timings = {k: round(v, 4) for k, v in timings.items()}
-        if write:
-            t = time.perf_counter()
-            report.write(Path(out) if out is not None else DEFAULT_OUT.joinpath(*b.repo_id.split("/")))
-            report.timings["report"] = round(time.perf_counter() - t, 4)
-        report.timings["total"] = round(time.perf_counter() - t0, 4)
+        report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, b.repo_id), write=write)
         return report
     finally:
         for side in loaded:

@@ -20,7 +20,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 from hub_envs.harness.benchmark import BenchmarkResult
 from hub_envs.harness.replay import ReplayResult
-from hub_envs.harness.report_files import REPORT_JSON, REPORT_MD, REPORT_PNG, ReportFiles
+from hub_envs.harness.report_files import REPORT_JSON, REPORT_MD, REPORT_PNG, ReportFiles, save_figure, seeds_text
 
 __all__ = ["ReproduceReport", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
 
@@ -151,9 +150,6 @@ class ReproduceReport(ReportFiles):
             }
         )
 
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
-
     def to_markdown(self) -> str:
         p = self.provenance
         out = [
@@ -237,8 +233,8 @@ class ReproduceReport(ReportFiles):
             f"| content digest | `{p.get('content_digest', '-')}` |",
             f"| code digest (this commit / the dataset's env_meta) | `{p.get('code_digest', '-')}` / `{p.get('dataset_code_digest', '-')}` |",
             f"| dataset fingerprint (computed / published) | `{p.get('dataset_fingerprint', '-')}` / `{p.get('published_dataset_fingerprint', '-')}` |",
-            f"| dataset seeds | {_seeds_text(p.get('seeds', {}).get('dataset', []))} |",
-            f"| fingerprint seeds | {_seeds_text(p.get('seeds', {}).get('fingerprint', []))} |",
+            f"| dataset seeds | {seeds_text(p.get('seeds', {}).get('dataset', []))} |",
+            f"| fingerprint seeds | {seeds_text(p.get('seeds', {}).get('fingerprint', []))} |",
             f"| generated | {p.get('generated_at', '-')} with hub-envs {p.get('hub_envs_version', '-')} |",
             "",
             "| package | published with | here | |",
@@ -310,14 +306,4 @@ class ReproduceReport(ReportFiles):
                 ax.set_title(f"replay divergence, episode {item.episode} (first at step {first.step if first else '-'})")
                 ax.legend(loc="best", fontsize=8)
         fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {self.verdict()}", fontsize=10)
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        return path
-
-
-def _seeds_text(seeds: list) -> str:
-    if not seeds:
-        return "-"
-    return f"{seeds[0]}…{seeds[-1]} ({len(seeds)})" if len(seeds) > 4 else ", ".join(map(str, seeds))
+        return save_figure(fig, path)

@@ -1,16 +1,20 @@
-"""A report written as files, for every report hub-envs writes (reproduce, diff). Imports nothing heavy:
-``hub-envs diff --help`` reaches it.
+"""A report written as files, for every report hub-envs writes (reproduce, diff, compare). Imports nothing
+heavy: ``hub-envs diff --help`` reaches it.
 
-    >>> import tempfile
+    >>> import tempfile, time
     >>> class Note(ReportFiles):
-    ...     def to_json(self): return "{}"
+    ...     def to_dict(self): return {"ok": True}
     ...     def to_markdown(self): return "# note"
-    >>> sorted(Note().write(tempfile.mkdtemp()))
-    ['json', 'markdown']
+    >>> note = Note()
+    >>> note.finish({"load": 0.5}, time.perf_counter(), out=tempfile.mkdtemp(), default=Path("notes-out"))
+    >>> sorted(note.paths), sorted(note.timings), json.loads(note.to_json())
+    (['json', 'markdown'], ['load', 'report', 'total'], {'ok': True})
 """
 
 from __future__ import annotations
 
+import json
+import time
 from pathlib import Path
 
 REPORT_JSON = "report.json"
@@ -23,12 +27,17 @@ class ReportFiles:
     has a plot (:meth:`plot` returns its path; None without one, or without matplotlib, the ``plots`` extra)."""
 
     paths: dict[str, str]
+    timings: dict[str, float]
 
     def plot(self, path: Path) -> Path | None:
         return None
 
-    def to_json(self) -> str:
+    def to_dict(self) -> dict:
         raise NotImplementedError
+
+    def to_json(self) -> str:
+        """Canonical JSON of :meth:`to_dict` (sorted keys, fixed indentation; NaN refused)."""
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
     def to_markdown(self) -> str:
         raise NotImplementedError
@@ -44,3 +53,45 @@ class ReportFiles:
         (out / REPORT_MD).write_text(self.to_markdown(), encoding="utf-8")  # the Markdown links the PNG by name
         (out / REPORT_JSON).write_text(self.to_json(), encoding="utf-8")
         return dict(self.paths)
+
+    def finish(self, timings: dict[str, float], t0: float, *, out: str | Path | None, default: Path, write: bool = True) -> None:
+        """Record ``timings`` (seconds; they go into the files), write the files into ``out`` (default:
+        ``default``) unless ``write`` is False, then add the time that took (``report``) and the time since
+        ``t0`` (``total``), which the files written by then do not hold."""
+        self.timings = {k: round(v, 4) for k, v in timings.items()}
+        if write:
+            t = time.perf_counter()
+            self.write(Path(out) if out is not None else default)
+            self.timings["report"] = round(time.perf_counter() - t, 4)
+        self.timings["total"] = round(time.perf_counter() - t0, 4)
+
+
+def default_out_dir(root: str | Path, repo_id: str) -> Path:
+    """``root/<user>/<name>``, the default folder of a report about ``repo_id`` (no ``..`` or empty parts).
+
+    >>> default_out_dir("reproduce-out", "alice/../hover").as_posix()
+    'reproduce-out/alice/hover'
+    """
+    return Path(root).joinpath(*[p for p in repo_id.split("/") if p not in ("", ".", "..")])
+
+
+def seeds_text(seeds: list) -> str:
+    """Seeds as a report shows them: all of up to four, else the first, the last and how many.
+
+    >>> seeds_text([0, 1, 2]), seeds_text(list(range(10))), seeds_text([])
+    ('0, 1, 2', '0…9 (10)', '-')
+    """
+    if not seeds:
+        return "-"
+    return f"{seeds[0]}…{seeds[-1]} ({len(seeds)})" if len(seeds) > 4 else ", ".join(map(str, seeds))
+
+
+def save_figure(fig, path: str | Path, *, dpi: int = 100) -> Path:
+    """Save a matplotlib figure as a report's PNG (laid out tight) and close it; its path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path

@@ -857,13 +857,19 @@ class Repo:
             return commit
 
     def delete_branch(self, branch: str) -> None:
+        if branch == DEFAULT_BRANCH:
+            raise InvalidOperationError(f"Cannot delete the default branch {DEFAULT_BRANCH!r}.")
+        self._delete_ref(branch, tag=False)
+
+    def _delete_ref(self, name: str, *, tag: bool) -> None:
         with self.store.lock(self.key):
             refs = self.refs()
-            if branch not in refs.branches:
-                raise RevisionNotFoundError(f"Invalid rev id: {branch}")
-            if branch == DEFAULT_BRANCH:
-                raise InvalidOperationError(f"Cannot delete the default branch {DEFAULT_BRANCH!r}.")
-            del refs.branches[branch]
+            table = refs.tags if tag else refs.branches
+            if name not in table:
+                raise RevisionNotFoundError(f"Invalid rev id: {name}")
+            del table[name]
+            if tag:
+                refs.tag_messages.pop(name, None)
             self._write_refs(refs)
 
     def create_tag(self, tag: str, revision: str, message: str | None = None) -> Commit:
@@ -881,13 +887,7 @@ class Repo:
             return commit
 
     def delete_tag(self, tag: str) -> None:
-        with self.store.lock(self.key):
-            refs = self.refs()
-            if tag not in refs.tags:
-                raise RevisionNotFoundError(f"Invalid rev id: {tag}")
-            del refs.tags[tag]
-            refs.tag_messages.pop(tag, None)
-            self._write_refs(refs)
+        self._delete_ref(tag, tag=True)
 
     # -- history --
 
