@@ -212,9 +212,22 @@ def _card_shows(repo_id: str, sha: str, table: str, token: str | None) -> bool:
     return table in card if table else "## Reproduced on" not in card
 
 
+def _cameras(cfg: Any) -> list[tuple[int, ...]]:
+    """The shapes of the env config's VISUAL features (its cameras)."""
+    return [tuple(ft.shape) for ft in cfg.features.values() if str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL")]
+
+
 def _has_cameras(cfg: Any) -> bool:
     """Whether the env's config declares a VISUAL feature (a camera: stored as video by default, as LeRobot does)."""
-    return any(str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL") for ft in cfg.features.values())
+    return bool(_cameras(cfg))
+
+
+def _default_video(cfg: Any) -> bool:
+    """Video by default when the env has cameras the encoder takes (frames of at least MIN_VIDEO_SIDE px)."""
+    from hub_envs.dataset.video import MIN_VIDEO_SIDE
+
+    shapes = _cameras(cfg)
+    return bool(shapes) and all(len(s) >= 2 and min(s[:2]) >= MIN_VIDEO_SIDE for s in shapes)
 
 
 def _dataset_uses_video(dataset: dict[str, Any]) -> bool:
@@ -540,7 +553,8 @@ def push_env(
     ``__post_init__`` (``{"obs_type": "pixels_agent_pos"}``; the CLI's ``--config.<field>=<value>``): the
     variant is published from the same folder, and load_env rebuilds it from the manifest. ``video``: store
     camera (VISUAL) features as MP4 videos encoded by LeRobot's own encoder (dtype ``"video"``, LeRobot's default
-    for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features.
+    for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features
+    of at least :data:`~hub_envs.dataset.video.MIN_VIDEO_SIDE` px a side (smaller frames crash the encoder).
     Replay compares video frames within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE` (the codec is lossy).
 
     ``backend="ray"`` generates the dataset on a Ray cluster (``ray_address``, default ``$RAY_ADDRESS`` or a
@@ -564,7 +578,7 @@ def push_env(
     loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
         attestations = _merged_attestations(repo_id, token)
-        video = _has_cameras(loaded.config) if video is None else bool(video)
+        video = _default_video(loaded.config) if video is None else bool(video)
         unchanged = (
             None
             if force

@@ -157,6 +157,27 @@ def test_video_datasets_are_byte_deterministic(tmp_path, video_ds):
     assert again.fingerprint == summary.fingerprint == dataset_fingerprint(root)
 
 
+def test_encoding_leaves_the_process_scheduling_as_it_was(tmp_path):
+    """libsvtav1 makes the thread that encodes SCHED_FIFO 99 when it runs as root; hub-envs puts the policy
+    back, or every process forked afterwards (rollout pools, env workers) would run real-time."""
+    import os
+
+    from hub_envs.dataset.video import encode_episode
+
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    frames = np.random.default_rng(0).integers(0, 255, (3, 32, 32, 3), dtype=np.uint8)
+    encode_episode(frames, tmp_path / "episode.mp4", 10)
+    assert (os.sched_getscheduler(0), os.sched_getparam(0)) == before
+
+
+def test_frames_too_small_for_the_encoder_are_refused_not_a_crash(tmp_path):
+    """libsvtav1 kills the process (SIGFPE) on frames under 28 px: a typed error names the size and the fix."""
+    from hub_envs.dataset.video import encode_episode
+
+    with pytest.raises(errors.DatasetError, match=r"16x16 px .* --video=false"):
+        encode_episode(np.zeros((3, 16, 16, 3), np.uint8), tmp_path / "episode.mp4", 10)
+
+
 def test_small_video_files_roll_over_and_decode(tmp_path):
     """Past video_files_size_in_mb a new file starts; each episode decodes from the file its metadata names."""
     root = tmp_path / "many"

@@ -25,6 +25,7 @@ states, PNG images) stays exact. A frame that is a different picture (an object 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from dataclasses import dataclass
@@ -72,6 +73,10 @@ class VideoTolerance:
 #: room for other renders while a different picture (a moved camera, other colours) is far above it.
 VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=8.0)
 
+#: the smallest frame side LeRobot's AV1 encoder takes here: libsvtav1 dies with SIGFPE (the whole process, no
+#: exception) on frames narrower than 28 px (measured: 24 px crashes, 28 px encodes); push stores such cameras as PNGs
+MIN_VIDEO_SIDE = 32
+
 
 def frame_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
     """Per-frame mean ``|replay - data|`` (uint8 frames ``(T, H, W, C)``) as float64."""
@@ -93,6 +98,27 @@ def psnr(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
 # --- writing ----------------------------------------------------------------------------------
 
 
+@contextlib.contextmanager
+def _scheduling_kept():
+    """Restore the calling thread's scheduling policy after the block. libsvtav1 (LeRobot's AV1 encoder,
+    through pyav) switches the thread that opens an encoder to SCHED_FIFO at priority 99 when it runs as root;
+    every process forked afterwards (rollout pools, isolated env workers, servers) inherits that, and a busy
+    real-time process never yields its core: a hung env then starves the process that should time it out."""
+    try:
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    except (AttributeError, OSError):  # not Linux
+        yield
+        return
+    try:
+        yield
+    finally:
+        try:
+            if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
+                os.sched_setscheduler(0, policy, param)
+        except OSError:
+            pass
+
+
 def encode_episode(frames: np.ndarray, out: Path, fps: int) -> tuple[Path, float, int]:
     """Encode one episode's ``(T, H, W, 3)`` uint8 frames to ``out`` with LeRobot's ``encode_video_frames``.
 
@@ -104,12 +130,19 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int) -> tuple[Path, float
     video_utils = lerobot_video_utils()
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
         raise DatasetError(f"{out.name}: video frames must be uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}.")
+    if min(frames.shape[1:3]) < MIN_VIDEO_SIDE:
+        raise DatasetError(
+            f"{out.name}: frames of {frames.shape[1]}x{frames.shape[2]} px are below the {MIN_VIDEO_SIDE} px LeRobot's AV1 "
+            f"encoder (libsvtav1) can take (it crashes the process on them). Push with --video=false: the frames "
+            f"are stored as PNGs."
+        )
     scratch = out.parent / f".{out.stem}-frames"
     scratch.mkdir(parents=True, exist_ok=True)
     try:
         for i, png in enumerate(encode_png(frames)):
             (scratch / f"frame-{i:06d}.png").write_bytes(png)
-        video_utils.encode_video_frames(scratch, out, fps, overwrite=True)
+        with _scheduling_kept():
+            video_utils.encode_video_frames(scratch, out, fps, overwrite=True)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return out, float(video_utils.get_video_duration_in_s(out)), out.stat().st_size

@@ -224,6 +224,11 @@ def main(argv: list[str] | None = None) -> None:
     from multiprocessing.connection import Connection
 
     set_parent_death_signal()
+    try:  # never real-time (inherited from a parent some library made so): a busy env must not starve its watchdog
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
     argv = sys.argv[1:] if argv is None else argv
     conn = Connection(int(argv[0]))
     if os.getppid() == 1:  # the parent died before the death signal was armed
