@@ -277,7 +277,7 @@ def _run_policy(loaded: Any, label: str, spec: dict, seeds: list[int], **kw: Any
     )
     if not run.runnable:
         raise ReproductionError(f"policy {label}: {run.result.error}")
-    result = run.run(loaded, workers=kw["workers"], progress=kw["progress"])
+    result = run.run(loaded, progress=kw["progress"], backend=kw["backend"])
     metrics = {m.name: m for m in result.metrics}
     returns = tuple(float(r) for r in result.reproduced_per_episode["return"])
     successes = tuple(bool(s) for s in result.reproduced_per_episode["success"])
@@ -334,6 +334,8 @@ def compare(
     sandbox: bool = False,
     versions: str = "current",
     step_timeout: float | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> CompareReport:
     """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired.
 
@@ -342,6 +344,9 @@ def compare(
         policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder, a Hub repo id.
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
         isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`).
+        backend, ray_address: where the episodes run (:func:`hub_envs.make_backend`: ``"local"`` processes, or
+            ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
+            must then exist at the same path on every node).
     """
     from hub_envs import __version__
     from hub_envs.harness.provenance import package_versions
@@ -353,7 +358,10 @@ def compare(
         raise ConfigError(f"--episodes={episodes}: a confidence interval needs at least 2 episodes (20 or more is sensible).")
     if not 0 < confidence < 1:
         raise ConfigError(f"confidence={confidence}: pass a level between 0 and 1, e.g. 0.95.")
+    from hub_envs.backends import make_backend
+
     workers = int(workers) if workers else max(1, min(2, __import__("os").cpu_count() or 1))
+    runner = make_backend(backend, workers=workers, ray_address=ray_address)
     t0 = time.perf_counter()
     specs = [policy_spec(p, token=token) for p in policies]
     labels = _labels([p.strip() for p in policies])
@@ -377,14 +385,15 @@ def compare(
             bootstrap_seed=seed,
             token=token,
             trust_policy_code=trust_policy_code,
-            workers=workers,
             progress=progress,
+            backend=runner,
         )
         results = []
-        for label, spec in zip(labels, specs):
-            t = time.perf_counter()
-            results.append(_run_policy(loaded, label, spec, seeds, **kw))
-            timings[f"policy {label}"] = time.perf_counter() - t
+        with runner:
+            for label, spec in zip(labels, specs):
+                t = time.perf_counter()
+                results.append(_run_policy(loaded, label, spec, seeds, **kw))
+                timings[f"policy {label}"] = time.perf_counter() - t
         diffs = [
             _paired(results[i], results[j], resamples=resamples, confidence=confidence, seed=seed)
             for i in range(len(results))
@@ -414,6 +423,7 @@ def compare(
                 "resamples": resamples,
                 "confidence": confidence,
                 "workers": workers,
+                "backend": runner.settings(),
                 "isolation": isolation + ("+sandbox" if sandbox else ""),
                 "half_width": HALF_WIDTH,
             },
@@ -439,6 +449,8 @@ class CompareArgs(EnvFlags):
     workers: int = 0  # 0: up to 2 processes
     resamples: int = 1000
     out: Path | None = None  # default compare-out/<user>/<name>/
+    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
+    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     json: bool = False
 
 

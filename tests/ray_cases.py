@@ -170,6 +170,20 @@ def test_eval_metrics_are_the_same_on_both_backends(cluster, tiny):
     assert remote.backend["backend"] == "ray" and remote.sha == good
 
 
+def test_compare_on_ray_gives_the_local_comparison(cluster, tiny, tmp_path):
+    """``hub-envs compare --backend=ray``: the same per-seed returns and paired differences as on local processes."""
+    from hub_envs import compare
+
+    good, _ = tiny
+    ref = f"ray/tiny@{good}"
+    options = dict(episodes=4, seed=3, trust_remote_code=True, progress=False, write=False)
+    local = compare(ref, ["random", "random"], workers=2, **options)
+    remote = compare(ref, ["random", "random"], backend="ray", ray_address=cluster.address, **options)
+    assert [p.returns for p in remote.policies] == [p.returns for p in local.policies]
+    assert remote.differences[0].return_differences == local.differences[0].return_differences == (0.0,) * 4
+    assert remote.settings["backend"]["backend"] == "ray" and local.settings["backend"]["backend"] == "local"
+
+
 def _loaded(sha: str):
     loaded = load_env(f"ray/tiny@{sha}", trust_remote_code=True, check=False, fingerprint="off")
     return loaded

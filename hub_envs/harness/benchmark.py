@@ -372,11 +372,14 @@ class BenchmarkRun:
         t = time.perf_counter()
         try:
             if self.runnable:
+                policy = self.policy
+                if policy is not None and backend.name != "local" and isinstance(self.benchmark.get("policy"), dict):
+                    policy = dict(self.benchmark["policy"])  # a remote worker builds its own from the spec, once
                 for rollout in backend.episodes(
                     loaded,
                     self.seeds,
                     max_steps=self.max_steps,
-                    policy=self.policy,
+                    policy=policy,
                     progress=progress,
                     desc=f"Benchmark {self.name}",
                 ):
