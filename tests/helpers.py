@@ -53,3 +53,15 @@ def republish(
         info = api.upload_folder(repo_id=repo_id, folder_path=str(work), commit_message=message, delete_patterns=["*"])
     shutil.rmtree(work)
     return info.oid
+
+
+def comparable_report(report) -> dict:
+    """A reproduction report as a dict, minus what differs between identical runs (wall-clock times, settings)."""
+    d = report.to_dict()
+    d["provenance"].pop("generated_at")
+    d["replay"].pop("seconds")
+    for b in d["benchmarks"]:
+        b.pop("seconds")
+    d.pop("settings")
+    d.pop("timings")
+    return d

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import ray
-from helpers import TINY, republish
+from helpers import TINY, comparable_report, republish
 from ray.cluster_utils import Cluster
 
 from hub_envs import errors, evaluate, load_env, push_env, reproduce
@@ -71,17 +71,6 @@ def cluster(hub_module):
 def _gain(folder: Path) -> None:
     path = folder / "dynamics.py"
     path.write_text(path.read_text().replace("GAIN = 1.0\n", "GAIN = 1.05\n"))
-
-
-def _comparable(report) -> dict:
-    d = report.to_dict()
-    d["provenance"].pop("generated_at")
-    d["replay"].pop("seconds")
-    for b in d["benchmarks"]:
-        b.pop("seconds")
-    d.pop("settings")
-    d.pop("timings")
-    return d
 
 
 def _busy_workers() -> list[int]:
@@ -150,7 +139,7 @@ def test_reproduce_on_ray_passes_and_finds_the_same_divergence(cluster, tiny, tm
         local.replay.first_divergence.step,
         local.replay.first_divergence.feature,
     )
-    assert _comparable(remote) == _comparable(local)  # the whole report, timings aside
+    assert comparable_report(remote) == comparable_report(local)  # the whole report, timings aside
 
 
 # --- evaluation, worker deaths, resumed runs ------------------------------------------------------

@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import TINY, copy_env, republish
+from helpers import TINY, comparable_report, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.cli import main as cli_main
@@ -56,18 +56,6 @@ def _edit_dataset_value(folder: Path, key: str, episode: int, frame: int, elemen
     i = table.schema.get_field_index(key)
     table = table.set_column(i, table.schema.field(i), pa.array(values, type=table.schema.field(i).type))
     pq.write_table(table, path)
-
-
-def _comparable(report) -> dict:
-    """The report minus wall-clock fields."""
-    d = report.to_dict()
-    d["provenance"].pop("generated_at")
-    d["replay"].pop("seconds")
-    for b in d["benchmarks"]:
-        b.pop("seconds")
-    d.pop("settings")
-    d.pop("timings")
-    return d
 
 
 # --- the example envs reproduce their own datasets -----------------------------------------------
@@ -232,7 +220,7 @@ def test_results_are_identical_with_1_and_2_workers(hub, tmp_path):
     one = reproduce("alice/tiny-workers", revision=sha, trust_remote_code=True, workers=1, out=tmp_path / "w1", progress=False)
     two = reproduce("alice/tiny-workers", revision=sha, trust_remote_code=True, workers=2, out=tmp_path / "w2", progress=False)
     assert len(one.replay.diverged) == 4 and one.replay.diverged[0].error_curve  # something substantial to compare
-    assert _comparable(one) == _comparable(two)
+    assert comparable_report(one) == comparable_report(two)
 
 
 # --- a modified dataset ------------------------------------------------------------------------
