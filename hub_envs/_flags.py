@@ -1,5 +1,6 @@
 """Command-line flags and how they reach the Python API: the flags every command that loads an env
-shares (``hub-envs load``, ``hub-envs reproduce``), and :func:`call_with_flags`, which passes a command's
+shares (``hub-envs load``, ``reproduce``, ``evaluate``, ``compare``; ``diff``, which loads two, takes
+:class:`CodeFlags`, the part without ``--repo_id``), and :func:`call_with_flags`, which passes a command's
 flags to the function of the same parameters, so a new flag is one dataclass field, not one more line
 in each command.
 
@@ -24,16 +25,22 @@ _KEYWORD = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_O
 
 
 @dataclass
-class EnvFlags:
-    """Which env (``--repo_id``, ``--revision``), the consent to run its code, and how it runs."""
+class CodeFlags:
+    """The consent to run an env repo's code, and how it runs (``hub-envs diff`` loads two, so has no ``--repo_id``)."""
 
-    repo_id: str | None = None
-    revision: str | None = None
     trust_remote_code: bool = False
     isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
     sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
     versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
     step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
+
+
+@dataclass
+class EnvFlags(CodeFlags):
+    """Which env (``--repo_id``, ``--revision``), the consent to run its code, and how it runs."""
+
+    repo_id: str | None = None
+    revision: str | None = None
 
 
 def call_with_flags(fn: Callable[..., T], flags: Any, *args: Any, **overrides: Any) -> T:

@@ -53,6 +53,7 @@ class EvalResult:
     lengths: tuple[int, ...]
     versions: dict[str, str]
     backend: dict[str, Any]
+    isolation: str = "none"  # how the env's code ran: none, process, venv (+sandbox)
 
     @property
     def metrics(self) -> dict[str, float]:
@@ -115,6 +116,10 @@ def evaluate(
     ray_address: str | None = None,
     out: str | Path | None = None,
     progress: bool = True,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
+    step_timeout: float | None = None,
 ) -> EvalResult:
     """Run ``policy`` for ``episodes`` seeded episodes of ``repo_id`` and return the metrics.
 
@@ -127,6 +132,8 @@ def evaluate(
             a local Ray for the run); the result does not depend on it.
         out: Ray: keep finished shards here (the same evaluation started again skips them), and write
             ``eval.json``; local: write ``eval.json`` only.
+        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`); the
+            policy runs in this process, the env in its worker processes.
 
     Raises:
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
@@ -144,7 +151,17 @@ def evaluate(
         ray_address=ray_address,
         checkpoint_dir=Path(out) / "shards" if out is not None and backend == "ray" else None,
     )
-    loaded = load_env(repo_id, revision=revision, trust_remote_code=trust_remote_code, fingerprint="off", token=token)
+    loaded = load_env(
+        repo_id,
+        revision=revision,
+        trust_remote_code=trust_remote_code,
+        fingerprint="off",
+        token=token,
+        isolation=isolation,
+        sandbox=sandbox,
+        versions=versions,
+        step_timeout=step_timeout,
+    )
     try:
         run_policy, name = _policy(policy, loaded, runner, token, trust_policy_code)
         steps = int(max_steps) if max_steps is not None else int(loaded.config.episode_length)
@@ -168,6 +185,7 @@ def evaluate(
             lengths=tuple(lengths),
             versions=package_versions(loaded.manifest.requirements),
             backend=runner.settings(),
+            isolation=isolation + ("+sandbox" if sandbox else ""),
         )
     finally:
         loaded.unregister()
@@ -199,8 +217,6 @@ class EvaluateArgs(EnvFlags):
 def evaluate_cli(args: EvaluateArgs) -> int:
     if args.repo_id is None:
         raise ConfigError("hub-envs evaluate needs --repo_id=user/name@<sha> (or a local folder).")
-    if args.isolation != "none" or args.sandbox:
-        raise ConfigError("hub-envs evaluate: --isolation/--sandbox are not supported yet; drop them.")
     result = call_with_flags(evaluate, args, args.repo_id, workers=args.workers or None)
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.summary(), file=sys.stdout)
     return 0

@@ -11,13 +11,19 @@
    Per seed: the first divergent step, feature and element with both
    values, and the per-step error curves. The golden fingerprints are compared (recorded, and recomputed on both),
    and the paired per-seed return / success deltas get a seed-paired bootstrap CI.
-3. ``report.json``, ``report.md`` and (with matplotlib) ``report.png`` in ``out``.
+3. **Benchmarks**: each benchmark the old revision declares (``hub_env.json`` ``benchmarks``: its policy,
+   seeds and metrics; push_env records a random-policy one over the dataset's seeds) re-run on both
+   revisions, and per metric the old and new values with the **seed-paired** difference (new − old, episode by
+   episode) and its bootstrap CI, which resamples episodes, so one env-level change shows as a tight interval
+   even when the episodes' spread is wide.
+4. ``report.json``, ``report.md`` and (with matplotlib) ``report.png`` in ``out``.
 
 Exit code of ``hub-envs diff``: 0 when behaviour is identical (only docs, data or generated files differ),
 1 when it differs, 2 on error.
 
     hub-envs diff --old=user/name@A --new=user/name@B [--episodes=2] [--random_episodes=2]
-                  [--trust_remote_code=true] [--tolerance=0] [--out=DIR] [--json=true]
+                  [--trust_remote_code=true] [--tolerance=0] [--benchmarks=true] [--out=DIR] [--json=true]
+                  [--isolation=process|venv] [--sandbox=true] [--versions=publisher]
 
 Example:
     >>> from hub_envs import diff                                                     # doctest: +SKIP
@@ -38,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs._flags import call_with_flags
+from hub_envs._flags import CodeFlags, call_with_flags
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
 from hub_envs.repo_format import (
@@ -260,6 +266,7 @@ class DiffReport(ReportFiles):
     notes: list[str]
     settings: dict[str, Any]
     provenance: dict[str, Any]
+    benchmarks: list[dict[str, Any]] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     paths: dict[str, str] = field(default_factory=dict)
 
@@ -276,8 +283,19 @@ class DiffReport(ReportFiles):
         return [c for c in self.manifest if any(c["field"] == f or c["field"].startswith(f + ".") for f in _BEHAVIOUR_FIELDS)]
 
     @property
+    def benchmarks_differing(self) -> list[dict[str, Any]]:
+        """The re-run benchmarks with an episode whose result differs between the revisions."""
+        return [b for b in self.benchmarks if b.get("episodes_differing")]
+
+    @property
     def behaviour_identical(self) -> bool:
-        return not (self.spaces or self.diverged or not self.fingerprint.get("same", True) or self.behaviour_fields)
+        return not (
+            self.spaces
+            or self.diverged
+            or not self.fingerprint.get("same", True)
+            or self.behaviour_fields
+            or self.benchmarks_differing
+        )
 
     @property
     def exit_code(self) -> int:
@@ -296,6 +314,7 @@ class DiffReport(ReportFiles):
             "first_divergence": self.first_divergence.to_dict() if self.first_divergence else None,
             "fingerprint": self.fingerprint,
             "deltas": self.deltas,
+            "benchmarks": self.benchmarks,
             "notes": self.notes,
             "settings": self.settings,
             "provenance": self.provenance,
@@ -347,6 +366,17 @@ class DiffReport(ReportFiles):
             lines.append(
                 f"Return delta (new - old, paired over {d['n']} seeds): {d['mean']:+.6g} [95% CI {d['ci'][0]:+.6g}, {d['ci'][1]:+.6g}]"
             )
+        for b in self.benchmarks:
+            lines.append(f"Benchmark {b['name']} ({_benchmark_what(b)}):")
+            if b.get("error"):
+                lines.append(f"  not re-run: {b['error']}")
+            for m, v in b.get("metrics", {}).items():
+                lines.append(
+                    f"  {m}: {v['old_mean']:.6g} -> {v['new_mean']:.6g}, paired delta {v['mean']:+.6g} "
+                    f"[95% CI {v['ci'][0]:+.6g}, {v['ci'][1]:+.6g}]"
+                )
+            if b.get("episodes_differing"):
+                lines.append(f"  {len(b['episodes_differing'])} of {len(b['seeds'])} episodes differ")
         lines += [f"Note: {x}" for x in self.notes]
         return "\n".join(lines)
 
@@ -390,6 +420,26 @@ class DiffReport(ReportFiles):
                 f"\n{key} delta (new − old, paired over {d['n']} seeds): {d['mean']:+.6g}, 95% bootstrap CI "
                 f"[{d['ci'][0]:+.6g}, {d['ci'][1]:+.6g}]"
             )
+        if self.benchmarks:
+            out += [
+                "",
+                "## Benchmarks",
+                "",
+                "Each benchmark the old revision declares, re-run on both; the difference is paired episode by episode "
+                f"(95% bootstrap CI over episodes, {self.settings.get('resamples')} resamples).",
+                "",
+                "| benchmark | metric | published | old | new | new − old | 95% CI | episodes differing |",
+                "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            ]
+            for b in self.benchmarks:
+                if b.get("error"):
+                    out.append(f"| {b['name']} ({_benchmark_what(b)}) | — | | | | | | not re-run: {b['error']} |")
+                for m, v in b.get("metrics", {}).items():
+                    out.append(
+                        f"| {b['name']} ({_benchmark_what(b)}) | {m} | {v['published']:.6g} | {v['old_mean']:.6g} | "
+                        f"{v['new_mean']:.6g} | {v['mean']:+.6g} | [{v['ci'][0]:+.6g}, {v['ci'][1]:+.6g}] | "
+                        f"{len(b.get('episodes_differing', []))} of {len(b['seeds'])} |"
+                    )
         if self.notes:
             out += ["", "## Notes", "", *(f"- {x}" for x in self.notes)]
         p = self.provenance
@@ -472,6 +522,64 @@ def _paired_delta(x: list[float], y: list[float], resamples: int) -> dict[str, A
     }
 
 
+def _benchmark_what(b: dict[str, Any]) -> str:
+    policy = b.get("policy") or {}
+    name = policy.get("checkpoint") or policy.get("type") or "?"
+    return f"policy {name}, {len(b.get('seeds', []))} episodes"
+
+
+def _benchmark_deltas(
+    old: Any,
+    new: Any,
+    *,
+    workers: int,
+    resamples: int,
+    tolerance: float,
+    progress: bool,
+    token: str | None,
+    trust_policy_code: bool,
+) -> list[dict[str, Any]]:
+    """Each benchmark ``old`` declares, re-run on ``old`` and ``new`` (same policy, seeds and steps), and per metric
+    the paired per-episode difference with its bootstrap CI; a benchmark that cannot run says why (``error``)."""
+    from hub_envs.harness.benchmark import METRICS, BenchmarkRun
+
+    declared_new = {str(b.get("name")) for b in new.manifest.benchmarks}
+    out = []
+    for bench in old.manifest.benchmarks:
+        runs = [
+            BenchmarkRun(side, bench, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
+            for side in (old, new)
+        ]
+        entry: dict[str, Any] = {
+            "name": runs[0].name,
+            "policy": dict(bench.get("policy") or {}),
+            "seeds": list(runs[0].seeds),
+            "declared_in_new": runs[0].name in declared_new,
+        }
+        out.append(entry)
+        error = runs[0].result.error or runs[1].result.error
+        if error:
+            entry["error"] = error
+            continue
+        for run, side in zip(runs, (old, new), strict=True):
+            run.run(side, workers=workers, progress=progress)
+        differing: set[int] = set()
+        metrics = {}
+        for m, published in runs[0].metrics.items():
+            key = METRICS[m][0]
+            x, y = runs[0].per_episode[key], runs[1].per_episode[key]
+            differing |= {i for i, (p, q) in enumerate(zip(x, y, strict=True)) if abs(q - p) > tolerance}
+            metrics[m] = {
+                **_paired_delta(x, y, resamples),
+                "published": float(published),
+                "per_episode_old": [float(v) for v in x],
+                "per_episode_new": [float(v) for v in y],
+            }
+        entry["metrics"] = metrics
+        entry["episodes_differing"] = sorted(differing)
+    return out
+
+
 def _ref(loaded: Any) -> dict[str, Any]:
     return {
         "repo_id": loaded.repo_id,
@@ -493,9 +601,15 @@ def diff(
     out: str | Path | None = None,
     write: bool = True,
     workers: int = 1,
+    benchmarks: bool = True,
     resamples: int = 1000,
     progress: bool = False,
     token: str | None = None,
+    trust_policy_code: bool = False,
+    isolation: str = "none",
+    sandbox: bool = False,
+    versions: str = "current",
+    step_timeout: float | None = None,
 ) -> DiffReport:
     """Compare two revisions of an env repo (``"user/name@A"``, ``"user/name@B"``), or two env repos.
 
@@ -508,7 +622,11 @@ def diff(
         tolerance: largest absolute difference that still counts as identical (0: bit-exact).
         out: folder for report.json/.md/.png (default ``diff-out/<user>/<name>/``); ``write=False``: none.
         workers: processes for the episodes (the result does not depend on it).
+        benchmarks: re-run the old revision's declared benchmarks on both and report the paired metric deltas.
         resamples: bootstrap resamples of the paired deltas' confidence intervals.
+        trust_policy_code: consent to load the LeRobot policy checkpoints those benchmarks name (other repos).
+        isolation, sandbox, versions, step_timeout: how both revisions' code runs (see :func:`hub_envs.load_env`):
+            with isolation, each revision steps in its own worker processes and this process imports neither.
 
     Returns:
         A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1.
@@ -532,7 +650,19 @@ def diff(
     try:
         for ref in (old, new):
             # fingerprint off: a drifted fingerprint is what a diff reports, not a reason to stop
-            loaded.append(load_env(ref, trust_remote_code=trust_remote_code, check=False, fingerprint="off", token=token))
+            loaded.append(
+                load_env(
+                    ref,
+                    trust_remote_code=trust_remote_code,
+                    check=False,
+                    fingerprint="off",
+                    token=token,
+                    isolation=isolation,
+                    sandbox=sandbox,
+                    versions=versions,
+                    step_timeout=step_timeout,
+                )
+            )
         a, b = loaded
         timings["load"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -591,6 +721,22 @@ def diff(
                 live_a = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)
                 live_b = golden_fingerprint(b.make, seeds=fp_seeds, steps=steps)
         timings["behaviour"] = time.perf_counter() - t
+        t = time.perf_counter()
+        bench_out: list[dict[str, Any]] = []
+        if benchmarks and not action_change:
+            bench_out = _benchmark_deltas(
+                a,
+                b,
+                workers=workers,
+                resamples=resamples,
+                tolerance=tolerance,
+                progress=progress,
+                token=token,
+                trust_policy_code=trust_policy_code,
+            )
+            timings["benchmarks"] = time.perf_counter() - t
+        elif benchmarks and a.manifest.benchmarks:
+            notes.append("the action space changed: the benchmarks were not re-run")
         deltas: dict[str, Any] = {}
         if seeds_out:
             deltas["return"] = _paired_delta([s.return_old for s in seeds_out], [s.return_new for s in seeds_out], resamples)
@@ -609,13 +755,17 @@ def diff(
             seeds=seeds_out,
             fingerprint=_fingerprints(a, b, live_a, live_b),
             deltas=deltas,
+            benchmarks=bench_out,
             notes=notes,
             settings={
                 "episodes": episodes,
                 "random_episodes": random_episodes,
                 "tolerance": float(tolerance),
                 "workers": workers,
+                "benchmarks": benchmarks,
                 "resamples": resamples,
+                "isolation": isolation + ("+sandbox" if sandbox else ""),
+                "versions": versions,
             },
             provenance={
                 "hub_envs_version": __version__,
@@ -637,14 +787,16 @@ def diff(
 
 
 @dataclass
-class DiffArgs:
+class DiffArgs(CodeFlags):
     """Compare two revisions of an env repo (or two repos): files, manifest, spaces, behaviour on the same seeds and actions."""
 
     old: str | None = None  # user/name@A (pin shas)
     new: str | None = None  # user/name@B, or another repo
     episodes: int = 2  # replay the old revision's recorded actions of this many dataset episodes on both
     random_episodes: int = 2  # plus this many seeded random-action episodes
-    trust_remote_code: bool = False
+    benchmarks: bool = True  # re-run the old revision's declared benchmarks on both: paired metric deltas with CIs
+    trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints those benchmarks name (other repos)
+    resamples: int = 1000  # bootstrap resamples of the paired CIs
     tolerance: float = 0.0  # largest absolute difference still counted as identical (0: exact)
     workers: int = 1
     out: Path | None = None  # default diff-out/<user>/<name>/

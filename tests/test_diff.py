@@ -21,6 +21,12 @@ def _push(path, repo_id):
     return push_env(path, repo_id, episodes=2, progress=False)
 
 
+def _published_benchmark(sha: str) -> dict:
+    from huggingface_hub import hf_hub_download
+
+    return json.loads(Path(hf_hub_download("alice/tiny", "hub_env.json", revision=sha)).read_text())["benchmarks"][0]
+
+
 @pytest.fixture(scope="module")
 def base(hub_module):
     """alice/tiny, published once: (Hub, sha)."""
@@ -46,6 +52,14 @@ def test_a_revision_against_itself_is_identical_and_exits_0(base, tmp_path, caps
     assert not any(s["diverged"] for s in report["seeds"])
     assert report["fingerprint"]["same"] and report["fingerprint"]["live_old"] == report["fingerprint"]["recorded_old"]
     assert report["deltas"]["return"]["mean"] == 0.0 and report["deltas"]["return"]["ci"] == [0.0, 0.0]
+    # the declared random-policy benchmark, re-run on both: the old side reproduces what was published, paired delta 0
+    (bench,) = report["benchmarks"]
+    assert bench["name"] == "random-policy" and bench["episodes_differing"] == [] and bench["declared_in_new"]
+    published = _published_benchmark(sha)
+    assert bench["seeds"] == published["seeds"]
+    assert bench["metrics"]["mean_return"]["per_episode_old"] == published["per_episode"]["return"]
+    assert bench["metrics"]["mean_return"]["mean"] == 0.0 and bench["metrics"]["mean_return"]["ci"] == [0.0, 0.0]
+    assert "Benchmark random-policy (policy random, 2 episodes):" in out and "paired delta +0 [95% CI +0, +0]" in out
     assert report["old"]["sha"] == sha and report["provenance"]["hub_envs_version"]
     assert "# hub-envs diff" in (tmp_path / "report.md").read_text()
 
@@ -70,6 +84,13 @@ def test_changed_dynamics_exit_1_naming_the_first_divergent_step_and_feature(bas
     assert all(s["diverged"] for s in by_seed.values())
     assert "observation.state" in by_seed[("recorded actions of episode 0", 0)]["errors"]
     assert not report["fingerprint"]["same"]
+    # the benchmark's paired delta: the old side is the published result, the new side each episode's new return
+    ret = report["benchmarks"][0]["metrics"]["mean_return"]
+    assert ret["per_episode_old"] == _published_benchmark(old)["per_episode"]["return"]
+    paired = [n - o for o, n in zip(ret["per_episode_old"], ret["per_episode_new"], strict=True)]
+    assert all(d != 0 for d in paired) and report["benchmarks"][0]["episodes_differing"] == [0, 1]
+    assert ret["mean"] == pytest.approx(sum(paired) / 2) and min(paired) <= ret["ci"][0] <= ret["ci"][1] <= max(paired)
+    assert "| random-policy (policy random, 2 episodes) | mean_return |" in (tmp_path / "o" / "report.md").read_text()
     assert any(c["field"] == "code_digest" or c["field"].startswith("dataset.") for c in report["manifest"])
     try:  # the PNG exists exactly when matplotlib does
         import matplotlib  # noqa: F401
@@ -181,3 +202,20 @@ def test_diff_help_imports_neither_torch_nor_lerobot():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert "HEAVY []" in out.stdout and "--random_episodes" in out.stdout, out.stdout[-500:] + out.stderr[-500:]
+
+
+def test_an_isolated_diff_finds_what_the_in_process_diff_finds(base, tmp_path):
+    """--isolation=process: both revisions step in worker processes, and the report is the same."""
+    _hub, old = base
+    stronger = copy_env(tmp_path, edits={"dynamics.py": lambda t: t.replace("GAIN = 1.0\n", "GAIN = 1.1\n")})
+    new = _push(stronger, "alice/tiny").sha
+    reports = [
+        diff(f"alice/tiny@{old}", f"alice/tiny@{new}", trust_remote_code=True, write=False, isolation=isolation)
+        for isolation in ("none", "process")
+    ]
+    here, isolated = (r.to_dict() for r in reports)
+    assert isolated["settings"]["isolation"] == "process" and here["settings"]["isolation"] == "none"
+    assert isolated["first_divergence"] == here["first_divergence"] and isolated["first_divergence"]["step"] == 0
+    for key in ("seeds", "benchmarks", "deltas", "fingerprint", "spaces", "manifest"):
+        assert isolated[key] == here[key], key
+    assert reports[1].exit_code == 1
