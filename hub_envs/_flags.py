@@ -11,6 +11,18 @@ A light module (no lerobot, no torch): the CLI's ``--help`` imports it.
     >>> flags = EnvFlags(repo_id="user/name", isolation="process")
     >>> call_with_flags(load, flags, flags.repo_id, trust_remote_code=True)
     ('user/name', None, 'process', True)
+
+A command that loads an env passes how its code runs on to :func:`hub_envs.load_env` as ``**run`` (a
+:class:`CodeRun`), so those keywords are written down once, here:
+
+    >>> def evaluate(repo_id, *, episodes=10, **run):
+    ...     return repo_id, episodes, code_run(run, "evaluate")
+    >>> call_with_flags(evaluate, EnvFlags(isolation="process", sandbox=True), "user/name")
+    ('user/name', 10, {'isolation': 'process', 'sandbox': True, 'versions': 'current', 'step_timeout': None})
+    >>> evaluate("user/name", isolaton="process")
+    Traceback (most recent call last):
+    ...
+    hub_envs.errors.ConfigError: evaluate() got isolaton=: how an env's code runs is said with isolation, sandbox, versions, step_timeout (see hub_envs.load_env).
 """
 
 from __future__ import annotations
@@ -18,7 +30,9 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
+
+from hub_envs.errors import ConfigError
 
 T = TypeVar("T")
 _KEYWORD = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
@@ -33,6 +47,28 @@ class CodeFlags:
     sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
     versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
     step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
+
+
+class CodeRun(TypedDict, total=False):
+    """How an env's code runs: the keywords of :func:`hub_envs.load_env` that ``reproduce``, ``diff``, ``evaluate``
+    and ``compare`` take as ``**run`` and pass on (the same names as :class:`CodeFlags`' fields)."""
+
+    isolation: str
+    sandbox: bool
+    versions: str
+    step_timeout: float | None
+
+
+def code_run(run: dict[str, Any], where: str) -> CodeRun:
+    """``run`` checked to hold only :class:`CodeRun` keywords (a misspelt one is a :class:`ConfigError`, not a
+    ``TypeError`` deep in ``load_env``)."""
+    unknown = sorted(set(run) - set(CodeRun.__annotations__))
+    if unknown:
+        raise ConfigError(
+            f"{where}() got {', '.join(k + '=' for k in unknown)}: how an env's code runs is said with "
+            f"{', '.join(CodeRun.__annotations__)} (see hub_envs.load_env)."
+        )
+    return CodeRun(**run)
 
 
 @dataclass
@@ -50,10 +86,12 @@ def call_with_flags(fn: Callable[..., T], flags: Any, *args: Any, **overrides: A
     """
     params = inspect.signature(fn).parameters
     bound = set(list(params)[: len(args)])
+    takes_run = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())  # ``**run``: CodeRun's keywords
     kwargs = {
         f.name: getattr(flags, f.name)
         for f in fields(flags)
-        if f.name in params and f.name not in bound and params[f.name].kind in _KEYWORD
+        if (f.name in params and f.name not in bound and params[f.name].kind in _KEYWORD)
+        or (takes_run and f.name in CodeRun.__annotations__)
     }
     kwargs.update(overrides)
     return fn(*args, **kwargs)

@@ -28,11 +28,11 @@ import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
-from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.backends import Backend, make_backend
 from hub_envs.errors import ConfigError
 
@@ -116,10 +116,7 @@ def evaluate(
     ray_address: str | None = None,
     out: str | Path | None = None,
     progress: bool = True,
-    isolation: str = "none",
-    sandbox: bool = False,
-    versions: str = "current",
-    step_timeout: float | None = None,
+    **run: Unpack[CodeRun],
 ) -> EvalResult:
     """Run ``policy`` for ``episodes`` seeded episodes of ``repo_id`` and return the metrics.
 
@@ -132,8 +129,8 @@ def evaluate(
             a local Ray for the run); the result does not depend on it.
         out: Ray: keep finished shards here (the same evaluation started again skips them), and write
             ``eval.json``; local: write ``eval.json`` only.
-        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`); the
-            policy runs in this process, the env in its worker processes.
+        run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
+            :func:`hub_envs.load_env`): isolated, the policy runs in this process, the env in worker processes.
 
     Raises:
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
@@ -157,10 +154,7 @@ def evaluate(
         trust_remote_code=trust_remote_code,
         fingerprint="off",
         token=token,
-        isolation=isolation,
-        sandbox=sandbox,
-        versions=versions,
-        step_timeout=step_timeout,
+        **code_run(run, "evaluate"),
     )
     try:
         run_policy, name = _policy(policy, loaded, runner, token, trust_policy_code)
@@ -185,7 +179,7 @@ def evaluate(
             lengths=tuple(lengths),
             versions=package_versions(loaded.manifest.requirements),
             backend=runner.settings(),
-            isolation=isolation + ("+sandbox" if sandbox else ""),
+            isolation=loaded.runs_as,
         )
     finally:
         loaded.unregister()

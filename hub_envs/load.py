@@ -152,6 +152,12 @@ class LoadedEnv:
         self._cache_dir = cache_dir
         self._dataset_verified = False
 
+    @property
+    def runs_as(self) -> str:
+        """How the env's code runs, as reports record it: ``none`` (in this process), ``process``, ``venv``,
+        ``process+sandbox``, ``venv+sandbox``."""
+        return "none" if self.isolation is None else self.isolation.label
+
     # -- names --
     @property
     def gym_id(self) -> str:

@@ -35,9 +35,9 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
-from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 
@@ -330,12 +330,9 @@ def compare(
     write: bool = True,
     progress: bool = True,
     token: str | None = None,
-    isolation: str = "none",
-    sandbox: bool = False,
-    versions: str = "current",
-    step_timeout: float | None = None,
     backend: str = "local",
     ray_address: str | None = None,
+    **run: Unpack[CodeRun],
 ) -> CompareReport:
     """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired.
 
@@ -343,7 +340,8 @@ def compare(
         repo_id: ``user/name@<sha>`` (pin it: the comparison names the commit), or a local folder.
         policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder, a Hub repo id.
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
-        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`).
+        run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
+            :func:`hub_envs.load_env`).
         backend, ray_address: where the episodes run (:func:`hub_envs.make_backend`: ``"local"`` processes, or
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
@@ -371,10 +369,7 @@ def compare(
         trust_remote_code=trust_remote_code,
         fingerprint="off",
         token=token,
-        isolation=isolation,
-        sandbox=sandbox,
-        versions=versions,
-        step_timeout=step_timeout,
+        **code_run(run, "compare"),
     )
     timings = {"load": time.perf_counter() - t0}
     try:
@@ -424,7 +419,7 @@ def compare(
                 "confidence": confidence,
                 "workers": workers,
                 "backend": runner.settings(),
-                "isolation": isolation + ("+sandbox" if sandbox else ""),
+                "isolation": loaded.runs_as,
                 "half_width": HALF_WIDTH,
             },
         )

@@ -35,9 +35,9 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
-from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.backends import Backend, make_backend
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
@@ -257,12 +257,9 @@ def reproduce(
     write: bool = True,
     token: str | None = None,
     trust_policy_code: bool = False,
-    isolation: str = "none",
-    sandbox: bool = False,
-    versions: str = "current",
-    step_timeout: float | None = None,
     backend: str | Backend = "local",
     ray_address: str | None = None,
+    **run: Unpack[CodeRun],
 ) -> ReproduceReport:
     """Replay the dataset and re-run the benchmarks of ``repo_id`` at ``revision``; report what differs.
 
@@ -282,8 +279,9 @@ def reproduce(
         episodes: replay only these episode indices (default: all).
         resamples: bootstrap resamples for the benchmark confidence intervals.
         progress: progress bars. write: write the report files.
-        isolation, sandbox, versions, step_timeout: how the env's code runs (see :func:`hub_envs.load_env`); the
-            replay, the benchmarks and the fingerprint all step the env through its worker processes.
+        run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``, as
+            :func:`hub_envs.load_env` takes them); isolated, the replay, the benchmarks and the fingerprint all
+            step the env through its worker processes.
         backend: where the replay and benchmark episodes run: ``"local"`` (this machine's processes) or ``"ray"``
             (a Ray cluster: ``ray_address``, default ``$RAY_ADDRESS``, else a local Ray for the run). The report is
             the same (timings aside). On Ray, an explicit ``out`` also keeps the finished shards in ``out/shards/``,
@@ -316,10 +314,7 @@ def reproduce(
         check=True,
         fingerprint="off",
         token=token,
-        isolation=isolation,
-        sandbox=sandbox,
-        versions=versions,
-        step_timeout=step_timeout,
+        **code_run(run, "reproduce"),
     )
     timings["load"] = time.perf_counter() - t
     try:
@@ -367,8 +362,8 @@ def reproduce(
                 "episodes": episodes,
                 "replay": replay,
                 "benchmarks": benchmarks,
-                "isolation": isolation + ("+sandbox" if sandbox else ""),
-                "versions": versions,
+                "isolation": loaded.runs_as,
+                "versions": run.get("versions", "current"),
                 "source": "folder" if loaded.local_folder is not None else "hub",
             },
         )

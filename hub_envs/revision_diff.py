@@ -40,11 +40,11 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
-from hub_envs._flags import CodeFlags, call_with_flags
+from hub_envs._flags import CodeFlags, CodeRun, call_with_flags, code_run
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
 from hub_envs.repo_format import (
@@ -606,10 +606,7 @@ def diff(
     progress: bool = False,
     token: str | None = None,
     trust_policy_code: bool = False,
-    isolation: str = "none",
-    sandbox: bool = False,
-    versions: str = "current",
-    step_timeout: float | None = None,
+    **run: Unpack[CodeRun],
 ) -> DiffReport:
     """Compare two revisions of an env repo (``"user/name@A"``, ``"user/name@B"``), or two env repos.
 
@@ -625,8 +622,9 @@ def diff(
         benchmarks: re-run the old revision's declared benchmarks on both and report the paired metric deltas.
         resamples: bootstrap resamples of the paired deltas' confidence intervals.
         trust_policy_code: consent to load the LeRobot policy checkpoints those benchmarks name (other repos).
-        isolation, sandbox, versions, step_timeout: how both revisions' code runs (see :func:`hub_envs.load_env`):
-            with isolation, each revision steps in its own worker processes and this process imports neither.
+        run: how both revisions' code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
+            :func:`hub_envs.load_env`): isolated, each revision steps in its own worker processes and this
+            process imports neither.
 
     Returns:
         A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1.
@@ -644,6 +642,7 @@ def diff(
     for name, v in (("episodes", episodes), ("random_episodes", random_episodes)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ConfigError(f"{name}={v!r}: pass a number of episodes >= 0.")
+    run = code_run(run, "diff")
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
     loaded = []
@@ -657,10 +656,7 @@ def diff(
                     check=False,
                     fingerprint="off",
                     token=token,
-                    isolation=isolation,
-                    sandbox=sandbox,
-                    versions=versions,
-                    step_timeout=step_timeout,
+                    **run,
                 )
             )
         a, b = loaded
@@ -764,8 +760,8 @@ def diff(
                 "workers": workers,
                 "benchmarks": benchmarks,
                 "resamples": resamples,
-                "isolation": isolation + ("+sandbox" if sandbox else ""),
-                "versions": versions,
+                "isolation": a.runs_as,
+                "versions": run.get("versions", "current"),
             },
             provenance={
                 "hub_envs_version": __version__,

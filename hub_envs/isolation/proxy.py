@@ -75,6 +75,11 @@ class IsolationOptions:
         return self.isolation != "none" or self.sandbox
 
     @property
+    def label(self) -> str:
+        """How the code runs, as reports record it: ``none``, ``process``, ``venv``, ``process+sandbox``, ..."""
+        return self.isolation + ("+sandbox" if self.sandbox else "")
+
+    @property
     def call_timeout(self) -> float | None:
         if self.step_timeout is not None:
             return float(self.step_timeout)

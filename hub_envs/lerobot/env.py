@@ -33,13 +33,14 @@ import copy
 import dataclasses
 import typing
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Unpack
 
 import draccus
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs._compat import env_configs_create_envs, train_dataset_hooks
+from hub_envs._flags import CodeRun, code_run
 from hub_envs.errors import ConfigError, UntrustedCodeError
 from hub_envs.harness.actions import IntegerActions
 from hub_envs.load import LoadedEnv, load_env, loaded_env_for_type
@@ -71,12 +72,10 @@ def load_cached(
     trust_remote_code: bool = False,
     fingerprint: str = "error",
     check: bool = True,
-    isolation: str = "none",
-    sandbox: bool = False,
-    versions: str = "current",
+    **run: Unpack[CodeRun],
 ) -> LoadedEnv:
-    """:func:`hub_envs.load_env`, once per process for the same arguments."""
-    iso = (isolation, bool(sandbox), versions)
+    """:func:`hub_envs.load_env`, once per process for the same arguments (``run``: how the code runs)."""
+    iso = tuple(sorted(code_run(run, "load_cached").items()))
     key = (repo_id, revision, fingerprint, bool(check), iso)
     loaded = _CACHE.get(key)
     if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
@@ -88,9 +87,7 @@ def load_cached(
             trust_remote_code=trust_remote_code,
             fingerprint=fingerprint,
             check=check,
-            isolation=isolation,
-            sandbox=sandbox,
-            versions=versions,
+            **run,
         )
     except UntrustedCodeError as e:
         raise UntrustedCodeError(f"{e}\nWith LeRobot's CLIs (hub-envs train / eval): add --env.trust_remote_code=true.") from None

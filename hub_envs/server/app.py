@@ -104,6 +104,7 @@ from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     REPO_TYPES,
     AddFile,
+    Change,
     Commit,
     DeleteFile,
     DeleteFolder,
@@ -938,14 +939,19 @@ class HubApp:
                 raise HTTPError(400, "The commit summary and description must be valid Unicode (no lone surrogates).")
         check = None if self.allow_bytecode else _refuse_bytecode_in_env_repos
         pr_url = None
-        fields = dict(
-            title=title, message=description, author=ctx.user or self.user, parent=header.get("parentCommit"), check=check
+        change = Change(
+            builder.operations,
+            title=title,
+            message=description,
+            author=ctx.user or self.user,
+            parent=header.get("parentCommit"),
+            check=check,
         )
         if create_pr:  # the Hub opens refs/pr/N from the branch head (or from parentCommit); the branch stays
-            commit, pr = await run_in_threadpool(lambda: repo.open_pull_request(branch, builder.operations, **fields))
+            commit, pr = await run_in_threadpool(lambda: repo.open_pull_request(branch, change))
             pr_url = f"{self._repo_url(ctx, repo)}/discussions/{pr.num}"
         else:
-            commit = await run_in_threadpool(lambda: repo.commit(branch, builder.operations, **fields))
+            commit = await run_in_threadpool(lambda: repo.commit(branch, change))
         return _json(
             {
                 "success": True,

@@ -33,11 +33,11 @@ Durability and concurrency:
 
 Example:
     >>> import tempfile
-    >>> from hub_envs.server.storage import AddFile, HubStore
+    >>> from hub_envs.server.storage import AddFile, Change, HubStore
     >>> store = HubStore(tempfile.mkdtemp())
     >>> repo = store.create_repo("model", "alice/pendulum", author="alice")
     >>> entry = repo.write_blob(b"print('hi')\\n")
-    >>> commit = repo.commit("main", [AddFile("env.py", entry)], title="Add env", author="alice")
+    >>> commit = repo.commit("main", Change([AddFile("env.py", entry)], title="Add env", author="alice"))
     >>> sorted(repo.resolve("main").files)
     ['.gitattributes', 'env.py']
     >>> repo.resolve(commit.id).id == commit.id
@@ -458,6 +458,25 @@ class DeleteFolder:
 
 
 Operation = AddFile | DeleteFile | DeleteFolder
+
+
+@dataclass(frozen=True)
+class Change:
+    """What a commit writes, and on whose word: what :meth:`Repo.commit` applies to a branch and
+    :meth:`Repo.open_pull_request` opens a pull request with.
+
+    ``operations`` are applied in order; ``parent`` (5 to 40 hex), if given, is the commit the change was made
+    against (the optimistic-concurrency check of ``parent_commit``); ``check`` is called with the new tree
+    (path -> entry) under the repo lock, before anything is written, and raises (e.g.
+    :class:`InvalidOperationError`) to refuse the change.
+    """
+
+    operations: Sequence[Operation]
+    title: str
+    author: str
+    message: str = ""
+    parent: str | None = None
+    check: Callable[[Mapping[str, FileEntry]], None] | None = None
 
 
 # --- git object hashing -----------------------------------------------------------------------
@@ -922,30 +941,15 @@ class Repo:
 
     # -- committing --
 
-    def commit(
-        self,
-        branch: str,
-        operations: Sequence[Operation],
-        *,
-        title: str,
-        message: str = "",
-        author: str,
-        parent: str | None = None,
-        check: Callable[[Mapping[str, FileEntry]], None] | None = None,
-    ) -> Commit:
-        """Apply ``operations`` on top of ``branch`` and move the branch to the new commit.
+    def commit(self, branch: str, change: Change) -> Commit:
+        """Apply ``change`` on top of ``branch`` (an existing branch, or an open ``refs/pr/N``: tags and shas cannot
+        move) and move the branch to the new commit. With ``change.parent``, the branch must still point at that
+        commit, else :class:`ParentMismatchError`.
 
-        Args:
-            branch: must be an existing branch (tags and shas cannot move).
-            operations: :class:`AddFile` (its blob already written), :class:`DeleteFile`, :class:`DeleteFolder`.
-            parent: if given (5 to 40 hex), the branch must still point at this commit, else
-                :class:`ParentMismatchError` — the optimistic-concurrency check of ``parent_commit``.
-            check: called with the new tree (path -> entry) under the repo lock, before anything is
-                written; it raises (e.g. :class:`InvalidOperationError`) to refuse the commit.
-
-        An empty ``operations`` makes an empty commit, as git (and the Hub's commit endpoint) does.
+        Operations: :class:`AddFile` (its blob already written), :class:`DeleteFile`, :class:`DeleteFolder`. No
+        operations make an empty commit, as git (and the Hub's commit endpoint) does.
         """
-        if not title:
+        if not change.title:
             raise InvalidOperationError("The commit title (summary) cannot be empty.")
         with self.store.lock(self.key):
             refs = self.refs()
@@ -963,22 +967,26 @@ class Repo:
                 raise RevisionNotFoundError(f"Invalid rev id: {branch}")
             else:
                 head_sha = refs.branches[branch]
-            if parent is not None and not head_sha.startswith(parent.lower()):
+            if change.parent is not None and not head_sha.startswith(change.parent.lower()):
                 raise ParentMismatchError("The branch was updated since you opened this page. Please refresh and try again.")
-            head = self.load_commit(head_sha)
-            files = self._apply(head.files, operations, branch)
-            if check is not None:
-                check(files)
             when = now()
-            commit = self._new_commit(files, (head_sha,), title, message, author, when)
-            self._write_commit(commit)
+            commit = self._commit_on(self.load_commit(head_sha), change, branch, when)
             if pr is not None:
-                event = _event("commit", author, when, {"subject": title, "oid": commit.id})
+                event = _event("commit", change.author, when, {"subject": change.title, "oid": commit.id})
                 refs.pulls[pr.num] = replace(pr, head=commit.id, events=(*pr.events, event))
             else:
                 refs.branches[branch] = commit.id  # the ref moves last: a crash before this changes nothing
             self._write_refs(refs)
             return commit
+
+    def _commit_on(self, start: Commit, change: Change, where: str, when: datetime) -> Commit:
+        """Write the commit of ``change`` applied on top of ``start`` (no ref moves)."""
+        files = self._apply(start.files, change.operations, where)
+        if change.check is not None:
+            change.check(files)
+        commit = self._new_commit(files, (start.id,), change.title, change.message, change.author, when)
+        self._write_commit(commit)
+        return commit
 
     def _apply(self, start: Mapping[str, FileEntry], operations: Sequence[Operation], branch: str) -> dict[str, FileEntry]:
         """The tree ``start`` with ``operations`` applied; raises on a bad path, a missing file, a file/folder clash."""
@@ -1006,38 +1014,27 @@ class Repo:
 
     # -- pull requests --
 
-    def open_pull_request(
-        self,
-        target: str,
-        operations: Sequence[Operation],
-        *,
-        title: str,
-        message: str = "",
-        author: str,
-        parent: str | None = None,
-        check: Callable[[Mapping[str, FileEntry]], None] | None = None,
-    ) -> tuple[Commit, PullRequest]:
-        """Open pull request ``refs/pr/<next number>`` with one commit applying ``operations`` on top of
-        ``target`` (or of ``parent``, a commit of it, as the Hub does); ``target`` does not move.
+    def open_pull_request(self, target: str, change: Change) -> tuple[Commit, PullRequest]:
+        """Open pull request ``refs/pr/<next number>`` with one commit applying ``change`` on top of the branch
+        ``target`` (or of ``change.parent``, a commit of it, as the Hub does); ``target`` does not move.
 
         The commit object is written first, then ``refs.json`` with the new pull request: a crash in
         between leaves no pull request (an unreferenced commit is harmless).
         """
-        if not title:
+        if not change.title:
             raise InvalidOperationError("The pull request title (commit summary) cannot be empty.")
         with self.store.lock(self.key):
             refs = self.refs()
             if target not in refs.branches:
                 raise RevisionNotFoundError(f"Invalid rev id: {target}: a pull request targets a branch.")
-            start = self.resolve(parent) if parent is not None else self.load_commit(refs.branches[target])
-            files = self._apply(start.files, operations, target)
-            if check is not None:
-                check(files)
+            start = self.resolve(change.parent) if change.parent is not None else self.load_commit(refs.branches[target])
             when = now()
-            commit = self._new_commit(files, (start.id,), title, message, author, when)
-            self._write_commit(commit)
+            commit = self._commit_on(start, change, target, when)
             num = max([0, *refs.pulls]) + 1
-            opening = _event("comment", author, when, {"edited": False, "hidden": False, "latest": {"raw": message or title}})
+            author, title = change.author, change.title
+            opening = _event(
+                "comment", author, when, {"edited": False, "hidden": False, "latest": {"raw": change.message or title}}
+            )
             pushed = _event("commit", author, when, {"subject": title, "oid": commit.id})
             pr = PullRequest(num, title, author, format_date(when), "open", target, start.id, commit.id, (opening, pushed))
             refs.pulls[num] = pr
