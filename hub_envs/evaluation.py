@@ -100,6 +100,24 @@ def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust
     )
 
 
+def load_for_evaluation(
+    repo_id: str, revision: str | None, *, trust_remote_code: bool, token: str | None, run: dict[str, Any], where: str
+) -> Any:
+    """How an evaluation (:func:`evaluate`, ``hub-envs compare``) loads the env: :func:`hub_envs.load_env` with the
+    feature check on and no fingerprint run (the evaluated episodes run the env anyway); ``run``: :class:`CodeRun`
+    keywords. Use it in a ``with`` block: the env is unregistered at the end."""
+    from hub_envs.load import load_env
+
+    return load_env(
+        repo_id,
+        revision=revision,
+        trust_remote_code=trust_remote_code,
+        fingerprint="off",
+        token=token,
+        **code_run(run, where),
+    )
+
+
 def evaluate(
     repo_id: str,
     *,
@@ -136,7 +154,6 @@ def evaluate(
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
     """
     from hub_envs.harness.provenance import package_versions
-    from hub_envs.load import load_env
 
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes={episodes!r}: pass a positive number of episodes.")
@@ -148,15 +165,9 @@ def evaluate(
         ray_address=ray_address,
         checkpoint_dir=Path(out) / "shards" if out is not None and backend == "ray" else None,
     )
-    loaded = load_env(
-        repo_id,
-        revision=revision,
-        trust_remote_code=trust_remote_code,
-        fingerprint="off",
-        token=token,
-        **code_run(run, "evaluate"),
-    )
-    try:
+    with load_for_evaluation(
+        repo_id, revision, trust_remote_code=trust_remote_code, token=token, run=run, where="evaluate"
+    ) as loaded:
         run_policy, name = _policy(policy, loaded, runner, token, trust_policy_code)
         steps = int(max_steps) if max_steps is not None else int(loaded.config.episode_length)
         seeds = [seed + i for i in range(episodes)]
@@ -181,8 +192,6 @@ def evaluate(
             backend=runner.settings(),
             isolation=loaded.runs_as,
         )
-    finally:
-        loaded.unregister()
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "eval.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")

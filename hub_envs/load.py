@@ -307,6 +307,14 @@ class LoadedEnv:
         if _LOADED.get(self.env_type) is self:
             del _LOADED[self.env_type]
 
+    def __enter__(self) -> LoadedEnv:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """``with load_env(...) as loaded:`` unregisters at the end: what a command that loads an env for one run
+        (reproduce, diff, evaluate, compare) wants."""
+        self.unregister()
+
     def __repr__(self) -> str:
         return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r})"
 

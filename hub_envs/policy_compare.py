@@ -27,21 +27,21 @@ Example:
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import math
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
+from hub_envs._flags import CodeRun, EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 
-__all__ = ["compare", "CompareReport", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
+__all__ = ["compare", "CompareReport", "Estimate", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
 
 DEFAULT_OUT = Path("compare-out")
 HALF_WIDTH = 0.05  # ±5 points of a rate
@@ -61,63 +61,83 @@ def episodes_for_half_width(values, half_width: float = HALF_WIDTH, confidence: 
 
 
 @dataclass(frozen=True)
+class Estimate:
+    """Per-episode values in seed order, their mean and its seeded bootstrap interval (which resamples seeds).
+
+    >>> e = Estimate.of([1.0, 0.0, 1.0, 1.0], resamples=1000, confidence=0.95, seed=0)
+    >>> e.mean, e.ci, e.text(scale=100, sign="+", fmt=".1f")
+    (0.75, (0.25, 1.0), '+75.0 [+25.0, +100.0]')
+    """
+
+    values: tuple[float, ...]
+    mean: float
+    ci: tuple[float, float]
+
+    @classmethod
+    def of(cls, values: Sequence[float], *, resamples: int, confidence: float, seed: int) -> Estimate:
+        from hub_envs.harness.benchmark import bootstrap_ci
+
+        v = tuple(float(x) for x in values)
+        return cls(v, float(statistics.fmean(v)), bootstrap_ci(v, resamples=resamples, confidence=confidence, seed=seed))
+
+    def text(self, *, scale: float = 1.0, sign: str = "", fmt: str = ".4g") -> str:
+        f = f"{sign}{fmt}"
+        return f"{scale * self.mean:{f}} [{scale * self.ci[0]:{f}}, {scale * self.ci[1]:{f}}]"
+
+
+@dataclass(frozen=True)
 class PolicyResult:
-    """One policy over the compared seeds."""
+    """One policy over the compared seeds: its returns and successes (1.0 / 0.0; the mean is the success rate)."""
 
     label: str
     spec: dict[str, Any]
-    returns: tuple[float, ...]
-    successes: tuple[bool, ...]
-    mean_return: float
-    return_ci: tuple[float, float]
-    success_rate: float
-    success_ci: tuple[float, float]
+    returns: Estimate
+    successes: Estimate
     episodes_for_5_points: int | None  # on the success rate
     seconds: float
 
     def summary(self) -> str:
-        return (
-            f"{self.label}: success {100 * self.success_rate:.1f} % [{100 * self.success_ci[0]:.1f}, "
-            f"{100 * self.success_ci[1]:.1f}], mean return {self.mean_return:.4g} [{self.return_ci[0]:.4g}, "
-            f"{self.return_ci[1]:.4g}]"
-        )
+        success = self.successes.text(scale=100, fmt=".1f").replace(" [", " % [")
+        return f"{self.label}: success {success}, mean return {self.returns.text()}"
 
 
 @dataclass(frozen=True)
 class PairedDifference:
-    """``a - b`` seed by seed, with seed-paired bootstrap intervals."""
+    """``a - b`` seed by seed (returns and successes), with seed-paired bootstrap intervals."""
 
     a: str
     b: str
-    return_differences: tuple[float, ...]
-    success_differences: tuple[float, ...]
-    mean_return_difference: float
-    return_ci: tuple[float, float]
-    success_rate_difference: float
-    success_ci: tuple[float, float]
+    returns: Estimate
+    successes: Estimate
     episodes_for_5_points: int | None  # on the success-rate difference
 
     def summary(self) -> str:
-        return (
-            f"{self.a} - {self.b} (paired over seeds): success {100 * self.success_rate_difference:+.1f} points "
-            f"[{100 * self.success_ci[0]:+.1f}, {100 * self.success_ci[1]:+.1f}], mean return "
-            f"{self.mean_return_difference:+.4g} [{self.return_ci[0]:+.4g}, {self.return_ci[1]:+.4g}]"
-        )
+        success = self.successes.text(scale=100, sign="+", fmt=".1f").replace(" [", " points [")
+        return f"{self.a} - {self.b} (paired over seeds): success {success}, mean return {self.returns.text(sign='+')}"
 
 
 @dataclass
 class CompareReport(ReportFiles):
     """What ``hub-envs compare`` found."""
 
-    repo_id: str
-    sha: str
-    seeds: list[int]
     policies: list[PolicyResult]
     differences: list[PairedDifference]
-    provenance: dict[str, Any]
+    provenance: dict[str, Any]  # the repo, the resolved sha, the seeds, versions (harness.provenance.run_provenance)
     settings: dict[str, Any]
     paths: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def repo_id(self) -> str:
+        return self.provenance["repo_id"]
+
+    @property
+    def sha(self) -> str:
+        return self.provenance["sha"]
+
+    @property
+    def seeds(self) -> list[int]:
+        return self.provenance["seeds"]
 
     def _needed(self, n: int | None) -> str:
         return f"~{n}" if n is not None else f"no estimate (no variation in {len(self.seeds)} episodes)"
@@ -159,8 +179,8 @@ class CompareReport(ReportFiles):
         ]
         for p in self.policies:
             out.append(
-                f"| {p.label} | {100 * p.success_rate:.1f} % | [{100 * p.success_ci[0]:.1f}, {100 * p.success_ci[1]:.1f}] | "
-                f"{p.mean_return:.4g} | [{p.return_ci[0]:.4g}, {p.return_ci[1]:.4g}] | {self._needed(p.episodes_for_5_points)} |"
+                f"| {p.label} | {p.successes.text(scale=100, fmt='.1f').replace(' [', ' % | [')} | "
+                f"{p.returns.text().replace(' [', ' | [')} | {self._needed(p.episodes_for_5_points)} |"
             )
         out += [
             "",
@@ -173,9 +193,8 @@ class CompareReport(ReportFiles):
         ]
         for d in self.differences:
             out.append(
-                f"| {d.a} - {d.b} | {100 * d.success_rate_difference:+.1f} | [{100 * d.success_ci[0]:+.1f}, "
-                f"{100 * d.success_ci[1]:+.1f}] | {d.mean_return_difference:+.4g} | [{d.return_ci[0]:+.4g}, {d.return_ci[1]:+.4g}] | "
-                f"{self._needed(d.episodes_for_5_points)} |"
+                f"| {d.a} - {d.b} | {d.successes.text(scale=100, sign='+', fmt='.1f').replace(' [', ' | [')} | "
+                f"{d.returns.text(sign='+').replace(' [', ' | [')} | {self._needed(d.episodes_for_5_points)} |"
             )
         p = self.provenance
         out += [
@@ -184,7 +203,7 @@ class CompareReport(ReportFiles):
             "",
             f"- env: `{self.repo_id}@{self.sha}` (content digest `{p.get('content_digest')}`)",
             *[f"- policy {q.label}: `{json.dumps(q.spec, sort_keys=True)}`" for q in self.policies],
-            f"- versions: {', '.join(f'{k} {v}' for k, v in sorted(p.get('versions', {}).items()))}",
+            f"- versions: {', '.join(f'{k} {v}' for k, v in sorted(p.get('versions_here', {}).items()))}",
             f"- generated {p.get('generated_at')} with hub-envs {p.get('hub_envs_version')}",
             "",
         ]
@@ -207,8 +226,8 @@ class CompareReport(ReportFiles):
         for ax, (value, ci, title) in zip(
             axes[:2],
             [
-                ([100 * p.success_rate for p in self.policies], [(100 * p.success_ci[0], 100 * p.success_ci[1]) for p in self.policies], "success rate (%)"),
-                ([p.mean_return for p in self.policies], [p.return_ci for p in self.policies], "mean return"),
+                ([100 * p.successes.mean for p in self.policies], [(100 * p.successes.ci[0], 100 * p.successes.ci[1]) for p in self.policies], "success rate (%)"),
+                ([p.returns.mean for p in self.policies], [p.returns.ci for p in self.policies], "mean return"),
             ],
         ):  # fmt: skip
             v = np.asarray(value, dtype=float)
@@ -219,10 +238,10 @@ class CompareReport(ReportFiles):
         ax = axes[2]
         if self.differences:
             d = self.differences[0]
-            diffs = np.asarray(d.return_differences, dtype=float)
+            diffs = np.asarray(d.returns.values, dtype=float)
             ax.plot(np.arange(len(diffs)), diffs, "o", ms=4)
-            ax.axhline(d.mean_return_difference, color="black", lw=1)
-            ax.axhspan(d.return_ci[0], d.return_ci[1], color="tab:orange", alpha=0.3, label="paired 95% CI of the mean")
+            ax.axhline(d.returns.mean, color="black", lw=1)
+            ax.axhspan(d.returns.ci[0], d.returns.ci[1], color="tab:orange", alpha=0.3, label="paired 95% CI of the mean")
             ax.axhline(0, color="grey", lw=0.8, ls=":")
             ax.set_xlabel("episode (seed order)")
             ax.set_title(f"return: {labels[0]} - {labels[1]}", fontsize=9)
@@ -278,38 +297,27 @@ def _run_policy(loaded: Any, label: str, spec: dict, seeds: list[int], **kw: Any
     if not run.runnable:
         raise ReproductionError(f"policy {label}: {run.result.error}")
     result = run.run(loaded, progress=kw["progress"], backend=kw["backend"])
-    metrics = {m.name: m for m in result.metrics}
-    returns = tuple(float(r) for r in result.reproduced_per_episode["return"])
-    successes = tuple(bool(s) for s in result.reproduced_per_episode["success"])
+    stats = dict(resamples=kw["resamples"], confidence=kw["confidence"], seed=kw["bootstrap_seed"])
+    successes = [float(s) for s in result.reproduced_per_episode["success"]]
     return PolicyResult(
         label=label,
         spec=spec,
-        returns=returns,
-        successes=successes,
-        mean_return=metrics["mean_return"].reproduced,
-        return_ci=(metrics["mean_return"].ci_low, metrics["mean_return"].ci_high),
-        success_rate=metrics["success_rate"].reproduced,
-        success_ci=(metrics["success_rate"].ci_low, metrics["success_rate"].ci_high),
+        returns=Estimate.of(result.reproduced_per_episode["return"], **stats),
+        successes=Estimate.of(successes, **stats),
         episodes_for_5_points=episodes_for_half_width(successes, confidence=kw["confidence"]),
         seconds=round(result.seconds, 4),
     )
 
 
 def _paired(a: PolicyResult, b: PolicyResult, *, resamples: int, confidence: float, seed: int) -> PairedDifference:
-    from hub_envs.harness.benchmark import bootstrap_ci
-
-    dr = [x - y for x, y in zip(a.returns, b.returns)]
-    ds = [float(x) - float(y) for x, y in zip(a.successes, b.successes)]
+    # resampling the differences resamples seeds: each draw keeps both policies' episodes of one seed
+    stats = dict(resamples=resamples, confidence=confidence, seed=seed)
+    ds = [x - y for x, y in zip(a.successes.values, b.successes.values, strict=True)]
     return PairedDifference(
         a=a.label,
         b=b.label,
-        return_differences=tuple(dr),
-        success_differences=tuple(ds),
-        mean_return_difference=float(statistics.fmean(dr)),
-        # resampling the differences resamples seeds: each draw keeps both policies' episodes of one seed
-        return_ci=bootstrap_ci(dr, resamples=resamples, confidence=confidence, seed=seed),
-        success_rate_difference=float(statistics.fmean(ds)),
-        success_ci=bootstrap_ci(ds, resamples=resamples, confidence=confidence, seed=seed),
+        returns=Estimate.of([x - y for x, y in zip(a.returns.values, b.returns.values, strict=True)], **stats),
+        successes=Estimate.of(ds, **stats),
         episodes_for_5_points=episodes_for_half_width(ds, confidence=confidence),
     )
 
@@ -346,9 +354,8 @@ def compare(
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
     """
-    from hub_envs import __version__
-    from hub_envs.harness.provenance import package_versions
-    from hub_envs.load import load_env
+    from hub_envs.evaluation import load_for_evaluation
+    from hub_envs.harness.provenance import run_provenance
 
     if len(policies) < 2:
         raise ConfigError(f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH.")
@@ -363,16 +370,10 @@ def compare(
     t0 = time.perf_counter()
     specs = [policy_spec(p, token=token) for p in policies]
     labels = _labels([p.strip() for p in policies])
-    loaded = load_env(
-        repo_id,
-        revision=revision,
-        trust_remote_code=trust_remote_code,
-        fingerprint="off",
-        token=token,
-        **code_run(run, "compare"),
-    )
-    timings = {"load": time.perf_counter() - t0}
-    try:
+    with load_for_evaluation(
+        repo_id, revision, trust_remote_code=trust_remote_code, token=token, run=run, where="compare"
+    ) as loaded:
+        timings = {"load": time.perf_counter() - t0}
         seeds = [seed + i for i in range(episodes)]
         kw = dict(
             resamples=resamples,
@@ -394,24 +395,10 @@ def compare(
             for i in range(len(results))
             for j in range(i + 1, len(results))
         ]
-        m = loaded.manifest
         report = CompareReport(
-            repo_id=loaded.repo_id,
-            sha=loaded.revision,
-            seeds=seeds,
             policies=results,
             differences=diffs,
-            provenance={
-                "repo_id": loaded.repo_id,
-                "sha": loaded.revision,
-                "content_digest": m.content_digest,
-                "dataset_fingerprint": m.dataset.get("fingerprint"),
-                "episode_length": int(loaded.config.episode_length),
-                "seeds": seeds,
-                "versions": package_versions(m.requirements),
-                "hub_envs_version": __version__,
-                "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
-            },
+            provenance={**run_provenance(loaded), "episode_length": int(loaded.config.episode_length), "seeds": seeds},
             settings={
                 "episodes": episodes,
                 "seed": seed,
@@ -426,8 +413,6 @@ def compare(
         # in the files: load and each policy
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
-    finally:
-        loaded.unregister()
 
 
 # --- CLI ----------------------------------------------------------------------------------------

@@ -30,7 +30,6 @@ Example:
 
 from __future__ import annotations
 
-import datetime as _dt
 import sys
 import time
 from dataclasses import dataclass
@@ -44,7 +43,7 @@ from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionE
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
-from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
+from hub_envs.harness.provenance import describe_differences, package_versions, run_provenance, version_differences
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
 from hub_envs.harness.report_files import default_out_dir
@@ -63,8 +62,6 @@ DEFAULT_OUT = Path("reproduce-out")
 
 
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
-    from hub_envs import __version__
-
     m = loaded.manifest
     here = package_versions(m.requirements)
     worker = _worker_versions(loaded)
@@ -72,23 +69,16 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         here = {**here, **worker["versions"]}
     diffs = version_differences(m.versions, here)
     prov: dict[str, Any] = {
-        "repo_id": loaded.repo_id,
-        "requested_revision": loaded.requested_revision,
-        "sha": loaded.revision,
-        "content_digest": m.content_digest,
+        **run_provenance(loaded, here),
         "code_digest": code_digest_of(m.files),
-        "published_dataset_fingerprint": m.dataset.get("fingerprint"),
         "seeds": {
             "dataset": list(m.dataset.get("seeds", [])),
             "fingerprint": list(m.fingerprint.get("seeds", [])),
             "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
         },
         "versions_published": dict(m.versions),
-        "versions_here": here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
         "worker": worker,
-        "hub_envs_version": __version__,
-        "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
     }
     if dataset_root is not None:
         prov["dataset_fingerprint"] = dataset_fingerprint(dataset_root)
@@ -307,7 +297,7 @@ def reproduce(
     )
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
-    loaded = load_env(
+    with load_env(
         repo_id,
         revision=revision,
         trust_remote_code=trust_remote_code,
@@ -315,9 +305,8 @@ def reproduce(
         fingerprint="off",
         token=token,
         **code_run(run, "reproduce"),
-    )
-    timings["load"] = time.perf_counter() - t
-    try:
+    ) as loaded:
+        timings["load"] = time.perf_counter() - t
         dataset_root = loaded.dataset_root
         provenance = _provenance(loaded, dataset_root)
         notes = _dataset_notes(provenance) if dataset_root is not None else []
@@ -369,8 +358,6 @@ def reproduce(
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
-    finally:
-        loaded.unregister()
 
 
 # --- CLI ----------------------------------------------------------------------------------------

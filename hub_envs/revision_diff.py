@@ -34,6 +34,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import sys
@@ -368,13 +369,12 @@ class DiffReport(ReportFiles):
             )
         for b in self.benchmarks:
             lines.append(f"Benchmark {b['name']} ({_benchmark_what(b)}):")
-            if b.get("error"):
-                lines.append(f"  not re-run: {b['error']}")
-            for m, v in b.get("metrics", {}).items():
-                lines.append(
-                    f"  {m}: {v['old_mean']:.6g} -> {v['new_mean']:.6g}, paired delta {v['mean']:+.6g} "
-                    f"[95% CI {v['ci'][0]:+.6g}, {v['ci'][1]:+.6g}]"
-                )
+            for row in _benchmark_rows(b):
+                if len(row) == 1:
+                    lines.append(f"  not re-run: {row[0]}")
+                    continue
+                m, _published, old, new, delta, ci, _differing = row
+                lines.append(f"  {m}: {old} -> {new}, paired delta {delta} [95% CI {ci}]")
             if b.get("episodes_differing"):
                 lines.append(f"  {len(b['episodes_differing'])} of {len(b['seeds'])} episodes differ")
         lines += [f"Note: {x}" for x in self.notes]
@@ -432,14 +432,11 @@ class DiffReport(ReportFiles):
                 "| --- | --- | --- | --- | --- | --- | --- | --- |",
             ]
             for b in self.benchmarks:
-                if b.get("error"):
-                    out.append(f"| {b['name']} ({_benchmark_what(b)}) | — | | | | | | not re-run: {b['error']} |")
-                for m, v in b.get("metrics", {}).items():
-                    out.append(
-                        f"| {b['name']} ({_benchmark_what(b)}) | {m} | {v['published']:.6g} | {v['old_mean']:.6g} | "
-                        f"{v['new_mean']:.6g} | {v['mean']:+.6g} | [{v['ci'][0]:+.6g}, {v['ci'][1]:+.6g}] | "
-                        f"{len(b.get('episodes_differing', []))} of {len(b['seeds'])} |"
+                for row in _benchmark_rows(b):
+                    cells = (
+                        ("—", "", "", "", "", "", f"not re-run: {row[0]}") if len(row) == 1 else (*row[:5], f"[{row[5]}]", row[6])
                     )
+                    out.append(f"| {b['name']} ({_benchmark_what(b)}) | " + " | ".join(cells) + " |")
         if self.notes:
             out += ["", "## Notes", "", *(f"- {x}" for x in self.notes)]
         p = self.provenance
@@ -526,6 +523,26 @@ def _benchmark_what(b: dict[str, Any]) -> str:
     policy = b.get("policy") or {}
     name = policy.get("checkpoint") or policy.get("type") or "?"
     return f"policy {name}, {len(b.get('seeds', []))} episodes"
+
+
+def _benchmark_rows(b: dict[str, Any]) -> list[tuple[str, ...]]:
+    """One benchmark's metrics as text: (metric, published, old, new, new − old, 95% CI, episodes differing) each,
+    or ``(error,)`` when it was not re-run."""
+    if b.get("error"):
+        return [(b["error"],)]
+    differing = f"{len(b.get('episodes_differing', []))} of {len(b['seeds'])}"
+    return [
+        (
+            m,
+            f"{v['published']:.6g}",
+            f"{v['old_mean']:.6g}",
+            f"{v['new_mean']:.6g}",
+            f"{v['mean']:+.6g}",
+            f"{v['ci'][0]:+.6g}, {v['ci'][1]:+.6g}",
+            differing,
+        )
+        for m, v in b.get("metrics", {}).items()
+    ]
 
 
 def _benchmark_deltas(
@@ -645,21 +662,14 @@ def diff(
     run = code_run(run, "diff")
     timings: dict[str, float] = {}
     t0 = t = time.perf_counter()
-    loaded = []
-    try:
-        for ref in (old, new):
-            # fingerprint off: a drifted fingerprint is what a diff reports, not a reason to stop
-            loaded.append(
-                load_env(
-                    ref,
-                    trust_remote_code=trust_remote_code,
-                    check=False,
-                    fingerprint="off",
-                    token=token,
-                    **run,
-                )
+    with contextlib.ExitStack() as loaded:  # both unregistered at the end
+        # fingerprint off: a drifted fingerprint is what a diff reports, not a reason to stop
+        a, b = (
+            loaded.enter_context(
+                load_env(ref, trust_remote_code=trust_remote_code, check=False, fingerprint="off", token=token, **run)
             )
-        a, b = loaded
+            for ref in (old, new)
+        )
         timings["load"] = time.perf_counter() - t
         t = time.perf_counter()
         files = file_changes(a.manifest, b.manifest)
@@ -774,9 +784,6 @@ def diff(
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, b.repo_id), write=write)
         return report
-    finally:
-        for side in loaded:
-            side.unregister()
 
 
 # --- CLI ----------------------------------------------------------------------------------------

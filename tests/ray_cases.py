@@ -169,7 +169,7 @@ def test_compare_on_ray_gives_the_local_comparison(cluster, tiny, tmp_path):
     local = compare(ref, ["random", "random"], workers=2, **options)
     remote = compare(ref, ["random", "random"], backend="ray", ray_address=cluster.address, **options)
     assert [p.returns for p in remote.policies] == [p.returns for p in local.policies]
-    assert remote.differences[0].return_differences == local.differences[0].return_differences == (0.0,) * 4
+    assert remote.differences[0].returns.values == local.differences[0].returns.values == (0.0,) * 4
     assert remote.settings["backend"]["backend"] == "ray" and local.settings["backend"]["backend"] == "local"
 
 

@@ -68,13 +68,15 @@ def test_random_against_itself_differs_by_exactly_zero_on_paired_seeds(hub_modul
     assert (a["label"], b["label"]) == ("random", "random (2)")
     assert a["returns"] == b["returns"] and a["successes"] == b["successes"]
     (d,) = data["differences"]
-    assert d["return_differences"] == [0.0] * 4 and d["mean_return_difference"] == 0.0
-    assert d["return_ci"] == [0.0, 0.0] and d["success_ci"] == [0.0, 0.0] and d["success_rate_difference"] == 0.0
+    assert d["returns"] == {"values": [0.0] * 4, "mean": 0.0, "ci": [0.0, 0.0]}
+    assert d["successes"] == {"values": [0.0] * 4, "mean": 0.0, "ci": [0.0, 0.0]}
     assert "random - random (2) (paired over seeds): success +0.0 points" in printed
     assert (tmp_path / "report.md").read_text().startswith("# Policy comparison on `alice/reach-compare`")
     assert (tmp_path / "report.png").stat().st_size > 0
     assert {"load", "policy random", "policy random (2)"} <= set(data["timings"])
-    assert data["provenance"]["versions"]["pybullet"] and data["provenance"]["content_digest"] == reach.manifest.content_digest
+    assert (
+        data["provenance"]["versions_here"]["pybullet"] and data["provenance"]["content_digest"] == reach.manifest.content_digest
+    )
 
 
 def test_a_trained_act_against_random_on_reach_reports_a_paired_ci(hub_module, reach, act_checkpoint, tmp_path):
@@ -89,11 +91,11 @@ def test_a_trained_act_against_random_on_reach_reports_a_paired_ci(hub_module, r
     )
     act, rnd = report.policies
     assert act.spec == {"type": "lerobot", "path": str(act_checkpoint.resolve())} and rnd.spec == {"type": "random"}
-    assert len(act.returns) == len(rnd.returns) == 4 and act.returns != rnd.returns
+    assert len(act.returns.values) == len(rnd.returns.values) == 4 and act.returns.values != rnd.returns.values
     (d,) = report.differences
-    assert d.return_differences == tuple(x - y for x, y in zip(act.returns, rnd.returns))
-    assert d.return_ci[0] <= d.mean_return_difference <= d.return_ci[1] and d.return_ci[0] < d.return_ci[1]
-    assert act.return_ci[0] <= act.mean_return <= act.return_ci[1]
+    assert d.returns.values == tuple(x - y for x, y in zip(act.returns.values, rnd.returns.values))
+    assert d.returns.ci[0] <= d.returns.mean <= d.returns.ci[1] and d.returns.ci[0] < d.returns.ci[1]
+    assert act.returns.ci[0] <= act.returns.mean <= act.returns.ci[1]
     assert d.episodes_for_5_points is None or d.episodes_for_5_points >= 1
     md = (tmp_path / "report.md").read_text()
     assert "## Paired differences" in md and f"| {act_checkpoint} - random |" in md
@@ -106,3 +108,19 @@ def test_compare_refuses_bad_input_with_a_clear_error(hub_module, reach, tmp_pat
         compare(f"alice/reach-compare@{reach.sha}", ["random", "./no/such/folder"], trust_remote_code=True)
     with pytest.raises(errors.ReproductionError, match="config.json"):
         compare(f"alice/reach-compare@{reach.sha}", ["random", str(tmp_path)], trust_remote_code=True, write=False)
+
+
+def test_an_isolated_env_compares_to_the_same_numbers(hub_module, reach, act_checkpoint):
+    """--isolation=process: the env steps in worker processes, the policies run here; the comparison is the same."""
+    kw = dict(episodes=2, trust_remote_code=True, workers=1, write=False, progress=False)
+    here = compare(f"alice/reach-compare@{reach.sha}", [str(act_checkpoint), "random"], **kw)
+    isolated = compare(f"alice/reach-compare@{reach.sha}", [str(act_checkpoint), "random"], isolation="process", **kw)
+    assert (isolated.settings["isolation"], here.settings["isolation"]) == ("process", "none")
+
+    def numbers(report):  # all but the wall-clock seconds
+        return [(p.label, p.spec, p.returns, p.successes, p.episodes_for_5_points) for p in report.policies]
+
+    assert numbers(isolated) == numbers(here)
+    assert isolated.differences == here.differences and here.differences[0].returns.values != (0.0, 0.0)
+    with pytest.raises(errors.ConfigError, match="isolaton="):
+        compare(f"alice/reach-compare@{reach.sha}", ["random", "random"], isolaton="process", **kw)

@@ -11,8 +11,10 @@ Example:
 
 from __future__ import annotations
 
+import datetime as _dt
 import platform
 from importlib import metadata
+from typing import Any
 
 from packaging.requirements import InvalidRequirement, Requirement
 from packaging.utils import canonicalize_name
@@ -37,6 +39,25 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
     versions = {name: _version(name) for name in dict.fromkeys(names)}
     versions["python"] = platform.python_version()
     return dict(sorted(versions.items()))
+
+
+def run_provenance(loaded: Any, versions_here: dict[str, str] | None = None) -> dict[str, Any]:
+    """What every report of a run on ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) records first: the repo, the
+    revision asked for and the sha it resolved to, the content digest, the published dataset fingerprint, the
+    package versions the run used (``versions_here``, default this process's), hub-envs' version and when."""
+    from hub_envs import __version__
+
+    m = loaded.manifest
+    return {
+        "repo_id": loaded.repo_id,
+        "requested_revision": loaded.requested_revision,
+        "sha": loaded.revision,
+        "content_digest": m.content_digest,
+        "published_dataset_fingerprint": m.dataset.get("fingerprint"),
+        "versions_here": versions_here if versions_here is not None else package_versions(m.requirements),
+        "hub_envs_version": __version__,
+        "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
+    }
 
 
 def cpu_model() -> str:

@@ -159,15 +159,9 @@ class HubEnv(EnvConfig):
             raise ConfigError(f"--env.fingerprint={self.fingerprint!r}: use error, warn or off.")
         consent = _CLI_CONSENT[0] if _CLI_CONSENT else bool(self.trust_remote_code)
         self.trust_remote_code = False  # consent is not part of what a run's config describes, nor saved with it
+        run = CodeRun(isolation=self.isolation, sandbox=self.sandbox, versions=self.versions)
         loaded = load_cached(
-            self.repo_id,
-            self.revision,
-            trust_remote_code=consent,
-            fingerprint=self.fingerprint,
-            check=self.check,
-            isolation=self.isolation,
-            sandbox=self.sandbox,
-            versions=self.versions,
+            self.repo_id, self.revision, trust_remote_code=consent, fingerprint=self.fingerprint, check=self.check, **run
         )
         where = f"{loaded.repo_id}@{loaded.revision}"
         overrides = dict(self.overrides or {})

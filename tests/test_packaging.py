@@ -1,0 +1,81 @@
+"""The package as users install it: a wheel built with ``pip wheel .`` carries every file hub-envs reads at run time
+(the card template, the env entry template, the web page's templates and static files), and, installed on its own
+(not this checkout, not the editable install), serves a Hub and pushes an env with its card."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    done = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--quiet", "--disable-pip-version-check", "-w", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    (built,) = out.glob("hub_envs-*.whl")
+    return built
+
+
+def test_the_wheel_carries_every_file_the_package_reads(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    tracked = subprocess.run(["git", "ls-files", "hub_envs"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    # every tracked file of the package is in the wheel (the lerobot plugin and templates included)...
+    missing = sorted(set(tracked) - names)
+    assert not missing, f"the wheel lacks {missing}: list them in pyproject.toml's package-data"
+    # ...and nothing else of the checkout (tests, example envs, docs)
+    assert not [n for n in names if n.split("/")[0] in ("tests", "envs", "docs", "benchmarks", "scripts")]
+
+
+def test_the_installed_wheel_serves_a_hub_and_pushes_an_env_with_its_card(wheel, tmp_path):
+    site = tmp_path / "site"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--no-deps",
+            "--quiet",
+            "--disable-pip-version-check",
+            "--target",
+            str(site),
+            str(wheel),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    script = textwrap.dedent(
+        f"""
+        import hub_envs, huggingface_hub
+        from pathlib import Path
+        assert Path(hub_envs.__file__).is_relative_to({str(site)!r}), hub_envs.__file__  # the wheel, not the checkout
+        from hub_envs.testing import HubServer, hub_environment
+        from hub_envs import push_env
+        with HubServer({str(tmp_path / "store")!r}) as server, hub_environment(server.endpoint, {str(tmp_path / "hf")!r}):
+            result = push_env({str(ROOT / "envs" / "pendulum")!r}, "alice/pendulum", episodes=2, progress=False)
+            card = Path(huggingface_hub.hf_hub_download("alice/pendulum", "README.md", revision=result.sha)).read_text()
+            page = huggingface_hub.get_session().get(server.endpoint + "/alice/pendulum").text
+            print("CARD", all(h in card for h in ("## Load it", "## Dataset", "## Benchmark results", "alice/pendulum")))
+            print("PAGE", "hub.css" in page)
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": str(site), "HF_HUB_DISABLE_TELEMETRY": "1", "HF_HUB_DISABLE_XET": "1"}
+    ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert ran.returncode == 0, ran.stdout[-3000:] + ran.stderr[-3000:]
+    assert "CARD True" in ran.stdout and "PAGE True" in ran.stdout, ran.stdout
