@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -79,3 +80,13 @@ def test_the_installed_wheel_serves_a_hub_and_pushes_an_env_with_its_card(wheel,
     ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert ran.returncode == 0, ran.stdout[-3000:] + ran.stderr[-3000:]
     assert "CARD True" in ran.stdout and "PAGE True" in ran.stdout, ran.stdout
+
+
+def test_the_readme_architecture_map_names_every_module():
+    """README's "Architecture" section is the map of the package: a module it does not name is a module nobody finds."""
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Architecture") :]
+    section = section[: section.index("```", section.index("```") + 3)]
+    modules = sorted(p.stem for p in (ROOT / "hub_envs").rglob("*.py") if p.stem != "__init__" and "templates" not in p.parts)
+    missing = [m for m in modules if not re.search(rf"(?<![\w.]){m}\b", section)]
+    assert not missing, f"README's Architecture section does not name {missing}"
