@@ -445,6 +445,27 @@ def publish_folder(
     local = sorted(str(p.relative_to(folder).as_posix()) for p in folder.rglob("*") if p.is_file())
     ops: list = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=str(folder / p)) for p in local]
     ops += [CommitOperationDelete(path_in_repo=p) for p in sorted(set(remote_files) - set(local)) if p != ".gitattributes"]
+    return _commit_to_main(repo_id, ops, parent_commit, message, description, private=private, token=token)
+
+
+def update_files(
+    repo_id: str, files: dict[str, bytes], *, parent_commit: str, message: str, description: str = "", token: str | None = None
+) -> str:
+    """Replace ``files`` (path -> content) on main in ONE commit on top of ``parent_commit``, nothing else; the sha."""
+    ops = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=data) for p, data in sorted(files.items())]
+    return _commit_to_main(repo_id, ops, parent_commit, message, description, token=token)
+
+
+def _commit_to_main(
+    repo_id: str,
+    ops: list,
+    parent_commit: str | None,
+    message: str,
+    description: str,
+    *,
+    private: bool = False,
+    token: str | None = None,
+) -> str:
     client = api(token)
     with translate_hub_errors(repo_id, "main"), warnings.catch_warnings():
         # the dataset's parquet files belong in this model-type repo (LeRobot's EnvHub reads model repos)

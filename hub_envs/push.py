@@ -244,16 +244,17 @@ def _published_unchanged(
     token: str | None,
     attestations: list = (),  # type: ignore[assignment]
     video: bool = False,
-) -> tuple[str, Manifest] | None:
-    """``(sha, manifest)`` of main when it already holds what this push would build, else None.
+) -> tuple[str, Manifest, bool] | None:
+    """``(sha, manifest, card_current)`` of main when it already holds what this push would build, else None.
 
     "The same" is: the same code files (each hash), config values, dataset seeds and episode count, check
     seed, fingerprint seeds, requirements, processors, name/version/description, format, and recorded package
     versions (hub-envs' own included, so a new hub-envs regenerates); and main holds exactly the files its
     manifest lists. Generated files (dataset, GIF, card) are not rebuilt to compare them: they follow from
     the above, and a hand edit of them that also rewrote the manifest is for ``hub-envs reproduce`` to find
-    (``force=True`` regenerates anyway). The card must also show the merged ``attestations`` of this content
-    ("Reproduced on"): one merged since the last push makes the push rebuild, so the card shows it.
+    (``force=True`` regenerates anyway). ``card_current``: the card already shows the merged ``attestations``
+    of this content ("Reproduced on"); when one was merged since the last push, only the card is re-rendered
+    (:func:`_refresh_card`).
     """
     head = hub_io.remote_head(repo_id, token=token)
     if head is None:
@@ -288,7 +289,38 @@ def _published_unchanged(
     if remote_files != set(remote.files) | {MANIFEST_FILE}:
         return None
     table = reproduced_table([a for a in attestations if a.content_digest == remote.content_digest])
-    return (head, remote) if _card_shows(repo_id, head, table, token) else None
+    return head, remote, _card_shows(repo_id, head, table, token)
+
+
+def _refresh_card(
+    loaded: LoadedEnv, repo_id: str, head: str, remote: Manifest, attestations: list, *, token: str | None
+) -> tuple[str, Manifest]:
+    """Main holds this content, but attestations were merged since its card was rendered: render the card again
+    from main's manifest (as :func:`build_repo` renders it) and commit it with the manifest's new hash of it, on
+    top of ``head``: nothing else is rebuilt, and the content digest (which excludes the card) stays."""
+    env = loaded.make()
+    try:
+        card = render_card(
+            replace(remote, files={}),  # as build_repo renders it: before the files are hashed
+            env_class=loaded.env_class,
+            env=env,
+            content_tag=content_tag(remote.content_digest),
+            license=EnvFolder.read(loaded.local_folder).license,
+            reproductions=attestations,
+        ).encode("utf-8")
+    finally:
+        env.close()
+    manifest = replace(remote, files={**remote.files, CARD_FILE: hashlib.sha256(card).hexdigest()})
+    manifest = manifest.validated(where=f"{loaded.local_folder} (for {repo_id})")
+    sha = hub_io.update_files(
+        repo_id,
+        {CARD_FILE: card, MANIFEST_FILE: manifest.to_json().encode("utf-8")},
+        parent_commit=head,
+        message="push_env: the card shows the reproductions merged since",
+        description=f"content digest {manifest.content_digest}",
+        token=token,
+    )
+    return sha, manifest
 
 
 def _generated(path: str) -> bool:
@@ -594,12 +626,22 @@ def push_env(
             )
         )
         if unchanged is not None:
-            sha, manifest = unchanged
-            _stage_printer(progress)(f"{repo_id}@{sha} already holds this code, config, seeds and versions: nothing to build")
+            sha, manifest, card_current = unchanged
+            say = _stage_printer(progress)
+            say(f"{repo_id}@{sha} already holds this code, config, seeds and versions: nothing to build")
+            if not card_current:
+                say("Reproductions were merged since its card was rendered: committing the card again, nothing else")
+                sha, manifest = _refresh_card(loaded, repo_id, sha, manifest, attestations, token=token)
             tags = _tag(repo_id, sha, manifest, tag, token=token)
             timings["total"] = time.perf_counter() - t0
             return PushResult(
-                repo_id=repo_id, sha=sha, created_commit=False, content_tag=tags[0], manifest=manifest, timings=timings, tags=tags
+                repo_id=repo_id,
+                sha=sha,
+                created_commit=not card_current,
+                content_tag=tags[0],
+                manifest=manifest,
+                timings=timings,
+                tags=tags,
             )
         with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp, runner:
             staging = Path(tmp) / "repo"

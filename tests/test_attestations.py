@@ -101,6 +101,15 @@ def test_reproduce_attest_opens_a_pull_request_listed_then_merged_into_the_card(
     (row,) = [line for line in card.splitlines() if f"`{pushed.sha[:12]}`" in line and line.startswith("|")]
     assert "✓ reproduced" in row and att.stack_digest in row and att.stack["packages"]["lerobot"] in row
     assert path in api.list_repo_files(REPO, revision=again.sha)
+    # only the card (and the manifest's hash of it) was committed again: nothing rebuilt...
+    assert "build" not in again.timings
+    old, new = ({f.path: f.blob_id for f in api.list_repo_tree(REPO, revision=r, recursive=True) if hasattr(f, "blob_id")}
+                for r in (pushed.sha, again.sha))  # fmt: skip
+    changed = {p for p in new if old.get(p) != new[p]}
+    assert changed == {"README.md", "hub_env.json", path}, changed
+    # ...and it is exactly what a full rebuild makes: a forced push finds nothing to commit
+    forced = push_env(TINY, REPO, episodes=2, progress=False, force=True)
+    assert not forced.created_commit and forced.sha == again.sha and "build" in forced.timings
     # nothing new since: the next push makes no commit
     assert not push_env(TINY, REPO, episodes=2, progress=False).created_commit
 
