@@ -15,7 +15,8 @@ A light module (no lerobot, no torch): the CLI's ``--help`` imports it.
 A command that loads an env passes how its code runs on to :func:`hub_envs.load_env` as ``**run`` (a
 :class:`CodeRun`), so those keywords are written down once, here:
 
-    >>> def evaluate(repo_id, *, episodes=10, **run):
+    >>> from typing import Unpack
+    >>> def evaluate(repo_id, *, episodes=10, **run: Unpack[CodeRun]):
     ...     return repo_id, episodes, code_run(run, "evaluate")
     >>> call_with_flags(evaluate, EnvFlags(isolation="process", sandbox=True), "user/name")
     ('user/name', 10, {'isolation': 'process', 'sandbox': True, 'versions': 'current', 'step_timeout': None})
@@ -59,16 +60,17 @@ class CodeRun(TypedDict, total=False):
     step_timeout: float | None
 
 
-def code_run(run: dict[str, Any], where: str) -> CodeRun:
+def code_run(run: dict[str, Any], where: str, *, complete: bool = False) -> CodeRun:
     """``run`` checked to hold only :class:`CodeRun` keywords (a misspelt one is a :class:`ConfigError`, not a
-    ``TypeError`` deep in ``load_env``)."""
+    ``TypeError`` deep in ``load_env``); ``complete``: with every keyword, the defaults filled in (a cache key)."""
     unknown = sorted(set(run) - set(CodeRun.__annotations__))
     if unknown:
         raise ConfigError(
             f"{where}() got {', '.join(k + '=' for k in unknown)}: how an env's code runs is said with "
             f"{', '.join(CodeRun.__annotations__)} (see hub_envs.load_env)."
         )
-    return CodeRun(**run)
+    defaults = {f.name: f.default for f in fields(CodeFlags) if f.name in CodeRun.__annotations__} if complete else {}
+    return CodeRun(**{**defaults, **run})
 
 
 @dataclass
@@ -86,7 +88,8 @@ def call_with_flags(fn: Callable[..., T], flags: Any, *args: Any, **overrides: A
     """
     params = inspect.signature(fn).parameters
     bound = set(list(params)[: len(args)])
-    takes_run = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())  # ``**run``: CodeRun's keywords
+    # ``**run: Unpack[CodeRun]`` takes CodeRun's keywords (another ``**kwargs`` takes no flag it does not name)
+    takes_run = any(p.kind is inspect.Parameter.VAR_KEYWORD and "CodeRun" in str(p.annotation) for p in params.values())
     kwargs = {
         f.name: getattr(flags, f.name)
         for f in fields(flags)

@@ -153,8 +153,9 @@ def evaluate(
     Raises:
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
     """
-    from hub_envs.harness.provenance import package_versions
+    from hub_envs.harness.provenance import versions_run_with
 
+    run = code_run(run, "evaluate")  # before anything starts: a misspelt keyword is named at once
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes={episodes!r}: pass a positive number of episodes.")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -188,7 +189,7 @@ def evaluate(
             returns=tuple(returns),
             successes=tuple(successes),
             lengths=tuple(lengths),
-            versions=package_versions(loaded.manifest.requirements),
+            versions=versions_run_with(loaded),
             backend=runner.settings(),
             isolation=loaded.runs_as,
         )

@@ -151,11 +151,18 @@ class LoadedEnv:
         self._token = token
         self._cache_dir = cache_dir
         self._dataset_verified = False
+        self._unregistered = False
+        self._earlier: LoadedEnv | None = None  # the load of the same env_type this one replaced in _LOADED
+
+    @property
+    def worker_venv(self) -> dict[str, Any] | None:
+        """For an ``isolation="venv"`` load: the worker's venv record (``path``, ``python``, ``installed``, ``notes``)."""
+        return worker_versions(self)
 
     @property
     def runs_as(self) -> str:
         """How the env's code runs, as reports record it: ``none`` (in this process), ``process``, ``venv``,
-        ``process+sandbox``, ``venv+sandbox``."""
+        ``process+sandbox``, ``venv+publisher`` (the publisher's package versions), ..."""
         return "none" if self.isolation is None else self.isolation.label
 
     # -- names --
@@ -302,10 +309,18 @@ class LoadedEnv:
         return pipelines_for(self, cfg)
 
     def unregister(self) -> None:
-        """Remove this env's gym id and draccus choice (the imported modules stay cached)."""
+        """Release this load's gym id and draccus choice (the imported modules stay cached). Another load of the
+        same repo@sha shares them: they go when the last of those is unregistered. A second call does nothing."""
+        if self._unregistered:
+            return
+        self._unregistered = True
         registration.unregister(self._registration)
         if _LOADED.get(self.env_type) is self:
-            del _LOADED[self.env_type]
+            earlier = self._earlier
+            if earlier is not None and not earlier._unregistered:
+                _LOADED[self.env_type] = earlier  # the user's own load of it is what LeRobot's make_env finds again
+            else:
+                del _LOADED[self.env_type]
 
     def __enter__(self) -> LoadedEnv:
         return self
@@ -725,6 +740,7 @@ def load_env(
         raise
     timings["total"] = time.perf_counter() - t0
     report.timings = timings
+    loaded._earlier = _LOADED.get(loaded.env_type)
     _LOADED[loaded.env_type] = loaded
     return loaded
 

@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs._flags import CodeRun, EnvFlags, call_with_flags
+from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 
@@ -359,6 +359,7 @@ def compare(
 
     if len(policies) < 2:
         raise ConfigError(f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH.")
+    run = code_run(run, "compare")  # before anything starts: a misspelt keyword is named at once
     if episodes < 2:
         raise ConfigError(f"--episodes={episodes}: a confidence interval needs at least 2 episodes (20 or more is sensible).")
     if not 0 < confidence < 1:

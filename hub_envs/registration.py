@@ -31,6 +31,8 @@ from hub_envs.errors import RegistrationConflictError
 #: name -> owner key ("repo@sha") for every gym id and draccus choice hub-envs registered.
 _OWNED_GYM: dict[str, str] = {}
 _OWNED_CHOICES: dict[str, str] = {}
+#: how many loads hold each registration: the same repo@sha loaded twice shares one, and it goes when the last goes
+_HOLDS: dict[Registration, int] = {}
 
 
 @dataclass(frozen=True)
@@ -67,7 +69,7 @@ def registry_transaction():
     """On an exception inside the block, restore gymnasium's registry and draccus' EnvConfig choices."""
     txn = Transaction()
     gym_before, choices_before = txn.gym_before, txn.choices_before
-    owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES))
+    owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES), dict(_HOLDS))
     try:
         yield txn
     except BaseException:
@@ -79,6 +81,8 @@ def registry_transaction():
         _OWNED_GYM.update(owned_before[0])
         _OWNED_CHOICES.clear()
         _OWNED_CHOICES.update(owned_before[1])
+        _HOLDS.clear()
+        _HOLDS.update(owned_before[2])
         raise
 
 
@@ -99,7 +103,8 @@ def register(
     disable_env_checker: bool = True,
     register_choice: bool = True,
 ) -> Registration:
-    """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner."""
+    """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner (each call
+    is one more hold on the same :class:`Registration`, released by :func:`unregister`)."""
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) == owner and gym.registry[gym_id].entry_point is not entry_point:
         _OWNED_GYM.pop(gym_id)  # replaced behind our back: it is no longer ours
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) != owner:
@@ -140,11 +145,17 @@ def register(
     if register_choice and env_type not in _choices():
         EnvConfig.register_subclass(env_type)(config_class)
         _OWNED_CHOICES[env_type] = owner
-    return Registration(gym_id=gym_id, env_type=env_type, owner=owner)
+    held = Registration(gym_id=gym_id, env_type=env_type, owner=owner)
+    _HOLDS[held] = _HOLDS.get(held, 0) + 1
+    return held
 
 
 def unregister(registration: Registration) -> None:
-    """Remove what :func:`register` added (only if hub-envs still owns it)."""
+    """Release one hold on what :func:`register` added; the last one removes it (only if hub-envs still owns it)."""
+    holds = _HOLDS.pop(registration, 0) - 1
+    if holds > 0:  # another load of the same repo@sha still uses it
+        _HOLDS[registration] = holds
+        return
     if _OWNED_GYM.get(registration.gym_id) == registration.owner:
         gym.registry.pop(registration.gym_id, None)
         del _OWNED_GYM[registration.gym_id]

@@ -43,7 +43,13 @@ from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionE
 from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
-from hub_envs.harness.provenance import describe_differences, package_versions, run_provenance, version_differences
+from hub_envs.harness.provenance import (
+    describe_differences,
+    package_versions,
+    run_provenance,
+    version_differences,
+    worker_provenance,
+)
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
 from hub_envs.harness.report_files import default_out_dir
@@ -63,13 +69,9 @@ DEFAULT_OUT = Path("reproduce-out")
 
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     m = loaded.manifest
-    here = package_versions(m.requirements)
-    worker = _worker_versions(loaded)
-    if worker is not None:  # isolation="venv": the env ran with the venv's packages and python, not these
-        here = {**here, **worker["versions"]}
-    diffs = version_differences(m.versions, here)
-    prov: dict[str, Any] = {
-        **run_provenance(loaded, here),
+    prov: dict[str, Any] = run_provenance(loaded)  # isolation="venv": the versions the worker ran with
+    diffs = version_differences(m.versions, prov["versions_here"])
+    prov |= {
         "code_digest": code_digest_of(m.files),
         "seeds": {
             "dataset": list(m.dataset.get("seeds", [])),
@@ -78,7 +80,7 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         },
         "versions_published": dict(m.versions),
         "version_differences": {k: list(v) for k, v in diffs.items()},
-        "worker": worker,
+        "worker": worker_provenance(loaded),
     }
     if dataset_root is not None:
         prov["dataset_fingerprint"] = dataset_fingerprint(dataset_root)
@@ -88,30 +90,6 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
             prov["dataset_code_digest"] = None
         prov["seeds"]["dataset"] = [m_.get("seed") for m_ in read_episode_meta(dataset_root)]
     return prov
-
-
-def _worker_versions(loaded: Any) -> dict[str, Any] | None:
-    """For a venv-isolated load: where the env ran (venv, python, every installed package, notes) and the versions
-    of the packages the manifest records, as the worker has them."""
-    from hub_envs.load import worker_versions
-
-    record = worker_versions(loaded)
-    if record is None:
-        return None
-
-    def norm(name: str) -> str:
-        return name.lower().replace("_", "-")
-
-    installed = {norm(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)}
-    versions = {k: installed[norm(k)] for k in loaded.manifest.versions if norm(k) in installed}
-    versions["python"] = record.get("python")
-    return {
-        "venv": record.get("path"),
-        "python": record.get("python"),
-        "installed": list(record.get("installed", [])),
-        "notes": list(record.get("notes", [])),
-        "versions": versions,
-    }
 
 
 def _fingerprint(loaded: Any) -> dict[str, Any]:

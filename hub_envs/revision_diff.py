@@ -63,6 +63,8 @@ __all__ = ["diff", "DiffReport", "SeedDiff", "DiffArgs", "diff_cli", "CLI_COMMAN
 
 DEFAULT_OUT = Path("diff-out")
 
+#: fewer paired episodes than this: the report says their bootstrap interval is not a calibrated 95% one
+FEW_EPISODES = 10
 #: manifest fields the file lists already cover (or that only restate them)
 _MANIFEST_SKIP = ("files", "content_digest", "code_digest", "repo_id", "gym_id", "env_type")
 #: manifest fields whose change alters behaviour even when the compared episodes do not show it
@@ -556,13 +558,20 @@ def _benchmark_deltas(
     token: str | None,
     trust_policy_code: bool,
 ) -> list[dict[str, Any]]:
-    """Each benchmark ``old`` declares, re-run on ``old`` and ``new`` (same policy, seeds and steps), and per metric
-    the paired per-episode difference with its bootstrap CI; a benchmark that cannot run says why (``error``)."""
+    """Each benchmark ``old`` declares, re-run on ``old`` and ``new`` (same policy, seeds and steps: the old
+    declaration's, or the old config's episode length), and per metric the paired per-episode difference with its
+    bootstrap CI; a benchmark that cannot run says why (``error``).
+
+    An episode differs when a per-episode value differs by more than ``tolerance`` per step: a return, a sum of
+    up to ``max_steps`` rewards each within ``tolerance`` of the other, by more than ``tolerance * max_steps``;
+    a success (0 or 1) when it flips (any ``tolerance`` below 1)."""
     from hub_envs.harness.benchmark import METRICS, BenchmarkRun
 
     declared_new = {str(b.get("name")) for b in new.manifest.benchmarks}
     out = []
     for bench in old.manifest.benchmarks:
+        max_steps = int(bench.get("max_steps") or old.config.episode_length)
+        bench = {**bench, "max_steps": max_steps}
         runs = [
             BenchmarkRun(side, bench, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
             for side in (old, new)
@@ -571,6 +580,7 @@ def _benchmark_deltas(
             "name": runs[0].name,
             "policy": dict(bench.get("policy") or {}),
             "seeds": list(runs[0].seeds),
+            "max_steps": max_steps,
             "declared_in_new": runs[0].name in declared_new,
         }
         out.append(entry)
@@ -585,7 +595,8 @@ def _benchmark_deltas(
         for m, published in runs[0].metrics.items():
             key = METRICS[m][0]
             x, y = runs[0].per_episode[key], runs[1].per_episode[key]
-            differing |= {i for i, (p, q) in enumerate(zip(x, y, strict=True)) if abs(q - p) > tolerance}
+            allowed = tolerance * max_steps if key == "return" else tolerance
+            differing |= {i for i, (p, q) in enumerate(zip(x, y, strict=True)) if abs(q - p) > allowed}
             metrics[m] = {
                 **_paired_delta(x, y, resamples),
                 "published": float(published),
@@ -651,7 +662,7 @@ def diff(
     """
     from hub_envs import __version__
     from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
-    from hub_envs.harness.provenance import package_versions
+    from hub_envs.harness.provenance import versions_run_with
     from hub_envs.harness.replay import _env_actions
     from hub_envs.harness.rollout import run_episodes
     from hub_envs.load import load_env
@@ -743,11 +754,20 @@ def diff(
             timings["benchmarks"] = time.perf_counter() - t
         elif benchmarks and a.manifest.benchmarks:
             notes.append("the action space changed: the benchmarks were not re-run")
+        for bm in bench_out:
+            if bm.get("error"):
+                notes.append(f"benchmark {bm['name']} was not re-run: {bm['error']}")
         deltas: dict[str, Any] = {}
         if seeds_out:
             deltas["return"] = _paired_delta([s.return_old for s in seeds_out], [s.return_new for s in seeds_out], resamples)
             deltas["success"] = _paired_delta(
                 [float(s.success_old) for s in seeds_out], [float(s.success_new) for s in seeds_out], resamples
+            )
+        few = sorted({d["n"] for d in deltas.values()} | {len(bm["seeds"]) for bm in bench_out if bm.get("metrics")})
+        if few and few[0] < FEW_EPISODES:
+            notes.append(
+                f"a paired interval over {few[0]} episodes is little more than the range of the differences, not a calibrated "
+                f"95% interval: use {FEW_EPISODES} or more (--episodes/--random_episodes; push_env --episodes for the benchmark)"
             )
         obs_change = [s for s in spaces if s["space"] == "observation_space"]
         if obs_change and seeds_out:
@@ -775,7 +795,8 @@ def diff(
             },
             provenance={
                 "hub_envs_version": __version__,
-                "versions_here": package_versions(tuple(a.manifest.requirements) + tuple(b.manifest.requirements)),
+                # each revision's code ran with these (a venv worker's own, when isolated in one)
+                "versions_here": {**versions_run_with(a), **versions_run_with(b)},
                 "versions_old": dict(a.manifest.versions),
                 "versions_new": dict(b.manifest.versions),
                 "python": sys.version.split()[0],

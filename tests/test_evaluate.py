@@ -54,7 +54,8 @@ def test_the_cli_evaluates_isolated_and_records_how(tiny, tmp_path, capsys):
     printed = json.loads(capsys.readouterr().out)
     saved = json.loads((tmp_path / "eval.json").read_text())
     assert printed == saved and saved["isolation"] == "process" and saved["policy"] == "random"
-    assert len(saved["returns"]) == 2 and saved["metrics"]["mean_return"] == pytest.approx(np.mean(saved["returns"]))
+    here = evaluate(tiny, episodes=2, trust_remote_code=True, workers=1, progress=False)  # the env in this process
+    assert saved["returns"] == list(here.returns) and saved["seeds"] == [0, 1] and saved["sha"] == here.sha
 
 
 def test_bad_input_is_a_typed_error(tiny):
@@ -64,3 +65,20 @@ def test_bad_input_is_a_typed_error(tiny):
         evaluate(tiny, policy=42, episodes=1, trust_remote_code=True, progress=False)
     with pytest.raises(errors.UntrustedCodeError, match="alice/tiny"):
         evaluate(tiny, episodes=1, progress=False)
+
+
+def test_evaluating_an_env_the_user_has_loaded_leaves_their_load_registered(tiny):
+    """evaluate (like reproduce, diff and compare) loads the env and unregisters it at the end: a load of the same
+    repo@sha the user holds shares the registration, and keeps it until the user lets go."""
+    import gymnasium as gym
+
+    from hub_envs import load_env
+    from hub_envs.load import loaded_env_for_type
+
+    mine = load_env(tiny, trust_remote_code=True)
+    evaluate(tiny, episodes=1, trust_remote_code=True, workers=1, progress=False)
+    assert mine.gym_id in gym.registry and loaded_env_for_type(mine.env_type) is mine
+    gym.make(mine.gym_id).close()
+    mine.unregister()
+    mine.unregister()  # a second call does nothing
+    assert mine.gym_id not in gym.registry and loaded_env_for_type(mine.env_type) is None

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -17,11 +18,21 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _tracked(*paths: str) -> list[str]:
+    return subprocess.run(["git", "ls-files", *paths], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("wheel")
+    """A wheel built with ``pip wheel .`` from a clean copy of the tracked files (the checkout's own ``build/``
+    would otherwise leak files git no longer has into it)."""
+    src, out = tmp_path_factory.mktemp("src"), tmp_path_factory.mktemp("wheel")
+    for rel in _tracked("pyproject.toml", "README.md", "hub_envs"):
+        (src / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / rel, src / rel)
     done = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--quiet", "--disable-pip-version-check", "-w", str(out)],
+        [sys.executable, "-m", "pip", "wheel", ".", "--no-deps", "--quiet", "--disable-pip-version-check", "-w", str(out)],
+        cwd=src,
         capture_output=True,
         text=True,
         timeout=600,
@@ -32,13 +43,13 @@ def wheel(tmp_path_factory) -> Path:
 
 
 def test_the_wheel_carries_every_file_the_package_reads(wheel):
-    names = set(zipfile.ZipFile(wheel).namelist())
-    tracked = subprocess.run(["git", "ls-files", "hub_envs"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    names = {n for n in zipfile.ZipFile(wheel).namelist() if ".dist-info/" not in n}
+    tracked = set(_tracked("hub_envs"))
     # every tracked file of the package is in the wheel (the lerobot plugin and templates included)...
-    missing = sorted(set(tracked) - names)
+    missing = sorted(tracked - names)
     assert not missing, f"the wheel lacks {missing}: list them in pyproject.toml's package-data"
-    # ...and nothing else of the checkout (tests, example envs, docs)
-    assert not [n for n in names if n.split("/")[0] in ("tests", "envs", "docs", "benchmarks", "scripts")]
+    # ...and nothing else: no file git does not track, nothing of tests, example envs, docs
+    assert names == tracked, sorted(names - tracked)
 
 
 def test_the_installed_wheel_serves_a_hub_and_pushes_an_env_with_its_card(wheel, tmp_path):
@@ -83,10 +94,31 @@ def test_the_installed_wheel_serves_a_hub_and_pushes_an_env_with_its_card(wheel,
 
 
 def test_the_readme_architecture_map_names_every_module():
-    """README's "Architecture" section is the map of the package: a module it does not name is a module nobody finds."""
+    """README's "Architecture" section is the map of the package: a module it does not name is a module nobody finds.
+    A top-level module is named as ``name.py``; a subpackage's modules by name in that subpackage's entry."""
     readme = (ROOT / "README.md").read_text()
     section = readme[readme.index("## Architecture") :]
-    section = section[: section.index("```", section.index("```") + 3)]
-    modules = sorted(p.stem for p in (ROOT / "hub_envs").rglob("*.py") if p.stem != "__init__" and "templates" not in p.parts)
-    missing = [m for m in modules if not re.search(rf"(?<![\w.]){m}\b", section)]
+    tree = section[section.index("```") + 3 : section.index("```", section.index("```") + 3)]
+    entries: dict[str, str] = {}  # subpackage -> its lines in the map
+    for line in tree.splitlines():
+        head = re.match(r"  (\w+)/", line)
+        if head:
+            current = head.group(1)
+        elif not line.startswith("   "):
+            current = None
+        if line.startswith("  ") and current:
+            entries[current] = entries.get(current, "") + line + "\n"
+    missing = []
+    for path in sorted((ROOT / "hub_envs").rglob("*.py")):
+        rel = path.relative_to(ROOT / "hub_envs")
+        if path.stem == "__init__" or rel.parts[0] == "templates":
+            continue
+        if len(rel.parts) == 1:
+            found = re.search(rf"(?<![\w.]){re.escape(path.name)}\b", tree)
+        else:
+            # an item of the entry's list: after ": ", ", " or a line's indent; before ",", " (" or the line's end
+            item = rf"(?:[:,]\s+|^\s+){re.escape(path.stem)}(?=,|\s+\(|\s*$)"
+            found = re.search(item, entries.get(rel.parts[0], ""), re.MULTILINE)
+        if not found:
+            missing.append(str(rel))
     assert not missing, f"README's Architecture section does not name {missing}"

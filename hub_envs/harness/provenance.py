@@ -41,10 +41,38 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
     return dict(sorted(versions.items()))
 
 
-def run_provenance(loaded: Any, versions_here: dict[str, str] | None = None) -> dict[str, Any]:
+def worker_provenance(loaded: Any) -> dict[str, Any] | None:
+    """For a venv-isolated load (``loaded.worker_venv``): where the env ran (venv, python, every installed package,
+    notes) and the versions of the packages the manifest records, as the worker has them; else None."""
+    record = loaded.worker_venv
+    if record is None:
+        return None
+    installed = {
+        canonicalize_name(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)
+    }
+    versions = {k: installed[canonicalize_name(k)] for k in loaded.manifest.versions if canonicalize_name(k) in installed}
+    versions["python"] = record.get("python")
+    return {
+        "venv": record.get("path"),
+        "python": record.get("python"),
+        "installed": list(record.get("installed", [])),
+        "notes": list(record.get("notes", [])),
+        "versions": versions,
+    }
+
+
+def versions_run_with(loaded: Any) -> dict[str, str]:
+    """The package versions ``loaded``'s code runs with: this process's (:func:`package_versions` of its
+    requirements), or, isolated in a venv, the worker's where it has them (python included)."""
+    here = package_versions(loaded.manifest.requirements)
+    worker = worker_provenance(loaded)
+    return {**here, **worker["versions"]} if worker is not None else here
+
+
+def run_provenance(loaded: Any) -> dict[str, Any]:
     """What every report of a run on ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) records first: the repo, the
     revision asked for and the sha it resolved to, the content digest, the published dataset fingerprint, the
-    package versions the run used (``versions_here``, default this process's), hub-envs' version and when."""
+    package versions the env's code ran with (:func:`versions_run_with`), hub-envs' version and when."""
     from hub_envs import __version__
 
     m = loaded.manifest
@@ -54,7 +82,7 @@ def run_provenance(loaded: Any, versions_here: dict[str, str] | None = None) -> 
         "sha": loaded.revision,
         "content_digest": m.content_digest,
         "published_dataset_fingerprint": m.dataset.get("fingerprint"),
-        "versions_here": versions_here if versions_here is not None else package_versions(m.requirements),
+        "versions_here": versions_run_with(loaded),
         "hub_envs_version": __version__,
         "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
     }

@@ -77,7 +77,7 @@ class IsolationOptions:
     @property
     def label(self) -> str:
         """How the code runs, as reports record it: ``none``, ``process``, ``venv``, ``process+sandbox``, ..."""
-        return self.isolation + ("+sandbox" if self.sandbox else "")
+        return self.isolation + ("+sandbox" if self.sandbox else "") + ("+publisher" if self.versions == "publisher" else "")
 
     @property
     def call_timeout(self) -> float | None:

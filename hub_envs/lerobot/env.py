@@ -75,7 +75,7 @@ def load_cached(
     **run: Unpack[CodeRun],
 ) -> LoadedEnv:
     """:func:`hub_envs.load_env`, once per process for the same arguments (``run``: how the code runs)."""
-    iso = tuple(sorted(code_run(run, "load_cached").items()))
+    iso = tuple(sorted(code_run(run, "load_cached", complete=True).items()))
     key = (repo_id, revision, fingerprint, bool(check), iso)
     loaded = _CACHE.get(key)
     if loaded is not None and loaded_env_for_type(loaded.env_type) is loaded:
