@@ -4,12 +4,16 @@ How a run goes (:meth:`RayBackend.episodes`):
 
 1. connect: ``ray_address`` (or ``$RAY_ADDRESS``) is probed first, so an unreachable cluster is one
    :class:`~hub_envs.errors.ClusterUnreachableError` naming it; with neither, a local Ray is started for
-   the run (dashboard off) and stopped after it. ``import ray`` happens here, and only here.
+   the run (dashboard off, its workers at normal priority rather than Ray's default nice 15) and stopped
+   after it. ``import ray`` happens here, and only here.
 2. shards run as Ray tasks (one CPU each; Ray retries a task whose worker process died). A worker gets
    the env the way a user does: ``load_env("user/name@<sha>")`` in the worker (the Hub distributes the
    code, integrity is verified there), or, for ``push_env`` of a local folder, the folder's files shipped
    through Ray's object store. Ray reuses a worker process for the tasks of a job, and each worker keeps
    the run's env (and policy) in a small cache: they are built once per worker, not per shard or episode.
+   The worker loads it with the driver's isolation settings (:class:`~hub_envs.backends.EnvSource`): with
+   ``isolation="process"`` (or ``"venv"``, ``sandbox=True``) the env's code runs in a worker process of the Ray
+   worker, never in the Ray worker itself.
 3. episodes are cut into shards of consecutive indices (their seeds and, for a replay, their recorded
    actions go with them); shard ``k`` goes to actor ``k mod workers``; at most ``2 x workers`` shards are
    in flight, and the driver consumes them **in shard order**, so what it writes (a dataset, a report)
@@ -18,7 +22,8 @@ How a run goes (:meth:`RayBackend.episodes`):
    determines it (env content, seeds, steps, policy, shard size); the same run started again loads
    those shards instead of running them.
 5. a shard whose worker process dies is retried by Ray (``max_retries``); the result is the same because a shard is a pure function of its inputs.
-   Ctrl-C (or closing the iterator) cancels the shards in flight: nothing is left running.
+   Ctrl-C (or closing the iterator) cancels the shards in flight: nothing is left running. The progress
+   bar counts episodes and the workers alive (CPUs on the cluster's live nodes, :func:`alive_slots`).
 """
 
 from __future__ import annotations
@@ -27,8 +32,10 @@ import hashlib
 import json
 import os
 import pickle
+import shutil
 import socket
 import sys
+import tempfile
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
@@ -80,9 +87,9 @@ def _probe(address: str, timeout: float = 5.0) -> None:
 
 # --- the worker side ------------------------------------------------------------------------------
 
-#: this worker process's envs (and policies), by run: (source identity, policy digest) -> _Loaded.
+#: this worker process's envs (and policies), by run: (source identity, isolation, policy digest) -> _Loaded.
 #: Ray reuses a worker process for the tasks of a job, so an env is loaded once per worker, not per shard.
-_LOADED: dict[tuple[str, str], Any] = {}
+_LOADED: dict[tuple[str, ...], Any] = {}
 _KEEP = 2  # runs whose envs a worker keeps (a reproduce runs a replay pass, then maybe a checkpoint policy)
 
 
@@ -92,9 +99,11 @@ class _Loaded:
     def __init__(self, source: EnvSource, policy: Any):
         self.error: HubEnvsError | None = None
         self.env = None
+        self.loaded = None
         self.policy = policy
+        self.scratch = tempfile.mkdtemp(prefix="hub-envs-worker-") if source.folder is not None else None
         try:
-            self.loaded = source.load()
+            self.loaded = source.load(self.scratch)  # with the driver's isolation: then self.env is a proxy
             if isinstance(policy, dict):  # a policy spec: built here, once per worker
                 from hub_envs.harness.benchmark import _policy_for
 
@@ -106,16 +115,23 @@ class _Loaded:
             self.error = EnvCodeError(f"on Ray node {_node_ip()}: building the env raised {type(exc).__name__}: {exc}")
 
     def close(self) -> None:
+        """Close the env (an isolated one's worker process ends with it), unregister it, remove the unpacked folder."""
         if self.env is not None:
             try:
                 self.env.close()
             except Exception:  # noqa: BLE001
                 pass
             self.env = None
+        if self.loaded is not None:
+            self.loaded.unregister()
+            self.loaded = None
+        if self.scratch is not None:
+            shutil.rmtree(self.scratch, ignore_errors=True)
+            self.scratch = None
 
 
 def run_shard(
-    key: tuple[str, str], source: EnvSource, policy: Any, max_steps: int, record_states: bool, start: int, seeds: list, actions
+    key: tuple[str, ...], source: EnvSource, policy: Any, max_steps: int, record_states: bool, start: int, seeds: list, actions
 ) -> list[EpisodeRollout]:
     """Episodes ``start, start + 1, ...`` (one per seed) on this worker's env for the run ``key``."""
     here = _LOADED.get(key)
@@ -153,6 +169,41 @@ def _digest(obj: Any) -> str:
     from ray import cloudpickle
 
     return hashlib.sha256(cloudpickle.dumps(obj)).hexdigest()
+
+
+def alive_slots(ray: Any) -> tuple[int, int]:
+    """(CPUs on the cluster's live nodes, live nodes), from the cluster's node table (one GCS request).
+
+    A shard takes one CPU, so this is how many shards can run at once; it drops when a node dies (a worker
+    process killed on a live node is restarted by Ray and does not count)."""
+    nodes = [node for node in ray.nodes() if node.get("Alive")]
+    return int(sum(node.get("Resources", {}).get("CPU", 0) for node in nodes)), len(nodes)
+
+
+class _Status:
+    """The progress bar's postfix: ``workers alive=<live>/<workers>, nodes=<n>`` (and resumed shards), refreshed
+    at most every ``every`` seconds (the count asks the cluster)."""
+
+    def __init__(self, ray: Any, bar: Any, workers: int, resumed: int, every: float = 2.0):
+        self.ray, self.bar, self.workers, self.resumed, self.every = ray, bar, workers, resumed, every
+        self.last = float("-inf")
+        self.refresh()
+
+    def refresh(self) -> None:
+        import time
+
+        now = time.monotonic()
+        if now - self.last < self.every:
+            return
+        self.last = now
+        try:
+            cpus, nodes = alive_slots(self.ray)
+        except Exception:  # noqa: BLE001 - a status line never fails a run
+            return
+        text = f"workers alive={min(cpus, self.workers)}/{self.workers}, nodes={nodes}"
+        if self.resumed:
+            text += f", resumed shards={self.resumed}"
+        self.bar.set_postfix_str(text)
 
 
 class RayRun:
@@ -224,6 +275,9 @@ class RayBackend(Backend):
                     log_to_driver=False,
                     logging_level="warning",
                     object_store_memory=self.object_store_memory,
+                    # Ray runs its workers at nice 15 by default: on a machine shared with other work they would get a
+                    # sliver of the CPU the local backend's processes get; a Ray started for the run is ours alone
+                    _system_config={"worker_niceness": 0},
                 )
             self._started = True
             self.startup_seconds = time.perf_counter() - t
@@ -250,13 +304,6 @@ class RayBackend(Backend):
         seeds = _check_seeds(seeds)
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
             raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
-        if getattr(loaded, "isolation", None) is not None:
-            from hub_envs.errors import IsolationUnavailableError
-
-            raise IsolationUnavailableError(
-                f"{loaded.repo_id}@{loaded.revision}: --backend=ray with --isolation is not implemented yet; "
-                "run it with --backend=local, or on Ray without --isolation."
-            )
         stats = {"episodes": len(seeds), "shards": 0, "shards_run": 0, "shards_resumed": 0}
         return RayRun(self._run(loaded, seeds, int(max_steps), policy, bool(record_states), progress, desc, stats), stats)
 
@@ -274,12 +321,14 @@ class RayBackend(Backend):
             done = {k for k in range(len(shards)) if ckpt is not None and (ckpt / f"shard-{k:06d}.pkl").is_file()}
             todo = deque(k for k in range(len(shards)) if k not in done)
             bar = _progress(n, desc, progress)
-            bar.set_postfix_str(f"ray workers={workers}, resumed shards={len(done)}", refresh=False)
+            status = _Status(ray, bar, workers, resumed=len(done)) if progress else None
             pending: dict[int, Any] = {}
             task = ray.remote(num_cpus=1, max_retries=MAX_RESTARTS)(run_shard)
             source_ref = ray.put(source)
             policy_ref = ray.put(shared)
-            key = (source.identity, _digest(shared))
+            # a worker's cached env is per (content, isolation, policy): an isolated and an in-process run of one
+            # env never share it
+            key = (source.identity, json.dumps(source.isolation, sort_keys=True), _digest(shared))
             window = 2 * workers
             try:
 
@@ -304,6 +353,8 @@ class RayBackend(Backend):
                             tmp = ckpt / f".shard-{k:06d}.pkl.tmp"
                             tmp.write_bytes(pickle.dumps(rollouts, protocol=pickle.HIGHEST_PROTOCOL))
                             os.replace(tmp, ckpt / f"shard-{k:06d}.pkl")
+                    if status is not None:
+                        status.refresh()
                     for rollout in rollouts:
                         bar.update(1)
                         yield rollout

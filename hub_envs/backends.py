@@ -56,7 +56,9 @@ class EnvSource:
     ``ref`` is ``user/name@<sha>`` for a Hub repo (the worker calls ``load_env`` on it: the Hub distributes
     the code and integrity is verified there), or the folder name of a local env folder whose files travel
     with the job as ``folder`` (a tar archive, through Ray's object store). ``config`` is the variant's
-    config fields (a local folder); ``identity`` names the exact content (for checkpoints).
+    config fields (a local folder); ``identity`` names the exact content (for checkpoints). ``isolation`` is the
+    :func:`~hub_envs.load_env` isolation keywords the env was loaded with (empty: in-process): a worker loads it
+    the same way, so with ``isolation="process"`` the env's code runs in a worker process of the Ray worker.
     """
 
     ref: str
@@ -65,10 +67,12 @@ class EnvSource:
     config: dict[str, Any] = field(default_factory=dict)
     trust_remote_code: bool = False
     token: str | None = None
+    isolation: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_loaded(cls, loaded: Any) -> EnvSource:
         """The source of an env this process loaded (consent given here carries over to the workers)."""
+        isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
         if loaded.local_folder is not None:
             from hub_envs.envconfig import encode_config
 
@@ -79,20 +83,29 @@ class EnvSource:
                 identity=f"{loaded.repo_id}@{loaded.revision}",
                 folder=_tar_folder(Path(loaded.local_folder)),
                 config=config,
+                isolation=isolation,
             )
         ref = f"{loaded.repo_id}@{loaded.revision}"
-        return cls(ref=ref, identity=ref, trust_remote_code=True, token=getattr(loaded, "_token", None))
+        return cls(ref=ref, identity=ref, trust_remote_code=True, token=getattr(loaded, "_token", None), isolation=isolation)
 
-    def load(self) -> Any:
-        """``load_env`` in this (worker) process; checks already ran where the run was started."""
+    def load(self, scratch: Path | None = None) -> Any:
+        """``load_env`` in this (worker) process, with the driver's isolation; checks already ran where the run
+        was started. A shipped folder is unpacked into ``scratch`` (the caller removes it; default a new temp folder)."""
         from hub_envs.load import load_env
 
         if self.folder is None:
-            return load_env(self.ref, trust_remote_code=self.trust_remote_code, check=False, fingerprint="off", token=self.token)
-        root = Path(tempfile.mkdtemp(prefix="hub-envs-worker-"))
+            return load_env(
+                self.ref,
+                trust_remote_code=self.trust_remote_code,
+                check=False,
+                fingerprint="off",
+                token=self.token,
+                **self.isolation,
+            )
+        root = Path(scratch) if scratch is not None else Path(tempfile.mkdtemp(prefix="hub-envs-worker-"))
         with tarfile.open(fileobj=io.BytesIO(self.folder), mode="r") as tar:
             tar.extractall(root, filter="data")
-        return load_env(root / self.ref, check=False, config=self.config or None)
+        return load_env(root / self.ref, check=False, config=self.config or None, **self.isolation)
 
 
 def _tar_folder(folder: Path) -> bytes:

@@ -264,6 +264,14 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
+#: what an interrupted command leaves behind, said after "interrupted (Ctrl-C)"
+INTERRUPTED_NOTES = {
+    "push": " push_env builds the repo in a temporary folder (now removed) and makes its one commit only after every "
+    "episode is written: an interrupted build published nothing. Run the same command again (on Ray with --out=DIR, "
+    "the finished shards are kept and skipped).",
+}
+
+
 def run_command(name: str, argv: list[str]) -> int:
     import warnings
 
@@ -286,6 +294,10 @@ def run_command(name: str, argv: list[str]) -> int:
     except HubEnvsError as e:
         print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # the work in flight (worker processes, Ray tasks) was stopped on the way out
+        note = INTERRUPTED_NOTES.get(name, "")
+        print(f"\nhub-envs {name}: interrupted (Ctrl-C); the work in flight was stopped.{note}", file=sys.stderr)
+        return 130  # 128 + SIGINT, as a shell reports it
 
 
 def main(argv: list[str] | None = None) -> int:

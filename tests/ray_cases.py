@@ -38,7 +38,9 @@ def _start_cluster(attempts: int = 3) -> Cluster:
     for attempt in range(attempts):
         c = Cluster(initialize_head=False)
         try:
-            c.add_node(**NODE, include_dashboard=False)  # the first node is the head
+            # the first node is the head; its system config holds for every node: workers at the niceness of
+            # the rest of the suite (Ray's default, nice 15, starves them on a busy machine)
+            c.add_node(**NODE, include_dashboard=False, _system_config={"worker_niceness": 0})
             c.add_node(**NODE)
             c.wait_for_nodes()
             return c
@@ -111,6 +113,65 @@ def test_push_on_ray_publishes_exactly_what_the_local_backend_publishes(cluster,
     assert on_ray.manifest.dataset["episodes"] == 4 and on_ray.manifest.dataset["env_states"]
 
 
+def _head(api, repo_id: str) -> str | None:
+    return api.repo_info(repo_id).sha if api.repo_exists(repo_id) else None
+
+
+def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tmp_path):
+    """``push_env --backend=ray`` interrupted mid-run (SIGINT, as Ctrl-C sends): it exits promptly with a message,
+    the Hub repo gets no commit, no staging folder is left, and no Ray worker keeps running a shard."""
+    import re
+    import shutil
+    import subprocess
+    import threading
+
+    env_dir = tmp_path / "hover"
+    shutil.copytree(ENVS / "hover", env_dir)
+    files_before = sorted(p.relative_to(env_dir) for p in env_dir.rglob("*"))
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    repo = "ray/hover-interrupted"
+    push_env(env_dir, repo, episodes=2, config={"episode_length": 12}, determinism_steps=6, progress=False, workers=1)
+    head = _head(hub_module.api, repo)
+    episodes = 400
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub_envs.cli", "push", f"--env_dir={env_dir}", f"--repo_id={repo}", f"--episodes={episodes}",
+         "--config.episode_length=60", "--determinism_steps=6", "--backend=ray", f"--ray_address={cluster.address}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "TMPDIR": str(scratch)},
+    )  # fmt: skip
+    err = bytearray()
+    reader = threading.Thread(target=lambda: err.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True)
+    reader.start()
+    try:
+        done = re.compile(rb"Generating %d episodes:.*?(\d+)/%d" % (episodes, episodes))
+        deadline = time.monotonic() + 600  # a hang guard, not a timing
+        while time.monotonic() < deadline and proc.poll() is None:
+            counts = [int(n) for n in done.findall(bytes(err))]
+            if counts and 0 < max(counts) < episodes // 2:
+                break  # mid-run: episodes have come back from the workers, most are still to run
+            time.sleep(0.05)
+        assert proc.poll() is None, "the push ended before it could be interrupted:\n" + err.decode(errors="replace")[-3000:]
+        assert _busy_workers(), "no Ray worker was running a shard when the push was interrupted"
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    reader.join(timeout=10)
+    text = err.decode(errors="replace")
+    assert code == 130, text[-3000:]
+    assert "interrupted (Ctrl-C)" in text and "published nothing" in text and "Traceback" not in text, text[-3000:]
+    assert re.search(r"workers alive=\d+/\d+", text), text[-3000:]  # the progress bar's count of live Ray workers
+    assert _head(hub_module.api, repo) == head  # no new commit
+    assert sorted(p.relative_to(env_dir) for p in env_dir.rglob("*")) == files_before  # nothing written into the folder
+    assert not list(scratch.glob("hub-envs-push-*"))  # the staging folder (and its partial dataset) is gone
+    deadline = time.monotonic() + 60  # cancelled tasks' workers are killed: poll until they are gone (hang guard)
+    while _busy_workers() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _busy_workers(), "a Ray worker still runs a shard of the interrupted push"
+
+
 # --- reproduce -----------------------------------------------------------------------------------
 
 
@@ -140,6 +201,37 @@ def test_reproduce_on_ray_passes_and_finds_the_same_divergence(cluster, tiny, tm
         local.replay.first_divergence.feature,
     )
     assert comparable_report(remote) == comparable_report(local)  # the whole report, timings aside
+
+
+def _isolated_workers_under_ray() -> list[int]:
+    """pids of isolated env worker processes (hub_envs.isolation.worker) whose parent is a Ray worker process."""
+    out = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+            ppid = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]
+            parent = Path(f"/proc/{ppid}/cmdline").read_bytes()
+        except (OSError, IndexError):
+            continue
+        if b"hub_envs.isolation.worker" in cmd and parent.startswith(b"ray::"):
+            out.append(int(pid))
+    return out
+
+
+def test_reproduce_on_ray_with_process_isolation_equals_the_local_in_process_report(cluster, tiny):
+    """``--isolation=process`` on Ray: each Ray worker loads the env isolated (its code in a worker process of the
+    Ray worker), and the report is the local in-process one."""
+    good, _ = tiny
+    local = reproduce("ray/tiny", revision=good, trust_remote_code=True, workers=1, write=False, progress=False)
+    before = set(_isolated_workers_under_ray())
+    isolated = reproduce(
+        "ray/tiny", revision=good, trust_remote_code=True, isolation="process", backend="ray", ray_address=cluster.address,
+        write=False, progress=False,
+    )  # fmt: skip
+    assert isolated.reproduced and isolated.settings["isolation"] == "process" and isolated.settings["backend"] == "ray"
+    assert comparable_report(isolated) == comparable_report(local)
+    # the Ray workers keep the run's env: its code runs in processes of theirs, not in the Ray workers themselves
+    assert set(_isolated_workers_under_ray()) - before
 
 
 # --- evaluation, worker deaths, resumed runs ------------------------------------------------------

@@ -85,6 +85,31 @@ class IsolationOptions:
             return float(self.step_timeout)
         return 60.0 if self.sandbox else None
 
+    def load_kwargs(self) -> dict[str, Any]:
+        """The :func:`~hub_envs.load_env` keywords that give these options again (in another process or on another
+        machine: a Ray worker loads the env the way the driver did; a venv worker's interpreter is found there).
+
+        >>> IsolationOptions(isolation="process", step_timeout=5.0).load_kwargs()["step_timeout"]
+        5.0
+        >>> sorted(IsolationOptions(sandbox=True, isolation="process").load_kwargs()["sandbox_limits"])
+        ['memory_mb', 'open_files', 'processes']
+        """
+        kwargs: dict[str, Any] = {
+            "isolation": self.isolation,
+            "sandbox": self.sandbox,
+            "versions": self.versions,
+            "step_timeout": self.step_timeout,
+            "restart": self.restart,
+            "envs_per_worker": self.envs_per_worker,
+        }
+        if self.sandbox:
+            kwargs["sandbox_limits"] = {
+                "memory_mb": self.memory_limit_mb,
+                "open_files": self.max_open_files,
+                "processes": self.max_processes,
+            }
+        return kwargs
+
 
 @dataclass(frozen=True)
 class EnvTarget:
