@@ -12,7 +12,11 @@ re-run of the random-policy benchmark (the same number of episodes again), in on
 Figures: ``ray_vs_local_reproduce`` = episodes/s of the episode pass on Ray ÷ on the local backend (medians;
 goal >= 0.8); ``ray_startup_s``; ``ray_episode_ms`` / ``local_episode_ms``: wall time per reproduced episode.
 
-Run: ``python benchmarks/bench_ray.py [--repeats 2]``; ``run()`` returns the dict.
+``--niceness``: then a second local Ray whose workers run at Ray's default niceness (15) is measured the same
+way against the local backend (``ray_nice15_vs_local_reproduce``): what the backend's ``worker_niceness=0``
+is worth on a machine other work keeps busy (on an idle machine, nothing).
+
+Run: ``python benchmarks/bench_ray.py [--repeats 2] [--niceness]``; ``run()`` returns the dict.
 """
 
 from __future__ import annotations
@@ -34,7 +38,18 @@ def _episodes_seconds(report) -> float:
     return float(report.timings["episodes"])
 
 
-def run(repeats: int = 2, verbose: bool = True) -> dict:
+def _side_by_side(repo: str, backend, repeats: int, kw: dict) -> tuple[list[float], list[float]]:
+    """Episode-pass seconds of ``repeats`` reproductions, local then Ray in each repeat."""
+    from hub_envs import reproduce
+
+    local, remote = [], []
+    for _ in range(repeats):
+        local.append(_episodes_seconds(reproduce(repo, workers=2, **kw)))
+        remote.append(_episodes_seconds(reproduce(repo, backend=backend, **kw)))
+    return local, remote
+
+
+def run(repeats: int = 2, verbose: bool = True, niceness: bool = False) -> dict:
     from hub_envs import push_env, reproduce
     from hub_envs._ray_backend import RayBackend
     from hub_envs.testing import HubServer, hub_environment
@@ -56,7 +71,6 @@ def run(repeats: int = 2, verbose: bool = True) -> dict:
             repo = f"bench/hover-ray@{pushed.sha}"
             kw = {"trust_remote_code": True, "write": False, "progress": False}
             rollouts = None
-            local, remote = [], []
             first = reproduce(repo, workers=2, **kw)  # warm: the snapshot in the cache, the check cache filled
             rollouts = len(first.replay.episodes) + sum(len(b.seeds) for b in first.benchmarks)
             assert first.reproduced, first.summary()
@@ -68,9 +82,15 @@ def run(repeats: int = 2, verbose: bool = True) -> dict:
                 out["ray_first_run_s"] = round(time.perf_counter() - t, 2)
                 out["ray_first_run_episodes_s"] = round(_episodes_seconds(cold), 2)
                 assert cold.reproduced, cold.summary()
-                for _ in range(repeats):  # side by side: local, then Ray, in each repeat
-                    local.append(_episodes_seconds(reproduce(repo, workers=2, **kw)))
-                    remote.append(_episodes_seconds(reproduce(repo, backend=backend, **kw)))
+                local, remote = _side_by_side(repo, backend, repeats, kw)
+            if niceness:  # the same with Ray's default worker niceness (15)
+                nice = RayBackend(workers=2, worker_niceness=15)
+                with nice:
+                    assert reproduce(repo, backend=nice, **kw).reproduced  # warm its workers
+                    local15, remote15 = _side_by_side(repo, nice, repeats, kw)
+                out["nice15_local_episodes_s"] = [round(x, 3) for x in local15]
+                out["nice15_ray_episodes_s"] = [round(x, 3) for x in remote15]
+                out["ray_nice15_vs_local_reproduce"] = round(statistics.median(local15) / statistics.median(remote15), 3)
             out["rollouts_per_run"] = rollouts
             out["local_episodes_s"] = [round(x, 3) for x in local]
             out["ray_episodes_s"] = [round(x, 3) for x in remote]
@@ -89,8 +109,9 @@ def run(repeats: int = 2, verbose: bool = True) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--niceness", action="store_true", help="also measure a local Ray at Ray's default niceness")
     args = parser.parse_args()
-    run(repeats=args.repeats)
+    run(repeats=args.repeats, niceness=args.niceness)
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ import shutil
 import socket
 import sys
 import tempfile
+import weakref
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
@@ -235,6 +236,7 @@ class RayBackend(Backend):
         checkpoint_dir: str | Path | None = None,
         shard_size: int | None = None,
         object_store_memory: int | None = None,
+        worker_niceness: int = 0,
     ):
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
             raise ConfigError(f"workers={workers!r}: pass a positive number of Ray actors (0 or None: the cluster's CPUs).")
@@ -245,7 +247,10 @@ class RayBackend(Backend):
         self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
         self.shard_size = shard_size
         self.object_store_memory = object_store_memory
+        #: the niceness of a local Ray's workers (Ray's own default is 15; a cluster you start sets its own)
+        self.worker_niceness = worker_niceness
         self._depth = 0
+        self._runs: weakref.WeakSet[RayRun] = weakref.WeakSet()  # runs not finished yet: closed on __exit__
         self._started = False
         self.startup_seconds: float | None = None
 
@@ -277,7 +282,7 @@ class RayBackend(Backend):
                     object_store_memory=self.object_store_memory,
                     # Ray runs its workers at nice 15 by default: on a machine shared with other work they would get a
                     # sliver of the CPU the local backend's processes get; a Ray started for the run is ours alone
-                    _system_config={"worker_niceness": 0},
+                    _system_config={"worker_niceness": int(self.worker_niceness)},
                 )
             self._started = True
             self.startup_seconds = time.perf_counter() - t
@@ -285,6 +290,12 @@ class RayBackend(Backend):
         return self
 
     def __exit__(self, *exc: Any) -> None:
+        if self._depth == 1:
+            # an exception (Ctrl-C in the consumer, an error writing the dataset) leaves runs suspended at a yield,
+            # kept alive by the traceback: close them now, so their shards are cancelled before Ray is shut down
+            for run in list(self._runs):
+                if not run._it.gi_running:  # (a run's own ``with self`` exits while it runs: it cleans up itself)
+                    run.close()
         self._depth -= 1
         if self._depth == 0 and self._started:
             import ray
@@ -305,7 +316,9 @@ class RayBackend(Backend):
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
             raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
         stats = {"episodes": len(seeds), "shards": 0, "shards_run": 0, "shards_resumed": 0}
-        return RayRun(self._run(loaded, seeds, int(max_steps), policy, bool(record_states), progress, desc, stats), stats)
+        run = RayRun(self._run(loaded, seeds, int(max_steps), policy, bool(record_states), progress, desc, stats), stats)
+        self._runs.add(run)
+        return run
 
     def _run(self, loaded, seeds, max_steps, policy, record_states, progress, desc, stats) -> Iterator[EpisodeRollout]:
         with self:

@@ -113,65 +113,6 @@ def test_push_on_ray_publishes_exactly_what_the_local_backend_publishes(cluster,
     assert on_ray.manifest.dataset["episodes"] == 4 and on_ray.manifest.dataset["env_states"]
 
 
-def _head(api, repo_id: str) -> str | None:
-    return api.repo_info(repo_id).sha if api.repo_exists(repo_id) else None
-
-
-def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tmp_path):
-    """``push_env --backend=ray`` interrupted mid-run (SIGINT, as Ctrl-C sends): it exits promptly with a message,
-    the Hub repo gets no commit, no staging folder is left, and no Ray worker keeps running a shard."""
-    import re
-    import shutil
-    import subprocess
-    import threading
-
-    env_dir = tmp_path / "hover"
-    shutil.copytree(ENVS / "hover", env_dir)
-    files_before = sorted(p.relative_to(env_dir) for p in env_dir.rglob("*"))
-    scratch = tmp_path / "tmp"
-    scratch.mkdir()
-    repo = "ray/hover-interrupted"
-    push_env(env_dir, repo, episodes=2, config={"episode_length": 12}, determinism_steps=6, progress=False, workers=1)
-    head = _head(hub_module.api, repo)
-    episodes = 400
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hub_envs.cli", "push", f"--env_dir={env_dir}", f"--repo_id={repo}", f"--episodes={episodes}",
-         "--config.episode_length=60", "--determinism_steps=6", "--backend=ray", f"--ray_address={cluster.address}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "TMPDIR": str(scratch)},
-    )  # fmt: skip
-    err = bytearray()
-    reader = threading.Thread(target=lambda: err.extend(iter(lambda: proc.stderr.read1(4096), b"")), daemon=True)
-    reader.start()
-    try:
-        done = re.compile(rb"Generating %d episodes:.*?(\d+)/%d" % (episodes, episodes))
-        deadline = time.monotonic() + 600  # a hang guard, not a timing
-        while time.monotonic() < deadline and proc.poll() is None:
-            counts = [int(n) for n in done.findall(bytes(err))]
-            if counts and 0 < max(counts) < episodes // 2:
-                break  # mid-run: episodes have come back from the workers, most are still to run
-            time.sleep(0.05)
-        assert proc.poll() is None, "the push ended before it could be interrupted:\n" + err.decode(errors="replace")[-3000:]
-        assert _busy_workers(), "no Ray worker was running a shard when the push was interrupted"
-        proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    reader.join(timeout=10)
-    text = err.decode(errors="replace")
-    assert code == 130, text[-3000:]
-    assert "interrupted (Ctrl-C)" in text and "published nothing" in text and "Traceback" not in text, text[-3000:]
-    assert re.search(r"workers alive=\d+/\d+", text), text[-3000:]  # the progress bar's count of live Ray workers
-    assert _head(hub_module.api, repo) == head  # no new commit
-    assert sorted(p.relative_to(env_dir) for p in env_dir.rglob("*")) == files_before  # nothing written into the folder
-    assert not list(scratch.glob("hub-envs-push-*"))  # the staging folder (and its partial dataset) is gone
-    deadline = time.monotonic() + 60  # cancelled tasks' workers are killed: poll until they are gone (hang guard)
-    while _busy_workers() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert not _busy_workers(), "a Ray worker still runs a shard of the interrupted push"
-
-
 # --- reproduce -----------------------------------------------------------------------------------
 
 
@@ -218,18 +159,17 @@ def _isolated_workers_under_ray() -> list[int]:
     return out
 
 
-def test_reproduce_on_ray_with_process_isolation_equals_the_local_in_process_report(cluster, tiny):
-    """``--isolation=process`` on Ray: each Ray worker loads the env isolated (its code in a worker process of the
-    Ray worker), and the report is the local in-process one."""
+def test_isolated_eval_on_ray_equals_the_local_in_process_eval(cluster, tiny):
+    """``--isolation=process`` on Ray: each Ray worker loads the env isolated (its code runs in a worker process of
+    the Ray worker), and the per-episode returns are those of the local in-process run."""
     good, _ = tiny
-    local = reproduce("ray/tiny", revision=good, trust_remote_code=True, workers=1, write=False, progress=False)
+    ref = f"ray/tiny@{good}"
+    kw = {"policy": toward_origin, "episodes": 4, "seed": 20, "trust_remote_code": True, "progress": False}
+    local = evaluate(ref, workers=1, **kw)
     before = set(_isolated_workers_under_ray())
-    isolated = reproduce(
-        "ray/tiny", revision=good, trust_remote_code=True, isolation="process", backend="ray", ray_address=cluster.address,
-        write=False, progress=False,
-    )  # fmt: skip
-    assert isolated.reproduced and isolated.settings["isolation"] == "process" and isolated.settings["backend"] == "ray"
-    assert comparable_report(isolated) == comparable_report(local)
+    isolated = evaluate(ref, isolation="process", backend="ray", ray_address=cluster.address, workers=1, **kw)
+    assert isolated.isolation == "process" and isolated.backend["backend"] == "ray" and local.isolation == "none"
+    assert isolated.returns == local.returns and isolated.lengths == local.lengths and isolated.metrics == local.metrics
     # the Ray workers keep the run's env: its code runs in processes of theirs, not in the Ray workers themselves
     assert set(_isolated_workers_under_ray()) - before
 
@@ -351,3 +291,69 @@ def test_a_worker_that_cannot_load_the_env_names_the_node(cluster, hub_module, t
             list(RayBackend(address=cluster.address, workers=1).episodes(loaded, [0], max_steps=5, progress=False))
     finally:
         loaded.unregister()
+
+
+# --- Ctrl-C (last: its driver is another Ray job, whose workers take the place of this module's warm ones) ---
+
+
+def _head(api, repo_id: str) -> str | None:
+    return api.repo_info(repo_id).sha if api.repo_exists(repo_id) else None
+
+
+def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tmp_path):
+    """``push_env --backend=ray`` interrupted mid-run (SIGINT, as Ctrl-C sends): it exits promptly with a message,
+    the Hub repo gets no commit, no staging folder is left, and no Ray worker keeps running a shard."""
+    import re
+    import shutil
+    import subprocess
+    import threading
+
+    env_dir = tmp_path / "hover"
+    shutil.copytree(ENVS / "hover", env_dir)
+    files_before = sorted(p.relative_to(env_dir) for p in env_dir.rglob("*"))
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    repo = "ray/hover"  # published by the first case when it ran before (then it has a head to keep)
+    head = _head(hub_module.api, repo)
+    episodes = 400
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub_envs.cli", "push", f"--env_dir={env_dir}", f"--repo_id={repo}", f"--episodes={episodes}",
+         "--config.episode_length=60", "--determinism_steps=6", "--backend=ray", f"--ray_address={cluster.address}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "TMPDIR": str(scratch)},
+    )  # fmt: skip
+    err = bytearray()
+
+    def pump() -> None:
+        while chunk := proc.stderr.read1(4096):
+            err.extend(chunk)
+
+    reader = threading.Thread(target=pump, daemon=True)
+    reader.start()
+    try:
+        done = re.compile(rb"Generating %d episodes:.*?(\d+)/%d" % (episodes, episodes))
+        deadline = time.monotonic() + 600  # a hang guard, not a timing
+        while time.monotonic() < deadline and proc.poll() is None:
+            counts = [int(n) for n in done.findall(bytes(err))]
+            if counts and 0 < max(counts) < episodes // 2:
+                break  # mid-run: episodes have come back from the workers, most are still to run
+            time.sleep(0.05)
+        assert proc.poll() is None, "the push ended before it could be interrupted:\n" + err.decode(errors="replace")[-3000:]
+        assert _busy_workers(), "no Ray worker was running a shard when the push was interrupted"
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=120)  # a hang guard
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    reader.join(timeout=10)
+    text = err.decode(errors="replace")
+    assert code == 130, text[-3000:]
+    assert "interrupted (Ctrl-C)" in text and "published nothing" in text and "Traceback" not in text, text[-3000:]
+    assert re.search(r"workers alive=\d+/\d+", text), text[-3000:]  # the progress bar's count of live Ray workers
+    assert _head(hub_module.api, repo) == head  # no new commit
+    assert sorted(p.relative_to(env_dir) for p in env_dir.rglob("*")) == files_before  # nothing written into the folder
+    assert not list(scratch.glob("hub-envs-push-*"))  # the staging folder (and its partial dataset) is gone
+    deadline = time.monotonic() + 60  # cancelled tasks' workers are killed: poll until they are gone (hang guard)
+    while _busy_workers() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _busy_workers(), "a Ray worker still runs a shard of the interrupted push"
