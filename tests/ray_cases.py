@@ -45,7 +45,7 @@ def _start_cluster(attempts: int = 3) -> Cluster:
             c.wait_for_nodes()
             return c
         except Exception:
-            c.shutdown()
+            _shutdown(c)
             if attempt == attempts - 1:
                 raise
     raise AssertionError("unreachable")
@@ -67,7 +67,29 @@ def cluster(hub_module):
             yield c
         finally:
             ray.shutdown()
-            c.shutdown()
+            _shutdown(c)
+
+
+def _shutdown(c: Cluster) -> None:
+    nodes = [c.head_node, *c.worker_nodes]  # shutdown() forgets them
+    c.shutdown()
+    _release_gcs_clients(nodes)
+
+
+def _release_gcs_clients(nodes: list) -> None:
+    """Destroy the GCS clients the cluster's node objects hold, here and now.
+
+    A non-head ``ray._private.node.Node`` keeps a GCS client (it fetched the system config with it), and Ray's
+    ``atexit`` hook for the node (a closure over it) keeps the node alive after the cluster is shut down. A
+    process forked later (the rollout engine's pool) runs ``atexit._clear()`` first thing (multiprocessing's
+    ``_bootstrap``), which drops that last reference *in the child*: the client's destructor shuts a gRPC
+    completion queue whose threads do not exist there, and the child dies of SIGSEGV before running anything
+    (``BrokenProcessPool`` in the parent; core dump: ``~GcsClient`` -> ``grpc_completion_queue_shutdown`` ->
+    ``pollset_shutdown``). Destroyed in this process, where gRPC is still whole, nothing is left to crash.
+    """
+    for node in nodes:
+        if node is not None and getattr(node, "_gcs_client", None) is not None:
+            node._gcs_client = None
 
 
 def _gain(folder: Path) -> None:
