@@ -1,7 +1,7 @@
 """Scale-out on Ray (``--backend=ray``): the same results as the local backend, on a real Ray cluster.
 
 Run by ``tests/test_ray.py`` in a pytest process of its own (``python -m pytest tests/ray_cases.py`` runs it
-directly): a process that has run Ray tasks cannot fork safely afterwards, and the rest of the suite forks.
+directly), so what Ray leaves in a process stays out of the rest of the suite (see :func:`_release_gcs_clients`).
 
 One cluster for the module (``ray.cluster_utils.Cluster`` on 127.0.0.1: a head and one more node, one CPU
 each, dashboard off, a small object store), started after the module's loopback Hub so its workers reach

@@ -1,9 +1,11 @@
 """The Ray backend's tests (``tests/ray_cases.py``), in a pytest process of their own.
 
-Ray does not support ``fork()`` in a process that has run Ray tasks: after ``tests/ray_cases.py`` ran in this
-process, the rollout engine's forked worker processes died at start (``BrokenProcessPool``) in every later
-test that used ``workers > 1``. So the cases run in a child pytest (same interpreter, same conftest and
-fixtures, a real Ray cluster on 127.0.0.1) and this test reports its outcome, with its output on failure.
+After ``tests/ray_cases.py`` ran in this process, the rollout engine's forked worker processes used to die at
+start (``BrokenProcessPool``) in every later test with ``workers > 1``: the cluster's node objects outlived it
+in Ray's ``atexit`` hooks, and a forked child crashed destroying their GCS clients (``ray_cases._release_gcs_clients``
+now destroys them in the parent; ``pytest tests/ray_cases.py hub_envs/harness/rollout.py -k "eval_metrics or
+rollout"`` passes). The cases still run in a child pytest (same interpreter, same conftest and fixtures, a
+real Ray cluster on 127.0.0.1): whatever else Ray leaves in a process stays out of the rest of the suite.
 """
 
 from __future__ import annotations
