@@ -1,8 +1,9 @@
 """Isolated envs measured side by side with in-process ones: the cost of the worker process.
 
 The example envs ``envs/hover`` and ``envs/pendulum`` are pushed to a loopback Hub and loaded twice,
-in-process and with ``isolation="process"``. Figures (medians over ``repeats``; each sample times both,
-alternating which goes first):
+in-process and with ``isolation="process"``. Figures (medians over ``repeats``; in each sample the envs
+compared take turns of 50 steps, rotating who goes first, so that all of them see the same load of a
+shared machine):
 
 * ``isolated_step_hover``: steps/s of ``loaded.make()`` with the env in a worker process ÷ steps/s of the
   in-process ``loaded.make()``; same seeded actions, same reset schedule. Goal >= 0.85.
@@ -13,7 +14,9 @@ alternating which goes first):
   started in the venv) and the first ``reset`` ÷ seconds of a bare ``python -c "import numpy, gymnasium"``.
   Goal <= 2.0.
 * details: worker start-up (``Worker.start_seconds``: spawn, import the env's code, first answer) for
-  a plain worker and a sandboxed one, and the sandboxed hover ratio (not a goal).
+  a plain worker and a sandboxed one, the sandboxed hover ratio, and both step ratios again with
+  ``hub_envs.isolation.affinity`` off (``*_unpinned``: the same workers, placed by the scheduler alone, as
+  before the parent and its workers were kept on one CPU while they wait for each other). Not goals.
 
 Run: ``python -m benchmarks.bench_isolation [--repeats 5]``; ``run()`` returns the dict.
 """
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -29,45 +33,49 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parent.parent
 STEPS = {"hover": 1500, "pendulum": 800}
 
 
-def _steps_per_s(env, steps: int, seed: int = 0) -> float:
-    env.action_space.seed(seed)
-    actions = [env.action_space.sample() for _ in range(steps)]
-    env.reset(seed=seed)
-    t = time.perf_counter()
-    for a in actions:
-        _, _, term, trunc, _ = env.step(a)
-        if np.any(term) or np.any(trunc):
-            if not hasattr(env, "num_envs"):
-                env.reset()
-    return steps / (time.perf_counter() - t)
+def _interleaved(runners: dict, steps: int, seed: int, chunk: int = 50) -> dict[str, float]:
+    """Steps/s of each runner ``name -> (env, pin)``, stepped in turns of ``chunk`` steps (rotating who goes
+    first), so that every one of them sees the same load of a shared machine. ``pin`` sets
+    ``hub_envs.isolation.affinity.enabled`` for that runner's turns (None: leave it)."""
+    from hub_envs.isolation import affinity
+
+    plans = {}
+    for name, (env, _) in runners.items():
+        env.action_space.seed(seed)
+        plans[name] = [env.action_space.sample() for _ in range(steps)]
+        env.reset(seed=seed)
+    spent = dict.fromkeys(runners, 0.0)
+    names = list(runners)
+    for turn, start in enumerate(range(0, steps, chunk)):
+        for name in names[turn % len(names) :] + names[: turn % len(names)]:
+            env, pin = runners[name]
+            affinity.enabled = True if pin is None else pin
+            t = time.perf_counter()
+            for a in plans[name][start : start + chunk]:
+                _, _, term, trunc, _ = env.step(a)
+                if not hasattr(env, "num_envs") and (term or trunc):
+                    env.reset()
+            spent[name] += time.perf_counter() - t
+    affinity.enabled = True
+    return {name: steps / spent[name] for name in runners}
 
 
-def _ratio(make_isolated, make_here, steps: int, repeats: int) -> tuple[float, list[float], list[float]]:
-    iso_env, here_env = make_isolated(), make_here()
-    try:
-        _steps_per_s(iso_env, 50)
-        _steps_per_s(here_env, 50)  # warm both
-        ratios, iso_rates, here_rates = [], [], []
-        for i in range(repeats):
-            if i % 2:
-                h = _steps_per_s(here_env, steps, i)
-                s = _steps_per_s(iso_env, steps, i)
-            else:
-                s = _steps_per_s(iso_env, steps, i)
-                h = _steps_per_s(here_env, steps, i)
-            ratios.append(s / h)
-            iso_rates.append(s)
-            here_rates.append(h)
-        return statistics.median(ratios), iso_rates, here_rates
-    finally:
-        iso_env.close()
-        here_env.close()
+def _ratios(runners: dict, steps: int, repeats: int) -> dict[str, list[float]]:
+    """Steps/s per runner over ``repeats`` interleaved samples (after a warm-up)."""
+    _interleaved(runners, 50, 0, chunk=10)
+    rates: dict[str, list[float]] = {name: [] for name in runners}
+    for i in range(repeats):
+        for name, rate in _interleaved(runners, steps, i).items():
+            rates[name].append(rate)
+    return rates
+
+
+def _median_ratio(rates: dict[str, list[float]], num: str, den: str = "in_process") -> float:
+    return round(statistics.median(a / b for a, b in zip(rates[num], rates[den], strict=True)), 3)
 
 
 def run(repeats: int = 5, verbose: bool = True) -> dict:
@@ -98,11 +106,18 @@ def run(repeats: int = 5, verbose: bool = True) -> dict:
             out["worker_start_s"] = round(statistics.median(starts), 3)
             out["sandboxed_worker_start_s"] = round(statistics.median(sandbox_starts), 3)
 
-            ratio, s, h = _ratio(iso["hover"].make, here["hover"].make, STEPS["hover"], repeats)
-            out["isolated_step_hover"] = round(ratio, 3)
-            out["hover_steps_per_s"] = {"isolated": round(statistics.median(s)), "in_process": round(statistics.median(h))}
-            ratio, s, h = _ratio(boxed.make, here["hover"].make, STEPS["hover"], max(3, repeats // 2))
-            out["sandboxed_step_hover"] = round(ratio, 3)
+            envs = {"isolated": iso["hover"].make(), "in_process": here["hover"].make(), "sandboxed": boxed.make()}
+            try:
+                runners = {name: (env, None) for name, env in envs.items()}
+                runners["isolated_unpinned"] = (envs["isolated"], False)  # the same worker, the scheduler placing it
+                rates = _ratios(runners, STEPS["hover"], repeats)
+            finally:
+                for env in envs.values():
+                    env.close()
+            out["isolated_step_hover"] = _median_ratio(rates, "isolated")
+            out["isolated_step_hover_unpinned"] = _median_ratio(rates, "isolated_unpinned")
+            out["sandboxed_step_hover"] = _median_ratio(rates, "sandboxed")
+            out["hover_steps_per_s"] = {name: round(statistics.median(r)) for name, r in rates.items()}
 
             # warm venv load: load_env(isolation="venv") with the venv cached, a worker started in it, first reset,
             # against a bare interpreter importing what the worker needs
@@ -121,14 +136,18 @@ def run(repeats: int = 5, verbose: bool = True) -> dict:
             out["isolated_warm_load"] = round(statistics.median(warm) / statistics.median(bare), 3)
             out["isolated_warm_load_s"] = round(statistics.median(warm), 3)
 
-            ratio, s, h = _ratio(
-                lambda: iso["pendulum"].make_vec(8), lambda: here["pendulum"].make_vec(8), STEPS["pendulum"], repeats
-            )
-            out["isolated_vec8_pendulum"] = round(ratio, 3)
-            out["vec8_pendulum_steps_per_s"] = {
-                "isolated": round(statistics.median(s)),
-                "in_process": round(statistics.median(h)),
-            }
+            vecs = {"isolated": iso["pendulum"].make_vec(8), "in_process": here["pendulum"].make_vec(8)}
+            try:
+                runners = {name: (env, None) for name, env in vecs.items()}
+                runners["isolated_unpinned"] = (vecs["isolated"], False)
+                rates = _ratios(runners, STEPS["pendulum"], repeats)
+            finally:
+                for env in vecs.values():
+                    env.close()
+            out["isolated_vec8_pendulum"] = _median_ratio(rates, "isolated")
+            out["isolated_vec8_pendulum_unpinned"] = _median_ratio(rates, "isolated_unpinned")
+            out["vec8_pendulum_steps_per_s"] = {name: round(statistics.median(r)) for name, r in rates.items()}
+            out["load_average"] = [round(x, 2) for x in os.getloadavg()]
     if verbose:
         print(json.dumps(out, indent=2))
     return out

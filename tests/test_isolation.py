@@ -521,6 +521,41 @@ def test_reproduce_in_a_publisher_venv_reports_the_workers_versions(published, t
     assert "numpy" not in report.provenance["version_differences"]
 
 
+def _affinity_becomes(pid: int, want, seconds: float = 10.0) -> set[int]:
+    deadline = time.monotonic() + seconds
+    while (cpus := os.sched_getaffinity(pid)) != want and not (callable(want) and want(cpus)):
+        if time.monotonic() > deadline:
+            break
+        time.sleep(0.01)
+    return cpus
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: there is nothing to place")
+def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(hostile):
+    """The wake-up placement (hub_envs.isolation.affinity): between steps the worker waits pinned to the CPU the
+    stepping thread waited on; the env's step itself runs with the worker's whole CPU set; the calling thread
+    gets its own CPU set back after every step; with affinity off nothing is pinned."""
+    from hub_envs.isolation import affinity
+
+    env = hostile.make()
+    mine = os.sched_getaffinity(0)
+    try:
+        pid = _inner(env).worker.pid
+        seen = _probe(env, "cpus")
+        assert os.sched_getaffinity(0) == mine
+        assert seen == sorted(mine)  # the env's code is not confined to one CPU
+        sleeping = _affinity_becomes(pid, lambda cpus: len(cpus) == 1)
+        assert len(sleeping) == 1 and sleeping <= mine
+        assert _probe(env, "cpus") == sorted(mine)
+        affinity.enabled = False
+        env.step(env.action_space.sample())
+        assert os.sched_getaffinity(0) == mine
+        assert _affinity_becomes(pid, mine) == mine
+    finally:
+        affinity.enabled = True
+        env.close()
+
+
 def test_an_env_made_in_a_thread_that_ended_keeps_its_worker(hostile):
     """The parent-death signal follows the thread that started the worker: workers start from one long-lived
     launcher thread, so an env made in a short-lived thread (a pool, a loader) keeps working after it ends."""

@@ -1,6 +1,8 @@
 """The wire between a parent and an env worker: framed pickles over a socketpair, and what may come back.
 
-* Parent -> worker: ``pickle`` of a tuple ``(op, *args)`` (the parent is trusted by the worker).
+* Parent -> worker: ``pickle`` of a tuple ``(op, *args)`` (the parent is trusted by the worker), or, for
+  the step of a Box-action env (the hot path), :data:`FAST_HEADER` (``b"s"``: a single env, ``b"v"``: a
+  vector slice; the CPU the parent waits on, see :mod:`~hub_envs.isolation.affinity`) and the raw action bytes.
 * Worker -> parent: ``("ok", value)``, ``("err", ErrorInfo-dict)`` (the env raised: the worker lives on) or
   ``("fatal", ErrorInfo-dict)`` (the worker cannot go on, e.g. MemoryError: it exits after sending).
 
@@ -27,11 +29,14 @@ from __future__ import annotations
 import builtins
 import io
 import pickle
+import struct
 from typing import Any
 
 from hub_envs.errors import IsolationError, RemoteEnvError
 
 PROTOCOL = 5
+#: the head of a fast step request: kind (b"s" single env, b"v" vector slice), the parent's CPU (-1: none)
+FAST_HEADER = struct.Struct("<ci")
 
 _NUMPY_NAMES = {
     "_reconstruct",

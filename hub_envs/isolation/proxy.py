@@ -43,7 +43,8 @@ import gymnasium as gym
 import numpy as np
 
 from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.protocol import dumps, rebuild_error, safe_loads
+from hub_envs.isolation.affinity import pin_here, unpin
+from hub_envs.isolation.protocol import FAST_HEADER, dumps, rebuild_error, safe_loads
 
 STDERR_TAIL_LINES = 20
 _WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
@@ -487,8 +488,12 @@ class IsolatedEnv(gym.Env):
             if self._closed:
                 raise IsolationError(f"{self._target.where}: step on a closed isolated env. Make a new one.")
             worker = self._worker
-            worker.send_raw(b"s" + action.tobytes())
-            reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)
+            cpu, saved = pin_here()
+            try:  # this thread waits on its CPU, and the worker is told to sleep there (see affinity)
+                worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
+                reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)
+            finally:
+                unpin(saved)
             return (self._fast_buffers.read_one() if obs is None else obs), reward, terminated, truncated, info
         return self._call("step", action)
 

@@ -32,6 +32,8 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from hub_envs.errors import ConfigError
+from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.protocol import FAST_HEADER
 from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker
 
 try:
@@ -208,9 +210,9 @@ class WorkerSlice:
         return rewards, terms, truncs, infos, pickled
 
     def step_raw(self, data: bytes):
-        """``step`` of actions sent as raw bytes (``b"v"`` + this slice's rows of the batched action array)."""
+        """``step`` of actions sent as raw bytes (:data:`FAST_HEADER` + this slice's rows of the batched actions)."""
         dtype, shape = self.action_layout
-        actions = np.frombuffer(data, dtype=dtype, offset=1).reshape((len(self.envs), *shape)).copy()
+        actions = np.frombuffer(data, dtype=dtype, offset=FAST_HEADER.size).reshape((len(self.envs), *shape)).copy()
         return self.step(list(actions))
 
     def call(self, name: str, args: tuple):
@@ -349,9 +351,14 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             and actions.dtype == space.dtype
             and actions.shape == (self.num_envs, *space.shape)
         ):  # raw bytes, one message per worker
-            for w, (o, c) in zip(self._workers, self._slices, strict=True):
-                w.send_raw(b"v" + actions[o : o + c].tobytes())
-            answers = self._gather("vstep")
+            cpu, saved = pin_here()
+            try:  # the first worker sleeps where this thread waits (see affinity); the others, sent theirs first, run
+                for k in range(len(self._workers) - 1, -1, -1):  # wherever the scheduler finds a CPU
+                    w, (o, c) = self._workers[k], self._slices[k]
+                    w.send_raw(FAST_HEADER.pack(b"v", cpu if k == 0 else NO_CPU) + actions[o : o + c].tobytes())
+                answers = self._gather("vstep")
+            finally:
+                unpin(saved)
         else:
             per_env = list(iterate(self.action_space, actions))
             answers = self._all("vstep", [(per_env[o : o + c],) for o, c in self._slices])

@@ -23,7 +23,7 @@ import signal
 import sys
 from typing import Any
 
-from hub_envs.isolation.protocol import dumps, error_info
+from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info
 
 STATE_METHODS = ("get_state", "reset_to")
 
@@ -98,7 +98,7 @@ class Server:
         import numpy as np
 
         dtype, shape = self.fast_action
-        action = np.frombuffer(data, dtype=dtype, offset=1).reshape(shape).copy()
+        action = np.frombuffer(data, dtype=dtype, offset=FAST_HEADER.size).reshape(shape).copy()
         obs, reward, terminated, truncated, info = self.envs[0].step(action)
         # the observation goes through shared memory only if that keeps it exactly (types, dtypes, shapes)
         shared = self.fast_buffers.write_exact(0, obs)
@@ -178,6 +178,8 @@ class Server:
 
 
 def serve(conn, init: dict[str, Any]) -> None:
+    from hub_envs.isolation.affinity import NO_CPU, Follower
+
     me = os.getpid()
     try:
         server = Server(init, conn)
@@ -185,12 +187,16 @@ def serve(conn, init: dict[str, Any]) -> None:
         conn.send_bytes(dumps(("err", error_info(e))))
         return
     conn.send_bytes(dumps(("ok", {"pid": me})))
+    follower, cpu = Follower(), NO_CPU
     while True:
         try:
             data = conn.recv_bytes()
         except (EOFError, OSError):
             return  # the parent closed its end (or died)
+        follower.woken()
         fast = data[:1] in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
+        if fast:
+            cpu = FAST_HEADER.unpack_from(data)[1]
         msg = ("step",) if fast else pickle.loads(data)
         op, args = msg[0], msg[1:]
         fatal = False
@@ -218,6 +224,7 @@ def serve(conn, init: dict[str, Any]) -> None:
             return
         if fatal:
             os._exit(70)
+        follower.wait_on(cpu)  # sleep where the parent waits: waking it there is cheap
 
 
 def main(argv: list[str] | None = None) -> None:
