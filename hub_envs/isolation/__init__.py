@@ -9,6 +9,7 @@ replace consent: the trust gate runs first, exactly as in-process.
 * :mod:`~hub_envs.isolation.worker`: the worker process;
 * :mod:`~hub_envs.isolation.proxy`: the worker handle, typed faults, :class:`IsolatedEnv`;
 * :mod:`~hub_envs.isolation.vector`: :class:`IsolatedVectorEnv` (several envs per worker, shared memory);
+* :mod:`~hub_envs.isolation.affinity`: parent and worker wait for each other on one CPU (cheap wake-ups);
 * :mod:`~hub_envs.isolation.sandbox`: namespaces, read-only mounts, scrubbed environment, resource limits.
 
 ``isolation="venv"`` and ``versions="publisher"`` are not implemented yet: they raise
