@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"integrity: {loaded.report.integrity}; fingerprint: {loaded.report.fingerprint}")
                 print(loaded.report.features.table())
                 print(f"card: {loaded.path / 'README.md'}")
-                print(f"GIF:  {loaded.path / 'media' / 'rollout.gif'}")
+                print(f"GIF:  {loaded.media_file('rollout.gif')}")  # load_env leaves the media on the Hub
                 print(f"(cold load took {time.perf_counter() - t:.1f}s)")
         print(
             f"\nWeb page: {server.endpoint}/ (the envs: " + ", ".join(f"{server.endpoint}/{r.repo_id}" for r in published) + ")"

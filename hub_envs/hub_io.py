@@ -12,17 +12,20 @@ Example:
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import json
 import os
 import re
 import shutil
+import threading
 import warnings
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
-from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, snapshot_download
+from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, hf_hub_download, snapshot_download
 from huggingface_hub.errors import (
     EntryNotFoundError,
     HfHubHTTPError,
@@ -32,6 +35,7 @@ from huggingface_hub.errors import (
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
+from huggingface_hub.utils import tqdm as hf_tqdm
 from huggingface_hub.utils import validate_repo_id
 
 from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet
@@ -46,7 +50,7 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, is_commit_sha, is_lazy_file
+from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, is_commit_sha, is_on_demand_file
 
 REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
 
@@ -60,10 +64,26 @@ class Snapshot:
     sha: str  # the resolved 40-hex commit id
     path: Path
     from_cache: bool  # True when no network request was made
+    #: files still downloading in the background (``resolve_snapshot(first=...)``), by repo path
+    pending: dict[str, concurrent.futures.Future] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def pinned(self) -> bool:
         return self.requested == self.sha
+
+    def wait(self) -> None:
+        """Wait for the files still downloading in the background; a failed download raises the hub-envs
+        error :func:`translate_hub_errors` makes of it. The caller verifies the files."""
+        with translate_hub_errors(self.repo_id, self.sha):
+            for future in self.pending.values():
+                future.result()
+
+    def cancel(self) -> None:
+        """Give up the background downloads: the ones not started are dropped, the running ones are waited
+        for (so nothing writes into the cache afterwards); their errors are ignored."""
+        for future in self.pending.values():
+            future.cancel()
+        concurrent.futures.wait(self.pending.values())
 
 
 _REPO_ID_CHARS = re.compile(r"[\w.-]+(/[\w.-]+)?", re.ASCII)
@@ -259,13 +279,16 @@ def resolve_snapshot(
     cache_dir: str | Path | None = None,
     force_download: bool = False,
     lazy: bool = False,
+    first: Callable[[str], bool] | None = None,
 ) -> Snapshot:
     """Resolve ``revision`` (default: main) to a commit sha and make sure its files are on disk.
 
     A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
-    ``lazy``: leave the dataset's data files out (:func:`hub_envs.repo_format.is_lazy_file`; fetch
-    them with :func:`fetch_dataset_files`).
+    ``lazy``: leave the files fetched on demand out (the dataset's data and the card's media:
+    :func:`hub_envs.repo_format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
+    :func:`fetch_files`). ``first``: return once the files it accepts are on disk; the others keep
+    downloading in the background (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
     """
     if (
         revision is not None
@@ -282,35 +305,81 @@ def resolve_snapshot(
         if offline():
             path = snapshot_download(repo_id, revision=revision, repo_type=REPO_TYPE, cache_dir=cache_dir, local_files_only=True)
             return Snapshot(repo_id, revision, Path(path).name, Path(path), from_cache=True)
+        # one request for the commit and its file list (snapshot_download would ask again, and 1.x lists the tree too)
         info = api(token).repo_info(repo_id, revision=revision, repo_type=REPO_TYPE)
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
-        ignore = _lazy_patterns(s.rfilename for s in info.siblings or []) if lazy else None
-        path = _download(repo_id, sha, token=token, cache_dir=cache_dir, force_download=force_download, ignore_patterns=ignore)
-    _check_resolved(repo_id, revision, Path(path).name)
-    return Snapshot(repo_id, revision, sha, Path(path), from_cache=False)
+        names = [s.rfilename for s in info.siblings or []]
+        if lazy:
+            names = [n for n in names if not is_on_demand_file(n)]
+        path, pending = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first)
+    _check_resolved(repo_id, revision, path.name)
+    return Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending)
 
 
-def _glob_escape(path: str) -> str:
-    return "".join(f"[{c}]" if c in "*?[" else c for c in path)
+#: Files downloaded at once (as snapshot_download's default).
+MAX_WORKERS = 8
 
 
-def _lazy_patterns(files) -> list[str]:
-    """``ignore_patterns`` leaving out the lazy files of ``files``: one per folder under ``dataset/`` that
-    holds lazy files only (``dataset/data/*``), else the escaped name of each lazy file."""
-    folders: dict[str, list[str]] = {}  # first folder under dataset/ ("" for files directly in it) -> its files
-    for path in files:
-        if isinstance(path, str) and path.startswith(DATASET_DIR + "/"):
-            rest = path[len(DATASET_DIR) + 1 :]
-            folders.setdefault(rest.split("/", 1)[0] if "/" in rest else "", []).append(path)
-    patterns = set()
-    for folder, paths in folders.items():
-        lazy = [p for p in paths if is_lazy_file(p)]
-        if folder and lazy and len(lazy) == len(paths):
-            patterns.add(f"{DATASET_DIR}/{_glob_escape(folder)}/*")
-        else:  # code (or meta/) beside the data: name the lazy files one by one
-            patterns.update(_glob_escape(p) for p in lazy)
-    return sorted(patterns)
+def _fetch(
+    repo_id: str,
+    sha: str,
+    names: Iterable[str],
+    *,
+    token: str | None,
+    cache_dir: str | Path | None,
+    force_download: bool = False,
+    first: Callable[[str], bool] | None = None,
+) -> tuple[Path, dict[str, concurrent.futures.Future]]:
+    """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache, ``MAX_WORKERS`` at a time, each with
+    ``hf_hub_download`` (what snapshot_download does per file; huggingface_hub's cache is safe for concurrent
+    downloads). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
+    futures of the others, still downloading. Call inside :func:`translate_hub_errors`."""
+    # what ``first`` waits for goes to the download threads first
+    names = sorted(set(names), key=lambda n: (first is not None and n != MANIFEST_FILE and not first(n), n))
+    bar = hf_tqdm(total=len(names), desc=f"Fetching {len(names)} files", unit="file")
+    left, lock = [len(names)], threading.Lock()
+
+    def one(name: str) -> str:
+        try:
+            return hf_hub_download(
+                repo_id, name, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download
+            )
+        finally:
+            with lock:
+                bar.update()
+                left[0] -= 1
+                if not left[0]:
+                    bar.close()
+
+    if not names:
+        bar.close()
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS, thread_name_prefix="hub-envs-fetch")
+    futures = {name: pool.submit(one, name) for name in names}
+    pool.shutdown(wait=False)  # its threads end with the last download
+    pending = {n: f for n, f in futures.items() if first is not None and n != MANIFEST_FILE and not first(n)}
+    path = _cache_snapshot_dir(repo_id, sha, cache_dir)
+    try:
+        for name, future in futures.items():
+            if name not in pending:  # where it landed: snapshots/<sha>/<name>
+                path = Path(future.result()).parents[len(Path(name).parts) - 1]
+    except BaseException:
+        for future in futures.values():
+            future.cancel()
+        concurrent.futures.wait(futures.values())
+        raise
+    return path, pending
+
+
+def fetch_files(
+    repo_id: str, sha: str, names: Iterable[str], *, token: str | None = None, cache_dir: str | Path | None = None
+) -> Path:
+    """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache (files already there are not fetched
+    again); return the snapshot folder. The caller verifies them against the manifest."""
+    with translate_hub_errors(repo_id, sha):
+        path, _ = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir)
+    _check_resolved(repo_id, sha, path.name)
+    return path
 
 
 def _download(

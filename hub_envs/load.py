@@ -60,6 +60,7 @@ from hub_envs.importing import forget_env_folder, import_env_folder, is_imported
 from hub_envs.repo_format import (
     DATASET_DIR,
     MANIFEST_FILE,
+    MEDIA_DIR,
     EnvFolder,
     Manifest,
     check_names_belong_to,
@@ -67,6 +68,8 @@ from hub_envs.repo_format import (
     hash_files,
     is_code_file,
     is_lazy_file,
+    is_media_file,
+    is_on_demand_file,
     sha256_file,
 )
 from hub_envs.requirements import check_requirements
@@ -205,6 +208,38 @@ class LoadedEnv:
         ensure_dataset_files(self.repo_id, self.revision, self.path, self.manifest, token=self._token, cache_dir=self._cache_dir)
         self._dataset_verified = True
         return root
+
+    def media_file(self, name: str = "rollout.gif") -> Path:
+        """The card's media file ``media/<name>`` (``rollout.gif``; ``rollout.mp4`` when the dataset stores video),
+        fetched on first use (load_env leaves the media on the Hub: only the card and the web page show them) and
+        checked against the manifest's sha256. Raises :class:`~hub_envs.errors.InvalidRepoFormatError` when the
+        repo has no such file, :class:`~hub_envs.errors.OfflineNotCachedError` offline when it is not cached,
+        and :class:`~hub_envs.errors.IntegrityError` (the file is removed from the cache) when it differs."""
+        rel = f"{MEDIA_DIR}/{name}"
+        where = f"{self.repo_id}@{self.revision}"
+        if rel not in self.manifest.files or not is_media_file(rel):
+            media = sorted(p for p in self.manifest.files if is_media_file(p))
+            raise InvalidRepoFormatError(
+                f"{where} has no {safe_text(rel)}; its media: {', '.join(media) or 'none'} (push_env renders them)."
+            )
+        local = self.path / rel
+        if self.is_local:
+            return local
+        if not local.is_file():
+            if hub_io.offline():
+                raise OfflineNotCachedError(
+                    f"{where}: {safe_text(rel)} is not in the local cache and the Hub cannot be used (HF_HUB_OFFLINE is "
+                    f"set); load_env does not fetch the media. Unset HF_HUB_OFFLINE and call loaded.media_file({name!r})."
+                )
+            hub_io.fetch_files(self.repo_id, self.revision, [rel], token=self._token, cache_dir=self._cache_dir)
+        if sha256_file(local) != self.manifest.files[rel]:
+            _drop_cached_file(local)
+            raise IntegrityError(
+                f"{where}: {safe_text(rel)} differs from the manifest (sha256); it was removed from the cache. Call "
+                f"loaded.media_file({name!r}) again; if it persists, the endpoint serves other bytes than the publisher "
+                f"pushed: check HF_ENDPOINT."
+            )
+        return local
 
     def config_with(self, fields: Mapping[str, Any]) -> Any:
         """The config with ``fields`` set (values decoded as LeRobot's ``--env.<field>=<value>`` flags are), on
@@ -418,16 +453,26 @@ def _check_content_tag(requested: str | None, manifest: Manifest, where: str) ->
         )
 
 
+def _needed_first(path: str) -> bool:
+    """The files the stages before ``load_env``'s checks read: the manifest, the code and its assets (what
+    :func:`~hub_envs.code_copy.code_copy` copies) and the dataset's ``meta/info.json`` (the feature check). The
+    card and the rest of ``meta/`` download meanwhile, and are verified before load_env returns."""
+    return path in (MANIFEST_FILE, f"{DATASET_DIR}/meta/info.json") or bool(code_files({path: ""}))
+
+
 def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> tuple[hub_io.Snapshot, Manifest]:
     """Resolve, download and verify a snapshot; a snapshot that fails is removed from the cache (so nothing,
-    LeRobot's own loader included, later runs what it holds)."""
-    snap = hub_io.resolve_snapshot(repo, requested, token=token, cache_dir=cache_dir, lazy=True)
+    LeRobot's own loader included, later runs what it holds). The files :func:`_needed_first` does not accept
+    may still be downloading (``snap.pending``): :func:`_finish_fetch` waits for them and verifies them."""
+    fetch = dict(token=token, cache_dir=cache_dir, lazy=True, first=_needed_first)
+    snap = hub_io.resolve_snapshot(repo, requested, **fetch)
     where = f"{repo}@{snap.sha}"
 
     def verify(s: hub_io.Snapshot) -> Manifest:
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
         check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
-        manifest.verify_files(s.path, where=where, lazy=True)  # the dataset's data: when it is opened
+        # the dataset's data and the media: when they are needed; the card and meta/: once they are here
+        manifest.verify_files(s.path, where=where, lazy=True, later=s.pending)
         hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest
 
@@ -435,16 +480,37 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
         try:
             return snap, verify(snap)
         except (IntegrityError, InvalidRepoFormatError):
+            snap.cancel()
             if snap.from_cache and hub_io.offline():
                 _raise_if_partly_cached(snap.path, where)
             if not snap.from_cache or hub_io.offline():
                 raise
             # a cached snapshot may be damaged locally: fetch it again once, then judge
             hub_io.drop_snapshot(snap.path)
-            snap = hub_io.resolve_snapshot(repo, snap.sha, token=token, cache_dir=cache_dir, force_download=True, lazy=True)
+            snap = hub_io.resolve_snapshot(repo, snap.sha, force_download=True, **fetch)
             return snap, verify(snap)
     except IntegrityError:
+        snap.cancel()
         hub_io.drop_snapshot(snap.path)
+        raise
+    except BaseException:
+        snap.cancel()
+        raise
+
+
+def _finish_fetch(src: _Source) -> None:
+    """Wait for the files still downloading since :func:`_fetch_and_verify` and verify the whole snapshot again
+    (every file but the dataset's data and the media); a mismatch removes the snapshot from the cache."""
+    snap = src.snapshot
+    if snap is None or not snap.pending:
+        return
+    where = f"{src.repo}@{src.sha}"
+    snap.wait()
+    try:
+        src.manifest.verify_files(src.path, where=where, lazy=True)
+        hub_io.check_snapshot_layout(src.path, set(src.manifest.files), where=where)
+    except IntegrityError:
+        hub_io.drop_snapshot(src.path)
         raise
 
 
@@ -498,6 +564,7 @@ class _Source:
     manifest: Manifest
     local_folder: Path | None
     requested: str | None
+    snapshot: hub_io.Snapshot | None = None  # a Hub snapshot, maybe with files still downloading (``pending``)
 
 
 def _resolve_source(
@@ -559,15 +626,20 @@ def _resolve_source(
         timings["fetch_verify"] = time.perf_counter() - t0
         report.integrity = f"{len(manifest.files)} files match the manifest"
         sha, path = snap.sha, snap.path
-        _check_content_tag(requested, manifest, f"{repo}@{sha}")
-        if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
-            warnings.warn(
-                f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
-                f'load_env("{repo}@{sha}")',
-                UnpinnedRevisionWarning,
-                stacklevel=3,
-            )
-        report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
+        try:
+            _check_content_tag(requested, manifest, f"{repo}@{sha}")
+            if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
+                warnings.warn(
+                    f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
+                    f'load_env("{repo}@{sha}")',
+                    UnpinnedRevisionWarning,
+                    stacklevel=3,
+                )
+            report.trust = _trust_gate(repo, sha, manifest, path, trust_remote_code, trusted)
+        except BaseException:
+            snap.cancel()  # nothing of a refused load keeps downloading
+            raise
+        return _Source(repo, sha, path, manifest, local_folder, requested, snap)
     return _Source(repo, sha, path, manifest, local_folder, requested)
 
 
@@ -657,86 +729,94 @@ def load_env(
     local_folder, requested = src.local_folder, src.requested
     where = f"{repo}@{sha}"
 
-    t = time.perf_counter()
-    checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint)
-    use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
-    cached_checks = check_cache.lookup(checks_key) if use_cache else None
-    if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
-        check_requirements(manifest.requirements, repo=where)
-    # else: this repo@sha passed every stage before with exactly these installed distributions
-    report.requirements = list(manifest.requirements)
-    timings["requirements"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    # a published env's code runs from real files (its own folder for __file__.resolve()), not cache symlinks
-    code = path if local_folder is not None else code_copy(path, manifest.files, repo, sha)
     key = module_key(repo, sha)
-    owner = f"{repo}@{sha}"
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
-    if iso.isolated:
-        owner = f"{owner} ({_isolation_suffix(iso).lstrip('-')})"  # not the same registration as in-process
     try:
-        with registration.registry_transaction() as txn:
-            if iso.isolated:
-                env_class, config_class, isolated_config = _isolated_parts(
-                    repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
+        t = time.perf_counter()
+        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint)
+        use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
+        cached_checks = check_cache.lookup(checks_key) if use_cache else None
+        if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
+            check_requirements(manifest.requirements, repo=where)
+        # else: this repo@sha passed every stage before with exactly these installed distributions
+        report.requirements = list(manifest.requirements)
+        timings["requirements"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        # a published env's code runs from real files (its own folder for __file__.resolve()), not cache symlinks
+        code = path if local_folder is not None else code_copy(path, manifest.files, repo, sha)
+        owner = f"{repo}@{sha}"
+        if iso.isolated:
+            owner = f"{owner} ({_isolation_suffix(iso).lstrip('-')})"  # not the same registration as in-process
+        try:
+            with registration.registry_transaction() as txn:
+                if iso.isolated:
+                    env_class, config_class, isolated_config = _isolated_parts(
+                        repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
+                    )
+                    iso = env_class.options
+                else:
+                    package = import_env_folder(code, key)
+                    env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
+                    config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
+                replaced = txn.replaced()
+                if replaced:
+                    raise RegistrationConflictError(
+                        f"{where}: importing its code replaced {', '.join(replaced)}, already registered by another package. "
+                        f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
+                        f"env itself, under names unique to the repo and commit."
+                    )
+                if iso.isolated:
+                    config = isolated_config
+                else:
+                    set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
+                    config = _checked_config(config_class, manifest, set_fields, where)
+                qualifier = sha[:12] if not sha.startswith("local-") else sha
+                suffix = _isolation_suffix(iso) if iso.isolated else ""
+                reg = registration.register(
+                    gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}{suffix}",
+                    env_type=f"{manifest.env_type}@{qualifier}{suffix}",
+                    owner=owner,
+                    entry_point=env_class,
+                    config_class=config_class,
+                    max_episode_steps=int(config.episode_length),
+                    kwargs=config.gym_kwargs,
+                    disable_env_checker=bool(getattr(config, "disable_env_checker", True)),
+                    register_choice=not iso.isolated or config_class is not None,
                 )
-                iso = env_class.options
-            else:
-                package = import_env_folder(code, key)
-                env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
-                config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
-            replaced = txn.replaced()
-            if replaced:
-                raise RegistrationConflictError(
-                    f"{where}: importing its code replaced {', '.join(replaced)}, already registered by another package. "
-                    f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
-                    f"env itself, under names unique to the repo and commit."
+                timings["import_register"] = time.perf_counter() - t
+                loaded = LoadedEnv(
+                    repo_id=repo,
+                    revision=sha,
+                    requested_revision=requested,
+                    path=path,
+                    manifest=manifest,
+                    env_class=env_class,
+                    config_class=config_class,
+                    config=config,
+                    registration_=reg,
+                    report=report,
+                    local_folder=local_folder,
+                    isolation=iso,
+                    token=token,
+                    cache_dir=cache_dir,
                 )
-            if iso.isolated:
-                config = isolated_config
-            else:
-                set_fields = manifest.config_overrides if local_folder is None else dict(config or {})
-                config = _checked_config(config_class, manifest, set_fields, where)
-            qualifier = sha[:12] if not sha.startswith("local-") else sha
-            suffix = _isolation_suffix(iso) if iso.isolated else ""
-            reg = registration.register(
-                gym_id=f"{manifest.gym_id}-{qualifier.replace('local-', 'local')}{suffix}",
-                env_type=f"{manifest.env_type}@{qualifier}{suffix}",
-                owner=owner,
-                entry_point=env_class,
-                config_class=config_class,
-                max_episode_steps=int(config.episode_length),
-                kwargs=config.gym_kwargs,
-                disable_env_checker=bool(getattr(config, "disable_env_checker", True)),
-                register_choice=not iso.isolated or config_class is not None,
-            )
-            timings["import_register"] = time.perf_counter() - t
-            loaded = LoadedEnv(
-                repo_id=repo,
-                revision=sha,
-                requested_revision=requested,
-                path=path,
-                manifest=manifest,
-                env_class=env_class,
-                config_class=config_class,
-                config=config,
-                registration_=reg,
-                report=report,
-                local_folder=local_folder,
-                isolation=iso,
-                token=token,
-                cache_dir=cache_dir,
-            )
-            if check:
+                if check:
+                    t = time.perf_counter()
+                    _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps, key=checks_key, cached=cached_checks)
+                    timings["checks"] = time.perf_counter() - t
+                if manifest.processors:
+                    _check_processors(loaded, dry=check, where=where)
                 t = time.perf_counter()
-                _run_load_checks(loaded, fingerprint=fingerprint, steps=check_steps, key=checks_key, cached=cached_checks)
-                timings["checks"] = time.perf_counter() - t
-            if manifest.processors:
-                _check_processors(loaded, dry=check, where=where)
+                _finish_fetch(src)  # the card and meta/ downloaded while the code was imported and checked
+                timings["fetch_rest"] = time.perf_counter() - t
+        except BaseException:
+            if not imported_before and not iso.isolated:
+                forget_env_folder(key)
+            raise
     except BaseException:
-        if not imported_before and not iso.isolated:
-            forget_env_folder(key)
+        if src.snapshot is not None:
+            src.snapshot.cancel()  # nothing of a failed load keeps downloading
         raise
     timings["total"] = time.perf_counter() - t0
     report.timings = timings
@@ -924,7 +1004,7 @@ def _raise_if_partly_cached(path: Path, where: str) -> None:
         files = Manifest.read(path).files
     except HubEnvsError:
         files = {}
-    missing = sorted(p for p in files if not is_lazy_file(p) and not (path / p).is_file()) if files else ["hub_env.json"]
+    missing = sorted(p for p in files if not is_on_demand_file(p) and not (path / p).is_file()) if files else ["hub_env.json"]
     if missing:
         raise OfflineNotCachedError(
             f"{where} is only partly in the local cache ({len(missing)} file(s) missing, e.g. {missing[0]}; an interrupted "

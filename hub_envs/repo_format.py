@@ -44,6 +44,7 @@ import json
 import os
 import re
 import tomllib
+from collections.abc import Collection
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -107,6 +108,22 @@ def is_lazy_file(path: str) -> bool:
         and not is_code_file(path)
         and not path.endswith(EXECUTABLE_SUFFIXES)
     )
+
+
+def is_media_file(path: str) -> bool:
+    """The card's media (``media/rollout.gif``, ``media/rollout.mp4``): only the card and the web page show them,
+    so ``load_env`` does not fetch them (:meth:`hub_envs.load.LoadedEnv.media_file` does, verified). Never code.
+
+    >>> is_media_file("media/rollout.mp4"), is_media_file("media/helper.py"), is_media_file("README.md")
+    (True, False, False)
+    """
+    return path.startswith(MEDIA_DIR + "/") and not is_code_file(path) and not path.endswith(EXECUTABLE_SUFFIXES)
+
+
+def is_on_demand_file(path: str) -> bool:
+    """A file ``load_env`` leaves on the Hub until something needs it: the dataset's data
+    (:func:`is_lazy_file`) and the card's media (:func:`is_media_file`)."""
+    return is_lazy_file(path) or is_media_file(path)
 
 
 def is_code_file(path: str) -> bool:
@@ -596,15 +613,16 @@ class Manifest:
 
     # -- checks that need no code --
 
-    def verify_files(self, folder: Path, *, where: str, lazy: bool = False) -> None:
+    def verify_files(self, folder: Path, *, where: str, lazy: bool = False, later: Collection[str] = ()) -> None:
         """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code.
 
-        ``lazy``: leave the dataset's data files (:func:`is_lazy_file`) out; they are verified when fetched.
+        ``lazy``: leave the files fetched on demand (:func:`is_on_demand_file`: the dataset's data, the
+        media) out; they are verified when fetched. ``later``: files still downloading, verified once there.
         """
         folder = Path(folder)
         problems = []
         for path, expected in sorted(self.files.items()):
-            if lazy and is_lazy_file(path):
+            if (lazy and is_on_demand_file(path)) or path in later:
                 continue
             local = folder / path
             if not local.is_file():
