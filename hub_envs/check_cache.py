@@ -68,13 +68,13 @@ def _checker_source_digest() -> str:
     return h.hexdigest()
 
 
-def environment_identity(requirements: tuple[str, ...] | list[str] = ()) -> dict[str, Any]:
-    """What, besides the code and data, can change a check's outcome: every installed package
-    version (not just the declared ones), the interpreter, the OS, libc and CPU architecture."""
+def machine_identity() -> dict[str, Any]:
+    """What, besides the code, its data and its declared requirements, can change a check's outcome: every
+    installed package version, hub-envs' own checking code, the interpreter, the OS, libc and CPU architecture.
+    ~10 ms (a listdir per ``sys.path`` entry, a read of hub-envs' sources): load_env computes it while it downloads."""
     uname = platform.uname()
     return {
         "distributions": hashlib.sha256("\n".join(_installed_distributions()).encode()).hexdigest(),
-        "requirements": list(requirements),
         "checker": _checker_source_digest(),
         "python": sys.version,
         "os": [uname.system, uname.release, uname.machine],
@@ -82,12 +82,20 @@ def environment_identity(requirements: tuple[str, ...] | list[str] = ()) -> dict
     }
 
 
-def check_key(*, owner: str, content_digest: str, requirements, settings: dict[str, Any]) -> str:
+def environment_identity(requirements: tuple[str, ...] | list[str] = (), machine: dict[str, Any] | None = None) -> dict[str, Any]:
+    """:func:`machine_identity` (computed now unless given) and the env's declared ``requirements``."""
+    return {**(machine if machine is not None else machine_identity()), "requirements": list(requirements)}
+
+
+def check_key(
+    *, owner: str, content_digest: str, requirements, settings: dict[str, Any], machine: dict[str, Any] | None = None
+) -> str:
+    """The key of a check's result; ``machine``: a :func:`machine_identity` computed during this load (else now)."""
     payload = {
         "owner": owner,
         "content_digest": content_digest,
         "settings": settings,
-        "environment": environment_identity(requirements),
+        "environment": environment_identity(requirements, machine),
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 

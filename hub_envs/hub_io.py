@@ -50,7 +50,7 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, is_commit_sha, is_on_demand_file
+from hub_envs.repo_format import DATASET_DIR, HUB_FILES, MANIFEST_FILE, is_commit_sha, is_on_demand_file
 
 REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
 
@@ -287,7 +287,7 @@ def resolve_snapshot(
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
     ``lazy``: leave the files fetched on demand out (the dataset's data and the card's media:
     :func:`hub_envs.repo_format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
-    :func:`fetch_files`). ``first``: return once the files it accepts are on disk; the others keep
+    :func:`fetch_files`), and the Hub's ``.gitattributes``. ``first``: return once the files it accepts are on disk; the others keep
     downloading in the background (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
     """
     if (
@@ -310,8 +310,8 @@ def resolve_snapshot(
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
         names = [s.rfilename for s in info.siblings or []]
-        if lazy:
-            names = [n for n in names if not is_on_demand_file(n)]
+        if lazy:  # nor the Hub's .gitattributes, which nothing of an env reads
+            names = [n for n in names if not is_on_demand_file(n) and n not in HUB_FILES]
         path, pending = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first)
     _check_resolved(repo_id, revision, path.name)
     return Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending)

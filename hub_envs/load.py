@@ -19,14 +19,16 @@ Example:
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import hashlib
 import json
 import os
 import re
+import threading
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -472,7 +474,7 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
         check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
         # the dataset's data and the media: when they are needed; the card and meta/: once they are here
-        manifest.verify_files(s.path, where=where, lazy=True, later=s.pending)
+        manifest.verify_files(s.path, where=where, lazy=True, skip=s.pending)
         hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest
 
@@ -499,15 +501,16 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
 
 
 def _finish_fetch(src: _Source) -> None:
-    """Wait for the files still downloading since :func:`_fetch_and_verify` and verify the whole snapshot again
-    (every file but the dataset's data and the media); a mismatch removes the snapshot from the cache."""
+    """Wait for the files still downloading since :func:`_fetch_and_verify` and verify them (and the snapshot's
+    layout, unlisted code included, again); a mismatch removes the snapshot from the cache."""
     snap = src.snapshot
     if snap is None or not snap.pending:
         return
     where = f"{src.repo}@{src.sha}"
     snap.wait()
     try:
-        src.manifest.verify_files(src.path, where=where, lazy=True)
+        verified = set(src.manifest.files) - set(snap.pending)  # by _fetch_and_verify
+        src.manifest.verify_files(src.path, where=where, lazy=True, skip=verified)
         hub_io.check_snapshot_layout(src.path, set(src.manifest.files), where=where)
     except IntegrityError:
         hub_io.drop_snapshot(src.path)
@@ -714,6 +717,7 @@ def load_env(
         raise ConfigError(
             f"load_env needs a Hub repo id such as 'user/name' or 'user/name@<sha>', or an env folder; got {repo_id!r}."
         )
+    machine = _in_background(check_cache.machine_identity)  # what the check cache keys on, while the files download
     src = _resolve_source(
         repo_id,
         revision=revision,
@@ -733,7 +737,7 @@ def load_env(
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
     try:
         t = time.perf_counter()
-        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint)
+        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=machine.result())
         use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
         cached_checks = check_cache.lookup(checks_key) if use_cache else None
         if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
@@ -823,6 +827,20 @@ def load_env(
     loaded._earlier = _LOADED.get(loaded.env_type)
     _LOADED[loaded.env_type] = loaded
     return loaded
+
+
+def _in_background(fn: Callable[[], Any]) -> concurrent.futures.Future:
+    """``fn()`` in a daemon thread of its own; its result (or exception) in the returned future."""
+    future: concurrent.futures.Future = concurrent.futures.Future()
+
+    def run() -> None:
+        try:
+            future.set_result(fn())
+        except BaseException as e:  # noqa: BLE001 - handed to whoever asks for the result
+            future.set_exception(e)
+
+    threading.Thread(target=run, name="hub-envs-load-identity", daemon=True).start()
+    return future
 
 
 def _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits=None):
@@ -1012,9 +1030,12 @@ def _raise_if_partly_cached(path: Path, where: str) -> None:
         )
 
 
-def _checks_key(where: str, manifest: Manifest, *, steps: int, fingerprint: FingerprintPolicy) -> str:
+def _checks_key(
+    where: str, manifest: Manifest, *, steps: int, fingerprint: FingerprintPolicy, machine: dict | None = None
+) -> str:
     recorded = manifest.fingerprint
     return check_cache.check_key(
+        machine=machine,
         owner=where,
         content_digest=manifest.content_digest,
         requirements=manifest.requirements,

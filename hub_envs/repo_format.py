@@ -613,16 +613,17 @@ class Manifest:
 
     # -- checks that need no code --
 
-    def verify_files(self, folder: Path, *, where: str, lazy: bool = False, later: Collection[str] = ()) -> None:
+    def verify_files(self, folder: Path, *, where: str, lazy: bool = False, skip: Collection[str] = ()) -> None:
         """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code.
 
         ``lazy``: leave the files fetched on demand (:func:`is_on_demand_file`: the dataset's data, the
-        media) out; they are verified when fetched. ``later``: files still downloading, verified once there.
+        media) out; they are verified when fetched. ``skip``: files verified at another time (still downloading,
+        or verified already).
         """
         folder = Path(folder)
         problems = []
         for path, expected in sorted(self.files.items()):
-            if (lazy and is_on_demand_file(path)) or path in later:
+            if (lazy and is_on_demand_file(path)) or path in skip:
                 continue
             local = folder / path
             if not local.is_file():
