@@ -181,7 +181,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=9)
     args = parser.parse_args()
     for key, value in run(args.push_mb, args.size_mb, args.big_mb, args.repeats).items():
-        print(f"{key:>28}: {value:10.2f}")
+        print(f"{key:>28}: {value:10.2f}" if isinstance(value, (int, float)) else f"{key:>28}: {value}")
 
 
 if __name__ == "__main__":
