@@ -334,9 +334,9 @@ def _fetch(
     """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache, ``MAX_WORKERS`` at a time, each with
     ``hf_hub_download`` (what snapshot_download does per file; huggingface_hub's cache is safe for concurrent
     downloads). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
-    futures of the others, still downloading. Call inside :func:`translate_hub_errors`."""
-    # what ``first`` waits for goes to the download threads first
-    names = sorted(set(names), key=lambda n: (first is not None and n != MANIFEST_FILE and not first(n), n))
+    futures of the others, which start then (so they do not slow the first down) and download while the caller
+    goes on. Call inside :func:`translate_hub_errors`."""
+    names = sorted(set(names))
     bar = hf_tqdm(total=len(names), desc=f"Fetching {len(names)} files", unit="file")
     left, lock = [len(names)], threading.Lock()
 
@@ -355,19 +355,22 @@ def _fetch(
     if not names:
         bar.close()
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS, thread_name_prefix="hub-envs-fetch")
-    futures = {name: pool.submit(one, name) for name in names}
-    pool.shutdown(wait=False)  # its threads end with the last download
-    pending = {n: f for n, f in futures.items() if first is not None and n != MANIFEST_FILE and not first(n)}
+    later = [n for n in names if first is not None and n != MANIFEST_FILE and not first(n)]
+    futures = {name: pool.submit(one, name) for name in names if name not in later}
     path = _cache_snapshot_dir(repo_id, sha, cache_dir)
     try:
-        for name, future in futures.items():
-            if name not in pending:  # where it landed: snapshots/<sha>/<name>
-                path = Path(future.result()).parents[len(Path(name).parts) - 1]
+        for name, future in futures.items():  # where they landed: snapshots/<sha>/<name>
+            path = Path(future.result()).parents[len(Path(name).parts) - 1]
     except BaseException:
         for future in futures.values():
             future.cancel()
         concurrent.futures.wait(futures.values())
+        pool.shutdown(wait=False)
+        bar.close()
         raise
+    # the others start once the first are in: they download while the caller works, not against the first
+    pending = {name: pool.submit(one, name) for name in later}
+    pool.shutdown(wait=False)  # its threads end with the last download
     return path, pending
 
 
