@@ -87,6 +87,8 @@ def code_copy(snapshot: Path, files: dict[str, str], repo_id: str, sha: str, *, 
                     f"{repo_id}@{sha}: {safe_text(rel)} in the cached snapshot no longer has the sha256 in the manifest. "
                     f"Load again: the snapshot is downloaded afresh."
                 )
+        if target.exists() and _matches(target, wanted):  # another loader made it meanwhile (and may be importing it)
+            return target
         if target.exists():  # an outdated or tampered copy: replaced whole
             old = root / f".{sha}.old-{uuid.uuid4().hex[:12]}"
             try:
