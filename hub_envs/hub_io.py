@@ -66,6 +66,7 @@ class Snapshot:
     from_cache: bool  # True when no network request was made
     #: files still downloading in the background (``resolve_snapshot(first=...)``), by repo path
     pending: dict[str, concurrent.futures.Future] = field(default_factory=dict, compare=False, repr=False)
+    _pool: concurrent.futures.ThreadPoolExecutor | None = field(default=None, compare=False, repr=False)
 
     @property
     def pinned(self) -> bool:
@@ -74,16 +75,18 @@ class Snapshot:
     def wait(self) -> None:
         """Wait for the files still downloading in the background; a failed download raises the hub-envs
         error :func:`translate_hub_errors` makes of it. The caller verifies the files."""
-        with translate_hub_errors(self.repo_id, self.sha):
-            for future in self.pending.values():
-                future.result()
+        try:
+            with translate_hub_errors(self.repo_id, self.sha):
+                for future in self.pending.values():
+                    future.result()
+        finally:
+            self.cancel()  # done (or failed): the download threads end here
 
     def cancel(self) -> None:
         """Give up the background downloads: the ones not started are dropped, the running ones are waited
         for (so nothing writes into the cache afterwards); their errors are ignored."""
-        for future in self.pending.values():
-            future.cancel()
-        concurrent.futures.wait(self.pending.values())
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)  # joins its threads
 
 
 _REPO_ID_CHARS = re.compile(r"[\w.-]+(/[\w.-]+)?", re.ASCII)
@@ -312,9 +315,16 @@ def resolve_snapshot(
         names = [s.rfilename for s in info.siblings or []]
         if lazy:  # nor the Hub's .gitattributes, which nothing of an env reads
             names = [n for n in names if not is_on_demand_file(n) and n not in HUB_FILES]
-        path, pending = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first)
-    _check_resolved(repo_id, revision, path.name)
-    return Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending)
+        path, pending, pool = _fetch(
+            repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first
+        )
+    snap = Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending, _pool=pool)
+    try:
+        _check_resolved(repo_id, revision, path.name)
+    except BaseException:
+        snap.cancel()
+        raise
+    return snap
 
 
 #: Files downloaded at once (as snapshot_download's default).
@@ -330,12 +340,12 @@ def _fetch(
     cache_dir: str | Path | None,
     force_download: bool = False,
     first: Callable[[str], bool] | None = None,
-) -> tuple[Path, dict[str, concurrent.futures.Future]]:
+) -> tuple[Path, dict[str, concurrent.futures.Future], concurrent.futures.ThreadPoolExecutor]:
     """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache, ``MAX_WORKERS`` at a time, each with
     ``hf_hub_download`` (what snapshot_download does per file; huggingface_hub's cache is safe for concurrent
     downloads). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
     futures of the others, which start then (so they do not slow the first down) and download while the caller
-    goes on. Call inside :func:`translate_hub_errors`."""
+    goes on, and the pool (``shutdown(wait=True)`` joins its threads). Call inside :func:`translate_hub_errors`."""
     names = sorted(set(names))
     bar = hf_tqdm(total=len(names), desc=f"Fetching {len(names)} files", unit="file")
     left, lock = [len(names)], threading.Lock()
@@ -362,16 +372,14 @@ def _fetch(
         for name, future in futures.items():  # where they landed: snapshots/<sha>/<name>
             path = Path(future.result()).parents[len(Path(name).parts) - 1]
     except BaseException:
-        for future in futures.values():
-            future.cancel()
-        concurrent.futures.wait(futures.values())
-        pool.shutdown(wait=False)
+        pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
         raise
     # the others start once the first are in: they download while the caller works, not against the first
     pending = {name: pool.submit(one, name) for name in later}
-    pool.shutdown(wait=False)  # its threads end with the last download
-    return path, pending
+    if not pending:
+        pool.shutdown(wait=True)
+    return path, pending, pool
 
 
 def fetch_files(
@@ -380,7 +388,7 @@ def fetch_files(
     """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache (files already there are not fetched
     again); return the snapshot folder. The caller verifies them against the manifest."""
     with translate_hub_errors(repo_id, sha):
-        path, _ = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir)
+        path, _, _ = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir)
     _check_resolved(repo_id, sha, path.name)
     return path
 
