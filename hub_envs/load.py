@@ -474,7 +474,7 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
         check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
         # the dataset's data and the media: when they are needed; the card and meta/: once they are here
-        manifest.verify_files(s.path, where=where, lazy=True, skip=s.pending)
+        _verify_fetched(manifest, s, skip=s.pending, token=token, cache_dir=cache_dir)
         hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest
 
@@ -500,7 +500,25 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
         raise
 
 
-def _finish_fetch(src: _Source) -> None:
+def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, cache_dir) -> None:
+    """``manifest.verify_files`` (lazy) of a snapshot; for a fresh download, files found *missing* are fetched once
+    more before judging: huggingface_hub re-links a snapshot file (remove, then symlink) when another process
+    sharing the cache downloads it at the same time, so a file can be absent for an instant. Tampered files are
+    never retried."""
+    where = f"{snap.repo_id}@{snap.sha}"
+    try:
+        manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
+    except IntegrityError:
+        if snap.from_cache or hub_io.offline():
+            raise
+        missing = [p for p in manifest.files if not is_on_demand_file(p) and p not in skip and not (snap.path / p).is_file()]
+        if not missing:
+            raise
+        hub_io.fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
+        manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
+
+
+def _finish_fetch(src: _Source, *, token, cache_dir) -> None:
     """Wait for the files still downloading since :func:`_fetch_and_verify` and verify them (and the snapshot's
     layout, unlisted code included, again); a mismatch removes the snapshot from the cache."""
     snap = src.snapshot
@@ -510,7 +528,7 @@ def _finish_fetch(src: _Source) -> None:
     snap.wait()
     try:
         verified = set(src.manifest.files) - set(snap.pending)  # by _fetch_and_verify
-        src.manifest.verify_files(src.path, where=where, lazy=True, skip=verified)
+        _verify_fetched(src.manifest, snap, skip=verified, token=token, cache_dir=cache_dir)
         hub_io.check_snapshot_layout(src.path, set(src.manifest.files), where=where)
     except IntegrityError:
         hub_io.drop_snapshot(src.path)
@@ -812,7 +830,9 @@ def load_env(
                 if manifest.processors:
                     _check_processors(loaded, dry=check, where=where)
                 t = time.perf_counter()
-                _finish_fetch(src)  # the card and meta/ downloaded while the code was imported and checked
+                _finish_fetch(
+                    src, token=token, cache_dir=cache_dir
+                )  # the card and meta/ downloaded while the code was imported and checked
                 timings["fetch_rest"] = time.perf_counter() - t
         except BaseException:
             if not imported_before and not iso.isolated:
