@@ -66,6 +66,8 @@ class Snapshot:
     from_cache: bool  # True when no network request was made
     #: files still downloading in the background (``resolve_snapshot(first=...)``), by repo path
     pending: dict[str, concurrent.futures.Future] = field(default_factory=dict, compare=False, repr=False)
+    #: the files the Hub listed for the commit and this download fetched (empty when served from the cache)
+    fetched: frozenset[str] = field(default=frozenset(), compare=False, repr=False)
     _pool: concurrent.futures.ThreadPoolExecutor | None = field(default=None, compare=False, repr=False)
 
     @property
@@ -318,7 +320,7 @@ def resolve_snapshot(
         path, pending, pool = _fetch(
             repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first
         )
-    snap = Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending, _pool=pool)
+    snap = Snapshot(repo_id, revision, sha, path, from_cache=False, pending=pending, fetched=frozenset(names), _pool=pool)
     try:
         _check_resolved(repo_id, revision, path.name)
     except BaseException:

@@ -503,15 +503,20 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
 def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, cache_dir) -> None:
     """``manifest.verify_files`` (lazy) of a snapshot; for a fresh download, files found *missing* are fetched once
     more before judging: huggingface_hub re-links a snapshot file (remove, then symlink) when another process
-    sharing the cache downloads it at the same time, so a file can be absent for an instant. Tampered files are
-    never retried."""
+    sharing the cache downloads it at the same time, so a file can be absent for an instant. Only files this
+    download fetched are retried: a file the manifest lists and the Hub does not hold is the repo's fault
+    (IntegrityError, not a 404 from a second request). Tampered files are never retried."""
     where = f"{snap.repo_id}@{snap.sha}"
     try:
         manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
     except IntegrityError:
         if snap.from_cache or hub_io.offline():
             raise
-        missing = [p for p in manifest.files if not is_on_demand_file(p) and p not in skip and not (snap.path / p).is_file()]
+        missing = [
+            p
+            for p in manifest.files
+            if p in snap.fetched and not is_on_demand_file(p) and p not in skip and not (snap.path / p).is_file()
+        ]
         if not missing:
             raise
         hub_io.fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
