@@ -54,6 +54,26 @@ MAX_RESTARTS = 3
 MAX_SHARD_SIZE = 32
 
 
+def _ray_missing() -> MissingRequirementsError:
+    return MissingRequirementsError(
+        f"--backend=ray needs Ray, which is not installed in this Python ({sys.executable}). "
+        f"Install the extra: {PIP_LINE} (or use --backend=local)."
+    )
+
+
+def check_ray_installed() -> None:
+    """Raise :class:`MissingRequirementsError` (with the pip line) unless Ray can be imported here; cheap (no import),
+    so a run asked for on Ray fails before any work rather than after its env was loaded and checked."""
+    import importlib.util
+
+    try:
+        found = importlib.util.find_spec("ray") is not None
+    except (ImportError, ValueError):
+        found = False
+    if not found:
+        raise _ray_missing()
+
+
 def import_ray():
     """``ray``, or a :class:`MissingRequirementsError` with the pip line."""
     try:
@@ -61,10 +81,7 @@ def import_ray():
     except ModuleNotFoundError as exc:
         if exc.name != "ray":
             raise
-        raise MissingRequirementsError(
-            f"--backend=ray needs Ray, which is not installed in this Python ({sys.executable}). "
-            f"Install the extra: {PIP_LINE} (or use --backend=local)."
-        ) from None
+        raise _ray_missing() from None
     return ray
 
 
@@ -242,6 +259,7 @@ class RayBackend(Backend):
             raise ConfigError(f"workers={workers!r}: pass a positive number of Ray actors (0 or None: the cluster's CPUs).")
         if shard_size is not None and shard_size < 1:
             raise ConfigError(f"shard_size={shard_size!r}: pass a positive number of episodes per shard.")
+        check_ray_installed()
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         self.workers = workers or None
         self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
