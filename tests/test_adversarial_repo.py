@@ -567,3 +567,24 @@ def test_a_manifest_claiming_another_users_repo_id_too_is_refused_by_load_env(hu
     finally:
         for name in set(gym.registry) - before:
             gym.registry.pop(name, None)
+
+
+def test_an_edited_checker_never_reuses_the_cached_verdicts(tmp_path):
+    """The check cache's key covers hub-envs' own sources: editing any module of the package (an editable install
+    under development, a ``git checkout``) changes it, so verdicts reached by other checking code are not reused;
+    an untouched tree keeps its key (the cache works)."""
+    from hub_envs import check_cache
+
+    tree = tmp_path / "hub_envs"
+    shutil.copytree(Path(check_cache.__file__).resolve().parent, tree, ignore=shutil.ignore_patterns("__pycache__"))
+    before = check_cache._checker_source_digest(tree)
+    assert check_cache._checker_source_digest(tree) == before
+    (tree / "__pycache__").mkdir(exist_ok=True)
+    (tree / "__pycache__" / "x.cpython-313.pyc").write_bytes(b"bytecode is not a source")
+    assert check_cache._checker_source_digest(tree) == before
+    target = tree / "harness" / "checks.py"
+    target.write_text(target.read_text() + "\n# a one-line edit\n")
+    edited = check_cache._checker_source_digest(tree)
+    assert edited != before
+    (tree / "new_module.py").write_text("x = 1\n")  # a module added
+    assert check_cache._checker_source_digest(tree) not in (before, edited)
