@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -315,19 +316,56 @@ def lerobot_video_utils():
     return video_utils
 
 
-def lerobot_video_info(video_path: str | Path) -> dict[str, Any]:
-    """The ``info`` of a video feature as the installed LeRobot's writer records it in ``info.json``.
+#: LeRobot's GOP (keyframe interval) for camera videos, the same in 0.4 and 0.6; a video feature whose ``info``
+#: records no ``video.g`` was encoded with it (0.6's ``VideoEncoderConfig.from_video_info`` reads it so too)
+LEROBOT_VIDEO_GOP = 2
 
-    0.4: ``get_video_info(path)`` = the stream's values plus ``video.is_depth_map: false``. From 0.5:
-    ``get_video_info(path, video_encoder=rgb_encoder_defaults())`` = the stream's values, the encoder's
-    settings (``video.g``, ``video.crf``, ``video.preset``, ...) and ``is_depth_map: false``.
-    """
-    video_utils = lerobot_video_utils()
+
+def _rgb_encoder(gop: int):
+    """LeRobot >= 0.5's RGB encoder settings with GOP ``gop`` (None on 0.4, whose encoder takes ``g=`` itself)."""
+    import dataclasses
+
     try:
         from lerobot.configs.video import rgb_encoder_defaults
     except ImportError:
-        return dict(video_utils.get_video_info(video_path))
-    return dict(video_utils.get_video_info(video_path, video_encoder=rgb_encoder_defaults()))
+        return None
+    return dataclasses.replace(rgb_encoder_defaults(), g=int(gop))
+
+
+def encode_video_frames(imgs_dir: Path, video_path: Path, fps: int, *, gop: int) -> None:
+    """LeRobot's ``encode_video_frames`` with its defaults (libsvtav1, yuv420p, CRF 30) and GOP ``gop``:
+    0.4 takes ``g=``, 0.6 a ``video_encoder=`` config. ``gop == LEROBOT_VIDEO_GOP`` gives LeRobot's own bytes."""
+    video_utils = lerobot_video_utils()
+    encoder = _rgb_encoder(gop)
+    if encoder is None:
+        video_utils.encode_video_frames(imgs_dir, video_path, fps, g=int(gop), overwrite=True)
+    else:
+        video_utils.encode_video_frames(imgs_dir, video_path, fps, video_encoder=encoder, overwrite=True)
+
+
+def lerobot_video_info(video_path: str | Path, gop: int = LEROBOT_VIDEO_GOP) -> dict[str, Any]:
+    """The ``info`` of a video feature as the installed LeRobot's writer records it in ``info.json``, for a
+    video encoded with GOP ``gop``.
+
+    0.4: ``get_video_info(path)`` = the stream's values plus ``video.is_depth_map: false``; 0.4 records no
+    encoder settings, so ``video.g`` is added when ``gop`` is not LeRobot's (absent means LeRobot's, which is how
+    0.6 reads it). From 0.5: ``get_video_info(path, video_encoder=...)`` = the stream's values, the encoder's
+    settings (``video.g``, ``video.crf``, ``video.preset``, ...) and ``is_depth_map: false``.
+    """
+    video_utils = lerobot_video_utils()
+    encoder = _rgb_encoder(gop)
+    if encoder is None:
+        info = dict(video_utils.get_video_info(video_path))
+        if int(gop) != LEROBOT_VIDEO_GOP:
+            info["video.g"] = int(gop)
+        return info
+    return dict(video_utils.get_video_info(video_path, video_encoder=encoder))
+
+
+def video_gop(info: Mapping[str, Any] | None) -> int:
+    """The GOP a video feature was encoded with, from its ``info`` in ``info.json`` (absent: LeRobot's)."""
+    value = (info or {}).get("video.g")
+    return int(value) if isinstance(value, int) and not isinstance(value, bool) and value > 0 else LEROBOT_VIDEO_GOP
 
 
 def video_backend() -> str:

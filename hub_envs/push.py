@@ -31,10 +31,12 @@ from typing import Any
 import numpy as np
 
 from hub_envs import hub_io
+from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, unrecordable_reason, write_env_states
+from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
 from hub_envs.dataset.writer import (
     DatasetSummary,
     EpisodeFrames,
@@ -154,6 +156,7 @@ class _DatasetRun:
     returns: list[float]
     successes: list[bool]
     golden: dict[str, Any]  # the golden-rollout fingerprint, from the first episodes
+    video_gop: int | None = None  # the keyframe interval of the dataset's videos (None: no video feature)
 
 
 def _check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, where: str) -> Any:
@@ -244,6 +247,7 @@ def _published_unchanged(
     token: str | None,
     attestations: list = (),  # type: ignore[assignment]
     video: bool = False,
+    video_gop: int = DEFAULT_VIDEO_GOP,
 ) -> tuple[str, Manifest, bool] | None:
     """``(sha, manifest, card_current)`` of main when it already holds what this push would build, else None.
 
@@ -276,6 +280,7 @@ def _published_unchanged(
         and remote.seeds.get("check") == seed
         and remote.dataset.get("episodes") == episodes
         and _dataset_uses_video(remote.dataset) == (video and _has_cameras(loaded.config))
+        and (not _dataset_uses_video(remote.dataset) or remote.dataset.get("video_gop", LEROBOT_VIDEO_GOP) == video_gop)
         and remote.fingerprint.get("seeds") == seeds[:fingerprint_seeds]
         and (remote.name, remote.version, remote.description) == (local.name, local.version, local.description)
         and remote.requirements == tuple(local.requirements)
@@ -361,6 +366,7 @@ def _generate_dataset(
     features: dict[str, dict],
     where: str,
     progress: bool,
+    video_gop: int = DEFAULT_VIDEO_GOP,
 ) -> _DatasetRun:
     """Stage 3, the one rollout pass: the dataset, its simulator states, the random-policy returns and the
     golden-rollout fingerprint (its seeds are the first dataset episodes; no second rollout of them)."""
@@ -398,6 +404,7 @@ def _generate_dataset(
         task=str(cfg.task),
         extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
         progress=False,  # the rollout bar above already counts episodes
+        video_gop=video_gop,
     )
     has_states = write_env_states(staging / DATASET_DIR, env_states)
     if _has_get_state(loaded) and not has_states:
@@ -416,6 +423,7 @@ def _generate_dataset(
         returns=returns,
         successes=successes,
         golden=fingerprint_of(first, steps=min(FINGERPRINT_STEPS, int(cfg.episode_length))),
+        video_gop=video_gop if _dataset_uses_video({"features": features}) else None,
     )
 
 
@@ -455,6 +463,7 @@ def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _
             "return_max": summary.return_max,
             "success_rate": summary.success_rate,
             "features": run.features,
+            **({"video_gop": run.video_gop} if run.video_gop is not None else {}),
         },
         fingerprint=run.golden,
         code_digest=code_digest,
@@ -482,6 +491,7 @@ def build_repo(
     attestations: list | tuple = (),
     video: bool = False,
     backend: Backend | None = None,
+    video_gop: int = DEFAULT_VIDEO_GOP,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
@@ -512,6 +522,7 @@ def build_repo(
             features=dataset_features_from_config(cfg, action=stored_action(env.action_space), video=video),
             where=where,
             progress=progress,
+            video_gop=video_gop,
         )
         check_features(cfg, env, read_info(staging / DATASET_DIR)["features"], seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
@@ -574,6 +585,7 @@ def push_env(
     backend: str | Backend = "local",
     ray_address: str | None = None,
     out: str | Path | None = None,
+    video_gop: int | None = None,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -588,6 +600,8 @@ def push_env(
     for cameras) rather than PNG images in the parquet; default (None): True when the env has camera features
     of at least :data:`~hub_envs.dataset.video.MIN_VIDEO_SIDE` px a side (smaller frames crash the encoder).
     Replay compares video frames within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE` (the codec is lossy).
+    ``video_gop``: their keyframe interval (default :data:`~hub_envs.dataset.video.DEFAULT_VIDEO_GOP`, 10: a
+    dataset about a fifth of its PNG size; 2 is LeRobot's own setting, faster random access for training).
 
     ``backend="ray"`` generates the dataset on a Ray cluster (``ray_address``, default ``$RAY_ADDRESS`` or a
     local Ray started for the push; :mod:`hub_envs.backends`): the folder's files travel with the job, the
@@ -600,6 +614,9 @@ def push_env(
     repo_id, rev = hub_io.parse_repo_ref(repo_id)
     if rev is not None:
         raise ConfigError(f"push_env publishes to main; drop '@{rev}' from {repo_id}@{rev} (use --tag to name the commit).")
+    gop = DEFAULT_VIDEO_GOP if video_gop is None else video_gop
+    if isinstance(gop, bool) or not isinstance(gop, int) or gop < 1:
+        raise ConfigError(f"--video_gop={video_gop!r}: pass a positive keyframe interval in frames (LeRobot's is 2).")
     runner = make_backend(backend, workers=workers, ray_address=ray_address, checkpoint_dir=out)
     env_dir = Path(env_dir)
     if not env_dir.is_dir():
@@ -623,6 +640,7 @@ def push_env(
                 token=token,
                 attestations=attestations,
                 video=video,
+                video_gop=gop,
             )
         )
         if unchanged is not None:
@@ -657,6 +675,7 @@ def push_env(
                 attestations=attestations,
                 video=video,
                 backend=runner,
+                video_gop=gop,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()

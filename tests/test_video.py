@@ -100,16 +100,36 @@ def test_reader_decodes_each_episode_within_the_tolerance(video_ds):
         np.testing.assert_array_equal(got["action"][:, 0], np.arange(n))
 
 
-def test_video_dataset_matches_lerobot_own_writer(tmp_path, video_ds):
-    """Same frames through LeRobot's add_frame/save_episode (video on) and ours: same files, same metadata
-    columns, same video info, the same decoded tensors from LeRobotDataset (our MP4s are LeRobot's bytes)."""
+def _packets(path: Path) -> list[tuple[int | None, bool, bytes]]:
+    import av
+
+    with av.open(str(path)) as container:
+        return [(p.pts, p.is_keyframe, bytes(p)) for p in container.demux(video=0) if p.size]
+
+
+@pytest.mark.parametrize("gop", [2, 10], ids=["lerobot-gop", "default-gop"])
+def test_video_dataset_matches_lerobot_own_writer(tmp_path, gop):
+    """Same frames through LeRobot's add_frame/save_episode (video on, the same GOP) and ours: same files, same
+    metadata columns, same video info (``video.g`` included), the same decoded tensors from LeRobotDataset (our
+    MP4s are LeRobot's bytes). GOP 2 is LeRobot's default; 10 is push_env's, which LeRobot >= 0.5 can be told
+    (``rgb_encoder=``); 0.4's writer has no GOP setting."""
+    import dataclasses
+
     import pyarrow.parquet as pq
     import torch
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from hub_envs._compat import video_backend
+    from hub_envs._compat import LEROBOT_VIDEO_GOP, video_backend, video_gop
 
-    ours, _ = video_ds
+    encoder = {}
+    if gop != LEROBOT_VIDEO_GOP:
+        try:
+            from lerobot.configs.video import rgb_encoder_defaults
+        except ImportError:
+            pytest.skip("LeRobot 0.4's dataset writer always encodes with GOP 2")
+        encoder = {"rgb_encoder": dataclasses.replace(rgb_encoder_defaults(), g=gop)}
+    ours = tmp_path / "ours"
+    _write(ours, video_gop=gop)
     theirs = tmp_path / "theirs"
     ref = LeRobotDataset.create(
         "test/ref",
@@ -117,6 +137,7 @@ def test_video_dataset_matches_lerobot_own_writer(tmp_path, video_ds):
         features={k: {**f, "shape": tuple(f["shape"])} for k, f in FEATURES.items()},
         root=theirs,
         use_videos=True,
+        **encoder,
     )
     for ep in _episodes():
         for t in range(ep.length):
@@ -126,9 +147,13 @@ def test_video_dataset_matches_lerobot_own_writer(tmp_path, video_ds):
     files = sorted(str(p.relative_to(theirs)) for p in theirs.rglob("*") if p.is_file() and "images" not in p.parts)
     assert files == sorted(str(p.relative_to(ours)) for p in ours.rglob("*") if p.is_file())
     video = "videos/observation.image/chunk-000/file-000.mp4"
-    assert (ours / video).read_bytes() == (theirs / video).read_bytes()  # LeRobot's encoder, LeRobot's bytes
+    if gop == LEROBOT_VIDEO_GOP:
+        assert (ours / video).read_bytes() == (theirs / video).read_bytes()  # LeRobot's encoder, LeRobot's bytes
+    else:  # LeRobot remuxes a file episode by episode, hub-envs once: the container's bitrate estimate (btrt) may differ
+        assert _packets(ours / video) == _packets(theirs / video)  # the same AV1 stream, packet for packet
     info_a, info_b = read_info(ours), read_info(theirs)
     assert info_a["features"] == json.loads(json.dumps(info_b["features"]))
+    assert video_gop(info_a["features"]["observation.image"]["info"]) == gop
     assert info_a["video_path"] == info_b["video_path"]
     ma = pq.read_schema(ours / "meta/episodes/chunk-000/file-000.parquet")
     mb = pq.read_schema(theirs / "meta/episodes/chunk-000/file-000.parquet")
@@ -264,6 +289,33 @@ def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach
     pngs = push_env(folder, "alice/reach-video", episodes=2, progress=False, video=False)
     assert pngs.created_commit and pngs.manifest.dataset["features"]["observation.image"]["dtype"] == "image"
     assert not any(p.startswith("dataset/videos/") for p in pngs.manifest.files)
+
+
+def test_the_videos_gop_is_recorded_and_replay_re_encodes_with_it(hub_module, reach_video, tmp_path):
+    """push_env's keyframe interval (default DEFAULT_VIDEO_GOP, ``video_gop=2`` for LeRobot's) is in the manifest
+    and in info.json as LeRobot reads it (``video.g``); a re-push with another GOP is a new commit, and replay
+    re-encodes with the dataset's own GOP (else the bit-exact re-encode check could not hold)."""
+    from hub_envs._compat import video_gop
+    from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
+
+    folder, pushed = reach_video
+    api = hub_module.api
+
+    def recorded(repo: str, sha: str) -> int:
+        info = json.loads(Path(api.hf_hub_download(repo, "dataset/meta/info.json", revision=sha)).read_text())
+        return video_gop(info["features"]["observation.image"]["info"])
+
+    assert pushed.manifest.dataset["video_gop"] == DEFAULT_VIDEO_GOP == recorded("alice/reach-video", pushed.sha) != 2
+    lerobots = push_env(folder, "alice/reach-gop2", episodes=2, progress=False, video_gop=2)
+    assert lerobots.manifest.dataset["video_gop"] == 2 == recorded("alice/reach-gop2", lerobots.sha)
+    report = reproduce(
+        f"alice/reach-gop2@{lerobots.sha}", trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False
+    )
+    assert report.reproduced and report.replay.video["bit_exact_after_reencode"], report.summary()
+    again = push_env(folder, "alice/reach-gop2", episodes=2, progress=False)  # the default GOP: not what main holds
+    assert again.created_commit and again.manifest.dataset["video_gop"] == DEFAULT_VIDEO_GOP
+    with pytest.raises(errors.ConfigError, match="video_gop"):
+        push_env(folder, "alice/reach-gop2", episodes=2, progress=False, video_gop=0)
 
 
 def test_truncated_video_in_a_published_repo_is_refused(hub_module, reach_video, tmp_path):

@@ -4,11 +4,12 @@ LeRobot stores camera features as MP4 by default (dtype ``"video"``): one file p
 ``videos/<key>/chunk-000/file-000.mp4``, episodes one after another, each episode's span recorded in the
 episodes metadata as ``videos/<key>/from_timestamp`` / ``to_timestamp`` (seconds into the file). hub-envs
 writes them the way LeRobot's ``save_episode`` does: each episode's frames become PNG files that
-``lerobot.datasets.video_utils.encode_video_frames`` encodes (LeRobot's defaults: AV1 via libsvtav1,
-yuv420p, GOP 2, CRF 30), and the episodes of one file are joined with LeRobot's ``concatenate_video_files``
-(a remux, no re-encode). The encoder output is byte-deterministic for the same frames (tested: same bytes run
-to run and across the two supported LeRobot stacks, whose pyav/libsvtav1 are the same), so datasets keep one
-fingerprint.
+``lerobot.datasets.video_utils.encode_video_frames`` encodes (LeRobot's settings: AV1 via libsvtav1,
+yuv420p, CRF 30; the GOP is :data:`DEFAULT_VIDEO_GOP`, see there), and the episodes of one file are joined with
+LeRobot's ``concatenate_video_files`` (a remux, no re-encode). The encoder output is byte-deterministic for the
+same frames (tested: same bytes run to run and across the two supported LeRobot stacks, whose pyav/libsvtav1
+are the same), so datasets keep one fingerprint. The GOP is recorded as ``video.g`` in the feature's ``info``
+(LeRobot 0.6 records its encoder settings there itself; absent means LeRobot's GOP 2).
 
 The codec is lossy, so a replayed camera frame cannot equal the stored one bit for bit. Replay compares a
 video feature frame by frame with :func:`frame_errors` (mean absolute difference over the frame's pixels, in
@@ -34,13 +35,22 @@ from pathlib import Path
 import numpy as np
 
 from hub_envs.dataset.codec import encode_png
-from hub_envs.errors import DatasetError, IntegrityError
+from hub_envs.errors import ConfigError, DatasetError, IntegrityError
 
 # libsvtav1 prints its configuration to stderr at info level for every file; errors only (LeRobot's own
 # logging setting for libav is WARNING). An explicit setting by the user wins.
 os.environ.setdefault("SVT_LOG", "1")
 
-__all__ = ["VideoTolerance", "VIDEO_TOLERANCE", "frame_errors", "psnr", "encode_episode", "join_videos", "decode_episode"]
+__all__ = [
+    "VideoTolerance",
+    "VIDEO_TOLERANCE",
+    "DEFAULT_VIDEO_GOP",
+    "frame_errors",
+    "psnr",
+    "encode_episode",
+    "join_videos",
+    "decode_episode",
+]
 
 
 @dataclass(frozen=True)
@@ -53,7 +63,7 @@ class VideoTolerance:
     """
 
     max_mean_abs_error: float
-    codec: str = "av1 (libsvtav1), yuv420p, GOP 2, CRF 30: LeRobot's defaults"
+    codec: str = "av1 (libsvtav1), yuv420p, CRF 30 (LeRobot's defaults); GOP as recorded (video.g)"
 
     @property
     def min_psnr_db(self) -> float:
@@ -69,9 +79,19 @@ class VideoTolerance:
 
 
 #: The bound replay applies to video features. Measured at LeRobot's CRF 30 (``benchmarks/bench_video.py``):
-#: reach's 96x96 camera, 2000 frames, median 3.8 and worst 4.8 mean abs error (lowest PSNR 27.5 dB); 8 leaves
-#: room for other renders while a different picture (a moved camera, other colours) is far above it.
+#: reach's 96x96 camera, 2000 frames, median 3.8 and worst 4.8 mean abs error at GOP 2 (lowest PSNR 27.5 dB),
+#: 4.0 and 5.1 at GOP 10 (27.0 dB); 8 leaves room for other renders while a different picture (a moved camera,
+#: other colours) is far above it.
 VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=8.0)
+
+#: The keyframe interval of the videos push_env writes (``push_env(video_gop=...)``, ``--video_gop``). Not LeRobot's
+#: 2, on purpose: an env repo's dataset is downloaded by every user who opens it and is read mostly front to back
+#: (replay), where LeRobot's 2 is tuned for a training dataloader's random access. Measured on reach (96x96, 20
+#: episodes x 100 frames, ``benchmarks/bench_video.py``), GOP 2 / 4 / 10 / 20: dataset bytes 0.41 / 0.28 / 0.19 /
+#: 0.16 of the PNG dataset's; one frame at a random time decoded by LeRobot's ``decode_video_frames`` (pyav) 1.3 /
+#: 1.6 / 2.0 / 2.9 ms. At 10 the dataset is under a fifth of its PNG size for 0.7 ms more per randomly accessed
+#: frame. ``video_gop=2`` gives LeRobot's own bytes, for a dataset meant for training.
+DEFAULT_VIDEO_GOP = 10
 
 #: the smallest frame side LeRobot's AV1 encoder takes here: libsvtav1 dies with SIGFPE (the whole process, no
 #: exception) on frames narrower than 28 px (measured: 24 px crashes, 28 px encodes); push stores such cameras as PNGs
@@ -119,15 +139,18 @@ def _scheduling_kept():
             pass
 
 
-def encode_episode(frames: np.ndarray, out: Path, fps: int) -> tuple[Path, float, int]:
-    """Encode one episode's ``(T, H, W, 3)`` uint8 frames to ``out`` with LeRobot's ``encode_video_frames``.
+def encode_episode(frames: np.ndarray, out: Path, fps: int, gop: int = DEFAULT_VIDEO_GOP) -> tuple[Path, float, int]:
+    """Encode one episode's ``(T, H, W, 3)`` uint8 frames to ``out`` with LeRobot's ``encode_video_frames``,
+    keyframes every ``gop`` frames.
 
     The frames go through PNG files in a scratch folder beside ``out`` (the encoder's input, as in LeRobot's
     ``save_episode``; removed after). Returns ``(out, duration in seconds as LeRobot probes it, size in bytes)``.
     """
-    from hub_envs._compat import lerobot_video_utils
+    from hub_envs._compat import encode_video_frames, lerobot_video_utils
 
     video_utils = lerobot_video_utils()
+    if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or gop < 1:
+        raise ConfigError(f"video_gop={gop!r}: pass a positive keyframe interval (frames), e.g. {DEFAULT_VIDEO_GOP}.")
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
         raise DatasetError(f"{out.name}: video frames must be uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}.")
     if min(frames.shape[1:3]) < MIN_VIDEO_SIDE:
@@ -142,7 +165,7 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int) -> tuple[Path, float
         for i, png in enumerate(encode_png(frames)):
             (scratch / f"frame-{i:06d}.png").write_bytes(png)
         with _scheduling_kept():
-            video_utils.encode_video_frames(scratch, out, fps, overwrite=True)
+            encode_video_frames(scratch, out, fps, gop=int(gop))
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return out, float(video_utils.get_video_duration_in_s(out)), out.stat().st_size

@@ -343,8 +343,11 @@ class _Writer:
         chunks_size: int,
         file_mb: float,
         video_file_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+        video_gop: int | None = None,
     ):
         import pyarrow as pa
+
+        from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
 
         self.tmp = tmp
         self.features = features
@@ -361,6 +364,7 @@ class _Writer:
         self.video_keys = [k for k, ft in features.items() if ft["dtype"] == "video"]
         # video files: per key, the file being filled and the episode MP4s it will join
         self.video_file_mb = video_file_mb
+        self.video_gop = DEFAULT_VIDEO_GOP if video_gop is None else video_gop
         self.video_pos = {k: (0, 0) for k in self.video_keys}
         self.video_parts: dict[str, list[Path]] = {k: [] for k in self.video_keys}
         self.video_bytes = dict.fromkeys(self.video_keys, 0)
@@ -488,7 +492,7 @@ class _Writer:
             ep.pngs[key] = encode_png(ep.columns[key])
         for key in self.video_keys:
             part = self.tmp / ".video-parts" / key / f"episode-{ep.index:06d}.mp4"
-            ep.videos[key] = encode_episode(ep.columns[key], part, self.fps)
+            ep.videos[key] = encode_episode(ep.columns[key], part, self.fps, self.video_gop)
         for key, ft in self.features.items():
             col = ep.columns[key]
             ep.stats[key] = image_stats(col) if ft["dtype"] in ("image", "video") else vector_stats(col)
@@ -662,7 +666,7 @@ class _Writer:
         shutil.rmtree(self.tmp / ".video-parts", ignore_errors=True)
         for key in self.video_keys:  # what LeRobot's update_video_info records, from the first file
             first = self.tmp / VIDEO_PATH.format(video_key=key, chunk_index=0, file_index=0)
-            self.features[key] = {**self.features[key], "info": lerobot_video_info(first)}
+            self.features[key] = {**self.features[key], "info": lerobot_video_info(first, self.video_gop)}
         self._flush_meta()
         self._fold_stats()
         if self.meta_writer is not None:
@@ -743,6 +747,7 @@ def write_lerobot_dataset(
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
     video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     encode_threads: int | None = None,
+    video_gop: int | None = None,
 ) -> DatasetSummary:
     """Write ``episodes`` as a LeRobot v3.0 dataset folder at ``root`` and summarize it.
 
@@ -764,6 +769,8 @@ def write_lerobot_dataset(
         chunks_size, data_files_size_in_mb, video_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).
         encode_threads: threads that PNG/video-encode and compute stats of camera episodes while the
             next episode is produced; 0 does it inline. Default 1 (0 on a single core).
+        video_gop: the keyframe interval of dtype ``"video"`` features (default
+            :data:`hub_envs.dataset.video.DEFAULT_VIDEO_GOP`; 2 is LeRobot's own), recorded as ``video.g``.
 
     Raises:
         DatasetError: frames do not match ``features``, or the folder cannot be written.
@@ -778,6 +785,8 @@ def write_lerobot_dataset(
         raise ConfigError("task must be a non-empty string (LeRobot stores one task per frame).")
     if chunks_size < 1 or data_files_size_in_mb <= 0 or video_files_size_in_mb <= 0:
         raise ConfigError("chunks_size, data_files_size_in_mb and video_files_size_in_mb must be positive.")
+    if video_gop is not None and (isinstance(video_gop, bool) or not isinstance(video_gop, (int, np.integer)) or video_gop < 1):
+        raise ConfigError(f"video_gop={video_gop!r}: pass a positive keyframe interval (frames).")
     feats = _normalize_features(features)
     if root.exists() and not overwrite:
         raise DatasetError(f"{root} already exists. Delete it, choose another folder, or pass overwrite=True.")
@@ -788,7 +797,9 @@ def write_lerobot_dataset(
     except OSError as exc:
         raise DatasetError(f"Cannot create the dataset folder next to {root}: {exc}. Check the path and permissions.") from exc
 
-    writer = _Writer(tmp, feats, int(fps), task, int(chunks_size), data_files_size_in_mb, video_files_size_in_mb)
+    writer = _Writer(
+        tmp, feats, int(fps), task, int(chunks_size), data_files_size_in_mb, video_files_size_in_mb, video_gop=video_gop
+    )
     try:
         total = len(episodes)  # type: ignore[arg-type]
     except TypeError:

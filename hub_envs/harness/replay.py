@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._compat import LEROBOT_VIDEO_GOP, video_gop
 from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
 from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
 from hub_envs.dataset.states import read_env_states
@@ -275,6 +276,7 @@ class _Plan:
     states: dict[int, np.ndarray] | None
     frames: DatasetFrames
     fps: int = 1
+    video_gops: dict[str, int] = field(default_factory=dict)  # video key -> the GOP its MP4s were encoded with
 
 
 def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[int] | None) -> _Plan:
@@ -342,6 +344,7 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
         states,
         frames,
         int(info.get("fps") or 1),
+        {k: video_gop(ds_features[k].get("info")) for k in video_keys},
     )
 
 
@@ -396,7 +399,7 @@ def _compare_episode(
         video = key in plan.video_keys
         errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
         if video and len(rep) == len(dat):
-            result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps)
+            result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps, plan.video_gops.get(key))
         curves[key] = errors
         result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
         limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
@@ -434,8 +437,9 @@ def _compare_episode(
     return result
 
 
-def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int) -> bool:
-    """Whether the replayed frames, encoded as push_env encoded the dataset's, decode to exactly ``decoded``.
+def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int, gop: int | None) -> bool:
+    """Whether the replayed frames, encoded as push_env encoded the dataset's (GOP ``gop``, from its info.json),
+    decode to exactly ``decoded``.
 
     The encoder is deterministic, so with the same encoder build identical frames give identical video: a
     bit-exact check on top of the tolerance (a different libsvtav1 build may give False with equal frames)."""
@@ -446,7 +450,7 @@ def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int) -> boo
     if replay.dtype != np.uint8 or replay.ndim != 4 or replay.shape[-1] != 3:
         return False
     with tempfile.TemporaryDirectory(prefix="hub-envs-reencode-") as tmp:
-        path, _, _ = encode_episode(np.ascontiguousarray(replay), Path(tmp) / "episode.mp4", fps)
+        path, _, _ = encode_episode(np.ascontiguousarray(replay), Path(tmp) / "episode.mp4", fps, gop or LEROBOT_VIDEO_GOP)
         again = decode_episode(path, from_timestamp=0.0, length=len(replay), fps=fps, shape=replay.shape[1:], where="replay")
     return bool(np.array_equal(again, decoded))
 
