@@ -37,7 +37,7 @@ _EXPORTS = {
     "attest": "hub_envs.attestation",
     "Attestation": "hub_envs.attestation",
     "env_from_dataset": "hub_envs.from_dataset",
-    "IsolationOptions": "hub_envs.isolation.proxy",
+    "IsolationOptions": "hub_envs.isolation.options",
     "IsolatedEnv": "hub_envs.isolation.proxy",
     "IsolatedVectorEnv": "hub_envs.isolation.vector",
     "sandbox_support": "hub_envs.isolation.sandbox",
@@ -50,7 +50,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.backends import make_backend  # noqa: F401
     from hub_envs.evaluation import EvalResult, evaluate  # noqa: F401
     from hub_envs.from_dataset import env_from_dataset  # noqa: F401
-    from hub_envs.isolation.proxy import IsolatedEnv, IsolationOptions  # noqa: F401
+    from hub_envs.isolation.options import IsolationOptions  # noqa: F401
+    from hub_envs.isolation.proxy import IsolatedEnv  # noqa: F401
     from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401
     from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
     from hub_envs.load import LoadedEnv, LoadReport, load_env  # noqa: F401

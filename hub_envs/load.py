@@ -870,7 +870,7 @@ def _in_background(fn: Callable[[], Any]) -> concurrent.futures.Future:
 
 def _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits=None):
     """Validate load_env's isolation keywords; every option either works or is refused with a typed error."""
-    from hub_envs.isolation.proxy import IsolationOptions
+    from hub_envs.isolation.options import IsolationOptions
 
     if isolation not in ("none", "process", "venv"):
         raise ConfigError(f"isolation={isolation!r} is not an isolation mode: pass 'none' (the default), 'process' or 'venv'.")
@@ -916,7 +916,7 @@ def _isolation_suffix(iso) -> str:
     import dataclasses
     import hashlib
 
-    from hub_envs.isolation.proxy import IsolationOptions
+    from hub_envs.isolation.options import IsolationOptions
 
     mode = iso.isolation + ("-sandbox" if iso.sandbox else "")
     mode = "sandbox" if mode == "process-sandbox" else mode

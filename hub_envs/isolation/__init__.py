@@ -10,10 +10,11 @@ replace consent: the trust gate runs first, exactly as in-process.
 * :mod:`~hub_envs.isolation.proxy`: the worker handle, typed faults, :class:`IsolatedEnv`;
 * :mod:`~hub_envs.isolation.vector`: :class:`IsolatedVectorEnv` (several envs per worker, shared memory);
 * :mod:`~hub_envs.isolation.affinity`: parent and worker wait for each other on one CPU (cheap wake-ups);
-* :mod:`~hub_envs.isolation.sandbox`: namespaces, read-only mounts, scrubbed environment, resource limits.
-
-``isolation="venv"`` and ``versions="publisher"`` are not implemented yet: they raise
-:class:`~hub_envs.errors.IsolationUnavailableError`.
+* :mod:`~hub_envs.isolation.sandbox`: namespaces, read-only mounts, scrubbed environment, resource limits;
+* :mod:`~hub_envs.isolation.venvs`: ``isolation="venv"``: a venv per requirements digest, built with uv
+  (``versions="publisher"`` pins the publisher's recorded versions);
+* :mod:`~hub_envs.isolation.config`: the isolated env's config, read from the verified manifest;
+* :mod:`~hub_envs.isolation.options`: :class:`IsolationOptions` (what a load without isolation imports of all this).
 
 Example:
     >>> from hub_envs.isolation import IsolationOptions
@@ -26,7 +27,7 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "IsolationOptions": "hub_envs.isolation.proxy",
+    "IsolationOptions": "hub_envs.isolation.options",
     "IsolatedEnv": "hub_envs.isolation.proxy",
     "EnvTarget": "hub_envs.isolation.proxy",
     "Worker": "hub_envs.isolation.proxy",
