@@ -462,6 +462,36 @@ def test_many_files_when_size_limits_are_small(tmp_path, state_rollouts):
     assert ds[len(ds) - 1]["observation.state"].numpy().tolist() == last.observations["agent_pos"][-1].tolist()
 
 
+def test_more_episodes_than_a_metadata_batch_are_written_with_their_seeds(tmp_path):
+    """Episodes metadata is flushed in batches of 1000 rows: a dataset of more episodes (push_env --episodes=1000
+    and up) keeps every episode's row and reset seed, and LeRobot reads it (this failed at the 1000th episode)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from hub_envs.dataset import writer
+
+    n = writer._META_FLUSH_ROWS + 3
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [2], "names": ["x", "v"]},
+        "action": {"dtype": "float32", "shape": [1], "names": ["u"]},
+    }
+    episodes = (
+        EpisodeFrames(
+            i, seed=7000 + i, frames={"observation.state": np.full((2, 2), i, np.float32), "action": np.zeros((2, 1), np.float32)}
+        )
+        for i in range(n)
+    )
+    root = tmp_path / "ds"
+    write_lerobot_dataset(
+        root, repo_id="test/many-episodes", fps=10, features=features, episodes=episodes, task="t", progress=False
+    )
+    metas = read_episode_meta(root)
+    assert [m["episode_index"] for m in metas] == list(range(n))
+    assert [m["seed"] for m in metas] == [7000 + i for i in range(n)]
+    ds = LeRobotDataset("test/many-episodes", root=root)
+    assert ds.meta.total_episodes == n and len(ds) == 2 * n
+    assert ds[2 * n - 1]["observation.state"].tolist() == [n - 1, n - 1]
+
+
 def test_features_from_lerobot_env_config():
     from lerobot.envs.configs import PushtEnv
 

@@ -549,6 +549,7 @@ class _Writer:
         for key in self.features:
             for stat, value in ep.stats[key].items():
                 row[f"stats/{key}/{stat}"] = value.tolist()
+        self.seeds.append(ep.seed)  # before the row: a full batch of rows is flushed with its seeds at once
         self._add_meta_row(row)
 
         self.pending_stats.append(ep.stats)
@@ -556,7 +557,6 @@ class _Writer:
             self._fold_stats()
         self.total_frames += n
         self.n_episodes += 1
-        self.seeds.append(ep.seed)
         self.lengths.append(n)
         if "next.reward" in ep.columns:
             self.returns.append(float(ep.columns["next.reward"].sum(dtype=np.float64)))
