@@ -35,7 +35,7 @@ from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
-from hub_envs.dataset.states import STATES_PATH, unrecordable_reason, write_env_states
+from hub_envs.dataset.states import STATES_PATH, EnvStatesWriter
 from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
 from hub_envs.dataset.writer import (
     DatasetSummary,
@@ -373,7 +373,9 @@ def _generate_dataset(
     cfg = loaded.config
     returns: list[float] = []
     successes: list[bool] = []
-    env_states: dict[int, Any] = {}  # env.get_state() before each action, for exact replay (hub_envs.dataset.states)
+    # env.get_state() before each action, for exact replay (hub_envs.dataset.states): to disk as episodes arrive,
+    # beside the dataset folder (which the writer creates whole at its end), moved into it after
+    states = EnvStatesWriter(staging / ".env_states.parquet")
     states_problem: list[str] = []
     first: list[Any] = []  # the fingerprint's episodes
 
@@ -386,7 +388,7 @@ def _generate_dataset(
             desc=f"Generating {len(seeds)} episodes",
             record_states=True,
         ):
-            env_states[rollout.index] = rollout.states
+            states.add(rollout.index, rollout.states)
             if rollout.states_problem and not states_problem:
                 states_problem.append(f"episode {rollout.index}: {rollout.states_problem}")
             returns.append(float(np.sum(rollout.rewards)))
@@ -395,20 +397,26 @@ def _generate_dataset(
                 first.append(episode_prefix(rollout, FINGERPRINT_STEPS))
             yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
 
-    summary = write_lerobot_dataset(
-        staging / DATASET_DIR,
-        repo_id=repo_id,
-        fps=int(cfg.fps),
-        features=features,
-        episodes=frames(),
-        task=str(cfg.task),
-        extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
-        progress=False,  # the rollout bar above already counts episodes
-        video_gop=video_gop,
-    )
-    has_states = write_env_states(staging / DATASET_DIR, env_states)
+    try:
+        summary = write_lerobot_dataset(
+            staging / DATASET_DIR,
+            repo_id=repo_id,
+            fps=int(cfg.fps),
+            features=features,
+            episodes=frames(),
+            task=str(cfg.task),
+            extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
+            progress=False,  # the rollout bar above already counts episodes
+            video_gop=video_gop,
+        )
+    except BaseException:
+        states.abort()
+        raise
+    has_states = states.close()
+    if has_states:
+        states.path.replace(staging / DATASET_DIR / STATES_PATH)
     if _has_get_state(loaded) and not has_states:
-        reason = states_problem[0] if states_problem else unrecordable_reason(env_states)
+        reason = states_problem[0] if states_problem else states.reason
         warnings.warn(
             f"{where}: no simulator states recorded: {reason}. Replays of this dataset cannot restore a step with "
             "reset_to(); return one numeric array of a fixed shape from get_state() (hub_envs.dataset.states).",

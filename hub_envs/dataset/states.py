@@ -49,7 +49,14 @@ import numpy as np
 from hub_envs.dataset.layout import STATES_PATH
 from hub_envs.errors import DatasetError
 
-__all__ = ["STATES_PATH", "SupportsSimulatorState", "unrecordable_reason", "write_env_states", "read_env_states"]
+__all__ = [
+    "STATES_PATH",
+    "SupportsSimulatorState",
+    "EnvStatesWriter",
+    "unrecordable_reason",
+    "write_env_states",
+    "read_env_states",
+]
 
 _PARQUET_OPTS = dict(compression="snappy", use_dictionary=False, write_statistics=False, version="2.6")
 
@@ -117,38 +124,113 @@ def _describe_state(value: Any) -> str:
     return f"a {type(first).__name__}" if not isinstance(first, np.ndarray) else f"a {first.dtype} array"
 
 
+class EnvStatesWriter:
+    """Writes the states file (``meta/env_states.parquet`` of a dataset) at ``path`` one episode at a time (push_env's memory does not grow with the
+    number of episodes: each episode's states go to disk as it arrives, one row group per episode).
+
+    States are all-or-nothing: the first episode that cannot be recorded (:func:`unrecordable_reason`: no
+    states, not numeric, a scalar, another shape than the first episode's) stops the writer and removes the
+    partial file; :attr:`reason` says why. :meth:`close` returns whether the file was written.
+
+    >>> import tempfile, numpy as np
+    >>> path = Path(tempfile.mkdtemp()) / "env_states.parquet"
+    >>> with EnvStatesWriter(path) as w:
+    ...     w.add(0, np.zeros((3, 2))); w.add(1, np.zeros((2, 4)))
+    >>> w.written, w.reason
+    (False, 'get_state() returned arrays of different shapes ((2,) and (4,))')
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.reason: str | None = None
+        self.written = False
+        self._writer = None
+        self._first: tuple[int, np.ndarray] | None = None  # (episode, its first state) the others must match
+        self._episodes = 0
+
+    def add(self, episode_index: int, states: Any) -> None:
+        """Append one episode's ``(T, *state_shape)`` states (before each action)."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        if self.reason is not None:
+            return
+        reason = unrecordable_reason({int(episode_index): states})
+        arr = _as_state_array(states) if reason is None else None
+        if reason is None and arr is None:
+            reason = f"get_state() returned {_describe_state(states)} (episode {episode_index})"
+        if reason is None and self._first is not None:
+            reason = unrecordable_reason({self._first[0]: self._first[1][None], int(episode_index): arr})
+        if reason is not None:
+            self._stop(reason)
+            return
+        width = int(np.prod(arr.shape[1:]))
+        if self._writer is None:
+            self._first = (int(episode_index), arr[0])
+            meta = {"shape": list(arr.shape[1:]), "dtype": str(arr.dtype), "source": "env.get_state() before action t (hub-envs)"}
+            schema = pa.schema(
+                [("episode_index", pa.int64()), ("frame_index", pa.int64()), ("state", pa.list_(pa.float64(), width))],
+                metadata={"hub_envs": json.dumps(meta, sort_keys=True)},
+            )
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = pq.ParquetWriter(self.path, schema, **_PARQUET_OPTS)
+        n = len(arr)
+        state_col = pa.FixedSizeListArray.from_arrays(
+            pa.array(arr.reshape(n * width).astype(np.float64), type=pa.float64()), width
+        )
+        table = pa.table(
+            {
+                "episode_index": np.full(n, int(episode_index), dtype=np.int64),
+                "frame_index": np.arange(n, dtype=np.int64),
+                "state": state_col,
+            },
+            schema=self._writer.schema,
+        )
+        self._writer.write_table(table)
+        self._episodes += 1
+
+    def _stop(self, reason: str) -> None:
+        self.reason = reason
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        self.path.unlink(missing_ok=True)
+
+    def close(self) -> bool:
+        """Finish the file; True when every episode's states were written (and there was at least one)."""
+        if self.reason is None and self._episodes == 0:
+            self._stop("no episodes were recorded")
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+            self.written = True
+        return self.written
+
+    def abort(self) -> None:
+        """Give up (an error elsewhere): nothing is left on disk."""
+        self._stop(self.reason or "aborted")
+
+    def __enter__(self) -> EnvStatesWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
 def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | None]) -> bool:
-    """Write ``{episode_index: (T, *state_shape) array}`` to ``root/meta/env_states.parquet``.
+    """Write ``{episode_index: (T, *state_shape) array}`` to ``root/meta/env_states.parquet`` (in episode order,
+    with :class:`EnvStatesWriter`).
 
     Returns False (and writes nothing) when :func:`unrecordable_reason` finds a reason: states are
     all-or-nothing, a replay must be able to rely on them.
     """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    if unrecordable_reason(states) is not None:
-        return False
-    arrays = {int(k): _as_state_array(v) for k, v in states.items()}
-    if any(a is None for a in arrays.values()):
-        return False
-    shape = next(iter(arrays.values())).shape[1:]
-    width = int(np.prod(shape)) if shape else 1
-    order = sorted(arrays)
-    flat = np.concatenate([arrays[i].reshape(len(arrays[i]), width).astype(np.float64) for i in order])
-    episode = np.concatenate([np.full(len(arrays[i]), i, dtype=np.int64) for i in order])
-    frame = np.concatenate([np.arange(len(arrays[i]), dtype=np.int64) for i in order])
-    state_col = pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1), type=pa.float64()), width)
-    meta = {
-        "shape": list(shape),
-        "dtype": str(next(iter(arrays.values())).dtype),
-        "source": "env.get_state() before action t (hub-envs)",
-    }
-    table = pa.table({"episode_index": episode, "frame_index": frame, "state": state_col})
-    table = table.replace_schema_metadata({"hub_envs": json.dumps(meta, sort_keys=True)})
-    path = Path(root) / STATES_PATH
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table, path, **_PARQUET_OPTS)
-    return True
+    with EnvStatesWriter(Path(root) / STATES_PATH) as writer:
+        for episode in sorted(states):
+            writer.add(episode, states[episode])
+    return writer.written
 
 
 def read_env_states(root: str | os.PathLike) -> dict[int, np.ndarray] | None:
