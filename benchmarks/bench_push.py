@@ -10,6 +10,11 @@ that straightened push's data flow compares them with the figures before the cha
 (main already holds it: no dataset, no checks, no commit) ÷ the first, full push, to a loopback Hub,
 alternating new repos per repeat. Goal <= 0.1.
 
+``push_env_peak_rss_mb_<n>`` / ``push_env_rss_growth``: the peak RSS (``ru_maxrss``) of a ``push_env`` process of
+hover with ``RSS_EPISODES`` episodes each (one process per push, same loopback Hub), and big ÷ small: push's
+memory is bounded when that stays near 1 while the episodes grow 16x (the floor is the process's imports, torch
+and lerobot among them). Not a goal.
+
 Run: ``python -m benchmarks.bench_push [--repeats 3]``; ``run()`` returns the dict.
 """
 
@@ -76,6 +81,33 @@ def _repush(repeats: int, episodes: int) -> dict:
     }
 
 
+RSS_EPISODES = (100, 1600)
+
+
+def _push_rss() -> dict:
+    import os
+    import subprocess
+    import sys
+
+    from hub_envs.testing import HubServer, hub_environment
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        with HubServer(tmp / "hub-data") as server, hub_environment(server.endpoint, tmp / "home"):
+            for n in RSS_EPISODES:
+                script = (
+                    "import resource; from hub_envs import push_env; "
+                    f"push_env({str(REPO / 'envs' / 'hover')!r}, 'bench/hover-rss-{n}', episodes={n}, progress=False); "
+                    "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+                )
+                done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=os.environ, check=True)
+                out[f"push_env_peak_rss_mb_{n}"] = round(int(done.stdout.split()[-1]) / 1024)
+    small, big = (out[f"push_env_peak_rss_mb_{n}"] for n in RSS_EPISODES)
+    out["push_env_rss_growth"] = round(big / small, 3)
+    return out
+
+
 def run(repeats: int = 3, episodes: int = 10) -> dict:
     out: dict = {"episodes": episodes, "workers": 1}
     for name in ENVS:
@@ -90,6 +122,7 @@ def run(repeats: int = 3, episodes: int = 10) -> dict:
     repush = _repush(repeats, episodes)
     out["repush"] = repush
     out["repush_unchanged_vs_push"] = repush["repush_unchanged_vs_push"]
+    out.update(_push_rss())
     return out
 
 
