@@ -33,9 +33,11 @@ import json
 import os
 import pickle
 import shutil
+import signal
 import socket
 import sys
 import tempfile
+import threading
 import weakref
 from collections import deque
 from collections.abc import Iterator
@@ -83,6 +85,58 @@ def import_ray():
             raise
         raise _ray_missing() from None
     return ray
+
+
+class _SigintLatch:
+    """Ctrl-C during a Ray run, taken at a point of our choosing: while installed (main thread only, and only over
+    Python's default handler), SIGINT just sets :attr:`hit`; :meth:`check` raises ``KeyboardInterrupt`` where the
+    driver can cancel cleanly. Python's own handler raises wherever the main thread happens to be, and inside
+    Ray's code that can be a finalizer (an ``ObjectRef`` being freed), where the exception is printed as "ignored"
+    and lost: a Ctrl-C that does nothing. On exit an unchecked hit is delivered again, to the default handler.
+
+    >>> import signal
+    >>> with _SigintLatch() as latch:
+    ...     signal.raise_signal(signal.SIGINT)  # what Ctrl-C sends: nothing is raised here
+    ...     seen = latch.hit
+    ...     try:
+    ...         latch.check()  # here it is raised
+    ...     except KeyboardInterrupt:
+    ...         raised = True
+    >>> seen, raised, latch.hit
+    (True, True, False)
+    """
+
+    def __init__(self) -> None:
+        self.hit = False
+        self._previous: Any = None
+
+    def __enter__(self) -> _SigintLatch:
+        if (
+            threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        ):
+            self._previous = signal.signal(signal.SIGINT, self._handler)
+        return self
+
+    def _handler(self, signum, frame) -> None:
+        self.hit = True
+
+    def check(self) -> None:
+        if self.hit:
+            self.hit = False
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
+        if self.hit:  # a Ctrl-C that came after the last check: not lost
+            self.hit = False
+            signal.raise_signal(signal.SIGINT)
+
+
+#: seconds between checks for Ctrl-C while the driver waits for a shard
+_WAIT_SLICE = 0.2
 
 
 def _probe(address: str, timeout: float = 5.0) -> None:
@@ -343,7 +397,7 @@ class RayBackend(Backend):
         return run
 
     def _run(self, loaded, seeds, max_steps, policy, record_states, progress, desc, stats) -> Iterator[EpisodeRollout]:
-        with self:
+        with self, _SigintLatch() as latch:
             ray = import_ray()
             n = len(seeds)
             workers = self._n_workers(ray, n)
@@ -382,7 +436,7 @@ class RayBackend(Backend):
                         rollouts = pickle.loads((ckpt / f"shard-{k:06d}.pkl").read_bytes())
                         stats["shards_resumed"] += 1
                     else:
-                        rollouts = self._get(ray, pending.pop(k), loaded)
+                        rollouts = self._get(ray, pending.pop(k), loaded, latch)
                         stats["shards_run"] += 1
                         if ckpt is not None:
                             tmp = ckpt / f".shard-{k:06d}.pkl.tmp"
@@ -393,14 +447,18 @@ class RayBackend(Backend):
                     for rollout in rollouts:
                         bar.update(1)
                         yield rollout
+                        latch.check()
             finally:
                 for ref in pending.values():  # also on Ctrl-C / an early close: nothing keeps running
                     ray.cancel(ref, force=True)
                 bar.close()
 
     @staticmethod
-    def _get(ray: Any, ref: Any, loaded: Any) -> list[EpisodeRollout]:
+    def _get(ray: Any, ref: Any, loaded: Any, latch: _SigintLatch) -> list[EpisodeRollout]:
         try:
+            while not ray.wait([ref], timeout=_WAIT_SLICE, fetch_local=False)[0]:
+                latch.check()
+            latch.check()
             return ray.get(ref)
         except ray.exceptions.RayTaskError as exc:
             cause = getattr(exc, "cause", None)

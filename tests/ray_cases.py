@@ -357,9 +357,11 @@ def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tm
     try:
         done = re.compile(rb"Generating %d episodes:.*?(\d+)/%d" % (episodes, episodes))
         deadline = time.monotonic() + 600  # a hang guard, not a timing
+        sent_at = None
         while time.monotonic() < deadline and proc.poll() is None:
             counts = [int(n) for n in done.findall(bytes(err))]
             if counts and 0 < max(counts) < episodes // 2:
+                sent_at = max(counts)
                 break  # mid-run: episodes have come back from the workers, most are still to run
             time.sleep(0.05)
         assert proc.poll() is None, "the push ended before it could be interrupted:\n" + err.decode(errors="replace")[-3000:]
@@ -372,7 +374,8 @@ def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tm
             proc.wait()
     reader.join(timeout=10)
     text = err.decode(errors="replace")
-    assert code == 130, text[-3000:]
+    clues = [line for line in text.splitlines() if "ignored" in line or "KeyboardInterrupt" in line or "Traceback" in line]
+    assert code == 130, f"SIGINT sent at {sent_at}/{episodes} episodes; exit {code}; {clues[:10]}\n" + text[-3000:]
     assert "interrupted (Ctrl-C)" in text and "published nothing" in text and "Traceback" not in text, text[-3000:]
     assert re.search(r"workers alive=\d+/\d+", text), text[-3000:]  # the progress bar's count of live Ray workers
     assert _head(hub_module.api, repo) == head  # no new commit
