@@ -362,10 +362,20 @@ def lerobot_video_info(video_path: str | Path, gop: int = LEROBOT_VIDEO_GOP) -> 
     return dict(video_utils.get_video_info(video_path, video_encoder=encoder))
 
 
-def video_gop(info: Mapping[str, Any] | None) -> int:
-    """The GOP a video feature was encoded with, from its ``info`` in ``info.json`` (absent: LeRobot's)."""
-    value = (info or {}).get("video.g")
-    return int(value) if isinstance(value, int) and not isinstance(value, bool) and value > 0 else LEROBOT_VIDEO_GOP
+#: the largest GOP taken from a dataset's info.json (FFmpeg's ``g`` is a C int; a hostile value must not reach it)
+MAX_VIDEO_GOP = 100_000
+
+
+def video_gop(info: Any) -> int:
+    """The GOP a video feature was encoded with, from its ``info`` in ``info.json`` (absent, or not a sane
+    keyframe interval: LeRobot's). The file is untrusted input.
+
+    >>> video_gop({"video.g": 10}), video_gop(None), video_gop({"video.g": 2**40}), video_gop(["not", "a", "dict"])
+    (10, 2, 2, 2)
+    """
+    value = info.get("video.g") if isinstance(info, Mapping) else None
+    ok = isinstance(value, int) and not isinstance(value, bool) and 0 < value <= MAX_VIDEO_GOP
+    return int(value) if ok else LEROBOT_VIDEO_GOP
 
 
 def video_backend() -> str:

@@ -92,7 +92,10 @@ class _SigintLatch:
     Python's default handler), SIGINT just sets :attr:`hit`; :meth:`check` raises ``KeyboardInterrupt`` where the
     driver can cancel cleanly. Python's own handler raises wherever the main thread happens to be, and inside
     Ray's code that can be a finalizer (an ``ObjectRef`` being freed), where the exception is printed as "ignored"
-    and lost: a Ctrl-C that does nothing. On exit an unchecked hit is delivered again, to the default handler.
+    and lost: a Ctrl-C that does nothing. A second Ctrl-C before the first was taken raises at once (whatever the
+    driver is blocked in). On a normal exit an unchecked hit is raised there; when the run is being torn down by
+    an exception or a close, that one is propagating already. If the latch is left without its handler being
+    restored (a generator finalized off the main thread), the next Ctrl-C restores Python's and raises.
 
     >>> import signal
     >>> with _SigintLatch() as latch:
@@ -109,6 +112,7 @@ class _SigintLatch:
     def __init__(self) -> None:
         self.hit = False
         self._previous: Any = None
+        self._closed = False
 
     def __enter__(self) -> _SigintLatch:
         if (
@@ -119,6 +123,9 @@ class _SigintLatch:
         return self
 
     def _handler(self, signum, frame) -> None:
+        if self.hit or self._closed:  # pressed again, or the latch outlived its run: Python's behaviour, now
+            signal.signal(signal.SIGINT, self._previous or signal.default_int_handler)
+            raise KeyboardInterrupt
         self.hit = True
 
     def check(self) -> None:
@@ -126,13 +133,14 @@ class _SigintLatch:
             self.hit = False
             raise KeyboardInterrupt
 
-    def __exit__(self, *exc) -> None:
-        if self._previous is not None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._closed = True
+        if self._previous is not None and threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, self._previous)
             self._previous = None
-        if self.hit:  # a Ctrl-C that came after the last check: not lost
+        if self.hit and exc_type is None:  # a Ctrl-C that came after the last check: not lost
             self.hit = False
-            signal.raise_signal(signal.SIGINT)
+            raise KeyboardInterrupt
 
 
 #: seconds between checks for Ctrl-C while the driver waits for a shard
@@ -366,18 +374,24 @@ class RayBackend(Backend):
         return self
 
     def __exit__(self, *exc: Any) -> None:
+        first: BaseException | None = None
         if self._depth == 1:
             # an exception (Ctrl-C in the consumer, an error writing the dataset) leaves runs suspended at a yield,
             # kept alive by the traceback: close them now, so their shards are cancelled before Ray is shut down
             for run in list(self._runs):
                 if not run._it.gi_running:  # (a run's own ``with self`` exits while it runs: it cleans up itself)
-                    run.close()
+                    try:
+                        run.close()
+                    except BaseException as e:  # noqa: BLE001 - every run is closed and Ray shut down, then raised
+                        first = first or e
         self._depth -= 1
         if self._depth == 0 and self._started:
             import ray
 
             ray.shutdown()
             self._started = False
+        if first is not None:
+            raise first
 
     def settings(self) -> dict[str, Any]:
         return {"backend": self.name, "workers": self.workers, "address": self.address}

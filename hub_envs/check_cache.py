@@ -55,13 +55,14 @@ def _installed_distributions() -> list[str]:
 
 
 def _checker_source_digest(root: Path | None = None) -> str:
-    """All of hub-envs' own code (every ``.py`` file of the package, by path, size and modification time), so an
-    edited (editable-installed) checker never reuses old verdicts. Derived from the tree, not a hand-kept list of
-    the modules that check. The files' stat, not their bytes: an edit, a ``git checkout`` and an install all set
-    the modification time, and reading 1 MB of sources on every load cost 5-7 ms of a 20 ms warm load (stat: <1 ms).
-    Not a security boundary: whoever can rewrite hub-envs' sources need not fool its check cache."""
+    """All of hub-envs' own code (every ``.py`` file of the package, by path, size, inode, modification and change
+    time), so an edited (editable-installed) checker never reuses old verdicts. Derived from the tree, not a
+    hand-kept list of the modules that check. The files' stat, not their bytes: reading 1 MB of sources on every
+    load cost 5-7 ms of a 20 ms warm load (stat: <1 ms). An edit in place sets the change time (which ``utime``,
+    ``tar`` and ``cp -p`` cannot set back), an editor's or installer's atomic replace gives a new inode. Not a
+    security boundary: whoever can rewrite hub-envs' sources need not fool its check cache."""
     root = root or Path(__file__).resolve().parent
-    h = hashlib.sha256()
+    h = hashlib.sha256(os.fsencode(root))
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
         rel = Path(dirpath).relative_to(root).as_posix()
@@ -72,7 +73,7 @@ def _checker_source_digest(root: Path | None = None) -> str:
                 st = os.stat(os.path.join(dirpath, name))
             except OSError:
                 continue
-            h.update(f"{rel}/{name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            h.update(f"{rel}/{name}\0{st.st_size}\0{st.st_ino}\0{st.st_mtime_ns}\0{st.st_ctime_ns}\n".encode())
     return h.hexdigest()
 
 

@@ -623,8 +623,9 @@ def push_env(
     if rev is not None:
         raise ConfigError(f"push_env publishes to main; drop '@{rev}' from {repo_id}@{rev} (use --tag to name the commit).")
     gop = DEFAULT_VIDEO_GOP if video_gop is None else video_gop
-    if isinstance(gop, bool) or not isinstance(gop, int) or gop < 1:
+    if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or gop < 1:
         raise ConfigError(f"--video_gop={video_gop!r}: pass a positive keyframe interval in frames (LeRobot's is 2).")
+    gop = int(gop)
     runner = make_backend(backend, workers=workers, ray_address=ray_address, checkpoint_dir=out)
     env_dir = Path(env_dir)
     if not env_dir.is_dir():

@@ -17,6 +17,7 @@ import py_compile
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -583,7 +584,11 @@ def test_an_edited_checker_never_reuses_the_cached_verdicts(tmp_path):
     (tree / "__pycache__" / "x.cpython-313.pyc").write_bytes(b"bytecode is not a source")
     assert check_cache._checker_source_digest(tree) == before
     target = tree / "harness" / "checks.py"
-    target.write_text(target.read_text() + "\n# a one-line edit\n")
+    text, stat = target.read_text(), target.stat()
+    time.sleep(0.05)  # past the kernel's timestamp tick (a few ms), as any real edit after an install is
+    target.write_text(text.replace("0", "1", 1))  # an edit that keeps the size, and the old mtime put back
+    os.utime(target, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert target.stat().st_size == stat.st_size and target.stat().st_mtime_ns == stat.st_mtime_ns
     edited = check_cache._checker_source_digest(tree)
     assert edited != before
     (tree / "new_module.py").write_text("x = 1\n")  # a module added

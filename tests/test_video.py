@@ -107,6 +107,20 @@ def _packets(path: Path) -> list[tuple[int | None, bool, bytes]]:
         return [(p.pts, p.is_keyframe, bytes(p)) for p in container.demux(video=0) if p.size]
 
 
+@pytest.mark.parametrize("gop", [3, 10])
+def test_the_stream_has_a_key_frame_every_gop_frames_of_each_episode(tmp_path, gop):
+    """The GOP is applied, not just recorded: in the joined file, key frames stand at every episode's first frame
+    and every ``gop`` frames after it (on both stacks: 0.4's encoder takes ``g=``, 0.6's an encoder config)."""
+    from hub_envs._compat import video_gop
+
+    root = tmp_path / "ds"
+    _write(root, video_gop=gop)
+    keys = [i for i, (_, key, _) in enumerate(_packets(root / "videos/observation.image/chunk-000/file-000.mp4")) if key]
+    starts = np.cumsum([0, *LENGTHS[:-1]])
+    assert keys == [int(s) + t for s, n in zip(starts, LENGTHS) for t in range(0, n, gop)]
+    assert video_gop(read_info(root)["features"]["observation.image"]["info"]) == gop
+
+
 @pytest.mark.parametrize("gop", [2, 10], ids=["lerobot-gop", "default-gop"])
 def test_video_dataset_matches_lerobot_own_writer(tmp_path, gop):
     """Same frames through LeRobot's add_frame/save_episode (video on, the same GOP) and ours: same files, same

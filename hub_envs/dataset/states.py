@@ -142,6 +142,7 @@ class EnvStatesWriter:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        self._partial = self.path.with_name(self.path.name + ".partial")  # renamed to ``path`` by close()
         self.reason: str | None = None
         self.written = False
         self._writer = None
@@ -159,6 +160,8 @@ class EnvStatesWriter:
         arr = _as_state_array(states) if reason is None else None
         if reason is None and arr is None:
             reason = f"get_state() returned {_describe_state(states)} (episode {episode_index})"
+        if reason is None and len(arr) == 0:
+            reason = f"episode {episode_index} recorded no states"
         if reason is None and self._first is not None:
             reason = unrecordable_reason({self._first[0]: self._first[1][None], int(episode_index): arr})
         if reason is not None:
@@ -173,7 +176,7 @@ class EnvStatesWriter:
                 metadata={"hub_envs": json.dumps(meta, sort_keys=True)},
             )
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._writer = pq.ParquetWriter(self.path, schema, **_PARQUET_OPTS)
+            self._writer = pq.ParquetWriter(self._partial, schema, **_PARQUET_OPTS)
         n = len(arr)
         state_col = pa.FixedSizeListArray.from_arrays(
             pa.array(arr.reshape(n * width).astype(np.float64), type=pa.float64()), width
@@ -194,7 +197,7 @@ class EnvStatesWriter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
-        self.path.unlink(missing_ok=True)
+        self._partial.unlink(missing_ok=True)  # only ever our own file: an existing ``path`` is left as it is
 
     def close(self) -> bool:
         """Finish the file; True when every episode's states were written (and there was at least one)."""
@@ -203,6 +206,7 @@ class EnvStatesWriter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+            os.replace(self._partial, self.path)
             self.written = True
         return self.written
 
@@ -224,8 +228,8 @@ def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | 
     """Write ``{episode_index: (T, *state_shape) array}`` to ``root/meta/env_states.parquet`` (in episode order,
     with :class:`EnvStatesWriter`).
 
-    Returns False (and writes nothing) when :func:`unrecordable_reason` finds a reason: states are
-    all-or-nothing, a replay must be able to rely on them.
+    Returns False (and writes nothing, an existing file left as it is) when :func:`unrecordable_reason` finds a
+    reason: states are all-or-nothing, a replay must be able to rely on them.
     """
     with EnvStatesWriter(Path(root) / STATES_PATH) as writer:
         for episode in sorted(states):
