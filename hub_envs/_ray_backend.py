@@ -33,11 +33,9 @@ import json
 import os
 import pickle
 import shutil
-import signal
 import socket
 import sys
 import tempfile
-import threading
 import weakref
 from collections import deque
 from collections.abc import Iterator
@@ -85,66 +83,6 @@ def import_ray():
             raise
         raise _ray_missing() from None
     return ray
-
-
-class _SigintLatch:
-    """Ctrl-C during a Ray run, taken at a point of our choosing: while installed (main thread only, and only over
-    Python's default handler), SIGINT just sets :attr:`hit`; :meth:`check` raises ``KeyboardInterrupt`` where the
-    driver can cancel cleanly. Python's own handler raises wherever the main thread happens to be, and inside
-    Ray's code that can be a finalizer (an ``ObjectRef`` being freed), where the exception is printed as "ignored"
-    and lost: a Ctrl-C that does nothing. A second Ctrl-C before the first was taken raises at once (whatever the
-    driver is blocked in). On a normal exit an unchecked hit is raised there; when the run is being torn down by
-    an exception or a close, that one is propagating already. If the latch is left without its handler being
-    restored (a generator finalized off the main thread), the next Ctrl-C restores Python's and raises.
-
-    >>> import signal
-    >>> with _SigintLatch() as latch:
-    ...     signal.raise_signal(signal.SIGINT)  # what Ctrl-C sends: nothing is raised here
-    ...     seen = latch.hit
-    ...     try:
-    ...         latch.check()  # here it is raised
-    ...     except KeyboardInterrupt:
-    ...         raised = True
-    >>> seen, raised, latch.hit
-    (True, True, False)
-    """
-
-    def __init__(self) -> None:
-        self.hit = False
-        self._previous: Any = None
-        self._closed = False
-
-    def __enter__(self) -> _SigintLatch:
-        if (
-            threading.current_thread() is threading.main_thread()
-            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-        ):
-            self._previous = signal.signal(signal.SIGINT, self._handler)
-        return self
-
-    def _handler(self, signum, frame) -> None:
-        if self.hit or self._closed:  # pressed again, or the latch outlived its run: Python's behaviour, now
-            signal.signal(signal.SIGINT, self._previous or signal.default_int_handler)
-            raise KeyboardInterrupt
-        self.hit = True
-
-    def check(self) -> None:
-        if self.hit:
-            self.hit = False
-            raise KeyboardInterrupt
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        self._closed = True
-        if self._previous is not None and threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGINT, self._previous)
-            self._previous = None
-        if self.hit and exc_type is None:  # a Ctrl-C that came after the last check: not lost
-            self.hit = False
-            raise KeyboardInterrupt
-
-
-#: seconds between checks for Ctrl-C while the driver waits for a shard
-_WAIT_SLICE = 0.2
 
 
 def _probe(address: str, timeout: float = 5.0) -> None:
@@ -411,7 +349,7 @@ class RayBackend(Backend):
         return run
 
     def _run(self, loaded, seeds, max_steps, policy, record_states, progress, desc, stats) -> Iterator[EpisodeRollout]:
-        with self, _SigintLatch() as latch:
+        with self:
             ray = import_ray()
             n = len(seeds)
             workers = self._n_workers(ray, n)
@@ -450,7 +388,7 @@ class RayBackend(Backend):
                         rollouts = pickle.loads((ckpt / f"shard-{k:06d}.pkl").read_bytes())
                         stats["shards_resumed"] += 1
                     else:
-                        rollouts = self._get(ray, pending.pop(k), loaded, latch)
+                        rollouts = self._get(ray, pending.pop(k), loaded)
                         stats["shards_run"] += 1
                         if ckpt is not None:
                             tmp = ckpt / f".shard-{k:06d}.pkl.tmp"
@@ -461,18 +399,14 @@ class RayBackend(Backend):
                     for rollout in rollouts:
                         bar.update(1)
                         yield rollout
-                        latch.check()
             finally:
                 for ref in pending.values():  # also on Ctrl-C / an early close: nothing keeps running
                     ray.cancel(ref, force=True)
                 bar.close()
 
     @staticmethod
-    def _get(ray: Any, ref: Any, loaded: Any, latch: _SigintLatch) -> list[EpisodeRollout]:
+    def _get(ray: Any, ref: Any, loaded: Any) -> list[EpisodeRollout]:
         try:
-            while not ray.wait([ref], timeout=_WAIT_SLICE, fetch_local=False)[0]:
-                latch.check()
-            latch.check()
             return ray.get(ref)
         except ray.exceptions.RayTaskError as exc:
             cause = getattr(exc, "cause", None)
