@@ -36,7 +36,7 @@ from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, EnvStatesWriter
-from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
+from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop
 from hub_envs.dataset.writer import (
     DatasetSummary,
     EpisodeFrames,
@@ -622,10 +622,7 @@ def push_env(
     repo_id, rev = hub_io.parse_repo_ref(repo_id)
     if rev is not None:
         raise ConfigError(f"push_env publishes to main; drop '@{rev}' from {repo_id}@{rev} (use --tag to name the commit).")
-    gop = DEFAULT_VIDEO_GOP if video_gop is None else video_gop
-    if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or gop < 1:
-        raise ConfigError(f"--video_gop={video_gop!r}: pass a positive keyframe interval in frames (LeRobot's is 2).")
-    gop = int(gop)
+    gop = DEFAULT_VIDEO_GOP if video_gop is None else check_video_gop(video_gop, name="--video_gop")
     runner = make_backend(backend, workers=workers, ray_address=ray_address, checkpoint_dir=out)
     env_dir = Path(env_dir)
     if not env_dir.is_dir():

@@ -45,6 +45,7 @@ __all__ = [
     "VideoTolerance",
     "VIDEO_TOLERANCE",
     "DEFAULT_VIDEO_GOP",
+    "check_video_gop",
     "frame_errors",
     "psnr",
     "encode_episode",
@@ -92,6 +93,23 @@ VIDEO_TOLERANCE = VideoTolerance(max_mean_abs_error=8.0)
 #: 1.6 / 2.0 / 2.9 ms. At 10 the dataset is under a fifth of its PNG size for 0.7 ms more per randomly accessed
 #: frame. ``video_gop=2`` gives LeRobot's own bytes, for a dataset meant for training.
 DEFAULT_VIDEO_GOP = 10
+
+
+def check_video_gop(gop: object, *, name: str = "video_gop") -> int:
+    """``gop`` as a keyframe interval (frames), or a :class:`~hub_envs.errors.ConfigError` naming ``name``.
+
+    >>> check_video_gop(10), check_video_gop(2)
+    (10, 2)
+    """
+    from hub_envs._compat import MAX_VIDEO_GOP
+
+    if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or not 0 < gop <= MAX_VIDEO_GOP:
+        raise ConfigError(
+            f"{name}={gop!r}: pass a keyframe interval in frames, 1 to {MAX_VIDEO_GOP} "
+            f"(push_env's default {DEFAULT_VIDEO_GOP}; LeRobot's is 2)."
+        )
+    return int(gop)
+
 
 #: the smallest frame side LeRobot's AV1 encoder takes here: libsvtav1 dies with SIGFPE (the whole process, no
 #: exception) on frames narrower than 28 px (measured: 24 px crashes, 28 px encodes); push stores such cameras as PNGs
@@ -149,8 +167,7 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int, gop: int = DEFAULT_V
     from hub_envs._compat import encode_video_frames, lerobot_video_utils
 
     video_utils = lerobot_video_utils()
-    if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or gop < 1:
-        raise ConfigError(f"video_gop={gop!r}: pass a positive keyframe interval (frames), e.g. {DEFAULT_VIDEO_GOP}.")
+    gop = check_video_gop(gop)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
         raise DatasetError(f"{out.name}: video frames must be uint8 (T, H, W, 3), got {frames.dtype} {frames.shape}.")
     if min(frames.shape[1:3]) < MIN_VIDEO_SIDE:
@@ -165,7 +182,7 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int, gop: int = DEFAULT_V
         for i, png in enumerate(encode_png(frames)):
             (scratch / f"frame-{i:06d}.png").write_bytes(png)
         with _scheduling_kept():
-            encode_video_frames(scratch, out, fps, gop=int(gop))
+            encode_video_frames(scratch, out, fps, gop=gop)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return out, float(video_utils.get_video_duration_in_s(out)), out.stat().st_size

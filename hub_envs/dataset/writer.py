@@ -785,8 +785,10 @@ def write_lerobot_dataset(
         raise ConfigError("task must be a non-empty string (LeRobot stores one task per frame).")
     if chunks_size < 1 or data_files_size_in_mb <= 0 or video_files_size_in_mb <= 0:
         raise ConfigError("chunks_size, data_files_size_in_mb and video_files_size_in_mb must be positive.")
-    if video_gop is not None and (isinstance(video_gop, bool) or not isinstance(video_gop, (int, np.integer)) or video_gop < 1):
-        raise ConfigError(f"video_gop={video_gop!r}: pass a positive keyframe interval (frames).")
+    if video_gop is not None:
+        from hub_envs.dataset.video import check_video_gop
+
+        video_gop = check_video_gop(video_gop)
     feats = _normalize_features(features)
     if root.exists() and not overwrite:
         raise DatasetError(f"{root} already exists. Delete it, choose another folder, or pass overwrite=True.")
