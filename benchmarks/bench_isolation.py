@@ -16,7 +16,9 @@ shared machine):
 * details: worker start-up (``Worker.start_seconds``: spawn, import the env's code, first answer) for
   a plain worker and a sandboxed one, the sandboxed hover ratio, and both step ratios again with
   ``hub_envs.isolation.affinity`` off (``*_unpinned``: the same workers, placed by the scheduler alone, as
-  before the parent and its workers were kept on one CPU while they wait for each other). Not goals.
+  before the parent and its workers were kept on one CPU while they wait for each other) and the hover ratio
+  with ``hub_envs.isolation.doorbell`` off (``*_sleeping``: the same worker, both sides sleeping in the socket
+  instead of busy-waiting a moment first). Not goals.
 
 Run: ``python -m benchmarks.bench_isolation [--repeats 5]``; ``run()`` returns the dict.
 """
@@ -38,13 +40,14 @@ STEPS = {"hover": 1500, "pendulum": 800}
 
 
 def _interleaved(runners: dict, steps: int, seed: int, chunk: int = 50) -> dict[str, float]:
-    """Steps/s of each runner ``name -> (env, pin)``, stepped in turns of ``chunk`` steps (rotating who goes
-    first), so that every one of them sees the same load of a shared machine. ``pin`` sets
-    ``hub_envs.isolation.affinity.enabled`` for that runner's turns (None: leave it)."""
-    from hub_envs.isolation import affinity
+    """Steps/s of each runner ``name -> (env, pin)`` or ``(env, pin, spin)``, stepped in turns of ``chunk``
+    steps (rotating who goes first), so that every one of them sees the same load of a shared machine. ``pin``
+    sets ``hub_envs.isolation.affinity.enabled`` and ``spin`` ``hub_envs.isolation.doorbell.enabled`` for that
+    runner's turns (None: leave it on)."""
+    from hub_envs.isolation import affinity, doorbell
 
     plans = {}
-    for name, (env, _) in runners.items():
+    for name, (env, *_) in runners.items():
         env.action_space.seed(seed)
         plans[name] = [env.action_space.sample() for _ in range(steps)]
         env.reset(seed=seed)
@@ -52,15 +55,16 @@ def _interleaved(runners: dict, steps: int, seed: int, chunk: int = 50) -> dict[
     names = list(runners)
     for turn, start in enumerate(range(0, steps, chunk)):
         for name in names[turn % len(names) :] + names[: turn % len(names)]:
-            env, pin = runners[name]
+            env, pin, *spin = runners[name]
             affinity.enabled = True if pin is None else pin
+            doorbell.enabled = True if not spin or spin[0] is None else spin[0]
             t = time.perf_counter()
             for a in plans[name][start : start + chunk]:
                 _, _, term, trunc, _ = env.step(a)
                 if not hasattr(env, "num_envs") and (term or trunc):
                     env.reset()
             spent[name] += time.perf_counter() - t
-    affinity.enabled = True
+    affinity.enabled = doorbell.enabled = True
     return {name: steps / spent[name] for name in runners}
 
 
@@ -110,12 +114,14 @@ def run(repeats: int = 5, verbose: bool = True) -> dict:
             try:
                 runners = {name: (env, None) for name, env in envs.items()}
                 runners["isolated_unpinned"] = (envs["isolated"], False)  # the same worker, the scheduler placing it
+                runners["isolated_sleeping"] = (envs["isolated"], None, False)  # the same worker, no busy-wait
                 rates = _ratios(runners, STEPS["hover"], repeats)
             finally:
                 for env in envs.values():
                     env.close()
             out["isolated_step_hover"] = _median_ratio(rates, "isolated")
             out["isolated_step_hover_unpinned"] = _median_ratio(rates, "isolated_unpinned")
+            out["isolated_step_hover_sleeping"] = _median_ratio(rates, "isolated_sleeping")
             out["sandboxed_step_hover"] = _median_ratio(rates, "sandboxed")
             out["hover_steps_per_s"] = {name: round(statistics.median(r)) for name, r in rates.items()}
 

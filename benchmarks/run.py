@@ -84,6 +84,11 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
         (LE, 2.0),
         "load_env(isolation='venv') cached + make + reset ÷ python -c 'import numpy, gymnasium'",
     ),
+    "isolated_step_hover_sleeping": (
+        "bench_isolation",
+        None,
+        "  same, both sides sleeping in the socket (hub_envs.isolation.doorbell off)",
+    ),
     "sandboxed_step_hover": ("bench_isolation", None, "steps/s of hover in a sandboxed worker ÷ in-process"),
     "worker_start_s": ("bench_isolation", None, "seconds: start a worker and import hover's code"),
     "sandboxed_worker_start_s": ("bench_isolation", None, "seconds: the same, sandboxed"),

@@ -208,6 +208,46 @@ def test_a_hang_is_an_env_timeout_error_and_the_worker_is_killed(hostile):
         env.close()
 
 
+def test_a_worker_that_rings_the_doorbell_without_answering_still_meets_the_watchdog(hostile):
+    """The doorbell (hub_envs.isolation.doorbell) is a hint when to read the socket, never a channel: env code
+    that rings it and then hangs is stopped by step_timeout like any hang, and nothing it wrote is read."""
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "ring"})
+        worker = _inner(env).worker
+        with pytest.raises(errors.EnvTimeoutError, match="step_timeout=2"):
+            env.step(env.action_space.sample())
+        assert "rang 1 doorbell(s)" in worker.stderr_tail()
+        assert _wait_gone(worker.pid)
+        obs, _ = env.reset(seed=0)  # restart=True: a fresh worker (and bell), stepping normally
+        assert env.step(env.action_space.sample())[0]["agent_pos"].shape == obs["agent_pos"].shape
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("spin", [True, False], ids=["busy-wait", "sleep"])
+def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
+    """Both ways of waiting for a worker (hub_envs.isolation.doorbell) give the in-process env's steps exactly;
+    with spinning on, a short step is answered while the parent busy-waits (the worker's bell was rung)."""
+    from hub_envs.isolation import doorbell
+
+    here = load_env(published["pendulum"], trust_remote_code=True)
+    isolated = load_env(published["pendulum"], trust_remote_code=True, isolation="process", check=False)
+    doorbell.enabled = spin
+    a, b = here.make(), isolated.make()
+    try:
+        assert _same(_rollout(a, 5, 60), _rollout(b, 5, 60))
+        worker = _inner(b).worker
+        assert worker.spins is spin
+        assert worker.bell._heard[doorbell.REPLY] == worker.bell._slots[doorbell.REPLY] > 60  # every answer rang
+    finally:
+        doorbell.enabled = True
+        a.close()
+        b.close()
+        here.unregister()
+        isolated.unregister()
+
+
 def test_no_worker_outlives_its_parent(hostile, tmp_path):
     """The parent is SIGKILLed (no cleanup of its own runs): the kernel's parent-death signal ends the worker."""
     from hub_envs.isolation.proxy import EnvTarget
@@ -535,8 +575,9 @@ def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(h
     """The wake-up placement (hub_envs.isolation.affinity): between steps the worker waits pinned to the CPU the
     stepping thread waited on; the env's step itself runs with the worker's whole CPU set; the calling thread
     gets its own CPU set back after every step; with affinity off nothing is pinned."""
-    from hub_envs.isolation import affinity
+    from hub_envs.isolation import affinity, doorbell
 
+    doorbell.enabled = False  # a busy-waiting worker does not sleep at all (see doorbell)
     env = hostile.make()
     mine = os.sched_getaffinity(0)
     try:
@@ -553,6 +594,7 @@ def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(h
         assert _affinity_becomes(pid, mine) == mine
     finally:
         affinity.enabled = True
+        doorbell.enabled = True
         env.close()
 
 

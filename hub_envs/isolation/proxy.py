@@ -43,7 +43,8 @@ import gymnasium as gym
 import numpy as np
 
 from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.affinity import pin_here, unpin
+from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.doorbell import REPLY, REQUEST, Doorbell, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import FAST_HEADER, dumps, rebuild_error, safe_loads
 
@@ -103,13 +104,14 @@ def _kill_group(proc: subprocess.Popen, owner: int) -> None:
             pass
 
 
-def _cleanup(proc: subprocess.Popen, conn, log_path: str, scratch: str | None, owner: int) -> None:
+def _cleanup(proc: subprocess.Popen, conn, bell: Doorbell, log_path: str, scratch: str | None, owner: int) -> None:
     if os.getpid() != owner:
         return
-    try:
-        conn.close()
-    except OSError:
-        pass
+    for handle in (conn, bell):
+        try:
+            handle.close()
+        except (OSError, BufferError):
+            pass
     _kill_group(proc, owner)
     try:
         os.unlink(log_path)
@@ -183,9 +185,12 @@ def _signal_name(code: int) -> str:
 
 
 class Worker:
-    """One worker process: start it, ask it things, know how it died."""
+    """One worker process: start it, ask it things, know how it died.
 
-    def __init__(self, target: EnvTarget, options: IsolationOptions, *, wait: bool = True):
+    ``spin``: both sides busy-wait for each other's answers a short while before sleeping
+    (:mod:`~hub_envs.isolation.doorbell`; a single env's worker does, the workers of a vector env do not)."""
+
+    def __init__(self, target: EnvTarget, options: IsolationOptions, *, wait: bool = True, spin: bool = False):
         self.target, self.options = target, options
         self.where = target.where
         self.dead: EnvCrashedError | EnvTimeoutError | None = None
@@ -194,12 +199,16 @@ class Worker:
         log = tempfile.NamedTemporaryFile(prefix="hub-envs-worker-", suffix=".log", delete=False)
         self.log_path = log.name
         parent_sock, child_sock = socket.socketpair()
+        self.bell = Doorbell()
+        self._spin = SpinBudget(spin)
+        self._sent_at = 0.0
         preexec = None
         init: dict[str, Any] = {
             "where": target.where,
             "path": str(target.path),
             "key": target.key,
             "entry_point": target.entry_point,
+            "spin": self._spin.active,
         }
         if options.sandbox:
             from hub_envs.isolation.sandbox import sandbox_init, unshare_namespaces
@@ -209,8 +218,8 @@ class Worker:
         t0 = time.perf_counter()
         try:
             self.proc = _launch(
-                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno())],
-                pass_fds=(child_sock.fileno(),),
+                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno()), str(self.bell.fd)],
+                pass_fds=(child_sock.fileno(), self.bell.fd),
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=log,
@@ -227,7 +236,7 @@ class Worker:
         self.conn = Connection(parent_sock.detach())
         self.pid = self.proc.pid
         self._finalizer = weakref.finalize(
-            self, _cleanup, self.proc, self.conn, self.log_path, str(scratch) if scratch else None, self._owner
+            self, _cleanup, self.proc, self.conn, self.bell, self.log_path, str(scratch) if scratch else None, self._owner
         )
         self._t0 = t0
         self.start_seconds: float | None = None
@@ -263,6 +272,7 @@ class Worker:
             self.conn.send_bytes(dumps(args[0] if raw else (op, *args)))
         except (OSError, EOFError):
             raise self._died(op) from None
+        self._rang()
 
     def send_raw(self, data: bytes) -> None:
         """Send bytes as they are (the fast step path: ``b"s" + action bytes``)."""
@@ -272,11 +282,25 @@ class Worker:
             self.conn.send_bytes(data)
         except (OSError, EOFError):
             raise self._died("step") from None
+        self._rang()
+
+    def _rang(self) -> None:
+        self.bell.ring(REQUEST)
+        self._sent_at = time.perf_counter()
+
+    @property
+    def spins(self) -> bool:
+        """Whether the next :meth:`receive` busy-waits first (then the caller need not pin, see affinity)."""
+        return self._spin.seconds() > 0
 
     def receive(self, op: str, timeout: float | None = None) -> Any:
         if self.dead is not None:
             raise self.dead
-        if timeout is not None and not self.conn.poll(timeout):
+        budget = self._spin.seconds()
+        if budget:
+            # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
+            self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
+        if timeout is not None and not self.conn.poll(max(0.0, timeout - (time.perf_counter() - self._sent_at))):
             self._kill()
             self.dead = EnvTimeoutError(
                 f"{self.where}: {op} took longer than step_timeout={timeout:g} s; the env's worker process (pid {self.pid}) "
@@ -284,9 +308,14 @@ class Worker:
             )
             raise self.dead
         try:
-            status, value = safe_loads(self.conn.recv_bytes())
+            data = self.conn.recv_bytes()
         except (OSError, EOFError):
             raise self._died(op) from None
+        self.bell.heard(REPLY)
+        if self._spin.active:
+            self._spin.observe(time.perf_counter() - self._sent_at)
+        try:
+            status, value = safe_loads(data)
         except IsolationError as e:
             self._kill()
             self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")
@@ -366,7 +395,7 @@ class IsolatedEnv(gym.Env):
         self._start()
 
     def _start(self) -> None:
-        self._worker = Worker(self._target, self._options)
+        self._worker = Worker(self._target, self._options, spin=True)
         desc = self._worker.request("make", 0, self._kwargs, timeout=self._options.start_timeout)
         self.observation_space = desc["observation_space"]
         self.action_space = desc["action_space"]
@@ -427,8 +456,10 @@ class IsolatedEnv(gym.Env):
             if self._closed:
                 raise IsolationError(f"{self._target.where}: step on a closed isolated env. Make a new one.")
             worker = self._worker
-            cpu, saved = pin_here()
-            try:  # this thread waits on its CPU, and the worker is told to sleep there (see affinity)
+            # a busy wait keeps both sides awake, each on its CPU; else this thread sleeps on its CPU, and the
+            # worker is told to sleep there too (see affinity)
+            cpu, saved = (NO_CPU, None) if worker.spins else pin_here()
+            try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
                 reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)
             finally:

@@ -1,9 +1,9 @@
 """The worker process of an isolated env: imports the env's code, runs its envs, answers the parent.
 
 Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
-main()" <fd>`` (a fresh interpreter, never a fork of the parent, which may hold torch and threads), with
+main()" <fd> <bell>`` (a fresh interpreter, never a fork of the parent, which may hold torch and threads), with
 the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end of a
-socketpair. The first message is the init dict (repo@sha, snapshot folder, env entry point, sandbox
+socketpair, ``<bell>`` the memfd of its :mod:`~hub_envs.isolation.doorbell`. The first message is the init dict (repo@sha, snapshot folder, env entry point, sandbox
 settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
 
 It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
@@ -21,8 +21,10 @@ import os
 import pickle
 import signal
 import sys
+import time
 from typing import Any
 
+from hub_envs.isolation.doorbell import REPLY, REQUEST, Doorbell, SpinBudget
 from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info
 
 STATE_METHODS = ("get_state", "reset_to")
@@ -177,23 +179,37 @@ class Server:
             return {"error": (type(e).__name__, str(e))}
 
 
-def serve(conn, init: dict[str, Any]) -> None:
+def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
     from hub_envs.isolation.affinity import NO_CPU, Follower
 
     me = os.getpid()
+
+    def answer(data: bytes) -> None:
+        conn.send_bytes(data)
+        bell.ring(REPLY)
+
     try:
         server = Server(init, conn)
     except BaseException as e:  # the env's code failed on import: report it, then stop
-        conn.send_bytes(dumps(("err", error_info(e))))
+        answer(dumps(("err", error_info(e))))
         return
-    conn.send_bytes(dumps(("ok", {"pid": me})))
+    answer(dumps(("ok", {"pid": me})))
     follower, cpu = Follower(), NO_CPU
+    spin = SpinBudget(bool(init.get("spin")))
+    clock = time.perf_counter
+    answered = clock()
     while True:
+        budget = spin.seconds()
+        if not (budget and bell.wait(REQUEST, answered + budget)):
+            follower.wait_on(cpu)  # sleep where the parent waits: waking it there is cheap
         try:
             data = conn.recv_bytes()
         except (EOFError, OSError):
             return  # the parent closed its end (or died)
+        bell.heard(REQUEST)
         follower.woken()
+        if spin.active:
+            spin.observe(clock() - answered)
         fast = data[:1] in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
         if fast:
             cpu = FAST_HEADER.unpack_from(data)[1]
@@ -219,12 +235,12 @@ def serve(conn, init: dict[str, Any]) -> None:
         except Exception as e:  # an answer that cannot be pickled: say what it was
             data = dumps(("err", error_info(TypeError(f"the env's {op} returned something that cannot be sent: {e}"))))
         try:
-            conn.send_bytes(data)
+            answer(data)
         except (OSError, EOFError):
             return
+        answered = clock()
         if fatal:
             os._exit(70)
-        follower.wait_on(cpu)  # sleep where the parent waits: waking it there is cheap
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -237,10 +253,11 @@ def main(argv: list[str] | None = None) -> None:
     except (AttributeError, OSError):
         pass
     argv = sys.argv[1:] if argv is None else argv
-    conn = Connection(int(argv[0]))
+    conn, bell = Connection(int(argv[0])), Doorbell(int(argv[1]))
     if os.getppid() == 1:  # the parent died before the death signal was armed
         os._exit(0)
     init = pickle.loads(conn.recv_bytes())
+    bell.heard(REQUEST)
     if init.get("sandbox"):
         from hub_envs.isolation.sandbox import enter_sandbox
 
@@ -249,7 +266,7 @@ def main(argv: list[str] | None = None) -> None:
         except BaseException as e:
             conn.send_bytes(dumps(("fatal", error_info(e))))
             os._exit(71)
-    serve(conn, init)
+    serve(conn, bell, init)
     os._exit(0)
 
 
