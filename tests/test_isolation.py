@@ -225,6 +225,37 @@ def test_a_worker_that_rings_the_doorbell_without_answering_still_meets_the_watc
         env.close()
 
 
+def test_a_worker_that_sends_half_an_answer_still_meets_the_watchdog(hostile):
+    """Env code can write to its worker's socket: the start of a message followed by nothing is a timeout like
+    any hang (the parent reads a message whole by the deadline), never a parent blocked for good."""
+    import threading
+
+    env = hostile.make()
+    outcome: list = []
+
+    def step() -> None:
+        try:
+            env.step(env.action_space.sample())
+        except BaseException as e:
+            outcome.append(e)
+
+    try:
+        env.reset(seed=0, options={"mode": "partial"})
+        pid = _inner(env).worker.pid
+        thread = threading.Thread(target=step, daemon=True)
+        thread.start()
+        thread.join(20)
+        if thread.is_alive():  # the parent is stuck in a read: kill the worker so that the test can end
+            os.kill(pid, signal.SIGKILL)
+            thread.join(10)
+            pytest.fail("a worker that sent half a message blocked the parent past step_timeout=2")
+        assert len(outcome) == 1 and isinstance(outcome[0], errors.EnvTimeoutError), outcome
+        assert "step_timeout=2" in str(outcome[0])
+        assert _wait_gone(pid)
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("spin", [True, False], ids=["busy-wait", "sleep"])
 def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
     """Both ways of waiting for a worker (hub_envs.isolation.doorbell) give the in-process env's steps exactly;

@@ -27,9 +27,12 @@ Example:
 
 from __future__ import annotations
 
+import math
 import os
+import select
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
@@ -184,6 +187,10 @@ def _signal_name(code: int) -> str:
         return f"signal {-code}"
 
 
+class _PastDeadline(Exception):
+    """A message was not whole by its deadline (:meth:`Worker._recv_by`)."""
+
+
 class Worker:
     """One worker process: start it, ask it things, know how it died.
 
@@ -202,6 +209,7 @@ class Worker:
         self.bell = Doorbell()
         self._spin = SpinBudget(spin)
         self._sent_at = 0.0
+        self._poller: select.poll | None = None
         preexec = None
         init: dict[str, Any] = {
             "where": target.where,
@@ -300,15 +308,15 @@ class Worker:
         if budget:
             # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
             self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
-        if timeout is not None and not self.conn.poll(max(0.0, timeout - (time.perf_counter() - self._sent_at))):
+        try:
+            data = self.conn.recv_bytes() if timeout is None else self._recv_by(self._sent_at + timeout)
+        except _PastDeadline:
             self._kill()
             self.dead = EnvTimeoutError(
                 f"{self.where}: {op} took longer than step_timeout={timeout:g} s; the env's worker process (pid {self.pid}) "
                 f"was killed. Raise step_timeout if the env is just slow; reset() starts a fresh worker with restart=True."
             )
-            raise self.dead
-        try:
-            data = self.conn.recv_bytes()
+            raise self.dead from None
         except (OSError, EOFError):
             raise self._died(op) from None
         self.bell.heard(REPLY)
@@ -325,6 +333,33 @@ class Worker:
         if status == "fatal":
             raise self._died(op, reason=f"{value.get('qualname')}: {value.get('message')}", remote=value)
         raise rebuild_error(value, self.where, op)
+
+    def _recv_by(self, deadline: float) -> bytes:
+        """One message (``Connection``'s framing) read whole before ``deadline`` (a ``perf_counter`` value), else
+        past it: a worker that sends part of a message and stops (env code can write to its socket) meets
+        the watchdog like one that sends nothing (``_PastDeadline``)."""
+        (size,) = struct.unpack("!i", self._read_by(4, deadline))
+        if size == -1:
+            (size,) = struct.unpack("!Q", self._read_by(8, deadline))
+        if size < 0:
+            raise OSError(f"bad message length {size}")
+        return self._read_by(size, deadline)
+
+    def _read_by(self, n: int, deadline: float) -> bytes:
+        if self._poller is None:
+            self._poller = select.poll()
+            self._poller.register(self.conn.fileno(), select.POLLIN)
+        chunks = []
+        while n:
+            left = deadline - time.perf_counter()
+            if left <= 0 or not self._poller.poll(math.ceil(left * 1000)):
+                raise _PastDeadline
+            chunk = os.read(self.conn.fileno(), min(n, 1 << 20))
+            if not chunk:
+                raise EOFError
+            chunks.append(chunk)
+            n -= len(chunk)
+        return b"".join(chunks)
 
     def _died(self, op: str, reason: str | None = None, remote: dict | None = None) -> EnvCrashedError:
         try:
