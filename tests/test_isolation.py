@@ -256,6 +256,58 @@ def test_a_worker_that_sends_half_an_answer_still_meets_the_watchdog(hostile):
         env.close()
 
 
+def test_a_worker_announcing_a_huge_answer_is_stopped_before_anything_is_read(hostile):
+    """A length header over MAX_MESSAGE_BYTES (1 GiB) stops the worker at once (no watchdog wait, no memory
+    spent reading): EnvCrashedError naming the size."""
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "huge"})
+        pid = _inner(env).worker.pid
+        t = time.perf_counter()
+        with pytest.raises(errors.EnvCrashedError, match=f"{1 << 40} bytes"):
+            env.step(env.action_space.sample())
+        assert time.perf_counter() - t < 2  # before step_timeout=2: the header alone decided
+        assert _wait_gone(pid)
+    finally:
+        env.close()
+
+
+def test_a_worker_cannot_shrink_the_pages_it_shares_with_the_parent(hostile):
+    """The doorbell page and the observation buffers are sealed memfds: env code truncating them (which would make
+    the parent's next read of its mapping a SIGBUS) is refused. Run in a child process, so that a regression
+    kills that child, not the test run."""
+    factory = gym.spec(hostile.gym_id).entry_point
+    t = factory.target
+    script = textwrap.dedent(
+        f"""
+        import json
+        from pathlib import Path
+        from hub_envs.isolation.proxy import EnvTarget, IsolatedEnv, IsolationOptions
+        target = EnvTarget({t.repo_id!r}, {t.revision!r}, Path({str(t.path)!r}), {t.key!r}, {t.entry_point!r})
+        env = IsolatedEnv(target, IsolationOptions(isolation="process"), {{}})
+        env.reset(seed=0, options={{"mode": "shrink"}})
+        probe = env.step(env.action_space.sample())[4]["probe"]
+        for _ in range(200):  # the parent reads both pages at every step
+            obs = env.step(env.action_space.sample())[0]
+        print(json.dumps({{"probe": probe, "obs": obs["agent_pos"].tolist()}}))
+        env.close()
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    assert done.returncode == 0, f"the parent died (code {done.returncode}): {done.stderr[-2000:]}"
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    names = sorted(out["probe"])
+    assert any("doorbell" in n for n in names) and any("obs" in n for n in names), names
+    assert all(v.startswith("refused") for v in out["probe"].values()), out["probe"]
+    assert len(out["obs"]) == 2
+
+
 @pytest.mark.parametrize("spin", [True, False], ids=["busy-wait", "sleep"])
 def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
     """Both ways of waiting for a worker (hub_envs.isolation.doorbell) give the in-process env's steps exactly;
@@ -269,7 +321,8 @@ def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
     try:
         assert _same(_rollout(a, 5, 60), _rollout(b, 5, 60))
         worker = _inner(b).worker
-        assert worker.spins is spin
+        if not spin:
+            assert not worker.spins
         heard = worker.bell._heard[doorbell.REPLY]
         deadline = time.monotonic() + 10  # the worker rings right after it sent: the last ring may still be coming
         while worker.bell._slots[doorbell.REPLY] < heard and time.monotonic() < deadline:

@@ -8,30 +8,36 @@ socket itself (``poll(0)`` in a loop) costs the env's step ~15-25% in caches the
 both sides keep their messages in the socket and, in a small shared page (a ``memfd``, one per worker), a
 counter of the messages each has sent: a waiting side reads the other's counter in a loop (no system call)
 until it moves, then reads the message from the socket. Measured with hover (``benchmarks/bench_isolation``):
-a step through a worker 1.9x the in-process step while sleeping, ~1.1x busy-waiting.
+a step through a worker took 1.9x the in-process step while both sides slept, ~1.4x with the busy-wait.
 
 **The socket stays the only channel for data.** The bell is a hint when to read it: a counter seen before the
 message (weakly ordered memory) only makes the reader block in ``recv`` a moment; a worker writing nonsense into
 the page only makes the parent stop spinning early or spin until its budget ends. Nothing is ever read from
-the page but the one integer, and nothing read from it is acted on but "stop spinning".
+the page but the one integer, and nothing read from it is acted on but "stop spinning". The page is sealed
+(:func:`sealed_memfd`: its size cannot change), so a worker cannot shrink it under the parent's mapping
+(reading past the end of a shrunk file is a SIGBUS).
 
 **Spinning costs a CPU, so it is bounded and adaptive** (:class:`SpinBudget`): each side keeps a moving average
 of how long it waited for the other and spins for at most twice that (plus 20 us), never more than
 :data:`MAX_SPIN_S`, and not at all when the usual wait is longer than that (a wake-up costs well under a
 fifth of such a wait) or when the process may run on one CPU only. Only single envs spin; the workers of a
-vector env sleep (they share the CPUs with each other). ``doorbell.enabled = False`` turns spinning off for
-the process (the benchmark measures both).
+vector env sleep (they share the CPUs with each other). The worker busy-waits only after a step whose parent
+busy-waited (a flag in the request). ``doorbell.enabled = False`` turns spinning off for the process, on both
+sides (the benchmark measures both). The parent's busy-wait holds the GIL (a Python loop): another thread of
+the parent waits at most :data:`MAX_SPIN_S` for it.
 
 Example:
+    >>> import os
     >>> from hub_envs.isolation.doorbell import REPLY, Doorbell
-    >>> bell = Doorbell()                        # the parent makes it; the worker maps the same fd
-    >>> other_side = Doorbell(bell.fd)
+    >>> bell = Doorbell()                        # the parent makes it; the worker maps its copy of the fd
+    >>> other_side = Doorbell(os.dup(bell.fd))
     >>> bell.wait(REPLY, deadline=0.0)           # nothing sent: the deadline passed
     False
     >>> other_side.ring(REPLY); bell.wait(REPLY, deadline=0.0)
     True
     >>> bell.heard(REPLY); bell.wait(REPLY, deadline=0.0)   # that message was read: waiting again
     False
+    >>> other_side.close(); bell.close()
 """
 
 from __future__ import annotations
@@ -44,10 +50,36 @@ import time
 #: what the worker sent
 REQUEST, REPLY = 0, 16
 _SIZE = 256
+#: in a fast step request's CPU field (:data:`~hub_envs.isolation.protocol.FAST_HEADER`): the parent busy-waits
+#: for this answer (and is pinned nowhere); the worker then busy-waits for the next request
+SPINNING = -2
 #: the longest a side busy-waits for the other before it sleeps in the socket
 MAX_SPIN_S = 0.0005
 #: False: never spin (both sides sleep in the socket); read at every wait
 enabled = True
+
+
+def sealed_memfd(name: str, size: int) -> int:
+    """A memfd of ``size`` bytes whose size nobody can change any more (``F_SEAL_SHRINK|GROW|SEAL``): a
+    process it is handed to can write its bytes but never truncate it under another's mapping.
+
+    >>> import os
+    >>> fd = sealed_memfd("example", 4096)
+    >>> os.ftruncate(fd, 0)
+    Traceback (most recent call last):
+    PermissionError: [Errno 1] Operation not permitted
+    >>> os.close(fd)
+    """
+    import fcntl
+
+    fd = os.memfd_create(name, os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+    try:
+        os.ftruncate(fd, size)
+        fcntl.fcntl(fd, fcntl.F_ADD_SEALS, fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 def _cpus() -> int:
@@ -62,8 +94,7 @@ class Doorbell:
 
     def __init__(self, fd: int | None = None):
         if fd is None:
-            fd = os.memfd_create("hub-envs-doorbell", os.MFD_CLOEXEC)
-            os.ftruncate(fd, _SIZE)
+            fd = sealed_memfd("hub-envs-doorbell", _SIZE)
         self.fd = fd
         self._map = mmap.mmap(fd, _SIZE)
         self._slots = memoryview(self._map).cast("q")
@@ -89,8 +120,13 @@ class Doorbell:
         return True
 
     def close(self) -> None:
+        """Unmap the page and close its fd (again: nothing)."""
+        if self.fd < 0:
+            return
         self._slots.release()
         self._map.close()
+        os.close(self.fd)
+        self.fd = -1
 
 
 class SpinBudget:

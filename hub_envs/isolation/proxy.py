@@ -46,10 +46,10 @@ import gymnasium as gym
 import numpy as np
 
 from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
-from hub_envs.isolation.doorbell import REPLY, REQUEST, Doorbell, SpinBudget
+from hub_envs.isolation.affinity import pin_here, unpin
+from hub_envs.isolation.doorbell import REPLY, REQUEST, SPINNING, Doorbell, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
-from hub_envs.isolation.protocol import FAST_HEADER, dumps, rebuild_error, safe_loads
+from hub_envs.isolation.protocol import FAST_HEADER, MAX_MESSAGE_BYTES, dumps, rebuild_error, safe_loads
 
 STDERR_TAIL_LINES = 20
 _WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
@@ -107,10 +107,10 @@ def _kill_group(proc: subprocess.Popen, owner: int) -> None:
             pass
 
 
-def _cleanup(proc: subprocess.Popen, conn, bell: Doorbell, log_path: str, scratch: str | None, owner: int) -> None:
+def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str | None, owner: int) -> None:
     if os.getpid() != owner:
         return
-    for handle in (conn, bell):
+    for handle in handles:  # the connection, its non-blocking reader, the doorbell
         try:
             handle.close()
         except (OSError, BufferError):
@@ -191,6 +191,10 @@ class _PastDeadline(Exception):
     """A message was not whole by its deadline (:meth:`Worker._recv_by`)."""
 
 
+class _Oversized(Exception):
+    """A worker announced a message longer than MAX_MESSAGE_BYTES (:meth:`Worker._recv_by`)."""
+
+
 class Worker:
     """One worker process: start it, ask it things, know how it died.
 
@@ -206,7 +210,12 @@ class Worker:
         log = tempfile.NamedTemporaryFile(prefix="hub-envs-worker-", suffix=".log", delete=False)
         self.log_path = log.name
         parent_sock, child_sock = socket.socketpair()
-        self.bell = Doorbell()
+        try:
+            self.bell = Doorbell()
+        except BaseException:
+            parent_sock.close()
+            child_sock.close()
+            raise
         self._spin = SpinBudget(spin)
         self._sent_at = 0.0
         self._poller: select.poll | None = None
@@ -216,15 +225,14 @@ class Worker:
             "path": str(target.path),
             "key": target.key,
             "entry_point": target.entry_point,
-            "spin": self._spin.active,
         }
-        if options.sandbox:
-            from hub_envs.isolation.sandbox import sandbox_init, unshare_namespaces
-
-            init["sandbox"] = sandbox_init(target, options, scratch)
-            preexec = unshare_namespaces
         t0 = time.perf_counter()
         try:
+            if options.sandbox:
+                from hub_envs.isolation.sandbox import sandbox_init, unshare_namespaces
+
+                init["sandbox"] = sandbox_init(target, options, scratch)
+                preexec = unshare_namespaces
             self.proc = _launch(
                 [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno()), str(self.bell.fd)],
                 pass_fds=(child_sock.fileno(), self.bell.fd),
@@ -236,15 +244,27 @@ class Worker:
                 preexec_fn=preexec,
                 cwd="/" if options.sandbox else None,
             )
+        except BaseException:  # nothing started: nothing left open
+            self.bell.close()
+            parent_sock.close()
+            os.unlink(self.log_path)
+            raise
         finally:
             child_sock.close()
             log.close()
         from multiprocessing.connection import Connection
 
         self.conn = Connection(parent_sock.detach())
+        self._rsock = socket.socket(fileno=os.dup(self.conn.fileno()))  # reads without waiting (MSG_DONTWAIT)
         self.pid = self.proc.pid
         self._finalizer = weakref.finalize(
-            self, _cleanup, self.proc, self.conn, self.bell, self.log_path, str(scratch) if scratch else None, self._owner
+            self,
+            _cleanup,
+            self.proc,
+            (self.conn, self._rsock, self.bell),
+            self.log_path,
+            str(scratch) if scratch else None,
+            self._owner,
         )
         self._t0 = t0
         self.start_seconds: float | None = None
@@ -309,7 +329,15 @@ class Worker:
             # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
             self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
         try:
-            data = self.conn.recv_bytes() if timeout is None else self._recv_by(self._sent_at + timeout)
+            data = self._recv_by(None if timeout is None else self._sent_at + timeout)
+        except _Oversized as e:
+            self._kill()
+            self.dead = EnvCrashedError(
+                f"{self.where}: the env's worker process (pid {self.pid}) announced an answer of {e.args[0]} bytes to {op}, "
+                f"more than the {MAX_MESSAGE_BYTES} an isolated env may send; it was stopped. Return smaller observations "
+                f"or infos from the env."
+            )
+            raise self.dead from None
         except _PastDeadline:
             self._kill()
             self.dead = EnvTimeoutError(
@@ -334,27 +362,32 @@ class Worker:
             raise self._died(op, reason=f"{value.get('qualname')}: {value.get('message')}", remote=value)
         raise rebuild_error(value, self.where, op)
 
-    def _recv_by(self, deadline: float) -> bytes:
-        """One message (``Connection``'s framing) read whole before ``deadline`` (a ``perf_counter`` value), else
-        past it: a worker that sends part of a message and stops (env code can write to its socket) meets
-        the watchdog like one that sends nothing (``_PastDeadline``)."""
+    def _recv_by(self, deadline: float | None) -> bytes:
+        """One message (``Connection``'s framing) read whole before ``deadline`` (a ``perf_counter`` value; None:
+        no watchdog): a worker that sends part of a message and stops (env code can write to its socket) meets
+        the watchdog like one that sends nothing (``_PastDeadline``); one that announces more than
+        :data:`~hub_envs.isolation.protocol.MAX_MESSAGE_BYTES` is stopped before anything is read (``_Oversized``)."""
         (size,) = struct.unpack("!i", self._read_by(4, deadline))
         if size == -1:
             (size,) = struct.unpack("!Q", self._read_by(8, deadline))
-        if size < 0:
-            raise OSError(f"bad message length {size}")
+        if size < 0 or size > MAX_MESSAGE_BYTES:
+            raise _Oversized(size)
         return self._read_by(size, deadline)
 
-    def _read_by(self, n: int, deadline: float) -> bytes:
+    def _read_by(self, n: int, deadline: float | None) -> bytes:
         if self._poller is None:
             self._poller = select.poll()
             self._poller.register(self.conn.fileno(), select.POLLIN)
         chunks = []
         while n:
-            left = deadline - time.perf_counter()
-            if left <= 0 or not self._poller.poll(math.ceil(left * 1000)):
-                raise _PastDeadline
-            chunk = os.read(self.conn.fileno(), min(n, 1 << 20))
+            try:  # what is there already (the usual case after a busy-wait) costs no poll
+                chunk = self._rsock.recv(min(n, 1 << 20), socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                # an answer already there is taken even at (or past) the deadline: a vector env reads its workers in turn
+                wait = None if deadline is None else max(0, math.ceil((deadline - time.perf_counter()) * 1000))
+                if not self._poller.poll(wait):
+                    raise _PastDeadline from None
+                continue
             if not chunk:
                 raise EOFError
             chunks.append(chunk)
@@ -493,7 +526,7 @@ class IsolatedEnv(gym.Env):
             worker = self._worker
             # a busy wait keeps both sides awake, each on its CPU; else this thread sleeps on its CPU, and the
             # worker is told to sleep there too (see affinity)
-            cpu, saved = (NO_CPU, None) if worker.spins else pin_here()
+            cpu, saved = (SPINNING, None) if worker.spins else pin_here()
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
                 reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)

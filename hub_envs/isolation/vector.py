@@ -33,6 +33,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from hub_envs.errors import ConfigError
 from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.doorbell import sealed_memfd
 from hub_envs.isolation.protocol import FAST_HEADER
 from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker
 
@@ -74,8 +75,7 @@ class _Buffers:
         for i, (path, box) in enumerate(leaves):
             nbytes = max(1, n * int(np.prod(box.shape, dtype=np.int64)) * np.dtype(box.dtype).itemsize)
             if fds is None:
-                fd = os.memfd_create(f"hub-envs-obs-{'.'.join(path) or 'obs'}", os.MFD_CLOEXEC)
-                os.ftruncate(fd, nbytes)
+                fd = sealed_memfd(f"hub-envs-obs-{'.'.join(path) or 'obs'}", nbytes)  # a worker cannot shrink it
             else:
                 fd = fds[i]
             self.fds.append(fd)

@@ -24,7 +24,7 @@ import sys
 import time
 from typing import Any
 
-from hub_envs.isolation.doorbell import REPLY, REQUEST, Doorbell, SpinBudget
+from hub_envs.isolation.doorbell import REPLY, REQUEST, SPINNING, Doorbell, SpinBudget
 from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info
 
 STATE_METHODS = ("get_state", "reset_to")
@@ -195,11 +195,11 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         return
     answer(dumps(("ok", {"pid": me})))
     follower, cpu = Follower(), NO_CPU
-    spin = SpinBudget(bool(init.get("spin")))
+    spin = SpinBudget()
     clock = time.perf_counter
     answered = clock()
     while True:
-        budget = spin.seconds()
+        budget = spin.seconds() if cpu == SPINNING else 0.0  # only after a step the parent busy-waited for
         if not (budget and bell.wait(REQUEST, answered + budget)):
             follower.wait_on(cpu)  # sleep where the parent waits: waking it there is cheap
         try:
