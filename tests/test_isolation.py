@@ -263,10 +263,8 @@ def test_a_worker_announcing_a_huge_answer_is_stopped_before_anything_is_read(ho
     try:
         env.reset(seed=0, options={"mode": "huge"})
         pid = _inner(env).worker.pid
-        t = time.perf_counter()
-        with pytest.raises(errors.EnvCrashedError, match=f"{1 << 40} bytes"):
+        with pytest.raises(errors.EnvCrashedError, match=f"{1 << 40} bytes"):  # not EnvTimeoutError: the header decided
             env.step(env.action_space.sample())
-        assert time.perf_counter() - t < 2  # before step_timeout=2: the header alone decided
         assert _wait_gone(pid)
     finally:
         env.close()

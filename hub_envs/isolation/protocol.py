@@ -37,7 +37,8 @@ from hub_envs.errors import IsolationError, RemoteEnvError
 PROTOCOL = 5
 #: the longest answer the parent reads from a worker (a longer one stops the worker: EnvCrashedError)
 MAX_MESSAGE_BYTES = 1 << 30
-#: the head of a fast step request: kind (b"s" single env, b"v" vector slice), the parent's CPU (-1: none)
+#: the head of a fast step request: kind (b"s" single env, b"v" vector slice), the parent's CPU (-1: none; -2: the
+#: parent busy-waits, :data:`~hub_envs.isolation.doorbell.SPINNING`)
 FAST_HEADER = struct.Struct("<ci")
 
 _NUMPY_NAMES = {
