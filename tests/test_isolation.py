@@ -270,6 +270,31 @@ def test_a_worker_announcing_a_huge_answer_is_stopped_before_anything_is_read(ho
         env.close()
 
 
+def test_ctrl_c_during_a_step_stops_the_worker_so_no_answer_comes_out_of_step(hostile):
+    """A KeyboardInterrupt while the parent waits for a step: the worker is stopped (its late answer would be
+    read as the answer to the next call), the next call says so, and with restart=True reset() goes on."""
+    import threading
+
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "slow", "arg": 1.0})
+        pid = _inner(env).worker.pid
+        main = threading.get_ident()
+        timer = threading.Timer(0.3, lambda: signal.pthread_kill(main, signal.SIGINT))
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            env.step(env.action_space.sample())
+        timer.join()
+        assert _wait_gone(pid)
+        with pytest.raises(errors.EnvCrashedError, match="interrupted"):
+            env.step(env.action_space.sample())
+        env.reset(seed=0)  # restart=True: a fresh worker, in step again
+        obs, _, _, _, info = env.step(env.action_space.sample())
+        assert "probe" not in info and obs["agent_pos"].shape == (2,)
+    finally:
+        env.close()
+
+
 def test_a_worker_cannot_shrink_the_pages_it_shares_with_the_parent(hostile):
     """The doorbell page and the observation buffers are sealed memfds: env code truncating them (which would make
     the parent's next read of its mapping a SIGBUS) is refused. Run in a child process, so that a regression

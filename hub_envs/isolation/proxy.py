@@ -324,12 +324,20 @@ class Worker:
     def receive(self, op: str, timeout: float | None = None) -> Any:
         if self.dead is not None:
             raise self.dead
-        budget = self._spin.seconds()
-        if budget:
-            # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
-            self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
         try:
+            budget = self._spin.seconds()
+            if budget:
+                # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
+                self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
             data = self._recv_by(None if timeout is None else self._sent_at + timeout)
+        except KeyboardInterrupt:  # its answer would come out of step with the next request: stop the worker
+            self._kill()
+            self.dead = EnvCrashedError(
+                f"{self.where}: interrupted (Ctrl-C) while the env's worker process (pid {self.pid}) ran {op}; it was "
+                f"stopped, since its answer would have come back as the answer to the next call. With restart=True, "
+                f"reset() starts a fresh worker; otherwise make a new env."
+            )
+            raise
         except _Oversized as e:
             self._kill()
             self.dead = EnvCrashedError(
