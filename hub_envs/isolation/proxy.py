@@ -316,6 +316,18 @@ class Worker:
         self.bell.ring(REQUEST)
         self._sent_at = time.perf_counter()
 
+    def interrupted(self, op: str) -> None:
+        """The caller stopped waiting for the answer to ``op`` (Ctrl-C): stop the worker, since that answer would
+        come back as the answer to the next call."""
+        if self.dead is not None:
+            return
+        self._kill()
+        self.dead = EnvCrashedError(
+            f"{self.where}: interrupted (Ctrl-C) while the env's worker process (pid {self.pid}) ran {op}; it was "
+            f"stopped, since its answer would have come back as the answer to the next call. With restart=True, "
+            f"reset() starts a fresh worker; otherwise make a new env."
+        )
+
     @property
     def spins(self) -> bool:
         """Whether the next :meth:`receive` busy-waits first (then the caller need not pin, see affinity)."""
@@ -330,13 +342,8 @@ class Worker:
                 # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
                 self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
             data = self._recv_by(None if timeout is None else self._sent_at + timeout)
-        except KeyboardInterrupt:  # its answer would come out of step with the next request: stop the worker
-            self._kill()
-            self.dead = EnvCrashedError(
-                f"{self.where}: interrupted (Ctrl-C) while the env's worker process (pid {self.pid}) ran {op}; it was "
-                f"stopped, since its answer would have come back as the answer to the next call. With restart=True, "
-                f"reset() starts a fresh worker; otherwise make a new env."
-            )
+        except KeyboardInterrupt:
+            self.interrupted(op)
             raise
         except _Oversized as e:
             self._kill()

@@ -311,6 +311,10 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             except Exception as e:  # keep reading the others, so every worker stays in step
                 out.append(None)
                 error = error or e
+            except KeyboardInterrupt:  # the answers not read would come out of step: stop every worker
+                for other in self._workers:
+                    other.interrupted(op)
+                raise
         if error is not None:
             raise error
         return out
