@@ -295,6 +295,28 @@ def test_ctrl_c_during_a_step_stops_the_worker_so_no_answer_comes_out_of_step(ho
         env.close()
 
 
+def test_ctrl_c_during_a_vector_step_stops_every_worker(hostile):
+    """Ctrl-C while a vector step is gathered: the answers not read yet would come out of step, so every worker
+    of the vector env is stopped and the next step says it was interrupted."""
+    import threading
+
+    vec = hostile.make_vec(2)
+    try:
+        vec.reset(seed=0, options={"mode": "slow", "arg": 1.0})
+        pids = [w.pid for w in vec._workers]
+        main = threading.get_ident()
+        timer = threading.Timer(0.3, lambda: signal.pthread_kill(main, signal.SIGINT))
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            vec.step(np.stack([vec.single_action_space.sample() for _ in range(2)]))
+        timer.join()
+        assert all(_wait_gone(pid) for pid in pids)
+        with pytest.raises(errors.EnvCrashedError, match="interrupted"):
+            vec.step(np.stack([vec.single_action_space.sample() for _ in range(2)]))
+    finally:
+        vec.close()
+
+
 def test_a_worker_cannot_shrink_the_pages_it_shares_with_the_parent(hostile):
     """The doorbell page and the observation buffers are sealed memfds: env code truncating them (which would make
     the parent's next read of its mapping a SIGBUS) is refused. Run in a child process, so that a regression
