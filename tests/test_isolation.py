@@ -208,19 +208,38 @@ def test_a_hang_is_an_env_timeout_error_and_the_worker_is_killed(hostile):
         env.close()
 
 
-def test_a_worker_that_rings_the_doorbell_without_answering_still_meets_the_watchdog(hostile):
-    """The doorbell (hub_envs.isolation.doorbell) is a hint when to read the socket, never a channel: env code
-    that rings it and then hangs is stopped by step_timeout like any hang, and nothing it wrote is read."""
+@pytest.mark.parametrize("attack", ["huge", "junk"])
+def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attack):
+    """The answers of a single env travel in a page the worker shares with the parent (hub_envs.isolation.doorbell):
+    env code announcing an answer longer than the page or writing one that is no message there is stopped with
+    EnvCrashedError (never a parent reading past the page or decoding code), and the next reset starts afresh."""
     env = hostile.make()
     try:
-        env.reset(seed=0, options={"mode": "ring"})
+        env.reset(seed=0, options={"mode": "page", "arg": attack})
         worker = _inner(env).worker
+        with pytest.raises(errors.EnvCrashedError, match="32768" if attack == "huge" else "not one"):
+            env.step(env.action_space.sample())
+        assert "found 1 doorbell(s)" in worker.stderr_tail()
+        assert _wait_gone(worker.pid)
+        obs, _ = env.reset(seed=0)  # restart=True: a fresh worker (and page), stepping normally
+        assert env.step(env.action_space.sample())[0]["agent_pos"].shape == obs["agent_pos"].shape
+    finally:
+        env.close()
+
+
+def test_a_worker_that_wakes_the_parent_without_answering_still_meets_the_watchdog(hostile):
+    """Env code that writes the parent's wake-up eventfd again and again (so that its sleep keeps ending) and never
+    answers is stopped by step_timeout like any hang."""
+    env = hostile.make()
+    try:
+        env.reset(seed=0, options={"mode": "page", "arg": "wake"})
+        worker = _inner(env).worker
+        t = time.perf_counter()
         with pytest.raises(errors.EnvTimeoutError, match="step_timeout=2"):
             env.step(env.action_space.sample())
-        assert "rang 1 doorbell(s)" in worker.stderr_tail()
+        assert time.perf_counter() - t < 15
+        assert "found 1 doorbell(s)" in worker.stderr_tail()
         assert _wait_gone(worker.pid)
-        obs, _ = env.reset(seed=0)  # restart=True: a fresh worker (and bell), stepping normally
-        assert env.step(env.action_space.sample())[0]["agent_pos"].shape == obs["agent_pos"].shape
     finally:
         env.close()
 
@@ -270,7 +289,16 @@ def test_a_worker_announcing_a_huge_answer_is_stopped_before_anything_is_read(ho
         env.close()
 
 
-def test_ctrl_c_during_a_step_stops_the_worker_so_no_answer_comes_out_of_step(hostile):
+@pytest.fixture
+def ctrl_c():
+    """SIGINT raises KeyboardInterrupt, as in an interactive Python: a test run started in the background of a
+    non-interactive shell (as CI's legs are) inherits SIGINT ignored, and Python then leaves it ignored."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_during_a_step_stops_the_worker_so_no_answer_comes_out_of_step(hostile, ctrl_c):
     """A KeyboardInterrupt while the parent waits for a step: the worker is stopped (its late answer would be
     read as the answer to the next call), the next call says so, and with restart=True reset() goes on."""
     import threading
@@ -295,7 +323,7 @@ def test_ctrl_c_during_a_step_stops_the_worker_so_no_answer_comes_out_of_step(ho
         env.close()
 
 
-def test_ctrl_c_during_a_vector_step_stops_every_worker(hostile):
+def test_ctrl_c_during_a_vector_step_stops_every_worker(hostile, ctrl_c):
     """Ctrl-C while a vector step is gathered: the answers not read yet would come out of step, so every worker
     of the vector env is stopped and the next step says it was interrupted."""
     import threading
@@ -355,8 +383,8 @@ def test_a_worker_cannot_shrink_the_pages_it_shares_with_the_parent(hostile):
 
 @pytest.mark.parametrize("spin", [True, False], ids=["busy-wait", "sleep"])
 def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
-    """Both ways of waiting for a worker (hub_envs.isolation.doorbell) give the in-process env's steps exactly;
-    with spinning on, a short step is answered while the parent busy-waits (the worker's bell was rung)."""
+    """Both ways of waiting for a worker (hub_envs.isolation.doorbell) give the in-process env's steps exactly:
+    busy-waiting with the messages in the shared page, and sleeping in the socket; every answer rang once."""
     from hub_envs.isolation import doorbell
 
     here = load_env(published["pendulum"], trust_remote_code=True)
@@ -368,11 +396,12 @@ def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
         worker = _inner(b).worker
         if not spin:
             assert not worker.spins
-        heard = worker.bell._heard[doorbell.REPLY]
-        deadline = time.monotonic() + 10  # the worker rings right after it sent: the last ring may still be coming
+        heard = worker.bell.heard
+        deadline = time.monotonic() + 10  # a socket answer rings before it is sent; wait for the last ring anyway
         while worker.bell._slots[doorbell.REPLY] < heard and time.monotonic() < deadline:
             time.sleep(0.001)
         assert worker.bell._slots[doorbell.REPLY] == heard > 60  # every answer rang, and only once
+        assert worker.bell._mailed_in is (spin and doorbell.MAIL)  # busy-waiting, the answers came in the page
     finally:
         doorbell.enabled = True
         a.close()

@@ -4,7 +4,7 @@ A step through a worker process is two wake-ups: the parent wakes the worker, th
 Linux puts a woken task on an idle CPU when there is one, and waking an idle CPU costs far more than the
 rest of the round trip on a virtual machine whose idle CPUs halt (measured on the project's 2-CPU VM: a
 round trip between two processes on one CPU 7-14 us, on two CPUs 100-130 us). A single env's parent and worker
-first busy-wait a moment (:mod:`~hub_envs.isolation.doorbell`; then nothing is pinned); when they sleep, the fix is
+first busy-wait a moment, talking through a shared page (:mod:`~hub_envs.isolation.doorbell`; then nothing is pinned); when they sleep, the fix is
 where they sleep:
 
 * the parent (:func:`pin_here` / :func:`unpin`) pins the *calling thread* to the CPU it is on while it

@@ -1,62 +1,108 @@
-"""A doorbell beside a worker's socket: the waiting side busy-waits on a shared counter for a short, adaptive
-while before it sleeps in the socket.
+"""A shared page beside a worker's socket: a counter of the messages each side sent, a mail slot for short
+messages, and a short, adaptive busy-wait before a side sleeps.
 
-A step through a worker process is two wake-ups, and a wake-up is what a round trip costs: on the project's
-2-CPU VM a task sleeping in a socket takes ~100 us to be woken on an idle CPU (see
-:mod:`~hub_envs.isolation.affinity` for the other fix, used when nothing spins), and busy-waiting in the
-socket itself (``poll(0)`` in a loop) costs the env's step ~15-25% in caches the kernel entries evict. So
-both sides keep their messages in the socket and, in a small shared page (a ``memfd``, one per worker), a
-counter of the messages each has sent: a waiting side reads the other's counter in a loop (no system call)
-until it moves, then reads the message from the socket. Measured with hover (``benchmarks/bench_isolation``):
-a step through a worker took 1.9x the in-process step while both sides slept, ~1.4x with the busy-wait.
+A step through a worker process is two messages, and on the project's 2-CPU VM what a message costs is mostly
+the wake-up at its end: a task sleeping in a socket takes ~100 us to be woken on an idle CPU (see
+:mod:`~hub_envs.isolation.affinity` for the fix used when a side sleeps), and even a task that is awake pays
+for every system call in caches the kernel evicts: the env's own step ran 15-25% slower in a worker that
+polled its socket in a loop. So a single env's parent and worker talk through a page of shared memory (a
+sealed ``memfd``, one per worker):
 
-**The socket stays the only channel for data.** The bell is a hint when to read it: a counter seen before the
-message (weakly ordered memory) only makes the reader block in ``recv`` a moment; a worker writing nonsense into
-the page only makes the parent stop spinning early or spin until its budget ends. Nothing is ever read from
-the page but the one integer, and nothing read from it is acted on but "stop spinning". The page is sealed
-(:func:`sealed_memfd`: its size cannot change), so a worker cannot shrink it under the parent's mapping
-(reading past the end of a shrunk file is a SIGBUS).
+* **counters**: each side counts the messages it sent; a waiting side reads the other's counter in a loop
+  (no system call) for a short while (:class:`SpinBudget`) and goes to sleep only when nothing came;
+* **mail slots**: a message of up to :data:`MAIL_BYTES` (a step request, a step's answer) is written into
+  the page before its counter moves; a longer one goes through the socket as before (its length slot says
+  -1). Sender and receiver then make no system call at all while both are awake;
+* **sleeping**: a side that stops busy-waiting sets its *asleep* flag, looks at the counter once more and
+  sleeps in ``poll`` on the socket and on its own ``eventfd``; a sender that finds the flag set writes that
+  eventfd. Both sides separate the flag (or counter) they write from the one they read next with a full
+  memory fence, so one of them always sees the other (Dekker's handshake: no lost wake-up).
+
+**Memory ordering.** The mail slots rely on the order in which stores become visible: the message, then its
+length, then the counter. x86-64 keeps stores in program order and loads in program order (TSO), so a receiver
+that sees the counter sees the message; the fence is a lock's atomic read-modify-write (``lock cmpxchg``, a
+full barrier on x86-64; Python exposes no other). On any other architecture (:data:`MAIL` is False) messages
+always go through the socket and the counter is only a hint when to read it.
+
+**What a hostile worker can do with the page.** Nothing the parent reads from it is trusted more than an
+answer from the socket: the parent reads the length once, refuses one over :data:`MAIL_BYTES`
+(:class:`Oversized`), copies the message out of the page before decoding it, and decodes it with the same
+allow-list unpickler. So a worker writing the page can only make the parent read its answer early (the answer
+of its choice, which an env can return anyway), or wake it for nothing; a worker that never answers still meets
+the watchdog (the parent sleeps at most until its deadline). The page is sealed (:func:`sealed_memfd`), so it
+cannot be shrunk under the parent's mapping (a SIGBUS).
 
 **Spinning costs a CPU, so it is bounded and adaptive** (:class:`SpinBudget`): each side keeps a moving average
 of how long it waited for the other and spins for at most twice that (plus 20 us), never more than
 :data:`MAX_SPIN_S`, and not at all when the usual wait is longer than that (a wake-up costs well under a
-fifth of such a wait) or when the process may run on one CPU only. Only single envs spin; the workers of a
-vector env sleep (they share the CPUs with each other). The worker busy-waits only after a step whose parent
-busy-waited (a flag in the request). ``doorbell.enabled = False`` turns spinning off for the process, on both
-sides (the benchmark measures both). The parent's busy-wait holds the GIL (a Python loop): another thread of
-the parent waits at most :data:`MAX_SPIN_S` for it.
+fifth of such a wait) or when the process may run on one CPU only. Only single envs spin and use the mail
+slots; the workers of a vector env sleep in the socket (they share the CPUs). The worker busy-waits only after a
+step whose parent busy-waited (a flag in the request), and answers in kind (through the page when asked through
+it). ``doorbell.enabled = False`` turns spinning and the mail slots off for the process, on both sides (the
+benchmark measures both). The parent's busy-wait holds the GIL (a Python loop): another thread of the parent
+waits at most :data:`MAX_SPIN_S` for it.
 
 Example:
-    >>> import os
-    >>> from hub_envs.isolation.doorbell import REPLY, Doorbell
-    >>> bell = Doorbell()                        # the parent makes it; the worker maps its copy of the fd
-    >>> other_side = Doorbell(os.dup(bell.fd))
-    >>> bell.wait(REPLY, deadline=0.0)           # nothing sent: the deadline passed
-    False
-    >>> other_side.ring(REPLY); bell.wait(REPLY, deadline=0.0)
-    True
-    >>> bell.heard(REPLY); bell.wait(REPLY, deadline=0.0)   # that message was read: waiting again
-    False
-    >>> other_side.close(); bell.close()
+    >>> import socket
+    >>> from hub_envs.isolation.doorbell import Doorbell, PastDeadline, WORKER
+    >>> a, b = socket.socketpair()
+    >>> parent = Doorbell(sock_fd=a.fileno())                  # the parent makes the page and the eventfds
+    >>> worker = Doorbell(parent.fds_for_worker(), sock_fd=b.fileno(), side=WORKER)
+    >>> parent.mail = True
+    >>> parent.send(b"step 1", a.sendall)                      # short: through the page, the socket stays empty
+    >>> worker.receive(None, 0.0, lambda deadline: b.recv(64))
+    b'step 1'
+    >>> worker.send(b"done", b.sendall)                        # answered in kind
+    >>> parent.receive(0.0, 0.0, lambda deadline: a.recv(64))
+    b'done'
+    >>> try:
+    ...     parent.receive(0.0, 0.0, lambda deadline: a.recv(64))  # nothing more came by the deadline
+    ... except PastDeadline:
+    ...     print("past the deadline")
+    past the deadline
+    >>> worker.close(); parent.close(); a.close(); b.close()
 """
 
 from __future__ import annotations
 
+import math
 import mmap
 import os
+import platform
+import select
+import threading
 import time
+from collections.abc import Callable
 
 #: the counters' slots (int64 indices, 128 bytes apart so that each has its cache line): what the parent sent,
-#: what the worker sent
+#: what the worker sent. The slot after a counter holds the length of the message in that side's mail slot (-1:
+#: the message is in the socket)
 REQUEST, REPLY = 0, 16
-_SIZE = 256
+#: the slot of the flag "the receiver of these messages is asleep" (the worker for requests, the parent for replies)
+_ASLEEP = {REQUEST: 32, REPLY: 48}
+#: the longest message that travels in the page; longer ones go through the socket
+MAIL_BYTES = 32768
+_BODY = {REQUEST: 512, REPLY: 512 + MAIL_BYTES}
+_SIZE = 512 + 2 * MAIL_BYTES
+#: which end a :class:`Doorbell` is (the parent receives replies, the worker requests)
+PARENT, WORKER = "parent", "worker"
+#: the mail slots need stores seen in program order (x86-64's TSO; see the module docstring)
+MAIL = platform.machine().lower() in ("x86_64", "amd64")
 #: in a fast step request's CPU field (:data:`~hub_envs.isolation.protocol.FAST_HEADER`): the parent busy-waits
 #: for this answer (and is pinned nowhere); the worker then busy-waits for the next request
 SPINNING = -2
-#: the longest a side busy-waits for the other before it sleeps in the socket
+#: the longest a side busy-waits for the other before it sleeps
 MAX_SPIN_S = 0.0005
-#: False: never spin (both sides sleep in the socket); read at every wait
+#: False: never spin and never use the mail slots (both sides sleep in the socket); read at every message
 enabled = True
+
+
+class PastDeadline(Exception):
+    """No message (or not a whole one) came by the deadline."""
+
+
+class Oversized(Exception):
+    """The other side announced a message longer than it may send (``args``: the length announced, the limit)."""
 
 
 def sealed_memfd(name: str, size: int) -> int:
@@ -90,43 +136,140 @@ def _cpus() -> int:
 
 
 class Doorbell:
-    """Two message counters in a shared page: :meth:`ring` after sending, :meth:`wait` before receiving."""
+    """One end of the shared page (see the module docstring): :meth:`send` a message, :meth:`receive` one.
 
-    def __init__(self, fd: int | None = None):
-        if fd is None:
-            fd = sealed_memfd("hub-envs-doorbell", _SIZE)
-        self.fd = fd
-        self._map = mmap.mmap(fd, _SIZE)
+    ``fds``: the page and the two eventfds (requests', replies'), from the parent's :meth:`fds_for_worker`;
+    None makes them (the parent). ``sock_fd``: the socket beside it (polled with the eventfd while asleep).
+    ``mail``: whether :meth:`send` may use the mail slot (the worker answers in kind whatever this says)."""
+
+    def __init__(self, fds: tuple[int, int, int] | None = None, *, sock_fd: int, side: str = PARENT):
+        if fds is None:
+            opened: list[int] = []
+            try:
+                opened.append(sealed_memfd("hub-envs-doorbell", _SIZE))
+                for _ in range(2):
+                    opened.append(os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK))
+            except BaseException:
+                for fd in opened:
+                    os.close(fd)
+                raise
+            fds = (opened[0], opened[1], opened[2])
+        self.fds = fds
+        self.side = side
+        self.inbox, self.outbox = (REPLY, REQUEST) if side == PARENT else (REQUEST, REPLY)
+        self._wake = {REQUEST: fds[1], REPLY: fds[2]}
+        self._map = mmap.mmap(fds[0], _SIZE)
         self._slots = memoryview(self._map).cast("q")
-        self._rung = {REQUEST: 0, REPLY: 0}
-        self._heard = {REQUEST: 0, REPLY: 0}
+        self._lock = threading.Lock()
+        self.mail = False
+        self._mailed_in = False  # whether the last message received came through the page
+        self.rung = 0  # messages sent
+        self.heard = 0  # messages received
+        self._poller = select.poll()
+        self._poller.register(sock_fd, select.POLLIN)
+        self._poller.register(self._wake[self.inbox], select.POLLIN)
+        self._sock_fd = sock_fd
 
-    def ring(self, slot: int) -> None:
-        """One more message sent on ``slot`` (call it after the message is in the socket)."""
-        self._rung[slot] += 1
-        self._slots[slot] = self._rung[slot]
+    def fds_for_worker(self) -> tuple[int, int, int]:
+        """The fds to hand to the worker (``pass_fds``), in the order its :class:`Doorbell` takes them."""
+        return self.fds
 
-    def heard(self, slot: int) -> None:
-        """One more message of ``slot`` read from the socket (call it for every message, spun for or not)."""
-        self._heard[slot] += 1
+    def _fence(self) -> None:
+        # a full memory barrier: a lock's acquire and release are atomic read-modify-writes (lock cmpxchg)
+        lock = self._lock
+        if lock.acquire(False):
+            lock.release()
+        else:  # held: a KeyboardInterrupt came between the two calls once; a fresh lock, never a deadlock
+            self._lock = threading.Lock()
+            self._fence()
 
-    def wait(self, slot: int, deadline: float) -> bool:
-        """Busy-wait until the other side rang for a message not yet heard (True) or ``deadline`` (a
-        ``time.perf_counter()`` value) passed (False: sleep in the socket instead)."""
-        slots, heard, clock = self._slots, self._heard[slot], time.perf_counter
-        while slots[slot] <= heard:
-            if clock() >= deadline:
-                return False
-        return True
+    def send(self, data: bytes, send_socket: Callable[[bytes], object]) -> None:
+        """Send one message: into the mail slot when it fits and mail is on (the worker: when the message it
+        answers came that way), else ``send_socket(data)``. The counter moves before a socket message is sent, so
+        a receiver woken by the socket always sees it."""
+        slots, box = self._slots, self.outbox
+        mail = (self._mailed_in if self.side == WORKER else self.mail) and enabled and MAIL
+        if mail and len(data) <= MAIL_BYTES:
+            start = _BODY[box]
+            self._map[start : start + len(data)] = data
+            slots[box + 1] = len(data)
+            self.rung += 1
+            slots[box] = self.rung
+            self._fence()  # the counter is visible before the flag is read (the receiver fences the other way)
+            if slots[_ASLEEP[box]]:
+                try:
+                    os.eventfd_write(self._wake[box], 1)
+                except OSError:  # the counter is full: the receiver is woken anyway
+                    pass
+        else:
+            slots[box + 1] = -1
+            self.rung += 1
+            slots[box] = self.rung
+            send_socket(data)
+
+    def receive(
+        self,
+        deadline: float | None,
+        spin_until: float,
+        read_socket: Callable[[float | None], bytes],
+        on_sleep: Callable[[], object] | None = None,
+    ) -> bytes:
+        """The next message: busy-wait until ``spin_until`` (``time.perf_counter()`` values), then sleep until
+        ``deadline`` (None: for good). ``read_socket(deadline)`` reads a message from the socket (one whose length
+        slot says -1, or one that came without its counter: a worker's last words before it exits). Raises
+        :class:`PastDeadline` or :class:`Oversized`; ``on_sleep`` runs before each sleep."""
+        slots, box, clock = self._slots, self.inbox, time.perf_counter
+        heard = self.heard
+        while slots[box] <= heard and clock() < spin_until:
+            pass
+        while True:
+            if slots[box] > heard:
+                self.heard = heard + 1
+                size = slots[box + 1]
+                self._mailed_in = size >= 0
+                if size < 0:
+                    return read_socket(deadline)
+                if size > MAIL_BYTES:
+                    raise Oversized(size, MAIL_BYTES)
+                start = _BODY[box]
+                return self._map[start : start + size]  # a copy: the sender may write the page again
+            asleep = _ASLEEP[box]
+            slots[asleep] = 1
+            self._fence()  # the flag is visible before the counter is read again (the sender fences the other way)
+            if slots[box] > heard:
+                slots[asleep] = 0
+                continue
+            if on_sleep is not None:
+                on_sleep()
+            wait = None if deadline is None else max(0, math.ceil((deadline - clock()) * 1000))
+            try:
+                ready = self._poller.poll(wait)
+            finally:
+                slots[asleep] = 0
+            if slots[box] > heard:  # a message, even if it came just as the deadline passed
+                continue
+            if not ready:
+                raise PastDeadline
+            for fd, _ in ready:
+                if fd == self._sock_fd:  # a message without its counter, or the other end closed
+                    self._mailed_in = False
+                    return read_socket(deadline)
+                try:
+                    os.eventfd_read(fd)  # woken (or by a spurious write): look again
+                except BlockingIOError:
+                    pass
 
     def close(self) -> None:
-        """Unmap the page and close its fd (again: nothing)."""
-        if self.fd < 0:
+        """Unmap the page and close its fds (again: nothing)."""
+        if self._map.closed:
             return
         self._slots.release()
         self._map.close()
-        os.close(self.fd)
-        self.fd = -1
+        for fd in self.fds:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
 class SpinBudget:

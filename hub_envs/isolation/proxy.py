@@ -47,7 +47,7 @@ import numpy as np
 
 from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
 from hub_envs.isolation.affinity import pin_here, unpin
-from hub_envs.isolation.doorbell import REPLY, REQUEST, SPINNING, Doorbell, SpinBudget
+from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import FAST_HEADER, MAX_MESSAGE_BYTES, dumps, rebuild_error, safe_loads
 
@@ -187,14 +187,6 @@ def _signal_name(code: int) -> str:
         return f"signal {-code}"
 
 
-class _PastDeadline(Exception):
-    """A message was not whole by its deadline (:meth:`Worker._recv_by`)."""
-
-
-class _Oversized(Exception):
-    """A worker announced a message longer than MAX_MESSAGE_BYTES (:meth:`Worker._recv_by`)."""
-
-
 class Worker:
     """One worker process: start it, ask it things, know how it died.
 
@@ -211,11 +203,12 @@ class Worker:
         self.log_path = log.name
         parent_sock, child_sock = socket.socketpair()
         try:
-            self.bell = Doorbell()
+            self.bell = Doorbell(sock_fd=parent_sock.fileno())
         except BaseException:
             parent_sock.close()
             child_sock.close()
             raise
+        self.bell.mail = spin and MAIL  # a single env's short messages travel in the shared page
         self._spin = SpinBudget(spin)
         self._sent_at = 0.0
         self._poller: select.poll | None = None
@@ -234,8 +227,9 @@ class Worker:
                 init["sandbox"] = sandbox_init(target, options, scratch)
                 preexec = unshare_namespaces
             self.proc = _launch(
-                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno()), str(self.bell.fd)],
-                pass_fds=(child_sock.fileno(), self.bell.fd),
+                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno())]
+                + [str(fd) for fd in self.bell.fds_for_worker()],
+                pass_fds=(child_sock.fileno(), *self.bell.fds_for_worker()),
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=log,
@@ -297,23 +291,19 @@ class Worker:
         if self.dead is not None:
             raise self.dead
         try:
-            self.conn.send_bytes(dumps(args[0] if raw else (op, *args)))
+            self.bell.send(dumps(args[0] if raw else (op, *args)), self.conn.send_bytes)
         except (OSError, EOFError):
             raise self._died(op) from None
-        self._rang()
+        self._sent_at = time.perf_counter()
 
     def send_raw(self, data: bytes) -> None:
         """Send bytes as they are (the fast step path: ``b"s" + action bytes``)."""
         if self.dead is not None:
             raise self.dead
         try:
-            self.conn.send_bytes(data)
+            self.bell.send(data, self.conn.send_bytes)
         except (OSError, EOFError):
             raise self._died("step") from None
-        self._rang()
-
-    def _rang(self) -> None:
-        self.bell.ring(REQUEST)
         self._sent_at = time.perf_counter()
 
     def interrupted(self, op: str) -> None:
@@ -338,22 +328,21 @@ class Worker:
             raise self.dead
         try:
             budget = self._spin.seconds()
-            if budget:
-                # the bell is a hint only: the watchdog below still holds (a worker may ring without answering)
-                self.bell.wait(REPLY, self._sent_at + (min(budget, timeout) if timeout is not None else budget))
-            data = self._recv_by(None if timeout is None else self._sent_at + timeout)
+            spin_until = self._sent_at + (min(budget, timeout) if timeout is not None else budget) if budget else 0.0
+            # the watchdog holds whatever the worker writes into the shared page (see doorbell)
+            data = self.bell.receive(None if timeout is None else self._sent_at + timeout, spin_until, self._recv_by)
         except KeyboardInterrupt:
             self.interrupted(op)
             raise
-        except _Oversized as e:
+        except Oversized as e:
             self._kill()
             self.dead = EnvCrashedError(
                 f"{self.where}: the env's worker process (pid {self.pid}) announced an answer of {e.args[0]} bytes to {op}, "
-                f"more than the {MAX_MESSAGE_BYTES} an isolated env may send; it was stopped. Return smaller observations "
+                f"more than the {e.args[1]} it may send that way; it was stopped. Return smaller observations "
                 f"or infos from the env."
             )
             raise self.dead from None
-        except _PastDeadline:
+        except PastDeadline:
             self._kill()
             self.dead = EnvTimeoutError(
                 f"{self.where}: {op} took longer than step_timeout={timeout:g} s; the env's worker process (pid {self.pid}) "
@@ -362,7 +351,6 @@ class Worker:
             raise self.dead from None
         except (OSError, EOFError):
             raise self._died(op) from None
-        self.bell.heard(REPLY)
         if self._spin.active:
             self._spin.observe(time.perf_counter() - self._sent_at)
         try:
@@ -370,6 +358,13 @@ class Worker:
         except IsolationError as e:
             self._kill()
             self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")
+            raise self.dead from None
+        except Exception as e:  # not a message a worker sends: something else wrote it (the env's code)
+            self._kill()
+            self.dead = EnvCrashedError(
+                f"{self.where}: the env's worker process (pid {self.pid}) sent an answer to {op} that is not one "
+                f"({type(e).__name__}: {e}); it was stopped. The env's code wrote to its worker's socket or shared page."
+            )
             raise self.dead from None
         if status == "ok":
             return value
@@ -380,13 +375,13 @@ class Worker:
     def _recv_by(self, deadline: float | None) -> bytes:
         """One message (``Connection``'s framing) read whole before ``deadline`` (a ``perf_counter`` value; None:
         no watchdog): a worker that sends part of a message and stops (env code can write to its socket) meets
-        the watchdog like one that sends nothing (``_PastDeadline``); one that announces more than
-        :data:`~hub_envs.isolation.protocol.MAX_MESSAGE_BYTES` is stopped before anything is read (``_Oversized``)."""
+        the watchdog like one that sends nothing (``PastDeadline``); one that announces more than
+        :data:`~hub_envs.isolation.protocol.MAX_MESSAGE_BYTES` is stopped before anything is read (``Oversized``)."""
         (size,) = struct.unpack("!i", self._read_by(4, deadline))
         if size == -1:
             (size,) = struct.unpack("!Q", self._read_by(8, deadline))
         if size < 0 or size > MAX_MESSAGE_BYTES:
-            raise _Oversized(size)
+            raise Oversized(size, MAX_MESSAGE_BYTES)
         return self._read_by(size, deadline)
 
     def _read_by(self, n: int, deadline: float | None) -> bytes:
@@ -401,7 +396,7 @@ class Worker:
                 # an answer already there is taken even at (or past) the deadline: a vector env reads its workers in turn
                 wait = None if deadline is None else max(0, math.ceil((deadline - time.perf_counter()) * 1000))
                 if not self._poller.poll(wait):
-                    raise _PastDeadline from None
+                    raise PastDeadline from None
                 continue
             if not chunk:
                 raise EOFError
@@ -459,7 +454,7 @@ class Worker:
             return
         if self.dead is None and self.proc.poll() is None:
             try:
-                self.conn.send_bytes(dumps(("exit",)))
+                self.bell.send(dumps(("exit",)), self.conn.send_bytes)
                 self.proc.wait(timeout=2)
             except (OSError, EOFError, subprocess.TimeoutExpired):
                 pass

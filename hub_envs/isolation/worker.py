@@ -1,10 +1,11 @@
 """The worker process of an isolated env: imports the env's code, runs its envs, answers the parent.
 
 Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
-main()" <fd> <bell>`` (a fresh interpreter, never a fork of the parent, which may hold torch and threads), with
-the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end of a
-socketpair, ``<bell>`` the memfd of its :mod:`~hub_envs.isolation.doorbell`. The first message is the init dict (repo@sha, snapshot folder, env entry point, sandbox
-settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
+main()" <fd> <page> <wake> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
+threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end
+of a socketpair, the others the shared page and eventfds of its :mod:`~hub_envs.isolation.doorbell`, through
+which every message comes and goes. The first message is the init dict (repo@sha, snapshot folder, env entry
+point, sandbox settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
 
 It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
 else runs) and, as a second line, the socket: EOF on it ends the worker. A process the env's code forks
@@ -22,9 +23,10 @@ import pickle
 import signal
 import sys
 import time
+from functools import partial
 from typing import Any
 
-from hub_envs.isolation.doorbell import REPLY, REQUEST, SPINNING, Doorbell, SpinBudget
+from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
 from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info
 
 STATE_METHODS = ("get_state", "reset_to")
@@ -185,8 +187,10 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
     me = os.getpid()
 
     def answer(data: bytes) -> None:
-        conn.send_bytes(data)
-        bell.ring(REPLY)
+        bell.send(data, conn.send_bytes)
+
+    def from_socket(_deadline) -> bytes:
+        return conn.recv_bytes()
 
     try:
         server = Server(init, conn)
@@ -200,13 +204,11 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
     answered = clock()
     while True:
         budget = spin.seconds() if cpu == SPINNING else 0.0  # only after a step the parent busy-waited for
-        if not (budget and bell.wait(REQUEST, answered + budget)):
-            follower.wait_on(cpu)  # sleep where the parent waits: waking it there is cheap
         try:
-            data = conn.recv_bytes()
+            # asleep, wait on the parent's CPU: waking it there is cheap (see affinity)
+            data = bell.receive(None, answered + budget if budget else 0.0, from_socket, partial(follower.wait_on, cpu))
         except (EOFError, OSError):
             return  # the parent closed its end (or died)
-        bell.heard(REQUEST)
         follower.woken()
         if spin.active:
             spin.observe(clock() - answered)
@@ -253,18 +255,18 @@ def main(argv: list[str] | None = None) -> None:
     except (AttributeError, OSError):
         pass
     argv = sys.argv[1:] if argv is None else argv
-    conn, bell = Connection(int(argv[0])), Doorbell(int(argv[1]))
+    conn = Connection(int(argv[0]))
+    bell = Doorbell((int(argv[1]), int(argv[2]), int(argv[3])), sock_fd=conn.fileno(), side=WORKER)
     if os.getppid() == 1:  # the parent died before the death signal was armed
         os._exit(0)
-    init = pickle.loads(conn.recv_bytes())
-    bell.heard(REQUEST)
+    init = pickle.loads(bell.receive(None, 0.0, lambda _deadline: conn.recv_bytes()))
     if init.get("sandbox"):
         from hub_envs.isolation.sandbox import enter_sandbox
 
         try:
             enter_sandbox(init)  # may fork: the caller of serve() below is then pid 1 of a new pid namespace
         except BaseException as e:
-            conn.send_bytes(dumps(("fatal", error_info(e))))
+            bell.send(dumps(("fatal", error_info(e))), conn.send_bytes)
             os._exit(71)
     serve(conn, bell, init)
     os._exit(0)
