@@ -14,8 +14,9 @@ sealed ``memfd``, one per worker):
   the page before its counter moves; a longer one goes through the socket as before (its length slot says
   -1). Sender and receiver then make no system call at all while both are awake;
 * **sleeping**: a side that stops busy-waiting sets its *asleep* flag, looks at the counter once more and
-  sleeps in ``poll`` on the socket and on its own ``eventfd``; a sender that finds the flag set writes that
-  eventfd. Both sides separate the flag (or counter) they write from the one they read next with a full
+  sleeps in ``poll`` on the socket and on its end of a wake-up socketpair; a sender that finds the flag set
+  writes a byte to its end (``MSG_DONTWAIT``: a full buffer means the receiver is awake anyway; nothing the other
+  process sets on its own end can make this side block). Both sides separate the flag (or counter) they write from the one they read next with a full
   memory fence, so one of them always sees the other (Dekker's handshake: no lost wake-up).
 
 **Memory ordering.** The mail slots rely on the order in which stores become visible: the message, then its
@@ -46,10 +47,11 @@ Example:
     >>> import socket
     >>> from hub_envs.isolation.doorbell import Doorbell, PastDeadline, WORKER
     >>> a, b = socket.socketpair()
-    >>> parent = Doorbell(sock_fd=a.fileno())                  # the parent makes the page and the eventfds
-    >>> worker = Doorbell(parent.fds_for_worker(), sock_fd=b.fileno(), side=WORKER)
+    >>> import os
+    >>> parent = Doorbell(sock_fd=a.fileno())                  # the parent makes the page and the wake-up pair
+    >>> worker = Doorbell(tuple(os.dup(fd) for fd in parent.fds_for_worker()), sock_fd=b.fileno(), side=WORKER)
     >>> parent.mail = True
-    >>> parent.send(b"step 1", a.sendall)                      # short: through the page, the socket stays empty
+    >>> parent.send(b"step 1", a.sendall)                      # short: through the page (on x86-64)
     >>> worker.receive(None, 0.0, lambda deadline: b.recv(64))
     b'step 1'
     >>> worker.send(b"done", b.sendall)                        # answered in kind
@@ -70,6 +72,7 @@ import mmap
 import os
 import platform
 import select
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -138,41 +141,48 @@ def _cpus() -> int:
 class Doorbell:
     """One end of the shared page (see the module docstring): :meth:`send` a message, :meth:`receive` one.
 
-    ``fds``: the page and the two eventfds (requests', replies'), from the parent's :meth:`fds_for_worker`;
-    None makes them (the parent). ``sock_fd``: the socket beside it (polled with the eventfd while asleep).
-    ``mail``: whether :meth:`send` may use the mail slot (the worker answers in kind whatever this says)."""
+    ``fds``: the page and the worker's end of the wake-up socketpair, from the parent's :meth:`fds_for_worker`;
+    None makes them (the parent). ``sock_fd``: the message socket beside it (polled while asleep). ``mail``
+    (attribute): whether :meth:`send` may use the mail slot (the worker answers in kind whatever this says)."""
 
-    def __init__(self, fds: tuple[int, int, int] | None = None, *, sock_fd: int, side: str = PARENT):
-        if fds is None:
-            opened: list[int] = []
-            try:
-                opened.append(sealed_memfd("hub-envs-doorbell", _SIZE))
-                for _ in range(2):
-                    opened.append(os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK))
-            except BaseException:
-                for fd in opened:
-                    os.close(fd)
-                raise
-            fds = (opened[0], opened[1], opened[2])
-        self.fds = fds
-        self.side = side
-        self.inbox, self.outbox = (REPLY, REQUEST) if side == PARENT else (REQUEST, REPLY)
-        self._wake = {REQUEST: fds[1], REPLY: fds[2]}
-        self._map = mmap.mmap(fds[0], _SIZE)
-        self._slots = memoryview(self._map).cast("q")
+    def __init__(self, fds: tuple[int, int] | None = None, *, sock_fd: int, side: str = PARENT):
+        owned: list = []
+        try:
+            if fds is None:
+                page = sealed_memfd("hub-envs-doorbell", _SIZE)
+                owned.append(page)
+                mine, theirs = socket.socketpair()
+                owned += [mine, theirs]
+                self._theirs: socket.socket | None = theirs
+            else:
+                page, self._theirs = fds[0], None
+                mine = socket.socket(fileno=fds[1])
+                owned += [page, mine]
+            self._page, self._wake_sock = page, mine
+            self.side = side
+            self.inbox, self.outbox = (REPLY, REQUEST) if side == PARENT else (REQUEST, REPLY)
+            self._map = mmap.mmap(page, _SIZE)
+            owned.append(self._map)
+            self._slots = memoryview(self._map).cast("q")
+            self._poller = select.poll()
+            self._poller.register(sock_fd, select.POLLIN)
+            self._poller.register(mine.fileno(), select.POLLIN)
+        except BaseException:
+            for handle in owned:
+                handle.close() if not isinstance(handle, int) else os.close(handle)
+            raise
         self._lock = threading.Lock()
         self.mail = False
         self._mailed_in = False  # whether the last message received came through the page
         self.rung = 0  # messages sent
         self.heard = 0  # messages received
-        self._poller = select.poll()
-        self._poller.register(sock_fd, select.POLLIN)
-        self._poller.register(self._wake[self.inbox], select.POLLIN)
         self._sock_fd = sock_fd
+        self._closed = False
 
-    def fds_for_worker(self) -> tuple[int, int, int]:
+    def fds_for_worker(self) -> tuple[int, int]:
         """The fds to hand to the worker (``pass_fds``), in the order its :class:`Doorbell` takes them."""
-        return self.fds
+        assert self._theirs is not None, "only the parent's end has the worker's fds"
+        return self._page, self._theirs.fileno()
 
     def _fence(self) -> None:
         # a full memory barrier: a lock's acquire and release are atomic read-modify-writes (lock cmpxchg)
@@ -198,8 +208,8 @@ class Doorbell:
             self._fence()  # the counter is visible before the flag is read (the receiver fences the other way)
             if slots[_ASLEEP[box]]:
                 try:
-                    os.eventfd_write(self._wake[box], 1)
-                except OSError:  # the counter is full: the receiver is woken anyway
+                    self._wake_sock.send(b"\0", socket.MSG_DONTWAIT)
+                except OSError:  # a full buffer: the receiver is woken anyway (or gone)
                     pass
         else:
             slots[box + 1] = -1
@@ -216,7 +226,8 @@ class Doorbell:
     ) -> bytes:
         """The next message: busy-wait until ``spin_until`` (``time.perf_counter()`` values), then sleep until
         ``deadline`` (None: for good). ``read_socket(deadline)`` reads a message from the socket (one whose length
-        slot says -1, or one that came without its counter: a worker's last words before it exits). Raises
+        slot says -1, or bytes that came without a counter: not a message hub-envs sends, read so that the
+        caller finds out, and the other end closing). Raises
         :class:`PastDeadline` or :class:`Oversized`; ``on_sleep`` runs before each sleep."""
         slots, box, clock = self._slots, self.inbox, time.perf_counter
         heard = self.heard
@@ -246,28 +257,38 @@ class Doorbell:
                 ready = self._poller.poll(wait)
             finally:
                 slots[asleep] = 0
+            sock_ready = False
+            for fd, _ in ready:
+                if fd == self._sock_fd:
+                    sock_ready = True
+                else:  # woken: empty the wake-up socket (never blocking, whatever the other end did)
+                    try:
+                        while self._wake_sock.recv(4096, socket.MSG_DONTWAIT):
+                            pass
+                    except OSError:
+                        pass
             if slots[box] > heard:  # a message, even if it came just as the deadline passed
                 continue
-            if not ready:
+            if sock_ready:  # bytes without a counter, or the other end closed
+                self._mailed_in = False
+                return read_socket(deadline)
+            if not ready or (deadline is not None and clock() >= deadline):  # woken for nothing, past the deadline
                 raise PastDeadline
-            for fd, _ in ready:
-                if fd == self._sock_fd:  # a message without its counter, or the other end closed
-                    self._mailed_in = False
-                    return read_socket(deadline)
-                try:
-                    os.eventfd_read(fd)  # woken (or by a spurious write): look again
-                except BlockingIOError:
-                    pass
 
     def close(self) -> None:
         """Unmap the page and close its fds (again: nothing)."""
-        if self._map.closed:
+        if self._closed:
             return
-        self._slots.release()
-        self._map.close()
-        for fd in self.fds:
+        self._closed = True
+        try:
+            self._slots.release()
+            self._map.close()
+        finally:
+            for handle in (self._wake_sock, self._theirs):
+                if handle is not None:
+                    handle.close()
             try:
-                os.close(fd)
+                os.close(self._page)
             except OSError:
                 pass
 

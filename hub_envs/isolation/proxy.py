@@ -292,6 +292,9 @@ class Worker:
             raise self.dead
         try:
             self.bell.send(dumps(args[0] if raw else (op, *args)), self.conn.send_bytes)
+        except KeyboardInterrupt:  # maybe half sent: the worker's stream would be out of step
+            self.interrupted(op)
+            raise
         except (OSError, EOFError):
             raise self._died(op) from None
         self._sent_at = time.perf_counter()
@@ -302,6 +305,9 @@ class Worker:
             raise self.dead
         try:
             self.bell.send(data, self.conn.send_bytes)
+        except KeyboardInterrupt:
+            self.interrupted("step")
+            raise
         except (OSError, EOFError):
             raise self._died("step") from None
         self._sent_at = time.perf_counter()
@@ -355,6 +361,8 @@ class Worker:
             self._spin.observe(time.perf_counter() - self._sent_at)
         try:
             status, value = safe_loads(data)
+            if status not in ("ok", "err", "fatal") or (status != "ok" and not isinstance(value, dict)):
+                raise ValueError(f"status {status!r}")
         except IsolationError as e:
             self._kill()
             self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")

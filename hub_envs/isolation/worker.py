@@ -1,10 +1,10 @@
 """The worker process of an isolated env: imports the env's code, runs its envs, answers the parent.
 
 Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
-main()" <fd> <page> <wake> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
+main()" <fd> <page> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
 threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end
-of a socketpair, the others the shared page and eventfds of its :mod:`~hub_envs.isolation.doorbell`, through
-which every message comes and goes. The first message is the init dict (repo@sha, snapshot folder, env entry
+of a socketpair, the others the shared page and the wake-up socket of its :mod:`~hub_envs.isolation.doorbell`
+(a single env's short messages travel in the page, the others in the socket). The first message is the init dict (repo@sha, snapshot folder, env entry
 point, sandbox settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
 
 It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
@@ -256,7 +256,7 @@ def main(argv: list[str] | None = None) -> None:
         pass
     argv = sys.argv[1:] if argv is None else argv
     conn = Connection(int(argv[0]))
-    bell = Doorbell((int(argv[1]), int(argv[2]), int(argv[3])), sock_fd=conn.fileno(), side=WORKER)
+    bell = Doorbell((int(argv[1]), int(argv[2])), sock_fd=conn.fileno(), side=WORKER)
     if os.getppid() == 1:  # the parent died before the death signal was armed
         os._exit(0)
     init = pickle.loads(bell.receive(None, 0.0, lambda _deadline: conn.recv_bytes()))
