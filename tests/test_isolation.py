@@ -208,16 +208,20 @@ def test_a_hang_is_an_env_timeout_error_and_the_worker_is_killed(hostile):
         env.close()
 
 
-@pytest.mark.parametrize("attack", ["huge", "junk"])
-def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attack):
+@pytest.mark.parametrize(
+    ("attack", "said"),
+    [("huge", "32768"), ("junk", "not one"), ("forged", "may not hand"), ("forged-junk", "not one")],
+)
+def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attack, said):
     """The answers of a single env travel in a page the worker shares with the parent (hub_envs.isolation.doorbell):
-    env code announcing an answer longer than the page or writing one that is no message there is stopped with
-    EnvCrashedError (never a parent reading past the page or decoding code), and the next reset starts afresh."""
+    env code announcing an answer longer than the page, writing one that is no message, or forging a fast step answer
+    whose info is code or no pickle is stopped with EnvCrashedError (never a parent reading past the page or
+    decoding code), and the next reset starts afresh."""
     env = hostile.make()
     try:
         env.reset(seed=0, options={"mode": "page", "arg": attack})
         worker = _inner(env).worker
-        with pytest.raises(errors.EnvCrashedError, match="32768" if attack == "huge" else "not one"):
+        with pytest.raises(errors.EnvCrashedError, match=said):
             env.step(env.action_space.sample())
         assert "found 1 doorbell(s)" in worker.stderr_tail()
         assert _wait_gone(worker.pid)

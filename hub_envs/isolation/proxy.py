@@ -49,7 +49,15 @@ from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
 from hub_envs.isolation.affinity import pin_here, unpin
 from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
-from hub_envs.isolation.protocol import FAST_HEADER, MAX_MESSAGE_BYTES, dumps, rebuild_error, safe_loads
+from hub_envs.isolation.protocol import (
+    FAST_ANSWER,
+    FAST_HEADER,
+    MAX_MESSAGE_BYTES,
+    InfoDecoder,
+    dumps,
+    rebuild_error,
+    safe_loads,
+)
 
 STDERR_TAIL_LINES = 20
 _WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
@@ -210,6 +218,7 @@ class Worker:
             raise
         self.bell.mail = spin and MAIL  # a single env's short messages travel in the shared page
         self._spin = SpinBudget(spin)
+        self._infos = InfoDecoder()
         self._sent_at = 0.0
         self._poller: select.poll | None = None
         preexec = None
@@ -330,6 +339,23 @@ class Worker:
         return self._spin.seconds() > 0
 
     def receive(self, op: str, timeout: float | None = None) -> Any:
+        return self._decode(op, self._wait(op, timeout))
+
+    def receive_step(self, timeout: float | None = None) -> tuple:
+        """The answer to a single env's fast step: ``(reward, terminated, truncated, info, obs or None)`` (None: the
+        observation is in shared memory), from a :data:`~hub_envs.isolation.protocol.FAST_ANSWER` or a pickle."""
+        data = self._wait("step", timeout)
+        if data[:1] != b"F":
+            return self._decode("step", data)
+        try:
+            _, reward, terminated, truncated = FAST_ANSWER.unpack_from(data)
+            info = self._infos(data[FAST_ANSWER.size :])
+        except Exception as e:
+            raise self._garbled("step", e) from None
+        return reward, terminated, truncated, info, None
+
+    def _wait(self, op: str, timeout: float | None) -> bytes:
+        """The bytes of the next answer, within ``timeout`` of the last send (the watchdog)."""
         if self.dead is not None:
             raise self.dead
         try:
@@ -359,21 +385,27 @@ class Worker:
             raise self._died(op) from None
         if self._spin.active:
             self._spin.observe(time.perf_counter() - self._sent_at)
-        try:
-            status, value = safe_loads(data)
-            if status not in ("ok", "err", "fatal") or (status != "ok" and not isinstance(value, dict)):
-                raise ValueError(f"status {status!r}")
-        except IsolationError as e:
-            self._kill()
+        return data
+
+    def _garbled(self, op: str, e: Exception) -> EnvCrashedError:
+        """Stop the worker for an answer that is not one (or carries a forbidden type): the error to raise."""
+        self._kill()
+        if isinstance(e, IsolationError):
             self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")
-            raise self.dead from None
-        except Exception as e:  # not a message a worker sends: something else wrote it (the env's code)
-            self._kill()
+        else:  # not a message a worker sends: something else wrote it (the env's code)
             self.dead = EnvCrashedError(
                 f"{self.where}: the env's worker process (pid {self.pid}) sent an answer to {op} that is not one "
                 f"({type(e).__name__}: {e}); it was stopped. The env's code wrote to its worker's socket or shared page."
             )
-            raise self.dead from None
+        return self.dead
+
+    def _decode(self, op: str, data: bytes) -> Any:
+        try:
+            status, value = safe_loads(data)
+            if status not in ("ok", "err", "fatal") or (status != "ok" and not isinstance(value, dict)):
+                raise ValueError(f"status {status!r}")
+        except Exception as e:
+            raise self._garbled(op, e) from None
         if status == "ok":
             return value
         if status == "fatal":
@@ -547,7 +579,7 @@ class IsolatedEnv(gym.Env):
             cpu, saved = (SPINNING, None) if worker.spins else pin_here()
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
-                reward, terminated, truncated, info, obs = worker.receive("step", timeout=self._options.call_timeout)
+                reward, terminated, truncated, info, obs = worker.receive_step(self._options.call_timeout)
             finally:
                 unpin(saved)
             return (self._fast_buffers.read_one() if obs is None else obs), reward, terminated, truncated, info

@@ -82,39 +82,64 @@ class _Buffers:
             m = mmap.mmap(fd, nbytes)
             self.maps.append(m)
             self.arrays.append(np.ndarray((n, *box.shape), dtype=box.dtype, buffer=m))
+        # what an observation must be to travel here (checked at every step, so precomputed): the whole
+        # observation one array (``_root``), a dict of arrays (``_flat``) or nested dicts (``_tree``), keys in order
+        self._root = len(leaves) == 1 and leaves[0][0] == ()
+        layout = [(path, arr, arr.dtype, arr.shape[1:]) for (path, _), arr in zip(leaves, self.arrays, strict=True)]
+        self._flat = [(p[0], a, d, s) for p, a, d, s in layout] if all(len(p) == 1 for p, *_ in layout) else None
+        self._keys = tuple(k for k, *_ in self._flat) if self._flat is not None else ()
+        self._tree: dict = {}
+        for path, arr, dtype, shape in layout:
+            node = self._tree
+            for k in path[:-1]:
+                node = node.setdefault(k, {})
+            if path:
+                node[path[-1]] = (arr, dtype, shape)
 
     def write_exact(self, index: int, obs: Any) -> bool:
-        """Write ``obs`` only if reading it back gives exactly it (a dict of exactly these keys, arrays of
-        exactly these dtypes and shapes); False (nothing written) otherwise."""
-        if len(self.leaves) == 1 and self.leaves[0][0] == ():
-            ok = type(obs) is np.ndarray and obs.dtype == self.arrays[0].dtype and obs.shape == self.arrays[0].shape[1:]
-        else:
-            ok = self._same_layout(obs, ())
-        if ok:
-            self.write(index, obs)
-        return ok
-
-    def _same_layout(self, obs: Any, prefix: tuple[str, ...]) -> bool:
-        paths = {p: arr for (p, _), arr in zip(self.leaves, self.arrays, strict=True)}
-        if type(obs) is not dict:
+        """Write ``obs`` only if reading it back gives exactly it (arrays of exactly these dtypes and shapes; dicts
+        of exactly these keys, in this order); False (nothing written) otherwise."""
+        if self._root:
+            arr = self.arrays[0]
+            if type(obs) is not np.ndarray or obs.dtype != arr.dtype or obs.shape != arr.shape[1:]:
+                return False
+            arr[index] = obs
+            return True
+        flat = self._flat
+        if flat is not None:  # the usual case, kept short: it runs at every step of an isolated env
+            if type(obs) is not dict or tuple(obs) != self._keys:
+                return False
+            for key, _, dtype, shape in flat:
+                v = obs[key]
+                if type(v) is not np.ndarray or v.dtype != dtype or v.shape != shape:
+                    return False
+            for key, arr, _, _ in flat:
+                arr[index] = obs[key]
+            return True
+        if not self._same_layout(obs, self._tree):
             return False
-        keys = {p[len(prefix)] for p in paths if p[: len(prefix)] == prefix and len(p) > len(prefix)}
-        if set(obs) != keys:
+        self.write(index, obs)
+        return True
+
+    @classmethod
+    def _same_layout(cls, obs: Any, tree: dict) -> bool:
+        if type(obs) is not dict or tuple(obs) != tuple(tree):
             return False
         for k, v in obs.items():
-            path = (*prefix, k)
-            if path in paths:
-                arr = paths[path]
-                if type(v) is not np.ndarray or v.dtype != arr.dtype or v.shape != arr.shape[1:]:
+            node = tree[k]
+            if type(node) is dict:
+                if not cls._same_layout(v, node):
                     return False
-            elif not self._same_layout(v, path):
+            elif type(v) is not np.ndarray or v.dtype != node[1] or v.shape != node[2]:
                 return False
         return True
 
     def read_one(self, index: int = 0) -> Any:
         """A copy of one env's observation."""
-        if len(self.leaves) == 1 and self.leaves[0][0] == ():
+        if self._root:
             return self.arrays[0][index].copy()
+        if self._flat is not None:
+            return {key: arr[index].copy() for key, arr, _, _ in self._flat}
         out: dict = {}
         for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
             d = out
@@ -141,6 +166,7 @@ class _Buffers:
 
     def close(self) -> None:
         self.arrays.clear()
+        self._flat, self._tree = None, {}  # their views of the maps too
         for m in self.maps:
             try:
                 m.close()

@@ -27,7 +27,7 @@ from functools import partial
 from typing import Any
 
 from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
-from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info
+from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info, fast_answer
 
 STATE_METHODS = ("get_state", "reset_to")
 
@@ -96,13 +96,15 @@ class Server:
         finally:
             sock.close()
         self.fast_buffers = _Buffers(leaves, 1, fds=fds)
-        self.fast_action = (np.dtype(action_dtype), tuple(action_shape))
+        dtype, shape = np.dtype(action_dtype), tuple(action_shape)
+        self.fast_action = (dtype, int(np.prod(shape, dtype=np.int64)), None if len(shape) == 1 else shape)
 
     def fast_step(self, data: bytes):
         import numpy as np
 
-        dtype, shape = self.fast_action
-        action = np.frombuffer(data, dtype=dtype, offset=FAST_HEADER.size).reshape(shape).copy()
+        dtype, count, shape = self.fast_action
+        raw = np.frombuffer(data, dtype, count, FAST_HEADER.size)  # too short: ValueError
+        action = (raw if shape is None else raw.reshape(shape)).copy()
         obs, reward, terminated, truncated, info = self.envs[0].step(action)
         # the observation goes through shared memory only if that keeps it exactly (types, dtypes, shapes)
         shared = self.fast_buffers.write_exact(0, obs)
@@ -212,7 +214,8 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         follower.woken()
         if spin.active:
             spin.observe(clock() - answered)
-        fast = data[:1] in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
+        kind = data[:1]
+        fast = kind in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
         if fast:
             cpu = FAST_HEADER.unpack_from(data)[1]
         msg = ("step",) if fast else pickle.loads(data)
@@ -222,7 +225,7 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
             return
         try:
             if fast:
-                result = server.fast_step(data) if data[:1] == b"s" else server.vec.step_raw(data)
+                result = server.fast_step(data) if kind == b"s" else server.vec.step_raw(data)
             else:
                 result = getattr(server, f"op_{op}")(*args)
             reply = ("ok", result)
@@ -233,7 +236,10 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         if os.getpid() != me:  # a process the env's code forked came back here: it never answers
             os._exit(0)
         try:
-            data = dumps(reply)
+            if kind == b"s" and reply[0] == "ok" and result[4] is None:  # the observation is in shared memory
+                data = fast_answer(*result[:4]) or dumps(reply)
+            else:
+                data = dumps(reply)
         except Exception as e:  # an answer that cannot be pickled: say what it was
             data = dumps(("err", error_info(TypeError(f"the env's {op} returned something that cannot be sent: {e}"))))
         try:
