@@ -36,6 +36,7 @@ from pathlib import Path
 
 from huggingface_hub import CommitOperationAdd, HfApi, hf_hub_download
 
+from benchmarks import PRINT_PEAK_RSS_KIB
 from hub_envs.testing import HubServer, hub_environment
 
 MiB = 1024 * 1024
@@ -139,13 +140,14 @@ def _run(tmp: Path, push_mb: int, size_mb: int) -> dict:
     with HubServer(tmp / "hub-data") as server, hub_environment(server.endpoint, tmp / "home"):
         HfApi().create_repo("bench/big")
         results["server_idle_rss_mb"] = rss_mb(server.process.pid, "VmRSS")
-        script = textwrap.dedent(
-            f"""
-            import resource, sys
+        script = (
+            textwrap.dedent(
+                f"""
             from huggingface_hub import HfApi
             HfApi().upload_folder(folder_path={str(folder)!r}, repo_id="bench/big", commit_message="1 GB")
-            print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
             """
+            )
+            + PRINT_PEAK_RSS_KIB
         )
         start = time.perf_counter()
         out = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, env=os.environ)

@@ -10,7 +10,7 @@ that straightened push's data flow compares them with the figures before the cha
 (main already holds it: no dataset, no checks, no commit) ÷ the first, full push, to a loopback Hub,
 alternating new repos per repeat. Goal <= 0.1.
 
-``push_env_peak_rss_mb_<n>`` / ``push_env_rss_growth``: the peak RSS (``ru_maxrss``) of a ``push_env`` process of
+``push_env_peak_rss_mb_<n>`` / ``push_env_rss_growth``: the peak RSS (``VmHWM``) of a ``push_env`` process of
 hover with ``RSS_EPISODES`` episodes each (one process per push, same loopback Hub), and big ÷ small: push's
 memory is bounded when that stays near 1 while the episodes grow 16x (the floor is the process's imports, torch
 and lerobot among them). Not a goal.
@@ -26,6 +26,8 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+
+from benchmarks import PRINT_PEAK_RSS_KIB
 
 REPO = Path(__file__).resolve().parent.parent
 ENVS = ("pendulum", "hover")
@@ -97,9 +99,9 @@ def _push_rss() -> dict:
         with HubServer(tmp / "hub-data") as server, hub_environment(server.endpoint, tmp / "home"):
             for n in RSS_EPISODES:
                 script = (
-                    "import resource; from hub_envs import push_env; "
+                    "from hub_envs import push_env; "
                     f"push_env({str(REPO / 'envs' / 'hover')!r}, 'bench/hover-rss-{n}', episodes={n}, progress=False); "
-                    "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+                    + PRINT_PEAK_RSS_KIB
                 )
                 done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=os.environ, check=True)
                 out[f"push_env_peak_rss_mb_{n}"] = round(int(done.stdout.split()[-1]) / 1024)

@@ -84,6 +84,11 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
         (LE, 2.0),
         "load_env(isolation='venv') cached + make + reset ÷ python -c 'import numpy, gymnasium'",
     ),
+    "isolated_step_hover_best_turn": (
+        "bench_isolation",
+        None,
+        "  same, from each side's fastest 50-step turn (where the host's other tenants did not reach)",
+    ),
     "isolated_step_hover_sleeping": (
         "bench_isolation",
         None,
