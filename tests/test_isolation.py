@@ -210,13 +210,21 @@ def test_a_hang_is_an_env_timeout_error_and_the_worker_is_killed(hostile):
 
 @pytest.mark.parametrize(
     ("attack", "said"),
-    [("huge", "32768"), ("junk", "not one"), ("forged", "may not hand"), ("forged-junk", "not one")],
+    [
+        ("huge", "32768"),
+        ("junk", "not one"),
+        ("forged", "may not hand"),
+        ("forged-junk", "not one"),
+        ("forged-tuple", "not one"),
+        ("recipe", "builds a bytearray of 100,000,000,000 items"),
+    ],
 )
 def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attack, said):
     """The answers of a single env travel in a page the worker shares with the parent (hub_envs.isolation.doorbell):
-    env code announcing an answer longer than the page, writing one that is no message, or forging a fast step answer
-    whose info is code or no pickle is stopped with EnvCrashedError (never a parent reading past the page or
-    decoding code), and the next reset starts afresh."""
+    env code announcing an answer longer than the page, writing one that is no message, forging a fast step answer
+    whose info is code or no pickle, an answer that is not a step's, or 40 bytes asking the parent to build 100 GB is
+    stopped with EnvCrashedError (never a parent reading past the page, decoding code or allocating what it was
+    told), and the next reset starts afresh."""
     env = hostile.make()
     try:
         env.reset(seed=0, options={"mode": "page", "arg": attack})
@@ -229,6 +237,92 @@ def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attac
         assert env.step(env.action_space.sample())[0]["agent_pos"].shape == obs["agent_pos"].shape
     finally:
         env.close()
+
+
+def test_an_isolated_step_returns_none_when_the_env_returns_none(hostile):
+    """The observation travels in shared memory when it can; an env whose step returns None gets None back (not the
+    last observation left in shared memory)."""
+    env = hostile.make()
+    try:
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        env.reset(seed=0, options={"mode": "none-obs"})
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert obs is None and (reward, terminated, truncated, info) == (0.0, False, False, {"is_success": False})
+        obs, *_ = env.step(env.action_space.sample())
+        assert obs["agent_pos"].shape == (2,) and obs["agent_pos"].dtype == np.float32
+    finally:
+        env.close()
+
+
+def test_shared_observation_buffers_give_back_exactly_what_was_written():
+    """What travels through shared memory comes back as it went: a 0-d array stays an array (not a numpy scalar),
+    dict keys keep their order; anything else (another order, dtype or shape) is refused, to travel pickled."""
+    from gymnasium import spaces
+
+    from hub_envs.isolation.vector import _box_leaves, _Buffers
+
+    scalar = _Buffers(_box_leaves(spaces.Box(0.0, 1.0, (), np.float32)), 1)
+    nested_space = spaces.Dict(
+        {"a": spaces.Box(0, 1, (2,), np.float32), "b": spaces.Dict({"c": spaces.Box(0, 9, (3,), np.int64)})}
+    )
+    nested = _Buffers(_box_leaves(nested_space), 1)
+    try:
+        assert scalar.write_exact(0, np.array(0.5, np.float32))
+        back = scalar.read_one()
+        assert type(back) is np.ndarray and back.shape == () and back == np.float32(0.5)
+        assert not scalar.write_exact(0, np.float32(0.5)) and not scalar.write_exact(0, np.array(0.5))
+        obs = {"a": np.array([0.25, 0.5], np.float32), "b": {"c": np.array([1, 2, 3])}}
+        assert nested.write_exact(0, obs)
+        back = nested.read_one()
+        assert list(back) == ["a", "b"] and np.array_equal(back["b"]["c"], obs["b"]["c"])
+        assert not nested.write_exact(0, {"b": obs["b"], "a": obs["a"]})  # another key order: pickled instead
+        assert not nested.write_exact(0, {"a": obs["a"], "b": {"c": obs["b"]["c"].astype(np.int32)}})
+    finally:
+        scalar.close()
+        nested.close()
+
+
+def test_the_allow_list_unpickler_refuses_answers_that_build_more_than_they_weigh():
+    """A worker's answer is decoded after the watchdog: a few bytes asking for a huge allocation or a long loop
+    (bytearray(10**11), set(range(10**9)), the same million-item set built again and again) are refused at once,
+    while honest values using those types, as values too, come back exactly."""
+    import collections
+    import pickle
+
+    from hub_envs.isolation.protocol import dumps, safe_loads
+
+    class Recipe:
+        def __init__(self, build, args):
+            self.build, self.args = build, args
+
+        def __reduce__(self):
+            return (self.build, self.args)
+
+    million = range(10**6)
+    for recipe in (
+        Recipe(bytearray, (10**11,)),
+        Recipe(bytes, (10**11,)),
+        Recipe(set, (range(10**9),)),
+        Recipe(list, (range(10**30),)),
+        [Recipe(frozenset, (million,)) for _ in range(20)],
+        Recipe(collections.deque, (range(10**9),)),
+    ):
+        data = dumps(("ok", recipe))
+        assert len(data) < 1000
+        with pytest.raises(errors.IsolationError, match="builds a .* from a"):
+            safe_loads(data)
+    honest = {
+        "q": collections.deque([1, 2], maxlen=5),
+        "d": collections.defaultdict(list, a=[1]),
+        "types": [list, (tuple, set)],
+        frozenset: {bytes, bytearray},
+        "r": range(10**12),
+        "b": bytearray(b"xy"),
+    }
+    back = safe_loads(pickle.dumps(honest, protocol=5))
+    assert back == honest and back["d"].default_factory is list and back["types"][0] is list
+    assert back["q"].maxlen == 5 and type(back["b"]) is bytearray
 
 
 def test_a_worker_that_wakes_the_parent_without_answering_still_meets_the_watchdog(hostile):

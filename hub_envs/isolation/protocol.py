@@ -4,11 +4,14 @@
   the step of a Box-action env (the hot path), :data:`FAST_HEADER` (``b"s"``: a single env, ``b"v"``: a
   vector slice; the CPU the parent waits on, see :mod:`~hub_envs.isolation.affinity`) and the raw action bytes.
 * Worker -> parent: ``("ok", value)``, ``("err", ErrorInfo-dict)`` (the env raised: the worker lives on) or
-  ``("fatal", ErrorInfo-dict)`` (the worker cannot go on, e.g. MemoryError: it exits after sending).
+  ``("fatal", ErrorInfo-dict)`` (the worker cannot go on, e.g. MemoryError: it exits after sending); the answer to
+  a single env's fast step whose observation went through shared memory may instead be a :data:`FAST_ANSWER`.
 
 What the worker sends is read with :class:`SafeUnpickler`, which builds only plain data, numpy arrays and
 scalars and gymnasium spaces: unpickling anything else would let the env's code (which may be sandboxed,
-and is never trusted more than it was in-process) run code in the parent. Exceptions therefore never
+and is never trusted more than it was in-process) run code in the parent. Nor may a few bytes make the parent
+build gigabytes (``bytearray(10**11)``, ``set(range(10**10))``): decoding happens after the watchdog, so the types
+that can be called to build something big are charged against a budget of the answer's size (:class:`_Guarded`). Exceptions therefore never
 travel as objects: the worker sends the type's name, its message and the formatted traceback, and
 :func:`rebuild_error` raises a :class:`~hub_envs.errors.RemoteEnvError` (for builtin exception types, a
 class that is both that and the original type, so ``except ValueError`` keeps working).
@@ -27,6 +30,7 @@ Example:
 from __future__ import annotations
 
 import builtins
+import collections
 import io
 import pickle
 import struct
@@ -45,6 +49,7 @@ FAST_HEADER = struct.Struct("<ci")
 #: truncated, then the info dict pickled (a parent often gets the same info bytes step after step: see
 #: :class:`InfoDecoder`)
 FAST_ANSWER = struct.Struct("<cd??")
+#: the info values :class:`InfoDecoder` may hand out again (immutable: a fresh dict of them is a fresh unpickling)
 _PLAIN = (bool, int, float, str, type(None))
 
 _NUMPY_NAMES = {
@@ -111,16 +116,96 @@ def _allowed(module: str, name: str) -> bool:
     return False
 
 
+#: allowed types whose *call* can build far more than the pickle that asks for it (``bytearray(10**11)``: 30 bytes
+#: of pickle, 100 GB zeroed; ``set(range(10**10))``): the unpickler hands out a :class:`_Guarded` stand-in for them
+_AMPLIFIERS = {("builtins", n) for n in ("set", "frozenset", "list", "tuple", "bytes", "bytearray")} | {("collections", "deque")}
+#: what the guarded calls of one answer may build in all (items or bytes): this many per byte of the answer, plus
+#: :data:`_BUDGET_FLOOR` (an honest protocol-5 pickle calls them only for a ``deque``, one item per item it holds)
+_BUDGET_PER_BYTE = 8
+_BUDGET_FLOOR = 1 << 20
+
+
+class _Guarded:
+    """Stands in for an amplifying type during one load: a call is charged to the load's budget first (its argument's
+    length, or the size asked of ``bytes``/``bytearray``), and an argument whose length is not known (an iterator) is
+    refused. Where the pickle used the type as a value (``defaultdict(list)``), :func:`_unguard` puts it back."""
+
+    __slots__ = ("real", "owner")
+
+    def __init__(self, real: type, owner: SafeUnpickler):
+        self.real, self.owner = real, owner
+
+    def __call__(self, *args, **kwargs):
+        cost = 0
+        if args:
+            first = args[0]
+            if isinstance(first, int) and self.real in (bytes, bytearray):
+                cost = first
+            else:
+                try:
+                    cost = len(first)
+                except (TypeError, OverflowError):
+                    cost = -1
+        if cost < 0 or cost > self.owner.budget:
+            raise IsolationError(
+                f"the env worker sent an answer that builds a {self.real.__name__} of "
+                f"{'unknown size' if cost < 0 else f'{cost:,} items'} from a {self.owner.size:,}-byte message (more than "
+                f"an answer of that size may build). Return the data itself from the env, not a recipe for it."
+            )
+        self.owner.budget -= cost
+        return self.real(*args, **kwargs)
+
+
+def _unguard(obj: Any, seen: dict[int, Any]) -> Any:
+    """``obj`` with every :class:`_Guarded` in it (containers walked, cycles kept) replaced by its real type."""
+    if type(obj) is _Guarded:
+        return obj.real
+    key = id(obj)
+    if key in seen:
+        return seen[key]
+    kind = type(obj)
+    if kind in (list, collections.deque):
+        seen[key] = obj
+        for i, item in enumerate(obj):
+            obj[i] = _unguard(item, seen)
+    elif kind in (dict, collections.OrderedDict, collections.defaultdict):
+        seen[key] = obj
+        if kind is collections.defaultdict:
+            obj.default_factory = _unguard(obj.default_factory, seen)
+        items = [(_unguard(k, seen), _unguard(v, seen)) for k, v in obj.items()]
+        obj.clear()
+        obj.update(items)
+    elif kind in (tuple, set, frozenset):
+        seen[key] = obj
+        seen[key] = obj = kind(_unguard(item, seen) for item in obj)
+    return obj
+
+
 class SafeUnpickler(pickle.Unpickler):
-    """An unpickler that builds only data (see the module docstring); anything else is an IsolationError."""
+    """An unpickler that builds only data (see the module docstring); anything else is an IsolationError, and so is
+    an answer that asks an allowed type to build much more than the answer's own size (:class:`_Guarded`)."""
+
+    def __init__(self, data: bytes):
+        super().__init__(io.BytesIO(data))
+        self.size = len(data)
+        self.budget = _BUDGET_PER_BYTE * self.size + _BUDGET_FLOOR
+        self.guarded = False
 
     def find_class(self, module: str, name: str):
         if _allowed(module, name):
-            return super().find_class(module, name)
+            found = super().find_class(module, name)
+            if (module, name) in _AMPLIFIERS:
+                self.guarded = True
+                return _Guarded(found, self)
+            return found
         raise IsolationError(
             f"the env worker sent an object of type {module}.{name}, which an isolated env may not hand to the parent "
             f"(only numbers, strings, lists/dicts, numpy arrays and gymnasium spaces). Return plain data from the env."
         )
+
+    def load(self) -> Any:
+        obj = super().load()
+        return _unguard(obj, {}) if self.guarded else obj
 
 
 def dumps(obj: Any) -> bytes:
@@ -128,7 +213,19 @@ def dumps(obj: Any) -> bytes:
 
 
 def safe_loads(data: bytes) -> Any:
-    return SafeUnpickler(io.BytesIO(data)).load()
+    """Unpickle what a worker sent with :class:`SafeUnpickler`.
+
+    >>> from collections import defaultdict, deque
+    >>> safe_loads(dumps({"q": deque([1, 2], maxlen=3), "d": defaultdict(list, a=[1])}))
+    {'q': deque([1, 2], maxlen=3), 'd': defaultdict(<class 'list'>, {'a': [1]})}
+    >>> class Recipe:
+    ...     def __reduce__(self):
+    ...         return (bytearray, (10**11,))
+    >>> safe_loads(dumps(Recipe()))  # doctest: +IGNORE_EXCEPTION_DETAIL
+    Traceback (most recent call last):
+    hub_envs.errors.IsolationError: ...builds a bytearray of 100,000,000,000 items from a 36-byte message...
+    """
+    return SafeUnpickler(data).load()
 
 
 def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> bytes | None:

@@ -342,17 +342,21 @@ class Worker:
         return self._decode(op, self._wait(op, timeout))
 
     def receive_step(self, timeout: float | None = None) -> tuple:
-        """The answer to a single env's fast step: ``(reward, terminated, truncated, info, obs or None)`` (None: the
-        observation is in shared memory), from a :data:`~hub_envs.isolation.protocol.FAST_ANSWER` or a pickle."""
+        """The answer to a single env's fast step: ``(reward, terminated, truncated, info, obs, shared)`` (``shared``:
+        the observation is in shared memory, ``obs`` None), from a :data:`~hub_envs.isolation.protocol.FAST_ANSWER`
+        or a pickle."""
         data = self._wait("step", timeout)
         if data[:1] != b"F":
-            return self._decode("step", data)
+            answer = self._decode("step", data)
+            if type(answer) is not tuple or len(answer) != 6 or type(answer[5]) is not bool:
+                raise self._garbled("step", ValueError(f"a step answer of type {type(answer).__name__}"))
+            return answer
         try:
             _, reward, terminated, truncated = FAST_ANSWER.unpack_from(data)
             info = self._infos(data[FAST_ANSWER.size :])
         except Exception as e:
             raise self._garbled("step", e) from None
-        return reward, terminated, truncated, info, None
+        return reward, terminated, truncated, info, None, True
 
     def _wait(self, op: str, timeout: float | None) -> bytes:
         """The bytes of the next answer, within ``timeout`` of the last send (the watchdog)."""
@@ -579,10 +583,10 @@ class IsolatedEnv(gym.Env):
             cpu, saved = (SPINNING, None) if worker.spins else pin_here()
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
-                reward, terminated, truncated, info, obs = worker.receive_step(self._options.call_timeout)
+                reward, terminated, truncated, info, obs, shared = worker.receive_step(self._options.call_timeout)
             finally:
                 unpin(saved)
-            return (self._fast_buffers.read_one() if obs is None else obs), reward, terminated, truncated, info
+            return (self._fast_buffers.read_one() if shared else obs), reward, terminated, truncated, info
         return self._call("step", action)
 
     def render(self):

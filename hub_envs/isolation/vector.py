@@ -136,16 +136,17 @@ class _Buffers:
 
     def read_one(self, index: int = 0) -> Any:
         """A copy of one env's observation."""
+        # arr[index, ...]: an array even for a 0-d leaf (arr[index] would be a numpy scalar)
         if self._root:
-            return self.arrays[0][index].copy()
+            return self.arrays[0][index, ...].copy()
         if self._flat is not None:
-            return {key: arr[index].copy() for key, arr, _, _ in self._flat}
+            return {key: arr[index, ...].copy() for key, arr, _, _ in self._flat}
         out: dict = {}
         for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
             d = out
             for k in path[:-1]:
                 d = d.setdefault(k, {})
-            d[path[-1]] = arr[index].copy()
+            d[path[-1]] = arr[index, ...].copy()
         return out
 
     def write(self, index: int, obs: Any) -> None:
@@ -154,7 +155,7 @@ class _Buffers:
 
     def read(self) -> Any:
         """A copy of the batch, shaped like ``batch_space(single_observation_space)`` (dicts of arrays)."""
-        if len(self.leaves) == 1 and self.leaves[0][0] == ():
+        if self._root:
             return self.arrays[0].copy()
         out: dict = {}
         for (path, _), arr in zip(self.leaves, self.arrays, strict=True):

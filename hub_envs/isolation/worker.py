@@ -106,9 +106,9 @@ class Server:
         raw = np.frombuffer(data, dtype, count, FAST_HEADER.size)  # too short: ValueError
         action = (raw if shape is None else raw.reshape(shape)).copy()
         obs, reward, terminated, truncated, info = self.envs[0].step(action)
-        # the observation goes through shared memory only if that keeps it exactly (types, dtypes, shapes)
+        # the observation goes through shared memory only if that keeps it exactly (types, dtypes, shapes, key order)
         shared = self.fast_buffers.write_exact(0, obs)
-        return reward, terminated, truncated, info, None if shared else obs
+        return reward, terminated, truncated, info, None if shared else obs, shared
 
     def op_render(self, idx: int):
         return self.envs[idx].render()
@@ -236,7 +236,7 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         if os.getpid() != me:  # a process the env's code forked came back here: it never answers
             os._exit(0)
         try:
-            if kind == b"s" and reply[0] == "ok" and result[4] is None:  # the observation is in shared memory
+            if kind == b"s" and reply[0] == "ok" and result[5]:  # the observation is in shared memory
                 data = fast_answer(*result[:4]) or dumps(reply)
             else:
                 data = dumps(reply)
