@@ -285,8 +285,9 @@ def test_shared_observation_buffers_give_back_exactly_what_was_written():
 
 def test_the_allow_list_unpickler_refuses_answers_that_build_more_than_they_weigh():
     """A worker's answer is decoded after the watchdog: a few bytes asking for a huge allocation or a long loop
-    (bytearray(10**11), set(range(10**9)), the same million-item set built again and again) are refused at once,
-    while honest values using those types, as values too, come back exactly."""
+    (bytearray(10**11), set(range(10**9)), the same million-item set built again and again, a gymnasium Box or a
+    numpy array called with a huge shape) are refused at once, while honest values using those types (spaces, random
+    generators, strided arrays, the types themselves as values) come back exactly."""
     import collections
     import pickle
 
@@ -299,7 +300,16 @@ def test_the_allow_list_unpickler_refuses_answers_that_build_more_than_they_weig
         def __reduce__(self):
             return (self.build, self.args)
 
+    import gymnasium as gym
+
     million = range(10**6)
+    for recipe, said in (
+        (Recipe(gym.spaces.Box, (0.0, 1.0, (10**5, 10**5))), "call gymnasium.spaces.box.Box"),  # 80 GB filled
+        (Recipe(np.ndarray, ((10**9,), "O")), "call numpy.ndarray"),  # 8 GB of None
+        (Recipe(np.random.SeedSequence, (0, (), 10**9)), "call numpy.random.bit_generator.SeedSequence"),
+    ):
+        with pytest.raises(errors.IsolationError, match=said):
+            safe_loads(dumps(("ok", recipe)))
     for recipe in (
         Recipe(bytearray, (10**11,)),
         Recipe(bytes, (10**11,)),
@@ -323,6 +333,11 @@ def test_the_allow_list_unpickler_refuses_answers_that_build_more_than_they_weig
     back = safe_loads(pickle.dumps(honest, protocol=5))
     assert back == honest and back["d"].default_factory is list and back["types"][0] is list
     assert back["q"].maxlen == 5 and type(back["b"]) is bytearray
+    space = gym.spaces.Dict({"a": gym.spaces.Box(0.0, 1.0, (2,)), "d": gym.spaces.Discrete(3, start=1)})
+    rng = np.random.default_rng(7)
+    back = safe_loads(dumps({"space": space, "rng": rng, "odd": np.arange(6.0)[::2], "type": np.float32}))
+    assert back["space"] == space and back["rng"].random() == np.random.default_rng(7).random()
+    assert np.array_equal(back["odd"], [0.0, 2.0, 4.0]) and back["type"] is np.float32
 
 
 def test_a_worker_that_wakes_the_parent_without_answering_still_meets_the_watchdog(hostile):

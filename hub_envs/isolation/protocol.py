@@ -132,7 +132,7 @@ class _Guarded:
 
     __slots__ = ("real", "owner")
 
-    def __init__(self, real: type, owner: SafeUnpickler):
+    def __init__(self, real: type, owner: _AllowList):
         self.real, self.owner = real, owner
 
     def __call__(self, *args, **kwargs):
@@ -181,9 +181,24 @@ def _unguard(obj: Any, seen: dict[int, Any]) -> Any:
     return obj
 
 
-class SafeUnpickler(pickle.Unpickler):
-    """An unpickler that builds only data (see the module docstring); anything else is an IsolationError, and so is
-    an answer that asks an allowed type to build much more than the answer's own size (:class:`_Guarded`)."""
+def _callable_type(found: type) -> bool:
+    """Whether a pickle may call this (allowed) type to build a value: cheap for any arguments (numpy's ``dtype`` is
+    how dtypes are pickled), or charged (:class:`_Guarded`). The others (gymnasium spaces, ``numpy.ndarray``, numpy's
+    scalar and random types, ...) may only be values, or be built by ``__new__`` and their state as pickle builds
+    objects: calling one runs its ``__init__`` on the sender's arguments (``Box(0, 1, (10**5, 10**5))`` fills 80 GB)."""
+    if found in (range, slice, complex, int, float, bool, str, collections.OrderedDict, collections.defaultdict):
+        return True
+    return found.__module__.startswith("numpy") and found.__name__ == "dtype"
+
+
+class _Rescan(Exception):
+    """The fast (C) unpickler met a type it cannot keep from being called: decode again with :class:`_CarefulUnpickler`."""
+
+
+class _AllowList:
+    """What both unpicklers share: the allow-list, the guarded types, the budget, the types put back after loading."""
+
+    careful = False
 
     def __init__(self, data: bytes):
         super().__init__(io.BytesIO(data))
@@ -197,6 +212,8 @@ class SafeUnpickler(pickle.Unpickler):
             if (module, name) in _AMPLIFIERS:
                 self.guarded = True
                 return _Guarded(found, self)
+            if isinstance(found, type) and not self.careful and not _callable_type(found):
+                raise _Rescan
             return found
         raise IsolationError(
             f"the env worker sent an object of type {module}.{name}, which an isolated env may not hand to the parent "
@@ -206,6 +223,33 @@ class SafeUnpickler(pickle.Unpickler):
     def load(self) -> Any:
         obj = super().load()
         return _unguard(obj, {}) if self.guarded else obj
+
+
+class SafeUnpickler(_AllowList, pickle.Unpickler):
+    """The allow-list unpickler (see the module docstring): builds only data; anything else is an IsolationError, and
+    so is an answer that asks an allowed type to build much more than the answer's own size (:class:`_Guarded`).
+    The C unpickler, for the usual answers; one holding a type that must not be called (a gymnasium space, a random
+    generator's state, ...) raises :class:`_Rescan` for :class:`_CarefulUnpickler`."""
+
+
+class _CarefulUnpickler(_AllowList, pickle._Unpickler):
+    """The pure-Python unpickler with the same allow-list, whose ``REDUCE`` refuses to call a type that
+    :func:`_callable_type` does not allow (slower: answers that hold such types are rare, e.g. an env's spaces)."""
+
+    careful = True
+    dispatch = dict(pickle._Unpickler.dispatch)
+
+    def load_reduce(self) -> None:
+        args = self.stack.pop()
+        func = self.stack[-1]
+        if isinstance(func, type) and not _callable_type(func):
+            raise IsolationError(
+                f"the env worker sent an answer that has the parent call {func.__module__}.{func.__qualname__}(...), "
+                f"which an isolated env may send as a value but not have the parent build. Return plain data from the env."
+            )
+        self.stack[-1] = func(*args)
+
+    dispatch[pickle.REDUCE[0]] = load_reduce
 
 
 def dumps(obj: Any) -> bytes:
@@ -224,8 +268,14 @@ def safe_loads(data: bytes) -> Any:
     >>> safe_loads(dumps(Recipe()))  # doctest: +IGNORE_EXCEPTION_DETAIL
     Traceback (most recent call last):
     hub_envs.errors.IsolationError: ...builds a bytearray of 100,000,000,000 items from a 36-byte message...
+    >>> import gymnasium as gym
+    >>> safe_loads(dumps(gym.spaces.Box(0.0, 1.0, (2,))))  # a type that must not be called: the careful decoder
+    Box(0.0, 1.0, (2,), float32)
     """
-    return SafeUnpickler(data).load()
+    try:
+        return SafeUnpickler(data).load()
+    except _Rescan:
+        return _CarefulUnpickler(data).load()
 
 
 def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> bytes | None:
