@@ -340,6 +340,69 @@ def test_the_allow_list_unpickler_refuses_answers_that_build_more_than_they_weig
     assert np.array_equal(back["odd"], [0.0, 2.0, 4.0]) and back["type"] is np.float32
 
 
+def test_the_allow_list_unpickler_refuses_what_numpy_and_pickle_would_build_from_forged_answers():
+    """Hand-made pickles a hostile worker could send (found by a red-team pass): importing a module off the list (which
+    ran numpy.f2py's command line: SystemExit), creating an object from arguments (ndarray((2**27,), "O"): 1 GB), numpy
+    asked for an array or a scalar bigger than the data sent, a structured dtype whose state claims object fields its
+    flags deny (object pointers read from raw bytes: a segfault) -- each an IsolationError, decided before any of it
+    is built."""
+    import pickle
+    import struct
+
+    from hub_envs.isolation.protocol import dumps, safe_loads
+
+    def text(s):
+        b = s.encode()
+        return pickle.SHORT_BINUNICODE + bytes([len(b)]) + b
+
+    def glob(module, name):
+        return text(module) + text(name) + pickle.STACK_GLOBAL
+
+    def tup(*items):
+        return pickle.MARK + b"".join(items) + pickle.TUPLE
+
+    def num(n):
+        return pickle.BININT + struct.pack("<i", n)
+
+    def call(func, *args):
+        return func + tup(*args) + pickle.REDUCE
+
+    def whole(body):
+        return pickle.PROTO + b"\x05" + body + pickle.STOP
+
+    def dtype(spec):
+        return call(glob("numpy", "dtype"), text(spec), pickle.NEWFALSE, pickle.NEWTRUE)
+
+    fields = pickle.EMPTY_DICT + pickle.MARK
+    for name, offset in (("a", 0), ("b", 8)):
+        fields += text(name) + tup(dtype("O"), num(offset))
+    forged = dtype("V16") + tup(num(3), text("|"), pickle.NONE, tup(text("a"), text("b")), fields + pickle.SETITEMS)
+    forged = forged[:-1] + num(16) + num(1) + num(0) + pickle.TUPLE + pickle.BUILD  # the state, with flags 0
+    frombuffer = glob("numpy._core.numeric", "_frombuffer")
+    pointers = call(frombuffer, pickle.SHORT_BINBYTES + bytes([16]) + b"A" * 16, forged, tup(num(1)), text("C"))
+
+    class Recipe:
+        def __init__(self, build, args):
+            self.build, self.args = build, args
+
+        def __reduce__(self):
+            return (self.build, self.args)
+
+    from numpy._core.multiarray import _reconstruct, scalar
+
+    for data, said in (
+        (whole(glob("numpy.f2py.__main__", "dtype")), "numpy.f2py.__main__.dtype"),
+        (whole(glob("numpy", "ndarray") + tup(tup(num(2**27)), text("O")) + pickle.NEWOBJ), "from arguments"),
+        (dumps(Recipe(_reconstruct, (np.ndarray, (10**9, 2), "u1"))), "allocate an array of shape"),
+        (dumps(Recipe(scalar, (np.dtype(("V", 10**9)),))), "without those bytes"),
+        (whole(pointers), "contradicts its fields"),
+    ):
+        with pytest.raises(errors.IsolationError, match=said):
+            safe_loads(data)
+    honest = np.zeros(2, dtype=[("x", "<f4"), ("y", "<i8", (2,))])
+    assert safe_loads(dumps(honest)).dtype == honest.dtype
+
+
 def test_a_worker_that_wakes_the_parent_without_answering_still_meets_the_watchdog(hostile):
     """Env code that writes the parent's wake-up socket as fast as it can (so that its sleep keeps ending) and never
     answers is stopped by step_timeout like any hang."""

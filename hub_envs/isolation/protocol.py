@@ -34,6 +34,7 @@ import collections
 import io
 import pickle
 import struct
+import sys
 from typing import Any
 
 from hub_envs.errors import IsolationError, RemoteEnvError
@@ -81,14 +82,34 @@ _BUILTINS = {
 }
 
 
+#: the numpy modules a worker's answer may name (what numpy's own pickles use); no other module is ever imported
+_NUMPY_MODULES = {
+    "numpy",
+    "numpy.dtypes",
+    "numpy._core.multiarray",
+    "numpy.core.multiarray",
+    "numpy._core.numeric",
+    "numpy.core.numeric",
+    "numpy.random",
+    "numpy.random._pickle",
+    "numpy.random.bit_generator",
+    "numpy.random._pcg64",
+    "numpy.random._mt19937",
+    "numpy.random._philox",
+    "numpy.random._sfc64",
+    "numpy.random._generator",
+    "numpy.random.mtrand",
+}
+
+
 def _allowed(module: str, name: str) -> bool:
+    if "." in name:
+        return False
     if module == "builtins":
         return name in _BUILTINS
     if module == "collections":
         return name in ("OrderedDict", "defaultdict", "deque")
-    if module == "copyreg":
-        return name == "_reconstructor"
-    if module == "numpy" or module.startswith("numpy."):
+    if module in _NUMPY_MODULES:
         if name in _NUMPY_NAMES or name.endswith("DType"):
             return True
         if module == "numpy":  # scalar types (numpy.float32, numpy.bool, ...)
@@ -96,7 +117,7 @@ def _allowed(module: str, name: str) -> bool:
 
             obj = getattr(np, name, None)
             return isinstance(obj, type) and issubclass(obj, np.generic)
-        if module.startswith("numpy.random."):  # bit generators (PCG64, MT19937, ...) and their seed sequences
+        if module.startswith("numpy.random"):  # bit generators (PCG64, MT19937, ...) and their seed sequences
             return name.startswith("__pyx_unpickle_SeedSequence") or name in (
                 "SeedSequence",
                 "PCG64",
@@ -108,12 +129,91 @@ def _allowed(module: str, name: str) -> bool:
                 "RandomState",
             )
         return False
-    if module.startswith("gymnasium.spaces"):
+    if module.startswith("gymnasium.spaces") and module in sys.modules:  # loaded with gymnasium; never imported here
         import gymnasium.spaces as spaces
 
         obj = getattr(spaces, name, None)
         return isinstance(obj, type) and issubclass(obj, spaces.Space)
     return False
+
+
+def _refuse(what: str) -> IsolationError:
+    return IsolationError(
+        f"the env worker sent an answer that {what}, which an isolated env may not have the parent do. Return plain "
+        f"data from the env."
+    )
+
+
+def _checked_dtype(dtype: Any) -> Any:
+    """``dtype`` if it is what numpy itself would build from its fields (a dtype's pickled state can claim fields
+    its flags deny: object pointers read from raw bytes, offsets past the item), else IsolationError."""
+    import numpy as np
+
+    if not isinstance(dtype, np.dtype):
+        return dtype
+    if dtype.fields is not None:
+        try:
+            names = list(dtype.names)
+            rebuilt = np.dtype(
+                {
+                    "names": names,
+                    "formats": [_checked_dtype(dtype.fields[n][0]) for n in names],
+                    "offsets": [dtype.fields[n][1] for n in names],
+                    "itemsize": dtype.itemsize,
+                }
+            )
+        except (TypeError, ValueError) as e:
+            raise _refuse(f"holds a malformed structured dtype ({e})") from None
+        if rebuilt != dtype or rebuilt.hasobject != dtype.hasobject or rebuilt.flags != dtype.flags:
+            raise _refuse("holds a structured dtype whose state contradicts its fields")
+    elif dtype.subdtype is not None:
+        _checked_dtype(dtype.subdtype[0])
+    return dtype
+
+
+def _numpy_guard(name: str, real: Any) -> Any:
+    """numpy's pickling functions, checked: each may build only what numpy's own pickles ask of it."""
+    import numpy as np
+
+    if name == "_reconstruct":  # numpy pickles (ndarray, (0,), b"b"): an empty array its state then fills
+
+        def reconstruct(subtype, shape, dtype):
+            if subtype is not np.ndarray or tuple(shape) != (0,):
+                raise _refuse(f"asks numpy to allocate an array of shape {shape!r} before its data")
+            return real(subtype, shape, _checked_dtype(dtype))
+
+        return reconstruct
+    if name == "scalar":  # (dtype, its bytes)
+
+        def scalar(dtype, *obj):
+            dtype = _checked_dtype(dtype)
+            if not obj or (not dtype.hasobject and (type(obj[0]) is not bytes or len(obj[0]) != dtype.itemsize)):
+                raise _refuse(f"asks numpy for a scalar of {dtype.itemsize} bytes without those bytes")
+            return real(dtype, *obj)
+
+        return scalar
+    if name == "_frombuffer":  # (bytes, dtype, shape, order): an array over the bytes sent
+
+        def frombuffer(buf, dtype, *rest):
+            dtype = _checked_dtype(dtype)
+            if dtype.hasobject:
+                raise _refuse("asks numpy to read object pointers from raw bytes")
+            return real(buf, dtype, *rest)
+
+        return frombuffer
+    if name in ("__generator_ctor", "__bit_generator_ctor", "__randomstate_ctor"):  # (a bit generator or its name)
+
+        def ctor(*args):
+            for a in args:
+                ok = isinstance(a, (str, np.random.BitGenerator)) or (
+                    isinstance(a, type) and issubclass(a, np.random.BitGenerator)
+                )
+                if not ok:
+                    raise _refuse(f"calls numpy's {name} with a {type(a).__name__}")
+            return real(*args)
+
+        return ctor
+    return real
 
 
 #: allowed types whose *call* can build far more than the pickle that asks for it (``bytearray(10**11)``: 30 bytes
@@ -143,8 +243,14 @@ class _Guarded:
                 cost = first
             else:
                 try:
-                    cost = len(first)
-                except (TypeError, OverflowError):
+                    # bytes(array) copies the array's bytes, whatever its len(); the others build len() items
+                    cost = memoryview(first).nbytes if self.real in (bytes, bytearray) else len(first)
+                except TypeError:
+                    try:
+                        cost = len(first)
+                    except (TypeError, OverflowError):
+                        cost = -1
+                except OverflowError:
                     cost = -1
         if cost < 0 or cost > self.owner.budget:
             raise IsolationError(
@@ -209,6 +315,8 @@ class _AllowList:
     def find_class(self, module: str, name: str):
         if _allowed(module, name):
             found = super().find_class(module, name)
+            if module in _NUMPY_MODULES and name in _NUMPY_NAMES:
+                found = _numpy_guard(name, found)
             if (module, name) in _AMPLIFIERS:
                 self.guarded = True
                 return _Guarded(found, self)
@@ -251,6 +359,31 @@ class _CarefulUnpickler(_AllowList, pickle._Unpickler):
 
     dispatch[pickle.REDUCE[0]] = load_reduce
 
+    def load_newobj(self) -> None:
+        args = self.stack.pop()
+        cls = self.stack.pop()
+        if args:  # honest pickles (spaces) create the object empty and then set its state
+            raise _refuse(f"creates a {getattr(cls, '__qualname__', cls)} from arguments")
+        self.append(cls.__new__(cls))
+
+    dispatch[pickle.NEWOBJ[0]] = load_newobj
+
+    def load_newobj_ex(self) -> None:
+        kwargs = self.stack.pop()
+        args = self.stack.pop()
+        cls = self.stack.pop()
+        if args or kwargs:
+            raise _refuse(f"creates a {getattr(cls, '__qualname__', cls)} from arguments")
+        self.append(cls.__new__(cls))
+
+    dispatch[pickle.NEWOBJ_EX[0]] = load_newobj_ex
+
+    def _refused_opcode(self) -> None:  # INST, OBJ: protocol 0/1 ways to call a class; protocol 5 never uses them
+        raise _refuse("calls a class the protocol-0 way (INST/OBJ)")
+
+    dispatch[pickle.INST[0]] = _refused_opcode
+    dispatch[pickle.OBJ[0]] = _refused_opcode
+
 
 def dumps(obj: Any) -> bytes:
     return pickle.dumps(obj, protocol=PROTOCOL)
@@ -273,9 +406,12 @@ def safe_loads(data: bytes) -> Any:
     Box(0.0, 1.0, (2,), float32)
     """
     try:
-        return SafeUnpickler(data).load()
-    except _Rescan:
-        return _CarefulUnpickler(data).load()
+        try:
+            return SafeUnpickler(data).load()
+        except _Rescan:
+            return _CarefulUnpickler(data).load()
+    except SystemExit as e:  # nothing decoding plain data raises it: never let an answer end the parent
+        raise _refuse(f"raised SystemExit({e}) while it was decoded") from None
 
 
 def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> bytes | None:
