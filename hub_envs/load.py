@@ -501,25 +501,35 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
 
 
 def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, cache_dir) -> None:
-    """``manifest.verify_files`` (lazy) of a snapshot; for a fresh download, files found *missing* are fetched once
-    more before judging: huggingface_hub re-links a snapshot file (remove, then symlink) when another process
-    sharing the cache downloads it at the same time, so a file can be absent for an instant. Only files this
-    download fetched are retried: a file the manifest lists and the Hub does not hold is the repo's fault
-    (IntegrityError, not a 404 from a second request). Tampered files are never retried."""
+    """``manifest.verify_files`` (lazy) of a snapshot; files found *missing* are fetched once more before judging:
+    huggingface_hub re-links a snapshot file (remove, then symlink) when another process sharing the cache downloads
+    it at the same time, so a file can be absent for an instant, and a snapshot found in the cache may be one that
+    other processes are still filling (its manifest came first). For a fresh download only files it fetched are
+    retried: a file the manifest lists and the Hub does not hold is the repo's fault (IntegrityError, not a 404 from
+    a second request). Tampered files are never retried (the caller judges them; a cached snapshot is then dropped
+    and fetched again)."""
     where = f"{snap.repo_id}@{snap.sha}"
     try:
         manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
-    except IntegrityError:
-        if snap.from_cache or hub_io.offline():
+    except IntegrityError as first:
+        if hub_io.offline():
             raise
         missing = [
             p
             for p in manifest.files
-            if p in snap.fetched and not is_on_demand_file(p) and p not in skip and not (snap.path / p).is_file()
+            if (snap.from_cache or p in snap.fetched)
+            and not is_on_demand_file(p)
+            and p not in skip
+            and not (snap.path / p).is_file()
         ]
         if not missing:
             raise
-        hub_io.fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
+        try:
+            hub_io.fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
+        except HubEnvsError:
+            if snap.from_cache:  # the caller drops the cached snapshot and fetches it whole: judged there
+                raise first from None
+            raise
         manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import traceback
 from pathlib import Path
 
@@ -265,6 +266,29 @@ def test_16_processes_loading_the_same_repo_into_one_cache_all_succeed(faulty, t
         assert loaded.report.integrity.endswith("match the manifest")
         loaded.unregister()
         assert _incomplete(tmp_path / "shared-home") == []
+
+
+def test_a_cached_snapshot_still_being_filled_is_completed_in_place_not_dropped(faulty, tmp_path):
+    """A load that finds the commit's manifest in a shared cache while other processes are still downloading the rest
+    (what the 16-process test above once hit) fetches the files it misses; it must not remove the snapshot folder,
+    which made the other processes' downloads fail (their symlinks had no folder left)."""
+    ref = f"flt/base@{faulty.sha}"
+    with hub_environment(faulty.endpoint, tmp_path / "home"):
+        loaded = load_env(ref, trust_remote_code=True)
+        snapshot, listed = loaded.path, sorted(loaded.manifest.files)
+        loaded.unregister()
+        folder = os.open(snapshot, os.O_RDONLY | os.O_DIRECTORY)  # a removed folder keeps no link: st_nlink 0
+        try:
+            not_yet = [p for p in listed if p != "hub_env.json" and (snapshot / p).is_file()][:3]
+            for p in not_yet:  # as if still downloading: only the links are missing, the blobs stay
+                (snapshot / p).unlink()
+            again = load_env(ref, trust_remote_code=True)
+            assert again.report.integrity.endswith("match the manifest")
+            assert os.fstat(folder).st_nlink > 0, "the snapshot folder was removed (and made again)"
+            assert all((snapshot / p).is_file() for p in not_yet)
+            again.unregister()
+        finally:
+            os.close(folder)
 
 
 def _push_once(barrier, folder: str, seed: int) -> str:
