@@ -10,10 +10,12 @@
 What the worker sends is read with :class:`SafeUnpickler`, which builds only plain data, numpy arrays and
 scalars and gymnasium spaces: unpickling anything else would let the env's code (which may be sandboxed,
 and is never trusted more than it was in-process) run code in the parent. Nor may a few bytes make the parent
-build gigabytes (``bytearray(10**11)``, ``set(range(10**10))``): decoding happens after the watchdog, so the types
-that can be called to build something big are charged against a budget of the answer's size (:class:`_Guarded`). Exceptions therefore never
-travel as objects: the worker sends the type's name, its message and the formatted traceback, and
-:func:`rebuild_error` raises a :class:`~hub_envs.errors.RemoteEnvError` (for builtin exception types, a
+build gigabytes (``bytearray(10**11)``, ``set(range(10**10))``, ``Box(0, 1, (10**5, 10**5))``): decoding happens
+after the watchdog, so the containers that can be called to build something big are charged against a budget of
+the answer's size (:class:`_Guarded`), other types are never called (:class:`_CarefulUnpickler`) and numpy's
+pickling functions are checked (:func:`_numpy_guard`). Holes that remain (a memo index, deep nesting, a random
+generator's state) need a wire format other than pickle. Exceptions therefore never travel as objects: the
+worker sends the type's name, its message and the formatted traceback, and :func:`rebuild_error` raises a :class:`~hub_envs.errors.RemoteEnvError` (for builtin exception types, a
 class that is both that and the original type, so ``except ValueError`` keeps working).
 
 Example:
@@ -350,11 +352,8 @@ class _CarefulUnpickler(_AllowList, pickle._Unpickler):
     def load_reduce(self) -> None:
         args = self.stack.pop()
         func = self.stack[-1]
-        if isinstance(func, type) and not _callable_type(func):
-            raise IsolationError(
-                f"the env worker sent an answer that has the parent call {func.__module__}.{func.__qualname__}(...), "
-                f"which an isolated env may send as a value but not have the parent build. Return plain data from the env."
-            )
+        if isinstance(func, type) and not _callable_type(func):  # a value it may send, not one to build here
+            raise _refuse(f"has the parent call {func.__module__}.{func.__qualname__}(...)")
         self.stack[-1] = func(*args)
 
     dispatch[pickle.REDUCE[0]] = load_reduce

@@ -4,8 +4,9 @@ Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isol
 main()" <fd> <page> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
 threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end
 of a socketpair, the others the shared page and the wake-up socket of its :mod:`~hub_envs.isolation.doorbell`
-(a single env's short messages travel in the page, the others in the socket). The first message is the init dict (repo@sha, snapshot folder, env entry
-point, sandbox settings); then one request, one answer (:mod:`hub_envs.isolation.protocol`).
+(a single env's short messages travel in the page, the others in the socket). The first message is the init
+dict (repo@sha, snapshot folder, env entry point, sandbox settings); then one request, one answer
+(:mod:`hub_envs.isolation.protocol`).
 
 It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
 else runs) and, as a second line, the socket: EOF on it ends the worker. A process the env's code forks
