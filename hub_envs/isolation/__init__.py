@@ -5,7 +5,8 @@ whose ``loaded.make()`` / ``gym.make(loaded.gym_id)`` / ``loaded.make_vec(n)`` r
 the parent never imports the env's code (its config comes from the verified manifest). Isolation does not
 replace consent: the trust gate runs first, exactly as in-process.
 
-* :mod:`~hub_envs.isolation.protocol`: the wire, and the safe unpickler for what workers send back;
+* :mod:`~hub_envs.isolation.protocol`: the messages between parent and worker;
+* :mod:`~hub_envs.isolation.wire`: what a worker sends back (data in msgpack, never a pickle), checked as it is decoded;
 * :mod:`~hub_envs.isolation.worker`: the worker process;
 * :mod:`~hub_envs.isolation.proxy`: the worker handle, typed faults, :class:`IsolatedEnv`;
 * :mod:`~hub_envs.isolation.vector`: :class:`IsolatedVectorEnv` (several envs per worker, shared memory);

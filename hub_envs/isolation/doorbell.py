@@ -27,8 +27,8 @@ always go through the socket and the counter is only a hint when to read it.
 
 **What a hostile worker can do with the page.** Nothing the parent reads from it is trusted more than an
 answer from the socket: the parent reads the length once, refuses one over :data:`MAIL_BYTES`
-(:class:`Oversized`), copies the message out of the page before decoding it, and decodes it with the same
-allow-list unpickler. So a worker writing the page can only make the parent read its answer early (the answer
+(:class:`Oversized`), copies the message out of the page before decoding it, and decodes it as any answer
+(:mod:`~hub_envs.isolation.wire`: data, never code). So a worker writing the page can only make the parent read its answer early (the answer
 of its choice, which an env can return anyway), or wake it for nothing; a worker that never answers still meets
 the watchdog (the parent sleeps at most until its deadline). The page is sealed (:func:`sealed_memfd`), so it
 cannot be shrunk under the parent's mapping (a SIGBUS).

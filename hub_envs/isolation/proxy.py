@@ -54,9 +54,9 @@ from hub_envs.isolation.protocol import (
     FAST_HEADER,
     MAX_MESSAGE_BYTES,
     InfoDecoder,
+    decode_answer,
     dumps,
     rebuild_error,
-    safe_loads,
 )
 
 STDERR_TAIL_LINES = 20
@@ -186,6 +186,18 @@ def _launch(*args: Any, **kwargs: Any) -> subprocess.Popen:
     if _LAUNCHER is None or _LAUNCHER.pid != os.getpid() or not _LAUNCHER.thread.is_alive():
         _LAUNCHER = _Launcher()
     return _LAUNCHER.popen(*args, **kwargs)
+
+
+def warn_unsent_metadata(desc: dict, where: str) -> None:
+    """Warn about the env's metadata entries its worker could not send (they are missing from the proxy's)."""
+    if desc.get("metadata_unsent"):
+        import warnings
+
+        warnings.warn(
+            f"{where}: the env's metadata entries {', '.join(desc['metadata_unsent'])} hold values an isolated env cannot "
+            f"send to its parent (hub_envs.isolation.wire); the isolated env's metadata leaves them out.",
+            stacklevel=3,
+        )
 
 
 def _signal_name(code: int) -> str:
@@ -344,7 +356,7 @@ class Worker:
     def receive_step(self, timeout: float | None = None) -> tuple:
         """The answer to a single env's fast step: ``(reward, terminated, truncated, info, obs, shared)`` (``shared``:
         the observation is in shared memory, ``obs`` None), from a :data:`~hub_envs.isolation.protocol.FAST_ANSWER`
-        or a pickle."""
+        or an encoded answer."""
         data = self._wait("step", timeout)
         if data[:1] != b"F":
             answer = self._decode("step", data)
@@ -405,9 +417,7 @@ class Worker:
 
     def _decode(self, op: str, data: bytes) -> Any:
         try:
-            status, value = safe_loads(data)
-            if status not in ("ok", "err", "fatal") or (status != "ok" and not isinstance(value, dict)):
-                raise ValueError(f"status {status!r}")
+            status, value = decode_answer(data)
         except Exception as e:
             raise self._garbled(op, e) from None
         if status == "ok":
@@ -522,6 +532,7 @@ class IsolatedEnv(gym.Env):
         self.observation_space = desc["observation_space"]
         self.action_space = desc["action_space"]
         self.metadata = desc["metadata"]
+        warn_unsent_metadata(desc, self._target.where)
         self.render_mode = desc["render_mode"]
         self._state_methods = tuple(desc["state_methods"])
         self._arm_fast_step()
@@ -548,7 +559,7 @@ class IsolatedEnv(gym.Env):
 
     def _arm_fast_step(self) -> None:
         """With a Box action space and an observation space of Boxes, ``step`` sends the action as raw bytes
-        and the worker writes the observation into shared memory (nothing pickled but the small rest)."""
+        and the worker writes the observation into shared memory (nothing encoded but the small rest)."""
         import numpy as np
 
         from hub_envs.isolation.vector import _box_leaves, _Buffers

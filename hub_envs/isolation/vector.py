@@ -8,7 +8,7 @@ observations, rewards, flags and infos), with the envs split over worker process
 envs' actions; the workers step in parallel, write each observation into per-key shared buffers (one
 ``memfd`` per leaf ``Box`` of the observation space, ``(n_envs, *shape)`` of its dtype, handed to the
 workers as file descriptors, so no name in ``/dev/shm`` and nothing for a sandbox to reach) and answer
-with rewards, flags and infos only. Observation spaces with leaves other than ``Box`` travel pickled.
+with rewards, flags and infos only. Observation spaces with leaves other than ``Box`` travel in the answers.
 
 Inside a worker (:class:`WorkerSlice`) every env is built as ``gym.make`` builds it in-process (TimeLimit,
 OrderEnforcing, the env checker as registered).
@@ -35,7 +35,7 @@ from hub_envs.errors import ConfigError
 from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
 from hub_envs.isolation.doorbell import sealed_memfd
 from hub_envs.isolation.protocol import FAST_HEADER
-from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker
+from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker, warn_unsent_metadata
 
 try:
     from gymnasium.vector import AutoresetMode
@@ -205,36 +205,36 @@ class WorkerSlice:
     def attach_buffers(self, leaves, n_envs: int, fds: list[int]) -> None:
         self.buffers = _Buffers(leaves, n_envs, fds=fds)
 
-    def _out(self, i: int, obs: Any, pickled: list) -> None:
+    def _out(self, i: int, obs: Any, unshared: list) -> None:
         if self.buffers is not None:
             self.buffers.write(self.offset + i, obs)
         else:
-            pickled.append(obs)
+            unshared.append(obs)
 
     def reset(self, seeds, options):
-        infos, pickled = [], []
+        infos, unshared = [], []
         for i, (env, seed) in enumerate(zip(self.envs, seeds, strict=True)):
             obs, info = env.reset(seed=seed, options=options)
-            self._out(i, obs, pickled)
+            self._out(i, obs, unshared)
             infos.append(info)
         self.autoreset = [False] * len(self.envs)
-        return infos, pickled
+        return infos, unshared
 
     def step(self, actions):
-        rewards, terms, truncs, infos, pickled = [], [], [], [], []
+        rewards, terms, truncs, infos, unshared = [], [], [], [], []
         for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
             if self.autoreset[i]:
                 obs, info = env.reset()
                 r, te, tr = 0.0, False, False
             else:
                 obs, r, te, tr, info = env.step(action)
-            self._out(i, obs, pickled)
+            self._out(i, obs, unshared)
             rewards.append(r)
             terms.append(bool(te))
             truncs.append(bool(tr))
             infos.append(info)
             self.autoreset[i] = bool(te or tr)
-        return rewards, terms, truncs, infos, pickled
+        return rewards, terms, truncs, infos, unshared
 
     def step_raw(self, data: bytes):
         """``step`` of actions sent as raw bytes (:data:`FAST_HEADER` + this slice's rows of the batched actions)."""
@@ -311,12 +311,13 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
                 for w in self._workers:
                     w.receive("vbuffers", timeout=options.start_timeout)
             self.metadata = dict(desc["metadata"])
+            warn_unsent_metadata(desc, target.where)
             if AutoresetMode is not None:
                 self.metadata["autoreset_mode"] = AutoresetMode.NEXT_STEP
             self.render_mode = desc["render_mode"]
             self.observation_space = batch_space(self.single_observation_space, n_envs)
             self.action_space = batch_space(self.single_action_space, n_envs)
-            self._pickled_out = create_empty_array(self.single_observation_space, n_envs) if leaves is None else None
+            self._unshared_out = create_empty_array(self.single_observation_space, n_envs) if leaves is None else None
         except BaseException:
             self.close()
             raise
@@ -350,7 +351,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         if self._buffers is not None:
             return self._buffers.read()
         flat = [o for a in answers for o in a[-1]]
-        return deepcopy(concatenate(self.single_observation_space, flat, self._pickled_out))
+        return deepcopy(concatenate(self.single_observation_space, flat, self._unshared_out))
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
         if seed is None:

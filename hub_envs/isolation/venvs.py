@@ -1,7 +1,7 @@
 """``isolation="venv"``: the worker runs in a venv built from the env's own requirements.
 
 One venv per digest of (Python minor version, the env's requirements, the worker's own needs ``numpy`` and
-``gymnasium``), under ``$HUB_ENVS_HOME/venvs/<digest>``, built with uv:
+``gymnasium``, and ``msgpack`` for its answers), under ``$HUB_ENVS_HOME/venvs/<digest>``, built with uv:
 
 * **atomically**: built in a temporary folder next to it and renamed into place only when complete, with
   a ``hub-envs-venv.json`` record; a build that fails (uv cannot resolve or install) is removed and raises
@@ -10,7 +10,7 @@ One venv per digest of (Python minor version, the env's requirements, the worker
   or processes) build it once and the others wait, then reuse it;
 * **offline once cached**: a complete venv is reused without running uv at all.
 
-The venv holds the env's requirements, numpy and gymnasium, not torch or lerobot (an env module that
+The venv holds the env's requirements, numpy, gymnasium and msgpack (its answers' wire), not torch or lerobot (an env module that
 imports lerobot must list it, and keeping the config in its own module keeps the venv small: see
 ``envs/pendulum``). hub-envs itself is not installed into it: the worker imports the parent's hub-envs
 through a folder that holds only a link to the ``hub_envs`` package (no other package of the parent leaks
@@ -49,6 +49,8 @@ from hub_envs.paths import hub_envs_home
 
 RECORD = "hub-envs-venv.json"
 WORKER_NEEDS = ("numpy", "gymnasium")
+#: what hub-envs' own worker code needs (the wire of its answers): installed too, never pinned to a publisher's
+WIRE_NEEDS = ("msgpack>=1.0",)
 
 
 def venvs_root() -> Path:
@@ -56,7 +58,7 @@ def venvs_root() -> Path:
 
 
 def venv_digest(requirements, python_minor: str, constraints=()) -> str:
-    data = {"python": python_minor, "requirements": sorted(set(requirements)), "worker": list(WORKER_NEEDS)}
+    data = {"python": python_minor, "requirements": sorted(set(requirements)), "worker": list(WORKER_NEEDS + WIRE_NEEDS)}
     if constraints:
         data["constraints"] = sorted(set(constraints))
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:20]
@@ -158,7 +160,7 @@ def venv_for(
     the requirements may pull in): ``(folder, record)``. See the module docstring."""
     python = python or sys.executable
     minor = minor or f"{sys.version_info[0]}.{sys.version_info[1]}"
-    reqs = sorted(set(requirements) | set(WORKER_NEEDS))
+    reqs = sorted(set(requirements) | set(WORKER_NEEDS) | set(WIRE_NEEDS))
     digest = venv_digest(requirements, minor, constraints)
     root = venvs_root()
     final = root / digest

@@ -28,9 +28,31 @@ from functools import partial
 from typing import Any
 
 from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
-from hub_envs.isolation.protocol import FAST_HEADER, dumps, error_info, fast_answer
+from hub_envs.isolation.protocol import FAST_HEADER, encode_answer, error_info, fast_answer
+from hub_envs.isolation.wire import Unsendable, encode
 
 STATE_METHODS = ("get_state", "reset_to")
+#: what the parts of an answer are, to name the one the wire cannot carry (by op; b"s"/b"v": the fast steps)
+_PARTS = {
+    "reset": ("observation", "info"),
+    "step": ("observation", "reward", "terminated", "truncated", "info"),
+    b"s": ("reward", "terminated", "truncated", "info", "observation"),
+    "vreset": ("infos", "observations"),
+    "vstep": ("rewards", "terminations", "truncations", "infos", "observations"),
+    b"v": ("rewards", "terminations", "truncations", "infos", "observations"),
+}
+
+
+def _unsendable(key: Any, result: Any, error: Exception) -> str:
+    """Which part of an answer the wire cannot carry, and why (``info['x'] is of type ...``)."""
+    parts = _PARTS.get(key)
+    if parts and type(result) is tuple:
+        for part, value in zip(parts, result, strict=False):
+            try:
+                encode(value, part)
+            except Unsendable as found:
+                return str(found)
+    return str(error)
 
 
 def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
@@ -47,10 +69,18 @@ def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
 def _describe(env: Any) -> dict[str, Any]:
     raw = env.unwrapped
     obs_space, act_space = env.observation_space, env.action_space
+    metadata, unsent = {}, []
+    for key, value in dict(getattr(raw, "metadata", {}) or {}).items():  # what the wire cannot carry stays here
+        try:
+            encode([key, value])
+            metadata[key] = value
+        except Unsendable:
+            unsent.append(repr(key))
     return {
         "observation_space": obs_space,
         "action_space": act_space,
-        "metadata": dict(getattr(raw, "metadata", {}) or {}),
+        "metadata": metadata,
+        "metadata_unsent": unsent,
         "render_mode": getattr(raw, "render_mode", None),
         "state_methods": [m for m in STATE_METHODS if callable(getattr(raw, m, None))],
         "pid": os.getpid(),
@@ -198,9 +228,9 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
     try:
         server = Server(init, conn)
     except BaseException as e:  # the env's code failed on import: report it, then stop
-        answer(dumps(("err", error_info(e))))
+        answer(encode_answer("err", error_info(e)))
         return
-    answer(dumps(("ok", {"pid": me})))
+    answer(encode_answer("ok", {"pid": me}))
     follower, cpu = Follower(), NO_CPU
     spin = SpinBudget()
     clock = time.perf_counter
@@ -229,7 +259,7 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
                 result = server.fast_step(data) if kind == b"s" else server.vec.step_raw(data)
             else:
                 result = getattr(server, f"op_{op}")(*args)
-            reply = ("ok", result)
+            reply: tuple = ("ok", result)
         except MemoryError as e:  # memory state is suspect (RLIMIT_AS hit): report, then end this worker
             reply, fatal = ("fatal", error_info(e)), True
         except BaseException as e:
@@ -238,11 +268,12 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
             os._exit(0)
         try:
             if kind == b"s" and reply[0] == "ok" and result[5]:  # the observation is in shared memory
-                data = fast_answer(*result[:4]) or dumps(reply)
+                data = fast_answer(*result[:4]) or encode_answer(*reply)
             else:
-                data = dumps(reply)
-        except Exception as e:  # an answer that cannot be pickled: say what it was
-            data = dumps(("err", error_info(TypeError(f"the env's {op} returned something that cannot be sent: {e}"))))
+                data = encode_answer(*reply)
+        except Exception as e:  # an answer the wire cannot carry: say what it was
+            why = _unsendable(kind if fast else op, result, e)
+            data = encode_answer("err", error_info(TypeError(f"the env's {op} returned something that cannot be sent: {why}")))
         try:
             answer(data)
         except (OSError, EOFError):
@@ -273,7 +304,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             enter_sandbox(init)  # may fork: the caller of serve() below is then pid 1 of a new pid namespace
         except BaseException as e:
-            bell.send(dumps(("fatal", error_info(e))), conn.send_bytes)
+            bell.send(encode_answer("fatal", error_info(e)), conn.send_bytes)
             os._exit(71)
     serve(conn, bell, init)
     os._exit(0)

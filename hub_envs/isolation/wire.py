@@ -1,0 +1,685 @@
+"""What an env worker sends back: data in msgpack, never a program.
+
+The parent decodes a worker's answers after its watchdog, and the worker runs the env's code (untrusted, maybe
+sandboxed). A pickle is a program its reader runs: even an allow-list of types left ways for a few bytes to make
+the parent allocate gigabytes (a memo index, a call of an allowed type), recurse until it crashed (a deep tuple as
+a dict key) or read out of bounds (a random generator's position). So the answers are msgpack, decoded by its C
+reader with hard limits (no length larger than the message, nesting bounded), and everything that is not plain
+msgpack data travels as an *extension record* of a closed set of kinds, each rebuilt here from data it checks
+first. Nothing is ever imported, called by name or built bigger than the bytes that describe it.
+
+Plain msgpack (exact types only): ``None``, ``bool``, ``int`` (64-bit), ``float``, ``str``, ``bytes``, ``list``,
+``dict`` (keys of any hashable type here; a ``bytearray`` or ``memoryview`` arrives as ``bytes``). Extension records
+(:data:`KINDS`): ``tuple``, ``int`` beyond 64 bits, ``set``, ``frozenset``, ``complex``, ``range``, ``slice``, ``OrderedDict``, ``defaultdict`` (its factory
+one of :func:`type_names`), ``deque``, numpy arrays (dtype, shape, order, bytes; object arrays as their items),
+numpy scalars and dtypes, the types of :func:`type_names`, gymnasium's spaces (their constructor arguments and
+random generator) and numpy random generators (bit generator name and state, positions checked). Anything else,
+subclasses included, cannot be sent: :func:`encode` raises :class:`Unsendable` naming where it is.
+
+Example:
+    >>> import numpy as np
+    >>> from hub_envs.isolation.wire import decode, encode
+    >>> back = decode(encode({"x": np.arange(3, dtype=np.float32), "pair": (1, None)}))
+    >>> back["x"].dtype, back["pair"]
+    (dtype('float32'), (1, None))
+    >>> decode(encode(np.random.default_rng(7))).random() == np.random.default_rng(7).random()
+    True
+    >>> import os
+    >>> encode({"f": os.getcwd})  # doctest: +IGNORE_EXCEPTION_DETAIL
+    Traceback (most recent call last):
+    hub_envs.isolation.wire.Unsendable: ['f'] is a builtin_function_or_method, which an isolated env cannot send ...
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import sys
+from typing import Any
+
+import msgpack
+
+from hub_envs.errors import IsolationError
+
+#: numpy, imported the first time a value needs it (:func:`_numpy`): a sandboxed worker imports this module before
+#: it enters its pid namespace, where OpenBLAS, started by numpy's import, could not start its threads
+np: Any = None
+
+TUPLE, BIG_INT, SET, FROZENSET, COMPLEX, RANGE, SLICE = 1, 2, 3, 4, 6, 7, 8
+ORDERED_DICT, DEFAULT_DICT, DEQUE, ARRAY, OBJECT_ARRAY, SCALAR, DTYPE, TYPE, SPACE, RANDOM = range(9, 19)
+#: the extension records, by code
+KINDS = {
+    TUPLE: "tuple",
+    BIG_INT: "int",
+    SET: "set",
+    FROZENSET: "frozenset",
+    COMPLEX: "complex",
+    RANGE: "range",
+    SLICE: "slice",
+    ORDERED_DICT: "OrderedDict",
+    DEFAULT_DICT: "defaultdict",
+    DEQUE: "deque",
+    ARRAY: "numpy array",
+    OBJECT_ARRAY: "numpy object array",
+    SCALAR: "numpy scalar",
+    DTYPE: "numpy dtype",
+    TYPE: "type",
+    SPACE: "gymnasium space",
+    RANDOM: "numpy random generator",
+}
+#: extension records nested deeper than this are refused (each level is a Python call while decoding)
+MAX_DEPTH = 64
+#: at most this many items of a zero-size dtype (``np.empty(n, "V0")`` weighs nothing, whatever ``n`` says)
+MAX_EMPTY_ITEMS = 1 << 16
+
+
+class Unsendable(TypeError):
+    """A value an isolated env returned that the wire cannot carry (the worker reports it as the env's error)."""
+
+
+def _refuse(what: str) -> IsolationError:
+    return IsolationError(
+        f"the env worker sent an answer that {what}, which the parent refuses to build. Return plain data from the env."
+    )
+
+
+# -- types as values --------------------------------------------------------------------------------------------
+
+_BUILTIN_TYPES = (bool, int, float, complex, str, bytes, bytearray, list, tuple, dict, set, frozenset, range, slice)
+_COLLECTION_TYPES = (collections.OrderedDict, collections.defaultdict, collections.deque)
+
+
+def _type_name(t: type) -> str | None:
+    if t in _BUILTIN_TYPES:
+        return t.__name__
+    if t in _COLLECTION_TYPES:
+        return f"collections.{t.__name__}"
+    if t.__module__ == "numpy" and getattr(np, t.__name__, None) is t and issubclass(t, np.generic):
+        return f"numpy.{t.__name__}"
+    dtypes = getattr(np, "dtypes", None)
+    if dtypes is not None and getattr(dtypes, t.__name__, None) is t:
+        return f"numpy.dtypes.{t.__name__}"
+    return None
+
+
+def _type_named(name: str) -> type:
+    for t in _BUILTIN_TYPES:
+        if name == t.__name__:
+            return t
+    for t in _COLLECTION_TYPES:
+        if name == f"collections.{t.__name__}":
+            return t
+    module, _, attr = name.rpartition(".")
+    found = getattr(np, attr, None) if module == "numpy" else getattr(getattr(np, "dtypes", None), attr, None)
+    if module in ("numpy", "numpy.dtypes") and isinstance(found, type) and _type_name(found) == name:
+        return found
+    raise _refuse(f"names a type ({name!r}) off the wire's list")
+
+
+def type_names() -> list[str]:
+    """The types an answer may hold as values (``defaultdict(list)``'s factory, ``np.float32`` in an info).
+
+    >>> "numpy.float32" in type_names() and "list" in type_names()
+    True
+    """
+    _numpy()
+    names = [_type_name(t) for t in (*_BUILTIN_TYPES, *_COLLECTION_TYPES)]
+    names += sorted(
+        f"numpy.{n}" for n in dir(np) if isinstance(getattr(np, n), type) and _type_name(getattr(np, n)) == f"numpy.{n}"
+    )
+    return names
+
+
+# -- encoding (the worker) ----------------------------------------------------------------------------------------
+
+
+def _pack(obj: Any) -> bytes:
+    return msgpack.packb(obj, default=_default, strict_types=True, use_bin_type=True)
+
+
+def _dtype_desc(dt: np.dtype) -> Any:
+    if dt.fields is not None:
+        names = list(dt.names)
+        return {
+            "names": names,
+            "formats": [_dtype_desc(dt.fields[n][0]) for n in names],
+            "offsets": [dt.fields[n][1] for n in names],
+            "itemsize": dt.itemsize,
+            "aligned": dt.isalignedstruct,
+        }
+    if dt.subdtype is not None:
+        return [_dtype_desc(dt.subdtype[0]), list(dt.subdtype[1])]
+    return dt.str
+
+
+def _array(a: np.ndarray) -> msgpack.ExtType:
+    if a.dtype.hasobject:
+        if a.dtype != np.dtype(object):
+            raise Unsendable("a structured numpy dtype holding Python objects")
+        return msgpack.ExtType(OBJECT_ARRAY, _pack([list(a.shape), a.ravel().tolist() if a.ndim else [a.item()]]))
+    fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
+    data = a.tobytes(order="F" if fortran else "C")
+    return msgpack.ExtType(ARRAY, _pack([_dtype_desc(a.dtype), list(a.shape), fortran, data]))
+
+
+def _scalar(x: np.generic) -> msgpack.ExtType:
+    if x.dtype.hasobject:
+        raise Unsendable("a numpy scalar holding Python objects")
+    return msgpack.ExtType(SCALAR, _pack([_dtype_desc(x.dtype), x.tobytes()]))
+
+
+def _generator_desc(obj: Any) -> list:
+    if isinstance(obj, np.random.Generator) and type(obj) is np.random.Generator:
+        kind, bg, extra = "Generator", obj.bit_generator, None
+    elif type(obj) is np.random.RandomState:
+        kind, extra = "RandomState", obj.get_state(legacy=False)
+        bg = obj._bit_generator
+    else:
+        kind, bg, extra = "BitGenerator", obj, None
+    name = type(bg).__name__
+    if name not in _BIT_GENERATORS or type(bg) is not getattr(np.random, name):
+        raise Unsendable(f"a random generator over a {type(bg).__module__}.{type(bg).__qualname__}")
+    seq = getattr(bg, "seed_seq", None)
+    seq_state = seq.state if type(seq) is np.random.SeedSequence else None
+    return [kind, name, bg.state if extra is None else extra, seq_state]
+
+
+def _space_desc(space: Any) -> list:
+    from gymnasium import spaces as s
+
+    kind = type(space).__name__
+    if getattr(s, kind, None) is not type(space):
+        raise Unsendable(f"a space of class {type(space).__module__}.{type(space).__qualname__} (only gymnasium's own spaces)")
+    if kind == "Box":
+        args: Any = [space.low, space.high]
+    elif kind == "Discrete":
+        args = [int(space.n), int(space.start), np.dtype(getattr(space, "dtype", np.int64))]
+    elif kind == "MultiDiscrete":
+        args = [space.nvec, space.start, space.dtype]
+    elif kind == "MultiBinary":
+        args = [space.n if isinstance(space.n, int) else [int(i) for i in space.n]]
+    elif kind == "Text":
+        args = [space.max_length, space.min_length, "".join(space.character_list)]
+    elif kind == "Dict":
+        args = [[[k, v] for k, v in space.spaces.items()]]
+    elif kind in ("Tuple", "OneOf"):
+        args = [list(space.spaces)]
+    elif kind == "Sequence":
+        args = [space.feature_space, bool(space.stack)]
+    elif kind == "Graph":
+        args = [space.node_space, space.edge_space]
+    else:
+        raise Unsendable(f"a gymnasium {kind} space")
+    return [kind, args, space._np_random]
+
+
+def _encode_space(x: Any) -> msgpack.ExtType:
+    return msgpack.ExtType(SPACE, _pack(_space_desc(x)))
+
+
+def _encode_random(x: Any) -> msgpack.ExtType:
+    return msgpack.ExtType(RANDOM, _pack(_generator_desc(x)))
+
+
+def _encode_type(t: type) -> msgpack.ExtType:
+    name = _type_name(t)
+    if name is None:
+        raise Unsendable(f"the type {t.__module__}.{t.__qualname__} (types travel only from a fixed list)")
+    return msgpack.ExtType(TYPE, name.encode())
+
+
+def _encode_int(n: int) -> msgpack.ExtType:
+    return msgpack.ExtType(BIG_INT, n.to_bytes(n.bit_length() // 8 + 1, "little", signed=True))
+
+
+def _encode_default_dict(d: collections.defaultdict) -> msgpack.ExtType:
+    factory = d.default_factory
+    if factory is not None and not isinstance(factory, type):
+        raise Unsendable(f"a defaultdict whose factory is a {type(factory).__name__} (only a type from the wire's list)")
+    return msgpack.ExtType(DEFAULT_DICT, _pack([factory, [[k, v] for k, v in d.items()]]))
+
+
+_BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
+_ENCODERS: dict[type, Any] = {}
+
+
+def _numpy() -> Any:
+    """numpy, and the table of encoders by exact type, on first use."""
+    global np
+    if np is None:
+        import numpy
+
+        _ENCODERS.update(
+            {
+                tuple: lambda x: msgpack.ExtType(TUPLE, _pack(list(x))),
+                int: _encode_int,
+                set: lambda x: msgpack.ExtType(SET, _pack(list(x))),
+                frozenset: lambda x: msgpack.ExtType(FROZENSET, _pack(list(x))),
+                complex: lambda x: msgpack.ExtType(COMPLEX, _pack([x.real, x.imag])),
+                range: lambda x: msgpack.ExtType(RANGE, _pack([x.start, x.stop, x.step])),
+                slice: lambda x: msgpack.ExtType(SLICE, _pack([x.start, x.stop, x.step])),
+                collections.OrderedDict: lambda x: msgpack.ExtType(ORDERED_DICT, _pack([[k, v] for k, v in x.items()])),
+                collections.defaultdict: _encode_default_dict,
+                collections.deque: lambda x: msgpack.ExtType(DEQUE, _pack([list(x), x.maxlen])),
+                numpy.ndarray: _array,
+                numpy.random.Generator: _encode_random,
+                numpy.random.RandomState: _encode_random,
+            }
+        )
+        for name in _BIT_GENERATORS:
+            _ENCODERS[getattr(numpy.random, name)] = _encode_random
+        np = numpy
+    return np
+
+
+def _default(obj: Any) -> Any:
+    if np is None:
+        _numpy()
+    kind = type(obj)
+    encoder = _ENCODERS.get(kind)
+    if encoder is not None:
+        return encoder(obj)
+    if isinstance(obj, np.generic):
+        return _scalar(obj)
+    if kind is np.dtype or isinstance(obj, np.dtype):
+        return msgpack.ExtType(DTYPE, _pack(_dtype_desc(obj)))
+    if isinstance(obj, type):
+        return _encode_type(obj)
+    spaces = sys.modules.get("gymnasium.spaces")
+    if spaces is not None and isinstance(obj, spaces.Space):
+        return _encode_space(obj)
+    raise Unsendable(
+        f"of type {kind.__module__}.{kind.__qualname__}" if kind.__module__ != "builtins" else f"of type {kind.__qualname__}"
+    )
+
+
+def _where(obj: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
+    """Where in ``obj`` the first value the wire cannot carry is, and why (for the error message)."""
+    try:
+        _pack(obj)
+        return None
+    except Unsendable as e:
+        why = str(e)
+    except (ValueError, OverflowError, TypeError) as e:
+        why = f"{type(e).__name__}: {e}"
+    if depth < 20:
+        kind = type(obj)
+        items: Any = ()
+        if kind in (dict, collections.OrderedDict, collections.defaultdict):
+            items = ((f"[{k!r}]", v) for k, v in obj.items())
+        elif kind in (list, tuple, collections.deque):
+            items = ((f"[{i}]", v) for i, v in enumerate(obj))
+        for sub, value in items:
+            found = _where(value, path + sub, depth + 1)
+            if found is not None:
+                return found
+    return path, why
+
+
+def encode(obj: Any, name: str = "the value") -> bytes:
+    """``obj`` as the wire carries it, or :class:`Unsendable` naming the first value it cannot carry (a path from
+    ``name``, e.g. ``info['x'][0]``).
+
+    >>> encode([1, "a"]) == b"\\x92\\x01\\xa1a"
+    True
+    """
+    try:
+        return _pack(obj)
+    except (Unsendable, ValueError, OverflowError, TypeError):
+        found = _where(obj, name)
+        where, why = found if found is not None else (name, "unknown")
+        raise Unsendable(
+            f"{where} is {why}, which an isolated env cannot send to its parent (it sends plain data, numpy arrays and "
+            f"scalars, gymnasium spaces and numpy random generators)"
+        ) from None
+
+
+# -- decoding (the parent) ----------------------------------------------------------------------------------------
+
+
+def _int(x: Any, what: str, low: int = 0, high: int | None = None) -> int:
+    if type(x) is not int or x < low or (high is not None and x > high):
+        raise _refuse(f"holds {what} {x!r} (not an int in [{low}, {'...' if high is None else high}])")
+    return x
+
+
+def _shape(x: Any) -> tuple[int, ...]:
+    if type(x) is not list or len(x) > 64:
+        raise _refuse(f"holds an array shape {x!r}")
+    return tuple(_int(n, "an array dimension", 0, 1 << 62) for n in x)
+
+
+def _dtype(desc: Any, depth: int = 0) -> np.dtype:
+    if depth > 16:
+        raise _refuse("holds a dtype nested too deep")
+    try:
+        if type(desc) is str:
+            if len(desc) > 64:
+                raise _refuse(f"holds a dtype string of {len(desc)} characters")
+            dt = np.dtype(desc)
+        elif type(desc) is list and len(desc) == 2:
+            base = _dtype(desc[0], depth + 1)
+            shape = _shape(desc[1])
+            if math.prod(shape) * base.itemsize > 1 << 31:
+                raise _refuse(f"holds a dtype of {shape!r} items")
+            dt = np.dtype((base, shape))
+        elif type(desc) is dict and set(desc) == {"names", "formats", "offsets", "itemsize", "aligned"}:
+            names, formats, offsets = desc["names"], desc["formats"], desc["offsets"]
+            if not (type(names) is type(formats) is type(offsets) is list and len(names) == len(formats) == len(offsets)):
+                raise _refuse("holds a malformed structured dtype")
+            dt = np.dtype(
+                {
+                    "names": names,
+                    "formats": [_dtype(f, depth + 1) for f in formats],
+                    "offsets": [_int(o, "a field offset", 0, 1 << 31) for o in offsets],
+                    "itemsize": _int(desc["itemsize"], "an itemsize", 0, 1 << 31),
+                },
+                align=desc["aligned"] is True,
+            )
+        else:
+            raise _refuse(f"holds a dtype description of type {type(desc).__name__}")
+    except (TypeError, ValueError) as e:
+        raise _refuse(f"holds a dtype numpy refuses ({e})") from None
+    if dt.hasobject:
+        raise _refuse("holds a dtype of Python objects read from raw bytes")
+    return dt
+
+
+def _decode_array(items: Any) -> np.ndarray:
+    if type(items) is not list or len(items) != 4:
+        raise _refuse("holds a malformed numpy array")
+    desc, shape, fortran, data = items
+    dt, shape = _dtype(desc), _shape(shape)
+    if type(data) is not bytes or type(fortran) is not bool:
+        raise _refuse("holds a malformed numpy array")
+    count = math.prod(shape)
+    if dt.itemsize == 0:
+        if count > MAX_EMPTY_ITEMS or data:
+            raise _refuse(f"asks for {count:,} items of an empty dtype")
+        return np.empty(shape, dt)
+    if count * dt.itemsize != len(data):
+        raise _refuse(f"asks for an array of {count * dt.itemsize:,} bytes ({dt}, shape {shape}) from {len(data):,} bytes")
+    # over a copy of the bytes (padding included): writable, as the env's own array was
+    return np.frombuffer(bytearray(data), dt, count).reshape(shape, order="F" if fortran else "C")
+
+
+def _decode_object_array(items: Any) -> np.ndarray:
+    if type(items) is not list or len(items) != 2 or type(items[1]) is not list:
+        raise _refuse("holds a malformed numpy object array")
+    shape, values = _shape(items[0]), items[1]
+    if math.prod(shape) != max(len(values), 0) or (not shape and len(values) != 1):
+        raise _refuse(f"asks for an object array of shape {shape} from {len(values):,} items")
+    out = np.empty(len(values), dtype=object)
+    for i, v in enumerate(values):
+        out[i] = v
+    return out.reshape(shape)
+
+
+def _decode_scalar(items: Any) -> np.generic:
+    if type(items) is not list or len(items) != 2 or type(items[1]) is not bytes:
+        raise _refuse("holds a malformed numpy scalar")
+    dt = _dtype(items[0])
+    if len(items[1]) != dt.itemsize:
+        raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(items[1])} bytes")
+    return np.frombuffer(items[1], dt, 1).copy()[0]
+
+
+def _checked_state(name: str, state: Any) -> dict:
+    """A bit generator's state, with every position numpy indexes by checked (numpy's setters do not: an MT19937
+    ``pos`` past its key reads out of bounds)."""
+
+    def arr(x, n):
+        if type(x) is not np.ndarray or x.shape != (n,) or x.dtype != (np.uint32 if name == "MT19937" else np.uint64):
+            raise _refuse(f"holds a {name} state array that is not {n} words")
+        return x
+
+    if type(state) is not dict or state.get("bit_generator") != name or type(state.get("state")) is not dict:
+        raise _refuse(f"holds a malformed {name} state")
+    inner = state["state"]
+    if name == "MT19937":
+        arr(inner.get("key"), 624)
+        _int(inner.get("pos"), "an MT19937 position", 0, 624)
+    else:
+        _int(state.get("has_uint32"), "a has_uint32 flag", 0, 1)
+        _int(state.get("uinteger"), "a buffered uint32", 0, (1 << 32) - 1)
+        if name in ("PCG64", "PCG64DXSM"):
+            for k in ("state", "inc"):
+                _int(inner.get(k), f"a {name} {k}", 0, (1 << 128) - 1)
+        elif name == "Philox":
+            arr(inner.get("counter"), 4), arr(inner.get("key"), 2), arr(state.get("buffer"), 4)
+            _int(state.get("buffer_pos"), "a Philox buffer position", 0, 4)
+        else:  # SFC64
+            arr(inner.get("state"), 4)
+    return state
+
+
+def _decode_random(items: Any) -> Any:
+    if type(items) is not list or len(items) != 4:
+        raise _refuse("holds a malformed random generator")
+    kind, name, state, seq_state = items
+    if kind not in ("Generator", "RandomState", "BitGenerator") or name not in _BIT_GENERATORS:
+        raise _refuse(f"holds a random generator {kind!r} over {name!r}")
+    seq = None
+    if seq_state is not None:
+        if type(seq_state) is not dict or set(seq_state) != {"entropy", "spawn_key", "pool_size", "n_children_spawned"}:
+            raise _refuse("holds a malformed seed sequence")
+        entropy, key = seq_state["entropy"], seq_state["spawn_key"]
+        if (
+            entropy is not None
+            and type(entropy) is not int
+            and not (type(entropy) in (list, tuple) and all(type(e) is int for e in entropy))
+        ):
+            raise _refuse("holds a seed sequence whose entropy is not integers")
+        if type(key) not in (list, tuple) or not all(type(k) is int and k >= 0 for k in key):
+            raise _refuse("holds a seed sequence whose spawn key is not integers")
+        seq = np.random.SeedSequence(
+            entropy,
+            spawn_key=tuple(key),
+            pool_size=_int(seq_state["pool_size"], "a seed pool size", 4, 64),
+            n_children_spawned=_int(seq_state["n_children_spawned"], "a spawned-children count", 0, 1 << 62),
+        )
+    if kind == "RandomState":
+        if type(state) is not dict:
+            raise _refuse("holds a malformed RandomState")
+        _int(state.get("has_gauss"), "a has_gauss flag", 0, 1)
+        if type(state.get("gauss")) is not float:
+            raise _refuse("holds a RandomState whose gauss is not a float")
+        inner = {"bit_generator": "MT19937", "state": state.get("state")}
+        _checked_state("MT19937", inner)
+        if name != "MT19937":
+            raise _refuse("holds a RandomState over another bit generator than MT19937")
+    else:
+        _checked_state(name, state)
+    bg = getattr(np.random, name)(seq)
+    try:
+        if kind == "RandomState":
+            rs = np.random.RandomState(bg)
+            rs.set_state(state)
+            return rs
+        bg.state = state
+    except (TypeError, ValueError, KeyError) as e:
+        raise _refuse(f"holds a {name} state numpy refuses ({e})") from None
+    return np.random.Generator(bg) if kind == "Generator" else bg
+
+
+def _decode_space(items: Any) -> Any:
+    from gymnasium import spaces as s
+
+    if type(items) is not list or len(items) != 3 or type(items[1]) is not list:
+        raise _refuse("holds a malformed gymnasium space")
+    kind, args, rng = items
+
+    def space(x):
+        if not isinstance(x, s.Space):
+            raise _refuse(f"holds a {kind} space over a {type(x).__name__}")
+        return x
+
+    try:
+        if kind == "Box" and len(args) == 2:
+            low, high = args
+            if type(low) is not np.ndarray or type(high) is not np.ndarray or low.shape != high.shape or low.dtype != high.dtype:
+                raise _refuse("holds a Box whose bounds are not two arrays of one shape and dtype")
+            built: Any = s.Box(low, high, dtype=low.dtype)
+        elif kind == "Discrete" and len(args) == 3:
+            n, start, dtype = _int(args[0], "a Discrete n", 1, 1 << 62), args[1], args[2]
+            if type(start) is not int or not isinstance(dtype, np.dtype):
+                raise _refuse("holds a malformed Discrete space")
+            built = s.Discrete(n, start=start) if dtype == np.int64 else s.Discrete(n, start=start, dtype=dtype)
+        elif kind == "MultiDiscrete" and len(args) == 3:
+            nvec, start, dtype = args
+            if type(nvec) is not np.ndarray or type(start) is not np.ndarray or not isinstance(dtype, np.dtype):
+                raise _refuse("holds a malformed MultiDiscrete space")
+            built = s.MultiDiscrete(nvec, dtype=dtype, start=start)
+        elif kind == "MultiBinary" and len(args) == 1:
+            n = args[0]
+            built = s.MultiBinary(_int(n, "a MultiBinary n", 1, 1 << 62) if type(n) is not list else list(_shape(n)))
+        elif kind == "Text" and len(args) == 3:
+            if type(args[2]) is not str:
+                raise _refuse("holds a Text space whose charset is not a str")
+            built = s.Text(
+                _int(args[0], "a Text max_length", 0, 1 << 62), min_length=_int(args[1], "a Text min_length"), charset=args[2]
+            )
+        elif kind == "Dict" and len(args) == 1 and type(args[0]) is list:
+            pairs = []
+            for pair in args[0]:
+                if type(pair) is not list or len(pair) != 2:
+                    raise _refuse("holds a malformed Dict space")
+                pairs.append((pair[0], space(pair[1])))
+            built = s.Dict(pairs)
+        elif kind in ("Tuple", "OneOf") and len(args) == 1 and type(args[0]) is list:
+            built = getattr(s, kind)([space(x) for x in args[0]])
+        elif kind == "Sequence" and len(args) == 2 and type(args[1]) is bool:
+            built = s.Sequence(space(args[0]), stack=args[1])
+        elif kind == "Graph" and len(args) == 2:
+            built = s.Graph(space(args[0]), None if args[1] is None else space(args[1]))
+        else:
+            raise _refuse(f"holds a gymnasium space {kind!r} with {len(args)} arguments")
+    except IsolationError:
+        raise
+    except (TypeError, ValueError, AssertionError) as e:
+        raise _refuse(f"holds a {kind} space gymnasium refuses ({e})") from None
+    if rng is not None:
+        if type(rng) is not np.random.Generator:
+            raise _refuse(f"holds a space whose random generator is a {type(rng).__name__}")
+        built._np_random = rng
+    return built
+
+
+def _pairs(items: Any, what: str) -> list:
+    if type(items) is not list or any(type(p) is not list or len(p) != 2 for p in items):
+        raise _refuse(f"holds a malformed {what}")
+    return items
+
+
+def _decode_default_dict(items: Any) -> collections.defaultdict:
+    if type(items) is not list or len(items) != 2:
+        raise _refuse("holds a malformed defaultdict")
+    factory = items[0]
+    if factory is not None and not isinstance(factory, type):
+        raise _refuse(f"holds a defaultdict whose factory is a {type(factory).__name__}")
+    return collections.defaultdict(factory, _pairs(items[1], "defaultdict"))
+
+
+def _decode_deque(items: Any) -> collections.deque:
+    if type(items) is not list or len(items) != 2 or type(items[0]) is not list:
+        raise _refuse("holds a malformed deque")
+    maxlen = items[1]
+    return collections.deque(items[0], None if maxlen is None else _int(maxlen, "a deque maxlen"))
+
+
+def _three(items: Any, what: str) -> list:
+    if type(items) is not list or len(items) != 3:
+        raise _refuse(f"holds a malformed {what}")
+    return items
+
+
+def _decode_range(items: Any) -> range:
+    start, stop, step = _three(items, "range")
+    if not all(type(v) is int for v in (start, stop, step)):
+        raise _refuse("holds a range of non-integers")
+    return range(start, stop, step)
+
+
+def _decode_complex(items: Any) -> complex:
+    if type(items) is not list or len(items) != 2 or not all(type(v) is float for v in items):
+        raise _refuse("holds a malformed complex")
+    return complex(items[0], items[1])
+
+
+def _decode_items(code: int):
+    def build(items: Any) -> Any:
+        if type(items) is not list:
+            raise _refuse(f"holds a malformed {KINDS[code]}")
+        return {TUPLE: tuple, SET: set, FROZENSET: frozenset}[code](items)
+
+    return build
+
+
+_DECODERS: dict[int, Any] = {
+    TUPLE: _decode_items(TUPLE),
+    SET: _decode_items(SET),
+    FROZENSET: _decode_items(FROZENSET),
+    COMPLEX: _decode_complex,
+    RANGE: _decode_range,
+    SLICE: lambda items: slice(*_three(items, "slice")),
+    ORDERED_DICT: lambda items: collections.OrderedDict(_pairs(items, "OrderedDict")),
+    DEFAULT_DICT: _decode_default_dict,
+    DEQUE: _decode_deque,
+    ARRAY: _decode_array,
+    OBJECT_ARRAY: _decode_object_array,
+    SCALAR: _decode_scalar,
+    DTYPE: _dtype,
+    SPACE: _decode_space,
+    RANDOM: _decode_random,
+}
+#: records whose payload is raw bytes, not msgpack
+_RAW = {
+    BIG_INT: lambda data: int.from_bytes(data, "little", signed=True),
+    TYPE: lambda data: _type_named(data.decode("ascii", "replace")),
+}
+
+
+class _Decoder:
+    __slots__ = ("depth",)
+
+    def __init__(self) -> None:
+        self.depth = 0
+
+    def load(self, data: bytes) -> Any:
+        return msgpack.unpackb(data, ext_hook=self.ext, strict_map_key=False, raw=False, use_list=True)
+
+    def ext(self, code: int, data: bytes) -> Any:
+        if np is None:
+            _numpy()
+        raw = _RAW.get(code)
+        if raw is not None:
+            if code == BIG_INT and len(data) > 1 << 20:
+                raise _refuse(f"holds an integer of {len(data):,} bytes")
+            return raw(data)
+        build = _DECODERS.get(code)
+        if build is None:
+            raise _refuse(f"holds an extension record of unknown kind {code}")
+        if self.depth >= MAX_DEPTH:
+            raise _refuse(f"nests values more than {MAX_DEPTH} records deep")
+        self.depth += 1
+        try:
+            return build(self.load(data))
+        finally:
+            self.depth -= 1
+
+
+def decode(data: bytes) -> Any:
+    """What :func:`encode` encoded. Anything that is not its output is refused: :class:`~hub_envs.errors.IsolationError`
+    for a record that asks for more than it carries or for what the wire never builds, ``ValueError`` /
+    ``TypeError`` / ``msgpack`` errors for bytes that are no message at all.
+
+    >>> decode(encode((1, {2: b"x"}, frozenset({3}))))
+    (1, {2: b'x'}, frozenset({3}))
+    >>> decode(b"\\xc7\\x06\\x0c\\x94\\xa3<f4\\x91\\xcf")  # doctest: +IGNORE_EXCEPTION_DETAIL
+    Traceback (most recent call last):
+    ValueError: Unpack failed: incomplete input
+    """
+    try:
+        return _Decoder().load(data)
+    except RecursionError:
+        raise _refuse("nests values too deep") from None

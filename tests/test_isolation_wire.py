@@ -1,0 +1,195 @@
+"""The wire an isolated env's worker answers on (``hub_envs.isolation.wire``): what envs return comes back
+exactly; what a hostile worker could forge is refused before anything is built."""
+
+from __future__ import annotations
+
+import collections
+
+import gymnasium as gym
+import msgpack
+import numpy as np
+import pytest
+
+from hub_envs import errors
+from hub_envs.isolation import wire
+from hub_envs.isolation.wire import ARRAY, DTYPE, OBJECT_ARRAY, RANDOM, SCALAR, SPACE, TUPLE, TYPE, Unsendable, decode, encode
+
+S = gym.spaces
+
+
+def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    if type(b) is not np.ndarray or a.dtype != b.dtype or a.shape != b.shape or not b.flags.writeable:
+        return False
+    if a.dtype == object:
+        return all(type(x) is type(y) for x, y in zip(a.ravel(), b.ravel(), strict=True)) and repr(a) == repr(b)
+    return a.tobytes() == b.tobytes() and (a.ndim < 2 or a.flags.f_contiguous == b.flags.f_contiguous or not a.flags.c_contiguous)
+
+
+def test_values_envs_return_come_back_exactly():
+    """Types, dtypes, byte order, shapes, memory order, key order and values -- the same as the env returned."""
+    plain = {
+        "q": collections.deque([1, 2], maxlen=5),
+        "d": collections.defaultdict(list, a=[1]),
+        "types": [list, (tuple, set), np.float32, np.dtypes.Float32DType],
+        frozenset({1, (2, "x")}): {b"bytes", None},
+        "r": range(10**12),
+        "big": 2**200,
+        "negative": -(2**70),
+        "c": 1 + 2j,
+        "sl": slice(1, None, "a"),
+        "od": collections.OrderedDict(b=1, a=2),
+        3: [0.1, float("nan"), -0.0, True],
+        (1, 2): "tuple key",
+    }
+    back = decode(encode(plain))
+    assert list(back) == list(plain) and repr(back) == repr(plain)
+    for k in plain:
+        assert type(back[k]) is type(plain[k])
+    assert back["d"].default_factory is list and back["q"].maxlen == 5 and back["types"][2] is np.float32
+    arrays = [
+        np.arange(6.0)[::2],
+        np.asfortranarray(np.arange(6, dtype=">i2").reshape(2, 3)),
+        np.zeros((0, 3), np.uint8),
+        np.array(3.5),
+        np.array(["ab", "c"]),
+        np.zeros(2, dtype=[("x", "<f4"), ("y", "<i8", (2,))]),
+        np.zeros(2, dtype=np.dtype({"names": ["a", "b"], "formats": ["u1", "<f8"], "offsets": [0, 8], "itemsize": 24})),
+        np.array([None, {"a": 1}, np.zeros(2)], dtype=object),
+        np.array(["2020-01-01"], dtype="datetime64[s]"),
+    ]
+    for a in arrays:
+        assert _same_array(a, decode(encode(a))), a
+    for x in (
+        np.float32(1.5),
+        np.int64(3),
+        np.bool_(True),
+        np.str_("hé"),
+        np.float64(2.0),
+        np.datetime64("2020-01-01"),
+        np.dtype(">i2"),
+    ):
+        b = decode(encode(x))
+        assert type(b) is type(x) and b == x
+    for make in (np.random.PCG64, np.random.PCG64DXSM, np.random.MT19937, np.random.Philox, np.random.SFC64):
+        rng = np.random.Generator(make(7))
+        rng.random(3)
+        b = decode(encode(rng))
+        assert type(b.bit_generator) is make and b.bit_generator.seed_seq.state == rng.bit_generator.seed_seq.state
+        assert b.random(5).tolist() == rng.random(5).tolist() and b.integers(0, 2**40) == rng.integers(0, 2**40)
+    legacy = np.random.RandomState(4)
+    assert decode(encode(legacy)).random_sample() == legacy.random_sample()
+
+
+@pytest.mark.parametrize(
+    "space",
+    [
+        S.Box(0.0, 1.0, (2,)),
+        S.Box(np.array([-1, 0], np.int32), np.array([3, 4], np.int32), dtype=np.int32),
+        S.Box(-np.inf, np.inf, (2, 3), np.float64),
+        S.Discrete(3, start=1),
+        S.MultiDiscrete([2, 3]),
+        S.MultiBinary([2, 3]),
+        S.Text(5, min_length=2, charset="cab"),
+        S.Dict({"b": S.Box(0, 1, (2,)), "a": S.Discrete(2)}),
+        S.Dict([("z", S.Discrete(2)), ("a", S.Discrete(3))]),  # an order that is not sorted
+        S.Tuple([S.Discrete(2), S.Box(-1, 1, (1,))]),
+        S.Sequence(S.Discrete(3), stack=True),
+        S.Graph(S.Box(0, 1, (2,)), S.Discrete(3)),
+        S.OneOf([S.Discrete(2), S.Box(0, 1, (1,))]),
+    ],
+    ids=lambda s: type(s).__name__,
+)
+def test_gymnasium_spaces_come_back_equal_in_order_and_with_their_random_state(space):
+    assert decode(encode(space)).np_random is not None  # unseeded: a fresh generator, as gymnasium makes one
+    space.seed(3)
+    space.sample()
+    back = decode(encode(space))
+    assert type(back) is type(space) and back == space and repr(back) == repr(space)
+    if isinstance(space, S.Dict):
+        assert list(back.spaces) == list(space.spaces)
+    for _ in range(3):
+        assert repr(back.sample()) == repr(space.sample())
+
+
+def test_what_the_wire_cannot_carry_is_named_where_it_is():
+    for value, said in (
+        ({"f": print}, r"info\['f'\] is of type builtin_function_or_method"),
+        ({"m": [np.ma.masked_array([1])]}, r"info\['m'\]\[0\] is of type numpy.ma.MaskedArray"),
+        ({"e": [collections.defaultdict(lambda: 0)]}, r"info\['e'\]\[0\] is a defaultdict whose factory is a function"),
+        ({"t": object}, r"info\['t'\] is the type builtins.object"),
+        ({"s": type("Custom", (S.Discrete,), {})(3)}, r"info\['s'\] is a space of class"),
+        ({"o": np.zeros(1, dtype=[("a", "O")])}, r"info\['o'\] is a structured numpy dtype holding Python objects"),
+    ):
+        with pytest.raises(Unsendable, match=said):
+            encode(value, "info")
+
+
+def _ext(code: int, *items) -> msgpack.ExtType:
+    return msgpack.ExtType(code, msgpack.packb(list(items) if len(items) != 1 else items[0], default=_nested))
+
+
+def _nested(x):  # forged records as they are, honest values (a state's arrays) as the wire encodes them
+    return x if isinstance(x, msgpack.ExtType) else wire._default(x)
+
+
+def _forged(value) -> bytes:
+    return msgpack.packb(value, default=_nested)
+
+
+def test_records_asking_for_more_than_they_carry_or_for_code_are_refused_before_anything_is_built():
+    """A hostile worker's answers (what a red-team pass of the old pickle decoder found, in this wire's terms): each
+    an IsolationError decided from the record itself, in a few microseconds, with nothing allocated."""
+    pcg = np.random.PCG64(1).state
+    mt = np.random.MT19937(1).state
+    philox = np.random.Philox(1).state
+    seq = {"entropy": 1, "spawn_key": [], "pool_size": 10**9, "n_children_spawned": 0}
+    big = 2**31
+    for value, said in (
+        (_ext(ARRAY, "|u1", [10**11], False, b""), "asks for an array of 100,000,000,000 bytes"),
+        (_ext(ARRAY, "|V0", [10**12], False, b""), "items of an empty dtype"),
+        (_ext(ARRAY, "|O", [2], False, b"A" * 16), "Python objects read from raw bytes"),
+        (
+            _ext(
+                ARRAY, {"names": ["a"], "formats": ["|O"], "offsets": [0], "itemsize": 8, "aligned": False}, [1], False, b"A" * 8
+            ),
+            "Python objects",
+        ),
+        (_ext(ARRAY, [["<f8", [big, big]]], [1], False, b""), "dtype"),
+        (_ext(OBJECT_ARRAY, [10**9], [1]), "object array of shape"),
+        (_ext(SCALAR, "V1000000000", b""), "dtype string|1000000000 bytes"),
+        (_ext(TYPE, "os.system"), "names a type"),
+        (msgpack.ExtType(TYPE, b"posix.system"), "off the wire's list"),
+        (msgpack.ExtType(99, b""), "unknown kind 99"),
+        (_ext(RANDOM, "Generator", "MT19937", {**mt, "state": {**mt["state"], "pos": 10**8}}, None), "MT19937 position"),
+        (_ext(RANDOM, "Generator", "Philox", {**philox, "buffer_pos": 5}, None), "Philox buffer position"),
+        (_ext(RANDOM, "Generator", "PCG64", pcg, seq), "seed pool size"),
+        (_ext(RANDOM, "Generator", "numpy.random._generator", pcg, None), "random generator"),
+        (_ext(SPACE, "Box", [0.0, 1.0], None), "bounds are not two arrays"),
+        (_ext(SPACE, "MultiBinary", [[10**20]], None), "array dimension"),
+        (_ext(SPACE, "Discrete", [1, 0, _ext(DTYPE, "|O")], None), "Python objects"),
+        (_ext(SPACE, "CustomSpace", [], None), "gymnasium space 'CustomSpace'"),
+        (_ext(DTYPE, "|u1" * 100), "dtype string of 300 characters"),
+    ):
+        with pytest.raises(errors.IsolationError, match=said):
+            decode(_forged(["ok", value]))
+    deep = _ext(TUPLE, [])
+    for _ in range(wire.MAX_DEPTH + 1):  # a tuple nested past the limit (it hashed recursively in C: a segfault)
+        deep = _ext(TUPLE, [deep])
+    with pytest.raises(errors.IsolationError, match="nests values more than"):
+        decode(_forged({deep: 1}))
+
+
+def test_bytes_that_are_no_answer_are_refused_without_building_what_they_announce():
+    """msgpack's own limits: no length beyond the message, native nesting bounded; and a pickle is not an answer."""
+    import pickle
+
+    for data in (
+        b"\xdd\x7f\xff\xff\xff",  # an array of 2**31 items announced in 5 bytes
+        b"\xdf\x7f\xff\xff\xff",  # a map of 2**31 pairs
+        b"\xc6\x7f\xff\xff\xff",  # 2 GB of bytes
+        b"\x91" * 100_000 + b"\xc0",  # nesting 100,000 lists deep
+        pickle.dumps(("ok", 1)),
+        b"\x81\x91\x01\x02",  # a list as a dict key
+    ):
+        with pytest.raises((ValueError, TypeError)):
+            decode(data)
