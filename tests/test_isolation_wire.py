@@ -132,6 +132,11 @@ def _nested(x):  # forged records as they are, honest values (a state's arrays) 
     return x if isinstance(x, msgpack.ExtType) else wire._default(x)
 
 
+def _array(desc, shape, fortran, data: bytes) -> msgpack.ExtType:
+    head = msgpack.packb([desc, shape, fortran])
+    return msgpack.ExtType(ARRAY, len(head).to_bytes(4, "little") + head + data)
+
+
 def _forged(value) -> bytes:
     return msgpack.packb(value, default=_nested)
 
@@ -145,18 +150,18 @@ def test_records_asking_for_more_than_they_carry_or_for_code_are_refused_before_
     seq = {"entropy": 1, "spawn_key": [], "pool_size": 10**9, "n_children_spawned": 0}
     big = 2**31
     for value, said in (
-        (_ext(ARRAY, "|u1", [10**11], False, b""), "asks for an array of 100,000,000,000 bytes"),
-        (_ext(ARRAY, "|V0", [10**12], False, b""), "items of an empty dtype"),
-        (_ext(ARRAY, "|O", [2], False, b"A" * 16), "Python objects read from raw bytes"),
+        (_array("|u1", [10**11], False, b""), "asks for an array of 100,000,000,000 bytes"),
+        (_array("|V0", [10**12], False, b""), "items of an empty dtype"),
+        (_array("|O", [2], False, b"A" * 16), "Python objects read from raw bytes"),
         (
-            _ext(
-                ARRAY, {"names": ["a"], "formats": ["|O"], "offsets": [0], "itemsize": 8, "aligned": False}, [1], False, b"A" * 8
-            ),
+            _array({"names": ["a"], "formats": ["|O"], "offsets": [0], "itemsize": 8, "aligned": False}, [1], False, b"A" * 8),
             "Python objects",
         ),
-        (_ext(ARRAY, [["<f8", [big, big]]], [1], False, b""), "dtype"),
+        (_array([["<f8", [big, big]]], [1], False, b""), "dtype"),
+        (msgpack.ExtType(ARRAY, (2**31).to_bytes(4, "little") + b"\x93"), "header is longer than the record"),
         (_ext(OBJECT_ARRAY, [10**9], [1]), "object array of shape"),
-        (_ext(SCALAR, "V1000000000", b""), "dtype string|1000000000 bytes"),
+        (msgpack.ExtType(SCALAR, b"\x0bV1000000000"), "scalar of 1000000000 bytes from 0 bytes"),
+        (msgpack.ExtType(SCALAR, b"\x01O" + bytes(8)), "Python objects"),
         (_ext(TYPE, "os.system"), "names a type"),
         (msgpack.ExtType(TYPE, b"posix.system"), "off the wire's list"),
         (msgpack.ExtType(99, b""), "unknown kind 99"),

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import collections
 import math
+import struct
 import sys
 from typing import Any
 
@@ -71,6 +72,8 @@ KINDS = {
 MAX_DEPTH = 64
 #: at most this many items of a zero-size dtype (``np.empty(n, "V0")`` weighs nothing, whatever ``n`` says)
 MAX_EMPTY_ITEMS = 1 << 16
+#: an :data:`ARRAY` record starts with the length of its header
+_HEAD = struct.Struct("<I")
 
 
 class Unsendable(TypeError):
@@ -158,14 +161,25 @@ def _array(a: np.ndarray) -> msgpack.ExtType:
             raise Unsendable("a structured numpy dtype holding Python objects")
         return msgpack.ExtType(OBJECT_ARRAY, _pack([list(a.shape), a.ravel().tolist() if a.ndim else [a.item()]]))
     fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
-    data = a.tobytes(order="F" if fortran else "C")
-    return msgpack.ExtType(ARRAY, _pack([_dtype_desc(a.dtype), list(a.shape), fortran, data]))
+    head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran])
+    if a.size == 0 or a.dtype.itemsize == 0:
+        data: Any = b""
+    else:  # the bytes in memory order without a copy when they are contiguous (a copy of a big array is page faults)
+        flat = a.T if fortran else a if a.flags.c_contiguous else np.ascontiguousarray(a)
+        data = memoryview(flat.reshape(-1).view(np.uint8))
+    return msgpack.ExtType(ARRAY, b"".join((_HEAD.pack(len(head)), head, data)))
 
 
 def _scalar(x: np.generic) -> msgpack.ExtType:
-    if x.dtype.hasobject:
+    """A :data:`SCALAR` record: the length of the dtype's string, the string, the scalar's bytes; or, for a
+    structured scalar, a zero byte and the :data:`ARRAY` record of it as a 0-d array."""
+    dt = x.dtype
+    if dt.hasobject:
         raise Unsendable("a numpy scalar holding Python objects")
-    return msgpack.ExtType(SCALAR, _pack([_dtype_desc(x.dtype), x.tobytes()]))
+    if dt.fields is not None:
+        return msgpack.ExtType(SCALAR, b"\0" + _array(np.array(x)).data)
+    desc = dt.str.encode()
+    return msgpack.ExtType(SCALAR, b"".join((bytes([len(desc)]), desc, x.tobytes())))
 
 
 def _generator_desc(obj: Any) -> list:
@@ -385,22 +399,30 @@ def _dtype(desc: Any, depth: int = 0) -> np.dtype:
     return dt
 
 
-def _decode_array(items: Any) -> np.ndarray:
-    if type(items) is not list or len(items) != 4:
+def _decode_array(payload: bytes) -> np.ndarray:
+    """An :data:`ARRAY` record: the header's length (:data:`_HEAD`), the header ``[dtype, shape, fortran]`` (plain
+    msgpack), then the array's bytes in memory order."""
+    if len(payload) < _HEAD.size:
         raise _refuse("holds a malformed numpy array")
-    desc, shape, fortran, data = items
+    (n,) = _HEAD.unpack_from(payload)
+    start = _HEAD.size + n
+    if start > len(payload):
+        raise _refuse("holds a numpy array whose header is longer than the record")
+    items = msgpack.unpackb(payload[_HEAD.size : start], raw=False)
+    if type(items) is not list or len(items) != 3 or type(items[2]) is not bool:
+        raise _refuse("holds a malformed numpy array")
+    desc, shape, fortran = items
     dt, shape = _dtype(desc), _shape(shape)
-    if type(data) is not bytes or type(fortran) is not bool:
-        raise _refuse("holds a malformed numpy array")
-    count = math.prod(shape)
+    count, size = math.prod(shape), len(payload) - start
     if dt.itemsize == 0:
-        if count > MAX_EMPTY_ITEMS or data:
+        if count > MAX_EMPTY_ITEMS or size:
             raise _refuse(f"asks for {count:,} items of an empty dtype")
         return np.empty(shape, dt)
-    if count * dt.itemsize != len(data):
-        raise _refuse(f"asks for an array of {count * dt.itemsize:,} bytes ({dt}, shape {shape}) from {len(data):,} bytes")
+    if count * dt.itemsize != size:
+        raise _refuse(f"asks for an array of {count * dt.itemsize:,} bytes ({dt}, shape {shape}) from {size:,} bytes")
     # over a copy of the bytes (padding included): writable, as the env's own array was
-    return np.frombuffer(bytearray(data), dt, count).reshape(shape, order="F" if fortran else "C")
+    data = bytearray(memoryview(payload)[start:])
+    return np.frombuffer(data, dt, count).reshape(shape, order="F" if fortran else "C")
 
 
 def _decode_object_array(items: Any) -> np.ndarray:
@@ -415,13 +437,27 @@ def _decode_object_array(items: Any) -> np.ndarray:
     return out.reshape(shape)
 
 
-def _decode_scalar(items: Any) -> np.generic:
-    if type(items) is not list or len(items) != 2 or type(items[1]) is not bytes:
+_SCALAR_DTYPES: dict[bytes, Any] = {}
+
+
+def _decode_scalar(payload: bytes) -> np.generic:
+    if not payload:
         raise _refuse("holds a malformed numpy scalar")
-    dt = _dtype(items[0])
-    if len(items[1]) != dt.itemsize:
-        raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(items[1])} bytes")
-    return np.frombuffer(items[1], dt, 1).copy()[0]
+    n = payload[0]
+    if n == 0:  # a structured scalar, as a 0-d array
+        array = _decode_array(payload[1:])
+        if array.shape != () or array.dtype.fields is None:
+            raise _refuse("holds a structured numpy scalar that is not one")
+        return array[()]
+    desc = payload[1 : 1 + n]
+    dt = _SCALAR_DTYPES.get(desc)
+    if dt is None:
+        dt = _dtype(desc.decode("ascii", "replace"))
+        if len(_SCALAR_DTYPES) < 256:
+            _SCALAR_DTYPES[desc] = dt
+    if len(payload) - 1 - n != dt.itemsize:
+        raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(payload) - 1 - n} bytes")
+    return np.frombuffer(payload, dt, 1, 1 + n)[0]
 
 
 def _checked_state(name: str, state: Any) -> dict:
@@ -625,9 +661,7 @@ _DECODERS: dict[int, Any] = {
     ORDERED_DICT: lambda items: collections.OrderedDict(_pairs(items, "OrderedDict")),
     DEFAULT_DICT: _decode_default_dict,
     DEQUE: _decode_deque,
-    ARRAY: _decode_array,
     OBJECT_ARRAY: _decode_object_array,
-    SCALAR: _decode_scalar,
     DTYPE: _dtype,
     SPACE: _decode_space,
     RANDOM: _decode_random,
@@ -635,6 +669,8 @@ _DECODERS: dict[int, Any] = {
 #: records whose payload is raw bytes, not msgpack
 _RAW = {
     BIG_INT: lambda data: int.from_bytes(data, "little", signed=True),
+    ARRAY: _decode_array,
+    SCALAR: _decode_scalar,
     TYPE: lambda data: _type_named(data.decode("ascii", "replace")),
 }
 
@@ -675,9 +711,9 @@ def decode(data: bytes) -> Any:
 
     >>> decode(encode((1, {2: b"x"}, frozenset({3}))))
     (1, {2: b'x'}, frozenset({3}))
-    >>> decode(b"\\xc7\\x06\\x0c\\x94\\xa3<f4\\x91\\xcf")  # doctest: +IGNORE_EXCEPTION_DETAIL
+    >>> decode(b"\\x92\\xa2ok\\xdd\\x7f\\xff\\xff\\xff")  # a list of 2**31 items, announced in 5 bytes  # doctest: +IGNORE_EXCEPTION_DETAIL
     Traceback (most recent call last):
-    ValueError: Unpack failed: incomplete input
+    ValueError: 2147483647 exceeds max_array_len(9)
     """
     try:
         return _Decoder().load(data)
