@@ -198,3 +198,22 @@ def test_bytes_that_are_no_answer_are_refused_without_building_what_they_announc
     ):
         with pytest.raises((ValueError, TypeError)):
             decode(data)
+
+
+def test_keys_chosen_to_share_one_hash_are_refused_not_inserted_in_quadratic_time():
+    """int (and float, tuple) hashes are not randomized: 20,000 keys i * (2**61 - 1) all hash to 0, and a dict of
+    them took 2.5 s to build here from 280 kB (a 1 MB answer: minutes). Refused in dicts, sets, OrderedDicts and
+    defaultdicts; a few keys that happen to share a hash (-1 and -2 do) are fine."""
+    p = 2**61 - 1
+    keys = [msgpack.ExtType(wire.BIG_INT, (i * p).to_bytes(16, "little", signed=True)) for i in range(20_000)]
+    collide = b"\xdf" + len(keys).to_bytes(4, "big") + b"".join(msgpack.packb(k) + b"\xc0" for k in keys)
+    with pytest.raises(errors.IsolationError, match="share a hash"):
+        decode(collide)
+    for code in (wire.SET, wire.FROZENSET):
+        with pytest.raises(errors.IsolationError, match="share a hash"):
+            decode(_forged(_ext(code, keys)))
+    for code, items in ((wire.ORDERED_DICT, [[k, None] for k in keys]), (wire.DEFAULT_DICT, [None, [[k, None] for k in keys]])):
+        with pytest.raises(errors.IsolationError, match="share a hash"):
+            decode(_forged(_ext(code, *items) if code == wire.DEFAULT_DICT else _ext(code, items)))
+    honest = {-1: "a", -2: "b", **{i: i for i in range(1000)}}
+    assert decode(encode(honest)) == honest and decode(encode(set(honest))) == set(honest)

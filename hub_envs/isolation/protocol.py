@@ -41,6 +41,8 @@ FAST_HEADER = struct.Struct("<ci")
 #: truncated, then the info dict encoded (a parent often gets the same info bytes step after step: see
 #: :class:`InfoDecoder`)
 FAST_ANSWER = struct.Struct("<cd??")
+#: the answer to a vector slice's step when its observations went through shared memory (see :func:`vector_answer`)
+VECTOR_ANSWER = struct.Struct("<cI")
 #: the info values :class:`InfoDecoder` may hand out again (immutable: a fresh dict of them is a fresh decoding)
 _PLAIN = (bool, int, float, str, type(None))
 
@@ -75,6 +77,38 @@ def decode_answer(data: bytes) -> tuple[str, Any]:
     return status, value
 
 
+def vector_answer(rewards: Any, terminations: Any, truncations: Any, infos: list) -> bytes:
+    """The :data:`VECTOR_ANSWER` of a vector slice's step whose observations went through shared memory: ``b"V"``,
+    the number of envs, their rewards (float64), terminations and truncations (bool), then the infos encoded."""
+    n = len(infos)
+    return b"".join(
+        (VECTOR_ANSWER.pack(b"V", n), rewards.tobytes(), terminations.tobytes(), truncations.tobytes(), encode(infos))
+    )
+
+
+def read_vector_answer(data: bytes, infos_of: InfoDecoder) -> tuple:
+    """``(rewards, terminations, truncations, infos, [])`` from a :data:`VECTOR_ANSWER` (arrays over ``data``).
+
+    >>> import numpy as np
+    >>> r, te, tr, infos, _ = read_vector_answer(vector_answer(np.ones(2), np.zeros(2, bool), np.ones(2, bool), [{}, {}]), InfoDecoder())
+    >>> r.tolist(), te.tolist(), tr.tolist(), infos
+    ([1.0, 1.0], [False, False], [True, True], [{}, {}])
+    """
+    import numpy as np
+
+    _, n = VECTOR_ANSWER.unpack_from(data)
+    start = VECTOR_ANSWER.size
+    if len(data) < start + 10 * n:
+        raise ValueError(f"a vector answer for {n:,} envs of {len(data):,} bytes")
+    rewards = np.frombuffer(data, np.float64, n, start)
+    terminations = np.frombuffer(data, np.bool_, n, start + 8 * n)
+    truncations = np.frombuffer(data, np.bool_, n, start + 9 * n)
+    infos = infos_of(data[start + 10 * n :])
+    if type(infos) is not list:
+        raise ValueError("a vector answer whose infos are not a list")
+    return rewards, terminations, truncations, infos, []
+
+
 def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> bytes | None:
     """The :data:`FAST_ANSWER` of a step whose observation went through shared memory, or None when its values
     would not come back as exactly these types that way (the caller encodes the whole answer instead)."""
@@ -84,30 +118,36 @@ def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> byte
 
 
 class InfoDecoder:
-    """Decodes the info of :data:`FAST_ANSWER` answers (:func:`~hub_envs.isolation.wire.decode`), skipping the
-    decoding when the bytes are those of the last info and it held only str keys and builtin scalars (a fresh dict
-    of the same immutable values is then exactly what decoding would give).
+    """Decodes the infos of :data:`FAST_ANSWER` and :data:`VECTOR_ANSWER` answers (a dict, or a list of dicts, with
+    :func:`~hub_envs.isolation.wire.decode`), skipping the decoding when the bytes are those of the last infos and
+    they held only str keys and builtin scalars (fresh dicts of the same immutable values are then exactly what
+    decoding would give).
 
     >>> info_of = InfoDecoder()
     >>> a = info_of(encode({"is_success": False}))
     >>> b = info_of(encode({"is_success": False}))
     >>> a == b == {"is_success": False} and a is not b
     True
+    >>> info_of(encode([{}, {"x": 1}])) == info_of(encode([{}, {"x": 1}])) == [{}, {"x": 1}]
+    True
     """
 
     def __init__(self) -> None:
         self._bytes: bytes | None = None
-        self._info: dict = {}
+        self._infos: list[dict] = []
+        self._one = True
 
-    def __call__(self, data: bytes) -> dict:
+    def __call__(self, data: bytes) -> dict | list[dict]:
         if data == self._bytes:
-            return dict(self._info)
-        info = decode(data)
-        if type(info) is not dict:
-            raise ValueError(f"an info of type {type(info).__name__} in a fast answer")
-        plain = all(type(k) is str and type(v) in _PLAIN for k, v in info.items())
-        self._bytes, self._info = (data, dict(info)) if plain else (None, {})
-        return info
+            return dict(self._infos[0]) if self._one else [dict(i) for i in self._infos]
+        infos = decode(data)
+        one = type(infos) is dict
+        listed = [infos] if one else infos
+        if type(listed) is not list or not all(type(i) is dict for i in listed):
+            raise ValueError(f"infos of type {type(infos).__name__} in a fast answer")
+        plain = all(type(k) is str and type(v) in _PLAIN for i in listed for k, v in i.items())
+        self._bytes, self._infos, self._one = (data, [dict(i) for i in listed], one) if plain else (None, [], one)
+        return infos
 
 
 def error_info(exc: BaseException) -> dict[str, Any]:

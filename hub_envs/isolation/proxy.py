@@ -56,6 +56,7 @@ from hub_envs.isolation.protocol import (
     InfoDecoder,
     decode_answer,
     dumps,
+    read_vector_answer,
     rebuild_error,
 )
 
@@ -417,6 +418,8 @@ class Worker:
 
     def _decode(self, op: str, data: bytes) -> Any:
         try:
+            if data[:1] == b"V" and op == "vstep":  # a vector slice's step (observations in shared memory)
+                return read_vector_answer(data, self._infos)
             status, value = decode_answer(data)
         except Exception as e:
             raise self._garbled(op, e) from None

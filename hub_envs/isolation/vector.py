@@ -221,7 +221,11 @@ class WorkerSlice:
         return infos, unshared
 
     def step(self, actions):
-        rewards, terms, truncs, infos, unshared = [], [], [], [], []
+        """``(rewards, terminations, truncations, infos, observations not in shared memory)``: rewards and flags as
+        the float64 and bool arrays ``SyncVectorEnv`` stores them in (assigned item by item, as it does)."""
+        n = len(self.envs)
+        rewards, terms, truncs = np.zeros(n, np.float64), np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+        infos, unshared = [], []
         for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
             if self.autoreset[i]:
                 obs, info = env.reset()
@@ -229,9 +233,7 @@ class WorkerSlice:
             else:
                 obs, r, te, tr, info = env.step(action)
             self._out(i, obs, unshared)
-            rewards.append(r)
-            terms.append(bool(te))
-            truncs.append(bool(tr))
+            rewards[i], terms[i], truncs[i] = r, te, tr
             infos.append(info)
             self.autoreset[i] = bool(te or tr)
         return rewards, terms, truncs, infos, unshared
@@ -252,6 +254,16 @@ class WorkerSlice:
             env.close()
         if self.buffers is not None:
             self.buffers.close()
+
+
+def _is_vector_step(answer: Any, n: int) -> bool:
+    """Whether a worker's answer to a vector step is one for ``n`` envs (:meth:`WorkerSlice.step`)."""
+    if type(answer) is not tuple or len(answer) != 5 or type(answer[3]) is not list or len(answer[3]) != n:
+        return False
+    return all(type(a) is np.ndarray and a.shape == (n,) and a.dtype == d for a, d in zip(answer[:3], _STEP_DTYPES))
+
+
+_STEP_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.bool_))
 
 
 class IsolatedVectorEnv(gym.vector.VectorEnv):
@@ -399,11 +411,15 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         truncs = np.zeros(self.num_envs, dtype=np.bool_)
         infos: dict = {}
         i = 0
-        for r, te, tr, env_infos, _ in answers:
-            for j in range(len(r)):
-                rewards[i], terms[i], truncs[i] = r[j], te[j], tr[j]
-                infos = self._add_info(infos, env_infos[j], i)
-                i += 1
+        for w, (_, c), answer in zip(self._workers, self._slices, answers, strict=True):
+            if not _is_vector_step(answer, c):
+                raise w._garbled("vstep", ValueError(f"a vector step answer of type {type(answer).__name__}"))
+            r, te, tr, env_infos, _ = answer
+            n = len(env_infos)
+            rewards[i : i + n], terms[i : i + n], truncs[i : i + n] = r, te, tr
+            for j in range(n):
+                infos = self._add_info(infos, env_infos[j], i + j)
+            i += n
         return self._obs(answers), rewards, terms, truncs, infos
 
     def render(self):

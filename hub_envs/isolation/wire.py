@@ -72,6 +72,8 @@ KINDS = {
 MAX_DEPTH = 64
 #: at most this many items of a zero-size dtype (``np.empty(n, "V0")`` weighs nothing, whatever ``n`` says)
 MAX_EMPTY_ITEMS = 1 << 16
+#: at most this many keys of one dict (or items of one set) may share a hash with another (see :func:`_check_hashes`)
+MAX_SHARED_HASHES = 64
 #: an :data:`ARRAY` record starts with the length of its header
 _HEAD = struct.Struct("<I")
 
@@ -161,13 +163,25 @@ def _array(a: np.ndarray) -> msgpack.ExtType:
             raise Unsendable("a structured numpy dtype holding Python objects")
         return msgpack.ExtType(OBJECT_ARRAY, _pack([list(a.shape), a.ravel().tolist() if a.ndim else [a.item()]]))
     fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
-    head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran])
+    key = (a.dtype, a.shape, fortran)
+    head = _ARRAY_HEADS_OUT.get(key)
+    if head is None:
+        head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran])
+        head = _HEAD.pack(len(head)) + head
+        if len(_ARRAY_HEADS_OUT) < _CACHED_HEADS:
+            _ARRAY_HEADS_OUT[key] = head
     if a.size == 0 or a.dtype.itemsize == 0:
         data: Any = b""
     else:  # the bytes in memory order without a copy when they are contiguous (a copy of a big array is page faults)
         flat = a.T if fortran else a if a.flags.c_contiguous else np.ascontiguousarray(a)
         data = memoryview(flat.reshape(-1).view(np.uint8))
-    return msgpack.ExtType(ARRAY, b"".join((_HEAD.pack(len(head)), head, data)))
+    return msgpack.ExtType(ARRAY, head + data if type(data) is bytes else b"".join((head, data)))
+
+
+#: the headers of the array records a worker sent or read last (most envs send the same few layouts every step)
+_CACHED_HEADS = 256
+_ARRAY_HEADS_OUT: dict[tuple, bytes] = {}
+_ARRAY_HEADS_IN: dict[bytes, tuple] = {}
 
 
 def _scalar(x: np.generic) -> msgpack.ExtType:
@@ -408,12 +422,19 @@ def _decode_array(payload: bytes) -> np.ndarray:
     start = _HEAD.size + n
     if start > len(payload):
         raise _refuse("holds a numpy array whose header is longer than the record")
-    items = msgpack.unpackb(payload[_HEAD.size : start], raw=False)
-    if type(items) is not list or len(items) != 3 or type(items[2]) is not bool:
-        raise _refuse("holds a malformed numpy array")
-    desc, shape, fortran = items
-    dt, shape = _dtype(desc), _shape(shape)
-    count, size = math.prod(shape), len(payload) - start
+    head = payload[:start]
+    layout = _ARRAY_HEADS_IN.get(head)
+    if layout is None:
+        items = msgpack.unpackb(payload[_HEAD.size : start], raw=False)
+        if type(items) is not list or len(items) != 3 or type(items[2]) is not bool:
+            raise _refuse("holds a malformed numpy array")
+        desc, shape, fortran = items
+        dt, shape = _dtype(desc), _shape(shape)
+        layout = (dt, shape, fortran, math.prod(shape))
+        if len(_ARRAY_HEADS_IN) < _CACHED_HEADS and n <= 256:
+            _ARRAY_HEADS_IN[head] = layout
+    dt, shape, fortran, count = layout
+    size = len(payload) - start
     if dt.itemsize == 0:
         if count > MAX_EMPTY_ITEMS or size:
             raise _refuse(f"asks for {count:,} items of an empty dtype")
@@ -601,9 +622,29 @@ def _decode_space(items: Any) -> Any:
     return built
 
 
+def _check_hashes(keys: list, what: str) -> None:
+    """Refuse keys (or set items) of which many share one hash: Python's hashes of ints, floats and tuples of them
+    are not randomized, so a sender can pick thousands of keys a dict must compare with each other (a HashDoS:
+    quadratic time after the watchdog). ``str`` and ``bytes`` hashes are keyed per process."""
+    if len(keys) <= MAX_SHARED_HASHES or all(type(k) is str for k in keys):
+        return
+    hashes = [hash(k) for k in keys]  # an unhashable key: TypeError, as building the dict would raise
+    shared = len(hashes) - len(set(hashes))
+    if shared > MAX_SHARED_HASHES:
+        raise _refuse(f"holds a {what} of {len(keys):,} keys of which {shared:,} share a hash (a hash-collision attack)")
+
+
+def _dict_from_pairs(pairs: list) -> dict:
+    """Every msgpack map: a dict of its pairs once :func:`_check_hashes` passed."""
+    if len(pairs) > MAX_SHARED_HASHES:
+        _check_hashes([k for k, _ in pairs], "dict")
+    return dict(pairs)
+
+
 def _pairs(items: Any, what: str) -> list:
     if type(items) is not list or any(type(p) is not list or len(p) != 2 for p in items):
         raise _refuse(f"holds a malformed {what}")
+    _check_hashes([p[0] for p in items], what)
     return items
 
 
@@ -646,6 +687,8 @@ def _decode_items(code: int):
     def build(items: Any) -> Any:
         if type(items) is not list:
             raise _refuse(f"holds a malformed {KINDS[code]}")
+        if code != TUPLE:
+            _check_hashes(items, KINDS[code])
         return {TUPLE: tuple, SET: set, FROZENSET: frozenset}[code](items)
 
     return build
@@ -682,7 +725,9 @@ class _Decoder:
         self.depth = 0
 
     def load(self, data: bytes) -> Any:
-        return msgpack.unpackb(data, ext_hook=self.ext, strict_map_key=False, raw=False, use_list=True)
+        return msgpack.unpackb(
+            data, ext_hook=self.ext, object_pairs_hook=_dict_from_pairs, strict_map_key=False, raw=False, use_list=True
+        )
 
     def ext(self, code: int, data: bytes) -> Any:
         if np is None:

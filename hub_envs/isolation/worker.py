@@ -28,7 +28,7 @@ from functools import partial
 from typing import Any
 
 from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
-from hub_envs.isolation.protocol import FAST_HEADER, encode_answer, error_info, fast_answer
+from hub_envs.isolation.protocol import FAST_HEADER, encode_answer, error_info, fast_answer, vector_answer
 from hub_envs.isolation.wire import Unsendable, encode
 
 STATE_METHODS = ("get_state", "reset_to")
@@ -269,6 +269,8 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         try:
             if kind == b"s" and reply[0] == "ok" and result[5]:  # the observation is in shared memory
                 data = fast_answer(*result[:4]) or encode_answer(*reply)
+            elif kind == b"v" and reply[0] == "ok" and server.vec.buffers is not None:  # so are the observations
+                data = vector_answer(*result[:4])
             else:
                 data = encode_answer(*reply)
         except Exception as e:  # an answer the wire cannot carry: say what it was
