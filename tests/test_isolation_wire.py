@@ -217,3 +217,43 @@ def test_keys_chosen_to_share_one_hash_are_refused_not_inserted_in_quadratic_tim
             decode(_forged(_ext(code, *items) if code == wire.DEFAULT_DICT else _ext(code, items)))
     honest = {-1: "a", -2: "b", **{i: i for i in range(1000)}}
     assert decode(encode(honest)) == honest and decode(encode(set(honest))) == set(honest)
+
+
+def test_what_a_second_red_team_pass_found_is_refused_at_decoding():
+    """Each from a few bytes to a few MB, each refused while decoding (the parent never builds it, nor later loops or
+    allocates when it uses what came back): a stacked Sequence of a MultiBinary(2**29) (39 bytes: 2.5 GB built by
+    gymnasium inside decode), spaces whose sample() builds gigabytes, generator states that draw 0 for ever (numpy's
+    rejection sampling then loops in C; only SIGKILL ended it), a zero-byte dtype hiding 10**14 elements, seed
+    sequence ints numpy splits in quadratic time, one payload copied at each of 64 nesting levels, millions of
+    empty containers, and a type name whose lookup made numpy import submodules."""
+    import sys
+
+    pcg = np.random.PCG64(1).state
+    mt = np.random.MT19937(1).state
+    zero_key = {**mt, "state": {"key": np.zeros(624, np.uint32), "pos": 624}}
+    seq = {"entropy": 1 << 100_000, "spawn_key": [], "pool_size": 4, "n_children_spawned": 0}
+    hidden = {"names": ["a"], "formats": [["V0,V0", [2**31 - 1]]], "offsets": [0], "itemsize": 0, "aligned": False}
+    blob = msgpack.packb(b"x" * (1 << 21))
+    for _ in range(wire.MAX_DEPTH - 1):  # a 1-tuple around a 1-tuple ... around 2 MB of bytes
+        blob = msgpack.packb(msgpack.ExtType(TUPLE, b"\x91" + blob))
+    for value, said in (
+        (_ext(SPACE, "Sequence", [_ext(SPACE, "MultiBinary", [[2**29]], None), True], None), "builds more than"),
+        (_ext(SPACE, "MultiBinary", [[3 << 30]], None), "builds more than"),
+        (_ext(SPACE, "Text", [3 * 10**8, 1, "ab"], None), "builds more than"),
+        (_ext(RANDOM, "Generator", "PCG64", {**pcg, "state": {"state": 0, "inc": 0}}, None), "even increment"),
+        (_ext(RANDOM, "Generator", "MT19937", zero_key, None), "key of zeros"),
+        (_ext(RANDOM, "Generator", "PCG64", pcg, seq), "seed sequence whose entropy"),
+        (_array(hidden, [65536], False, b""), "of zero bytes"),
+        (msgpack.ExtType(SCALAR, b"\x07<i8,<i8" + bytes(16)), "structured numpy scalar in the plain form"),
+    ):
+        with pytest.raises(errors.IsolationError, match=said):
+            decode(_forged(["ok", value]))
+    with pytest.raises(errors.IsolationError, match="builds more than"):
+        decode(msgpack.packb(["ok", msgpack.ExtType(TUPLE, b"\x91" + blob)]))  # 64 copies of 2 MB
+    with pytest.raises(errors.IsolationError, match="builds more than"):
+        decode(b"\xdd" + (1 << 22).to_bytes(4, "big") + b"\x80" * (1 << 22))  # 4 MB of empty dicts: 270 MB
+    before = set(sys.modules)
+    for name in (b"numpy.f2py", b"numpy.matlib", b"numpy.testing"):
+        with pytest.raises(errors.IsolationError, match="off the wire's list"):
+            decode(_forged(msgpack.ExtType(TYPE, name)))
+    assert not {m for m in set(sys.modules) - before if m.startswith("numpy")}

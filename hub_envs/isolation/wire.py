@@ -99,10 +99,10 @@ def _type_name(t: type) -> str | None:
         return t.__name__
     if t in _COLLECTION_TYPES:
         return f"collections.{t.__name__}"
-    if t.__module__ == "numpy" and getattr(np, t.__name__, None) is t and issubclass(t, np.generic):
+    if vars(np).get(t.__name__) is t and issubclass(t, np.generic):
         return f"numpy.{t.__name__}"
-    dtypes = getattr(np, "dtypes", None)
-    if dtypes is not None and getattr(dtypes, t.__name__, None) is t:
+    dtypes = sys.modules.get("numpy.dtypes")
+    if dtypes is not None and vars(dtypes).get(t.__name__) is t:
         return f"numpy.dtypes.{t.__name__}"
     return None
 
@@ -114,9 +114,9 @@ def _type_named(name: str) -> type:
     for t in _COLLECTION_TYPES:
         if name == f"collections.{t.__name__}":
             return t
-    module, _, attr = name.rpartition(".")
-    found = getattr(np, attr, None) if module == "numpy" else getattr(getattr(np, "dtypes", None), attr, None)
-    if module in ("numpy", "numpy.dtypes") and isinstance(found, type) and _type_name(found) == name:
+    module, _, attr = name.rpartition(".")  # looked up in what is loaded: numpy's __getattr__ imports submodules
+    found = vars(sys.modules[module]).get(attr) if module in ("numpy", "numpy.dtypes") and module in sys.modules else None
+    if isinstance(found, type) and _type_name(found) == name:
         return found
     raise _refuse(f"names a type ({name!r}) off the wire's list")
 
@@ -129,9 +129,7 @@ def type_names() -> list[str]:
     """
     _numpy()
     names = [_type_name(t) for t in (*_BUILTIN_TYPES, *_COLLECTION_TYPES)]
-    names += sorted(
-        f"numpy.{n}" for n in dir(np) if isinstance(getattr(np, n), type) and _type_name(getattr(np, n)) == f"numpy.{n}"
-    )
+    names += sorted(f"numpy.{n}" for n, t in vars(np).items() if isinstance(t, type) and _type_name(t) == f"numpy.{n}")
     return names
 
 
@@ -410,7 +408,23 @@ def _dtype(desc: Any, depth: int = 0) -> np.dtype:
         raise _refuse(f"holds a dtype numpy refuses ({e})") from None
     if dt.hasobject:
         raise _refuse("holds a dtype of Python objects read from raw bytes")
+    _check_layout(dt)
     return dt
+
+
+def _check_layout(dt: Any) -> None:
+    """Refuse a dtype with a subarray or fields of zero bytes: such items weigh nothing whatever they claim to
+    hold, so an array of them that says it is small can hold 10**14 elements once a field is taken."""
+    if dt.subdtype is not None:
+        base, shape = dt.subdtype
+        if base.itemsize == 0 and math.prod(shape) > 1:
+            raise _refuse(f"holds a dtype of {shape!r} items of zero bytes")
+        _check_layout(base)
+    if dt.fields is not None:
+        if dt.itemsize == 0 and dt.names:
+            raise _refuse("holds a structured dtype of zero bytes")
+        for name in dt.names:
+            _check_layout(dt.fields[name][0])
 
 
 def _decode_array(payload: bytes) -> np.ndarray:
@@ -425,7 +439,9 @@ def _decode_array(payload: bytes) -> np.ndarray:
     head = payload[:start]
     layout = _ARRAY_HEADS_IN.get(head)
     if layout is None:
-        items = msgpack.unpackb(payload[_HEAD.size : start], raw=False)
+        items = msgpack.unpackb(
+            payload[_HEAD.size : start], raw=False, max_array_len=4096, max_map_len=8, max_str_len=4096, max_bin_len=0
+        )
         if type(items) is not list or len(items) != 3 or type(items[2]) is not bool:
             raise _refuse("holds a malformed numpy array")
         desc, shape, fortran = items
@@ -476,6 +492,8 @@ def _decode_scalar(payload: bytes) -> np.generic:
         dt = _dtype(desc.decode("ascii", "replace"))
         if len(_SCALAR_DTYPES) < 256:
             _SCALAR_DTYPES[desc] = dt
+    if dt.fields is not None or dt.subdtype is not None:
+        raise _refuse("holds a structured numpy scalar in the plain form")
     if len(payload) - 1 - n != dt.itemsize:
         raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(payload) - 1 - n} bytes")
     return np.frombuffer(payload, dt, 1, 1 + n)[0]
@@ -483,7 +501,9 @@ def _decode_scalar(payload: bytes) -> np.generic:
 
 def _checked_state(name: str, state: Any) -> dict:
     """A bit generator's state, with every position numpy indexes by checked (numpy's setters do not: an MT19937
-    ``pos`` past its key reads out of bounds)."""
+    ``pos`` past its key reads out of bounds), and none of the states that give 0 forever (numpy's rejection
+    sampling, ``integers`` or a space's ``sample``, would then loop in C for ever): a PCG64 increment is odd, an
+    MT19937 key has a set bit where the generator reads it."""
 
     def arr(x, n):
         if type(x) is not np.ndarray or x.shape != (n,) or x.dtype != (np.uint32 if name == "MT19937" else np.uint64):
@@ -494,14 +514,18 @@ def _checked_state(name: str, state: Any) -> dict:
         raise _refuse(f"holds a malformed {name} state")
     inner = state["state"]
     if name == "MT19937":
-        arr(inner.get("key"), 624)
+        key = arr(inner.get("key"), 624)
         _int(inner.get("pos"), "an MT19937 position", 0, 624)
+        if not (int(key[0]) & 0x80000000 or key[1:].any()):
+            raise _refuse("holds an MT19937 key of zeros (it would draw 0 for ever)")
     else:
         _int(state.get("has_uint32"), "a has_uint32 flag", 0, 1)
         _int(state.get("uinteger"), "a buffered uint32", 0, (1 << 32) - 1)
         if name in ("PCG64", "PCG64DXSM"):
             for k in ("state", "inc"):
                 _int(inner.get(k), f"a {name} {k}", 0, (1 << 128) - 1)
+            if not inner["inc"] & 1:  # numpy's seeding makes it odd; an even one can give 0 for ever
+                raise _refuse(f"holds a {name} state with an even increment")
         elif name == "Philox":
             arr(inner.get("counter"), 4), arr(inner.get("key"), 2), arr(state.get("buffer"), 4)
             _int(state.get("buffer_pos"), "a Philox buffer position", 0, 4)
@@ -521,26 +545,24 @@ def _decode_random(items: Any) -> Any:
         if type(seq_state) is not dict or set(seq_state) != {"entropy", "spawn_key", "pool_size", "n_children_spawned"}:
             raise _refuse("holds a malformed seed sequence")
         entropy, key = seq_state["entropy"], seq_state["spawn_key"]
-        if (
-            entropy is not None
-            and type(entropy) is not int
-            and not (type(entropy) in (list, tuple) and all(type(e) is int for e in entropy))
-        ):
-            raise _refuse("holds a seed sequence whose entropy is not integers")
-        if type(key) not in (list, tuple) or not all(type(k) is int and k >= 0 for k in key):
-            raise _refuse("holds a seed sequence whose spawn key is not integers")
+        # numpy splits big ints into words in a quadratic Python loop: entropy and keys stay small
+        if entropy is not None and not (type(entropy) is int and 0 <= entropy < 1 << 4096):
+            if type(entropy) not in (list, tuple) or not all(type(e) is int and 0 <= e < 1 << 128 for e in entropy):
+                raise _refuse("holds a seed sequence whose entropy is not small non-negative integers")
+        if type(key) not in (list, tuple) or not all(type(k) is int and 0 <= k < 1 << 128 for k in key):
+            raise _refuse("holds a seed sequence whose spawn key is not small non-negative integers")
         seq = np.random.SeedSequence(
             entropy,
             spawn_key=tuple(key),
             pool_size=_int(seq_state["pool_size"], "a seed pool size", 4, 64),
-            n_children_spawned=_int(seq_state["n_children_spawned"], "a spawned-children count", 0, 1 << 62),
+            n_children_spawned=_int(seq_state["n_children_spawned"], "a spawned-children count", 0, (1 << 32) - 1),
         )
     if kind == "RandomState":
         if type(state) is not dict:
             raise _refuse("holds a malformed RandomState")
         _int(state.get("has_gauss"), "a has_gauss flag", 0, 1)
-        if type(state.get("gauss")) is not float:
-            raise _refuse("holds a RandomState whose gauss is not a float")
+        if type(state.get("gauss")) is not float or not math.isfinite(state["gauss"]):
+            raise _refuse("holds a RandomState whose gauss is not a finite float")
         inner = {"bit_generator": "MT19937", "state": state.get("state")}
         _checked_state("MT19937", inner)
         if name != "MT19937":
@@ -559,12 +581,36 @@ def _decode_random(items: Any) -> Any:
     return np.random.Generator(bg) if kind == "Generator" else bg
 
 
-def _decode_space(items: Any) -> Any:
+def _elements(space: Any) -> int:
+    """How many values one sample of ``space`` holds (what its ``sample()`` and a batch of it build)."""
+    parts = getattr(space, "spaces", None)
+    if parts is not None:
+        return sum(_elements(p) for p in (parts.values() if isinstance(parts, dict) else parts))
+    for sub in ("feature_space", "node_space"):
+        if hasattr(space, sub):
+            return _elements(getattr(space, sub)) + (_elements(space.edge_space) if getattr(space, "edge_space", None) else 0)
+    if hasattr(space, "max_length"):
+        return int(space.max_length)
+    return max(1, math.prod(space.shape or (1,)))
+
+
+def _decode_space(items: Any, dec: _Decoder) -> Any:
     from gymnasium import spaces as s
 
     if type(items) is not list or len(items) != 3 or type(items[1]) is not list:
         raise _refuse("holds a malformed gymnasium space")
     kind, args, rng = items
+    if kind == "MultiBinary" and len(args) == 1:  # what its sample() will build
+        dec.charge(8 * math.prod(_shape(args[0]) if type(args[0]) is list else (_int(args[0], "a MultiBinary n", 1),)), kind)
+    elif kind == "Text" and len(args) == 3:
+        dec.charge(8 * _int(args[0], "a Text max_length", 0, 1 << 62), kind)
+    elif kind == "Sequence" and len(args) == 2 and args[1] is True and isinstance(args[0], s.Space):
+        dec.charge(16 * _elements(args[0]), "a stacked Sequence")  # built here (batch_space), and by each sample()
+    elif kind == "Box" and len(args) == 2 and type(args[0]) is np.ndarray:
+        dec.charge(6 * args[0].nbytes, kind)  # the bounds, cast and compared
+    elif kind == "Graph" and len(args) == 2 and all(a is None or isinstance(a, s.Space) for a in args):
+        # its sample() draws up to 10 nodes and 90 edges, each a sample of the node / edge space, in float64
+        dec.charge(80 * _elements(args[0]) + (720 * _elements(args[1]) if args[1] is not None else 0), kind)
 
     def space(x):
         if not isinstance(x, s.Space):
@@ -602,6 +648,7 @@ def _decode_space(items: Any) -> Any:
                 if type(pair) is not list or len(pair) != 2:
                     raise _refuse("holds a malformed Dict space")
                 pairs.append((pair[0], space(pair[1])))
+            _check_hashes([k for k, _ in pairs], "Dict space")
             built = s.Dict(pairs)
         elif kind in ("Tuple", "OneOf") and len(args) == 1 and type(args[0]) is list:
             built = getattr(s, kind)([space(x) for x in args[0]])
@@ -632,13 +679,6 @@ def _check_hashes(keys: list, what: str) -> None:
     shared = len(hashes) - len(set(hashes))
     if shared > MAX_SHARED_HASHES:
         raise _refuse(f"holds a {what} of {len(keys):,} keys of which {shared:,} share a hash (a hash-collision attack)")
-
-
-def _dict_from_pairs(pairs: list) -> dict:
-    """Every msgpack map: a dict of its pairs once :func:`_check_hashes` passed."""
-    if len(pairs) > MAX_SHARED_HASHES:
-        _check_hashes([k for k, _ in pairs], "dict")
-    return dict(pairs)
 
 
 def _pairs(items: Any, what: str) -> list:
@@ -706,7 +746,7 @@ _DECODERS: dict[int, Any] = {
     DEQUE: _decode_deque,
     OBJECT_ARRAY: _decode_object_array,
     DTYPE: _dtype,
-    SPACE: _decode_space,
+    SPACE: _decode_space,  # with the decoder: see _Decoder.ext
     RANDOM: _decode_random,
 }
 #: records whose payload is raw bytes, not msgpack
@@ -718,20 +758,59 @@ _RAW = {
 }
 
 
-class _Decoder:
-    __slots__ = ("depth",)
+#: roughly what the Python object of each record kind costs beyond its payload (bytes), charged to the budget
+_RECORD_COST = {TUPLE: 64, SET: 256, FROZENSET: 256, DEQUE: 640, ORDERED_DICT: 256, DEFAULT_DICT: 256, ARRAY: 512}
+_RECORD_COST.update({OBJECT_ARRAY: 512, SCALAR: 96, DTYPE: 256, SPACE: 2048, RANDOM: 4096})
+#: a message may build this many bytes of Python objects per byte it weighs, plus :data:`BUDGET_FLOOR`
+BUDGET_PER_BYTE = 16
+BUDGET_FLOOR = 16 << 20
 
-    def __init__(self) -> None:
+
+class _Decoder:
+    """One decoding: the depth of records, and a budget of the memory the message may make the parent build
+    (:data:`BUDGET_PER_BYTE` per byte it weighs, plus :data:`BUDGET_FLOOR`): lists and maps (msgpack's own
+    containers, through its hooks), every record's payload copy and object, and what a space implies (a
+    ``MultiBinary(10**9)`` is a few bytes whose ``sample()`` builds a gigabyte; ``Sequence(stack=True)`` builds
+    its stacked space at once)."""
+
+    __slots__ = ("depth", "budget", "size")
+
+    def __init__(self, size: int) -> None:
         self.depth = 0
+        self.size = size
+        self.budget = BUDGET_PER_BYTE * size + BUDGET_FLOOR
+
+    def charge(self, nbytes: int, what: str) -> None:
+        self.budget -= nbytes
+        if self.budget < 0:
+            raise _refuse(f"builds more than {BUDGET_PER_BYTE} bytes of objects per byte of its {self.size:,} bytes (at {what})")
 
     def load(self, data: bytes) -> Any:
         return msgpack.unpackb(
-            data, ext_hook=self.ext, object_pairs_hook=_dict_from_pairs, strict_map_key=False, raw=False, use_list=True
+            data,
+            ext_hook=self.ext,
+            object_pairs_hook=self.pairs,
+            list_hook=self.list,
+            strict_map_key=False,
+            raw=False,
+            use_list=True,
         )
+
+    def list(self, items: list) -> list:
+        self.charge(56 + 8 * len(items), "a list")
+        return items
+
+    def pairs(self, pairs: list) -> dict:
+        """Every msgpack map: a dict of its pairs once :func:`_check_hashes` passed."""
+        self.charge(64 + 64 * len(pairs), "a dict")
+        if len(pairs) > MAX_SHARED_HASHES:
+            _check_hashes([k for k, _ in pairs], "dict")
+        return dict(pairs)
 
     def ext(self, code: int, data: bytes) -> Any:
         if np is None:
             _numpy()
+        self.charge(_RECORD_COST.get(code, 64) + len(data), KINDS.get(code, "a record"))  # the payload's copy too
         raw = _RAW.get(code)
         if raw is not None:
             if code == BIG_INT and len(data) > 1 << 20:
@@ -744,7 +823,13 @@ class _Decoder:
             raise _refuse(f"nests values more than {MAX_DEPTH} records deep")
         self.depth += 1
         try:
-            return build(self.load(data))
+            items = self.load(data)
+            if code == SPACE:
+                return _decode_space(items, self)
+            built = build(items)
+            if code == DTYPE and built.names:  # a structured dtype's fields cost their own objects
+                self.charge(160 * len(built.names), "a structured dtype")
+            return built
         finally:
             self.depth -= 1
 
@@ -761,6 +846,6 @@ def decode(data: bytes) -> Any:
     ValueError: 2147483647 exceeds max_array_len(9)
     """
     try:
-        return _Decoder().load(data)
+        return _Decoder(len(data)).load(data)
     except RecursionError:
         raise _refuse("nests values too deep") from None
