@@ -730,7 +730,8 @@ def load_env(
         step_timeout: seconds a call into an isolated env may take before its worker is killed
             (:class:`~hub_envs.errors.EnvTimeoutError`); None: no limit (a sandbox: 60 s).
         restart: with isolation, ``reset()`` after a crash or timeout starts a fresh worker.
-        envs_per_worker: with isolation, envs of one ``make_vec`` per worker process (0: spread over the CPUs).
+        envs_per_worker: with isolation, envs of one ``make_vec`` per worker process (0: spread over all CPUs but
+            one; with fewer workers than CPUs both sides busy-wait, see :mod:`hub_envs.isolation.vector`).
         sandbox_limits: the sandbox's resource limits, any of ``memory_mb`` (address space, default 4096),
             ``open_files`` (256) and ``processes`` (64, counted for the sandbox's uid).
 

@@ -128,14 +128,21 @@ def test_an_isolated_env_steps_bit_identically_to_the_in_process_env(published, 
     isolated.unregister()
 
 
-def test_make_vec_isolated_matches_sync_vector_env(published):
+@pytest.mark.parametrize("per_worker", [2, 0])
+def test_make_vec_isolated_matches_sync_vector_env(published, per_worker):
+    """Three workers of 2 + 2 + 1 envs (more workers than CPUs: each side sleeps between messages), and the default
+    (a CPU kept for the caller, the others for workers: both sides busy-wait) give SyncVectorEnv's answers exactly."""
+    from hub_envs.isolation.doorbell import available_cpus
+
     ref = published["pendulum"]
     here = load_env(ref, trust_remote_code=True)
-    isolated = load_env(ref, trust_remote_code=True, isolation="process", check=False, envs_per_worker=2)
+    isolated = load_env(ref, trust_remote_code=True, isolation="process", check=False, envs_per_worker=per_worker)
     a = here.make_vec(5, max_episode_steps=7)
     b = isolated.make_vec(5, max_episode_steps=7)
     try:
-        assert len(b.workers) == 3  # 2 + 2 + 1
+        cpus = available_cpus()
+        expected = 3 if per_worker else min(5, max(1, cpus - 1))
+        assert len(b.workers) == expected and all(w.spins == (expected < cpus and cpus > 1) for w in b.workers)
         assert b.single_observation_space == a.single_observation_space and b.action_space == a.action_space
         assert _same(b.reset(seed=11), a.reset(seed=11))
         b.action_space.seed(4)

@@ -131,7 +131,8 @@ def sealed_memfd(name: str, size: int) -> int:
     return fd
 
 
-def _cpus() -> int:
+def available_cpus() -> int:
+    """The CPUs this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
@@ -311,7 +312,7 @@ class SpinBudget:
     ALPHA = 0.1
 
     def __init__(self, active: bool = True, cpus: int | None = None):
-        self.active = active and (_cpus() if cpus is None else cpus) > 1
+        self.active = active and (available_cpus() if cpus is None else cpus) > 1
         self.usual = 0.0
 
     def seconds(self) -> float:

@@ -4,11 +4,19 @@ through shared memory.
 :class:`IsolatedVectorEnv` is a ``gym.vector.VectorEnv`` that behaves as the in-process
 ``SyncVectorEnv`` of ``n_envs`` copies (same seeds ``seed + i``, same next-step autoreset, same batched
 observations, rewards, flags and infos), with the envs split over worker processes
-(``envs_per_worker``; default: spread over the CPUs). Each step sends every worker one message with its
-envs' actions; the workers step in parallel, write each observation into per-key shared buffers (one
-``memfd`` per leaf ``Box`` of the observation space, ``(n_envs, *shape)`` of its dtype, handed to the
-workers as file descriptors, so no name in ``/dev/shm`` and nothing for a sandbox to reach) and answer
-with rewards, flags and infos only. Observation spaces with leaves other than ``Box`` travel in the answers.
+(``envs_per_worker``; default: over all CPUs but one, which stays the caller's). Each step sends every worker
+one message with its envs' actions; the workers step in parallel, write each observation into per-key shared
+buffers (one ``memfd`` per leaf ``Box`` of the observation space, ``(n_envs, *shape)`` of its dtype, handed to
+the workers as file descriptors, so no name in ``/dev/shm`` and nothing for a sandbox to reach) and answer with
+rewards, flags and infos only (a fixed binary layout, :func:`~hub_envs.isolation.protocol.vector_answer`).
+Observation spaces with leaves other than ``Box`` travel in the answers.
+
+**Waiting.** With fewer workers than CPUs, the caller and the workers busy-wait for each other's messages in a
+shared page (:mod:`~hub_envs.isolation.doorbell`, bounded and adaptive as for a single env); else they sleep.
+On a VM a sleeping process woken from another CPU costs ~50-65 us a wake-up: 8 pendulums (~27 us a step each)
+in one busy-waiting worker ran 0.84-0.93 of the in-process SyncVectorEnv's steps/s on 2 CPUs, in two sleeping
+workers 0.64-0.65. An env whose step is long gains more from running in parallel than it loses to wake-ups (8
+hovers, ~150 us a step: one worker 0.85, two 1.09 on 2 CPUs): set ``envs_per_worker`` to split them.
 
 Inside a worker (:class:`WorkerSlice`) every env is built as ``gym.make`` builds it in-process (TimeLimit,
 OrderEnforcing, the env checker as registered).
@@ -33,7 +41,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from hub_envs.errors import ConfigError
 from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
-from hub_envs.isolation.doorbell import sealed_memfd
+from hub_envs.isolation.doorbell import SPINNING, available_cpus, sealed_memfd
 from hub_envs.isolation.protocol import FAST_HEADER
 from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker, warn_unsent_metadata
 
@@ -282,7 +290,9 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
     ):
         if n_envs < 1:
             raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
-        per = options.envs_per_worker or math.ceil(n_envs / max(1, min(n_envs, os.cpu_count() or 1)))
+        cpus = available_cpus()
+        # by default one CPU stays the caller's (it busy-waits for the answers) and the others run workers
+        per = options.envs_per_worker or math.ceil(n_envs / max(1, min(n_envs, cpus - 1)))
         if per < 1:
             raise ConfigError(f"envs_per_worker={options.envs_per_worker}: pass a positive number (or 0 for the default).")
         self._target, self._options = target, options
@@ -293,8 +303,9 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         self._closed_vec = False
         try:
             counts = [min(per, n_envs - o) for o in range(0, n_envs, per)]
+            spin = len(counts) < cpus  # a CPU for each worker and one for the caller: both sides busy-wait
             for _ in counts:  # side by side: each imports the env's code at the same time
-                self._workers.append(Worker(target, options, wait=False))
+                self._workers.append(Worker(target, options, wait=False, spin=spin))
             for w in self._workers:
                 w.ready()
             offset = 0
@@ -395,11 +406,14 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             and actions.dtype == space.dtype
             and actions.shape == (self.num_envs, *space.shape)
         ):  # raw bytes, one message per worker
-            cpu, saved = pin_here()
-            try:  # the first worker sleeps where this thread waits (see affinity); the others, sent theirs first, run
-                for k in range(len(self._workers) - 1, -1, -1):  # wherever the scheduler finds a CPU
+            # busy-waiting (a CPU for everyone): no pinning; else the first worker sleeps where this thread waits
+            # (see affinity) and the others, sent theirs first, run wherever the scheduler finds a CPU
+            spinning = self._workers[0].spins
+            cpu, saved = (SPINNING, None) if spinning else pin_here()
+            try:
+                for k in range(len(self._workers) - 1, -1, -1):
                     w, (o, c) = self._workers[k], self._slices[k]
-                    w.send_raw(FAST_HEADER.pack(b"v", cpu if k == 0 else NO_CPU) + actions[o : o + c].tobytes())
+                    w.send_raw(FAST_HEADER.pack(b"v", cpu if k == 0 or spinning else NO_CPU) + actions[o : o + c].tobytes())
                 answers = self._gather("vstep")
             finally:
                 unpin(saved)
