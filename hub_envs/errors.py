@@ -146,6 +146,13 @@ class IsolationError(HubEnvsError):
     """An isolated env (``load_env(..., isolation="process" | "venv", sandbox=True)``) could not run as asked."""
 
 
+class AnswerTooLargeError(IsolationError):
+    """An isolated env's answer would make the parent build far more Python objects than the answer weighs (many
+    small containers: a hostile worker's way to exhaust the parent's memory, or an honest one's very large info).
+    The parent refused it before building it; the worker goes on. Return numpy arrays rather than many small
+    dicts, lists or tuples."""
+
+
 class EnvCrashedError(IsolationError, EnvCodeError):
     """The worker process running an isolated env died (segfault, kill, memory limit). The message names
     repo@sha, how it died and the last lines of its stderr; ``restart=True`` starts a fresh one on ``reset()``."""

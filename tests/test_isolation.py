@@ -249,8 +249,9 @@ def test_a_worker_writing_the_shared_page_gets_its_worker_stopped(hostile, attac
 
 def test_what_the_wire_cannot_carry_is_the_envs_type_error_naming_where_it_is(hostile):
     """A worker's answers are data (hub_envs.isolation.wire), never pickles: an info holding a value outside the wire's
-    kinds is a TypeError naming it (the worker lives on), and a metadata entry it cannot carry is left out with a
-    warning."""
+    kinds is a TypeError naming it, an exception whose argument is an IntEnum comes back as the env's own exception
+    type, an answer that would build far more objects than it weighs is refused before it is built (each time the
+    worker lives on), and a metadata entry the wire cannot carry is left out with a warning."""
     with pytest.warns(UserWarning, match="metadata entries 'hook'"):
         env = hostile.make()
     try:
@@ -262,6 +263,13 @@ def test_what_the_wire_cannot_carry_is_the_envs_type_error_naming_where_it_is(ho
         ):
             env.step(env.action_space.sample())
         assert _inner(env).worker.pid == pid
+        env.reset(seed=0, options={"mode": "enum-error"})  # an exception whose argument is not plain data
+        with pytest.raises(KeyError, match="Axis.Y|<Axis.Y: 2>|'2'|2"):
+            env.step(env.action_space.sample())
+        env.reset(seed=0, options={"mode": "many-dicts"})  # plain data, but 1.5 million dicts: refused, not built
+        with pytest.raises(errors.AnswerTooLargeError, match="numpy arrays rather than many small dicts"):
+            env.step(env.action_space.sample())
+        assert _inner(env).worker.pid == pid  # neither stopped the worker
         env.reset(seed=0)
         env.step(env.action_space.sample())
     finally:
@@ -286,7 +294,7 @@ def test_an_isolated_step_returns_none_when_the_env_returns_none(hostile):
 
 def test_shared_observation_buffers_give_back_exactly_what_was_written():
     """What travels through shared memory comes back as it went: a 0-d array stays an array (not a numpy scalar),
-    dict keys keep their order; anything else (another order, dtype or shape) is refused, to travel pickled."""
+    dict keys keep their order; anything else (another order, dtype or shape) is refused, to travel in the answer."""
     from gymnasium import spaces
 
     from hub_envs.isolation.vector import _box_leaves, _Buffers
@@ -305,7 +313,7 @@ def test_shared_observation_buffers_give_back_exactly_what_was_written():
         assert nested.write_exact(0, obs)
         back = nested.read_one()
         assert list(back) == ["a", "b"] and np.array_equal(back["b"]["c"], obs["b"]["c"])
-        assert not nested.write_exact(0, {"b": obs["b"], "a": obs["a"]})  # another key order: pickled instead
+        assert not nested.write_exact(0, {"b": obs["b"], "a": obs["a"]})  # another key order: in the answer instead
         assert not nested.write_exact(0, {"a": obs["a"], "b": {"c": obs["b"]["c"].astype(np.int32)}})
     finally:
         scalar.close()

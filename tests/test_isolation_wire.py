@@ -237,9 +237,9 @@ def test_what_a_second_red_team_pass_found_is_refused_at_decoding():
     for _ in range(wire.MAX_DEPTH - 1):  # a 1-tuple around a 1-tuple ... around 2 MB of bytes
         blob = msgpack.packb(msgpack.ExtType(TUPLE, b"\x91" + blob))
     for value, said in (
-        (_ext(SPACE, "Sequence", [_ext(SPACE, "MultiBinary", [[2**29]], None), True], None), "builds more than"),
-        (_ext(SPACE, "MultiBinary", [[3 << 30]], None), "builds more than"),
-        (_ext(SPACE, "Text", [3 * 10**8, 1, "ab"], None), "builds more than"),
+        (_ext(SPACE, "Sequence", [_ext(SPACE, "MultiBinary", [[2**29]], None), True], None), "would build more than"),
+        (_ext(SPACE, "MultiBinary", [[3 << 30]], None), "would build more than"),
+        (_ext(SPACE, "Text", [3 * 10**8, 1, "ab"], None), "would build more than"),
         (_ext(RANDOM, "Generator", "PCG64", {**pcg, "state": {"state": 0, "inc": 0}}, None), "even increment"),
         (_ext(RANDOM, "Generator", "MT19937", zero_key, None), "key of zeros"),
         (_ext(RANDOM, "Generator", "PCG64", pcg, seq), "seed sequence whose entropy"),
@@ -248,12 +248,35 @@ def test_what_a_second_red_team_pass_found_is_refused_at_decoding():
     ):
         with pytest.raises(errors.IsolationError, match=said):
             decode(_forged(["ok", value]))
-    with pytest.raises(errors.IsolationError, match="builds more than"):
+    with pytest.raises(errors.IsolationError, match="would build more than"):
         decode(msgpack.packb(["ok", msgpack.ExtType(TUPLE, b"\x91" + blob)]))  # 64 copies of 2 MB
-    with pytest.raises(errors.IsolationError, match="builds more than"):
+    with pytest.raises(errors.IsolationError, match="would build more than"):
         decode(b"\xdd" + (1 << 22).to_bytes(4, "big") + b"\x80" * (1 << 22))  # 4 MB of empty dicts: 270 MB
     before = set(sys.modules)
     for name in (b"numpy.f2py", b"numpy.matlib", b"numpy.testing"):
         with pytest.raises(errors.IsolationError, match="off the wire's list"):
             decode(_forged(msgpack.ExtType(TYPE, name)))
     assert not {m for m in set(sys.modules) - before if m.startswith("numpy")}
+
+
+def test_what_a_review_found_comes_back_exactly():
+    """Empty numpy strings (itemsize 0), read-only arrays, aligned structured dtypes, and an honest answer of a
+    million small dicts: refused as too large (a typed error the parent survives), never as a forged one."""
+    from hub_envs.isolation.protocol import error_info
+
+    for x in (np.str_(""), np.bytes_(b""), np.void(b"")):
+        back = decode(encode(x))
+        assert type(back) is type(x) and back == x
+    frozen = np.arange(4.0)
+    frozen.flags.writeable = False
+    assert not decode(encode(frozen)).flags.writeable and decode(encode(np.arange(4.0))).flags.writeable
+    aligned = np.zeros(2, np.dtype([("a", "u1"), ("b", "<f8")], align=True))
+    plain = np.zeros(2, np.dtype([("a", "u1"), ("b", "<f8")]))
+    for a in (plain, aligned, plain, aligned):  # equal dtypes as numpy compares them: the header cache keeps them apart
+        assert decode(encode(a)).dtype.isalignedstruct == a.dtype.isalignedstruct
+    with pytest.raises(errors.AnswerTooLargeError, match="numpy arrays rather than many small"):
+        decode(encode([{"a": 1} for _ in range(1_500_000)]))
+    import enum
+
+    info = error_info(KeyError(enum.IntEnum("Axis", "X Y").Y, "b\udcff"))
+    assert decode(encode(info))["args"][0].startswith("(<Axis.Y: 2>, 'b\\udcff')")  # as str(exc) said, surrogate escaped

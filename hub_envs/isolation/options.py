@@ -18,7 +18,7 @@ class IsolationOptions:
     """How load_env runs an env's code: ``isolation`` ("none", "process", "venv"),
     ``sandbox`` (implies a worker process), the per-call watchdog ``step_timeout`` (seconds, None: none; a
     sandbox defaults to 60), ``start_timeout`` for a worker to import the env's code, ``restart`` (a fresh
-    worker on ``reset()`` after a crash), ``envs_per_worker`` for ``make_vec`` (0: spread over the CPUs), and
+    worker on ``reset()`` after a crash), ``envs_per_worker`` for ``make_vec`` (0: spread over all CPUs but one), and
     the sandbox's resource limits."""
 
     isolation: str = "none"

@@ -154,20 +154,23 @@ def error_info(exc: BaseException) -> dict[str, Any]:
     """What the worker sends for an exception: type, message and formatted traceback (all strings)."""
     import traceback
 
+    def text(s: str) -> str:  # lone surrogates (surrogateescape'd paths) are not UTF-8: escaped
+        return s.encode("utf-8", "backslashreplace").decode("utf-8")
+
     cls = type(exc)
     args: list[Any] = []
-    for a in exc.args:  # plain arguments only, so the parent can rebuild a builtin exception exactly
-        if isinstance(a, (str, int, float, bool, type(None))):
+    for a in exc.args:  # plain arguments only (exact types: an IntEnum is not), so the parent rebuilds it exactly
+        if type(a) in (int, float, bool, type(None)) or (type(a) is str and text(a) == a):
             args.append(a)
         else:
-            args = [str(exc)]
+            args = [text(str(exc))]
             break
     return {
         "module": cls.__module__,
         "qualname": cls.__qualname__,
-        "message": str(exc),
+        "message": text(str(exc)),
         "args": args,
-        "traceback": "".join(traceback.format_exception(exc)),
+        "traceback": text("".join(traceback.format_exception(exc))),
     }
 
 

@@ -45,7 +45,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from hub_envs.errors import EnvCrashedError, EnvTimeoutError, IsolationError
+from hub_envs.errors import AnswerTooLargeError, EnvCrashedError, EnvTimeoutError, IsolationError
 from hub_envs.isolation.affinity import pin_here, unpin
 from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
@@ -212,7 +212,8 @@ class Worker:
     """One worker process: start it, ask it things, know how it died.
 
     ``spin``: both sides busy-wait for each other's answers a short while before sleeping
-    (:mod:`~hub_envs.isolation.doorbell`; a single env's worker does, the workers of a vector env do not)."""
+    (:mod:`~hub_envs.isolation.doorbell`; a single env's worker does, the workers of a vector env when there are
+    fewer of them than CPUs)."""
 
     def __init__(self, target: EnvTarget, options: IsolationOptions, *, wait: bool = True, spin: bool = False):
         self.target, self.options = target, options
@@ -367,6 +368,8 @@ class Worker:
         try:
             _, reward, terminated, truncated = FAST_ANSWER.unpack_from(data)
             info = self._infos(data[FAST_ANSWER.size :])
+        except AnswerTooLargeError as e:
+            raise AnswerTooLargeError(f"{self.where}: {e} (in step)") from None
         except Exception as e:
             raise self._garbled("step", e) from None
         return reward, terminated, truncated, info, None, True
@@ -421,6 +424,8 @@ class Worker:
             if data[:1] == b"V" and op == "vstep":  # a vector slice's step (observations in shared memory)
                 return read_vector_answer(data, self._infos)
             status, value = decode_answer(data)
+        except AnswerTooLargeError as e:  # refused before it was built; the worker's stream is in step: it goes on
+            raise AnswerTooLargeError(f"{self.where}: {e} (in {op})") from None
         except Exception as e:
             raise self._garbled(op, e) from None
         if status == "ok":

@@ -127,7 +127,8 @@ def publisher_pins(
         else:
             pinned.append(text)
             notes.append(f"{req.name}: the publisher recorded no version; the newest compatible was installed")
-    pinned_names = {canonicalize_name(n) for n in names}
+    # the wire's own needs are hub-envs' here, never the publisher's: not held to a recorded version either
+    pinned_names = {canonicalize_name(n) for n in names} | {canonicalize_name(Requirement(w).name) for w in WIRE_NEEDS}
     constraints = [f"{name}=={version}" for name, version in sorted((resolved or {}).items()) if name not in pinned_names]
     if not resolved:
         notes.append(

@@ -40,7 +40,7 @@ from typing import Any
 
 import msgpack
 
-from hub_envs.errors import IsolationError
+from hub_envs.errors import AnswerTooLargeError, IsolationError
 
 #: numpy, imported the first time a value needs it (:func:`_numpy`): a sandboxed worker imports this module before
 #: it enters its pid namespace, where OpenBLAS, started by numpy's import, could not start its threads
@@ -161,10 +161,11 @@ def _array(a: np.ndarray) -> msgpack.ExtType:
             raise Unsendable("a structured numpy dtype holding Python objects")
         return msgpack.ExtType(OBJECT_ARRAY, _pack([list(a.shape), a.ravel().tolist() if a.ndim else [a.item()]]))
     fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
-    key = (a.dtype, a.shape, fortran)
+    writeable = a.flags.writeable
+    key = (a.dtype, a.dtype.isalignedstruct, a.shape, fortran, writeable)  # equal dtypes may differ in alignment
     head = _ARRAY_HEADS_OUT.get(key)
     if head is None:
-        head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran])
+        head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran] + ([] if writeable else [False]))
         head = _HEAD.pack(len(head)) + head
         if len(_ARRAY_HEADS_OUT) < _CACHED_HEADS:
             _ARRAY_HEADS_OUT[key] = head
@@ -191,7 +192,8 @@ def _scalar(x: np.generic) -> msgpack.ExtType:
     if dt.fields is not None:
         return msgpack.ExtType(SCALAR, b"\0" + _array(np.array(x)).data)
     desc = dt.str.encode()
-    return msgpack.ExtType(SCALAR, b"".join((bytes([len(desc)]), desc, x.tobytes())))
+    data = x.tobytes() if dt.itemsize else b""  # np.str_("") (<U0) gives 4 bytes of nothing
+    return msgpack.ExtType(SCALAR, b"".join((bytes([len(desc)]), desc, data)))
 
 
 def _generator_desc(obj: Any) -> list:
@@ -429,7 +431,7 @@ def _check_layout(dt: Any) -> None:
 
 def _decode_array(payload: bytes) -> np.ndarray:
     """An :data:`ARRAY` record: the header's length (:data:`_HEAD`), the header ``[dtype, shape, fortran]`` (plain
-    msgpack), then the array's bytes in memory order."""
+    msgpack; ``[..., False]`` for an array that was read-only), then the array's bytes in memory order."""
     if len(payload) < _HEAD.size:
         raise _refuse("holds a malformed numpy array")
     (n,) = _HEAD.unpack_from(payload)
@@ -442,24 +444,26 @@ def _decode_array(payload: bytes) -> np.ndarray:
         items = msgpack.unpackb(
             payload[_HEAD.size : start], raw=False, max_array_len=4096, max_map_len=8, max_str_len=4096, max_bin_len=0
         )
-        if type(items) is not list or len(items) != 3 or type(items[2]) is not bool:
+        if type(items) is not list or len(items) not in (3, 4) or type(items[2]) is not bool or items[3:] not in ([], [False]):
             raise _refuse("holds a malformed numpy array")
-        desc, shape, fortran = items
+        desc, shape, fortran = items[:3]
         dt, shape = _dtype(desc), _shape(shape)
-        layout = (dt, shape, fortran, math.prod(shape))
+        layout = (dt, shape, fortran, math.prod(shape), len(items) == 3)
         if len(_ARRAY_HEADS_IN) < _CACHED_HEADS and n <= 256:
             _ARRAY_HEADS_IN[head] = layout
-    dt, shape, fortran, count = layout
+    dt, shape, fortran, count, writeable = layout
     size = len(payload) - start
     if dt.itemsize == 0:
         if count > MAX_EMPTY_ITEMS or size:
             raise _refuse(f"asks for {count:,} items of an empty dtype")
-        return np.empty(shape, dt)
-    if count * dt.itemsize != size:
+        out = np.empty(shape, dt)
+    elif count * dt.itemsize != size:
         raise _refuse(f"asks for an array of {count * dt.itemsize:,} bytes ({dt}, shape {shape}) from {size:,} bytes")
-    # over a copy of the bytes (padding included): writable, as the env's own array was
-    data = bytearray(memoryview(payload)[start:])
-    return np.frombuffer(data, dt, count).reshape(shape, order="F" if fortran else "C")
+    else:  # over a copy of the bytes (padding included)
+        out = np.frombuffer(bytearray(memoryview(payload)[start:]), dt, count).reshape(shape, order="F" if fortran else "C")
+    if not writeable:  # as the env's own array was
+        out.flags.writeable = False
+    return out
 
 
 def _decode_object_array(items: Any) -> np.ndarray:
@@ -494,6 +498,8 @@ def _decode_scalar(payload: bytes) -> np.generic:
             _SCALAR_DTYPES[desc] = dt
     if dt.fields is not None or dt.subdtype is not None:
         raise _refuse("holds a structured numpy scalar in the plain form")
+    if dt.itemsize == 0 and len(payload) == 1 + n:
+        return np.zeros((), dt)[()]
     if len(payload) - 1 - n != dt.itemsize:
         raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(payload) - 1 - n} bytes")
     return np.frombuffer(payload, dt, 1, 1 + n)[0]
@@ -763,7 +769,7 @@ _RECORD_COST = {TUPLE: 64, SET: 256, FROZENSET: 256, DEQUE: 640, ORDERED_DICT: 2
 _RECORD_COST.update({OBJECT_ARRAY: 512, SCALAR: 96, DTYPE: 256, SPACE: 2048, RANDOM: 4096})
 #: a message may build this many bytes of Python objects per byte it weighs, plus :data:`BUDGET_FLOOR`
 BUDGET_PER_BYTE = 16
-BUDGET_FLOOR = 16 << 20
+BUDGET_FLOOR = 64 << 20
 
 
 class _Decoder:
@@ -783,7 +789,11 @@ class _Decoder:
     def charge(self, nbytes: int, what: str) -> None:
         self.budget -= nbytes
         if self.budget < 0:
-            raise _refuse(f"builds more than {BUDGET_PER_BYTE} bytes of objects per byte of its {self.size:,} bytes (at {what})")
+            raise AnswerTooLargeError(
+                f"the env worker sent an answer of {self.size:,} bytes that would build more than "
+                f"{BUDGET_PER_BYTE * self.size + BUDGET_FLOOR:,} bytes of Python objects (at {what}); the parent refused "
+                f"it. Return numpy arrays rather than many small dicts, lists or tuples."
+            )
 
     def load(self, data: bytes) -> Any:
         return msgpack.unpackb(

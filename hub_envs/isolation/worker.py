@@ -251,7 +251,7 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
             cpu = FAST_HEADER.unpack_from(data)[1]
         msg = ("step",) if fast else pickle.loads(data)
         op, args = msg[0], msg[1:]
-        fatal = False
+        fatal, result = False, None
         if op == "exit":
             return
         try:
