@@ -118,7 +118,7 @@ def test_what_the_wire_cannot_carry_is_named_where_it_is():
         ({"e": [collections.defaultdict(lambda: 0)]}, r"info\['e'\]\[0\] is a defaultdict whose factory is a function"),
         ({"t": object}, r"info\['t'\] is the type builtins.object"),
         ({"s": type("Custom", (S.Discrete,), {})(3)}, r"info\['s'\] is a space of class"),
-        ({"o": np.zeros(1, dtype=[("a", "O")])}, r"info\['o'\] is a structured numpy dtype holding Python objects"),
+        ({"o": np.zeros(1, dtype=[("a", "O")])}, r"info\['o'\] is a numpy array of dtype .* Python objects"),
     ):
         with pytest.raises(Unsendable, match=said):
             encode(value, "info")
@@ -280,3 +280,50 @@ def test_what_a_review_found_comes_back_exactly():
 
     info = error_info(KeyError(enum.IntEnum("Axis", "X Y").Y, "b\udcff"))
     assert decode(encode(info))["args"][0].startswith("(<Axis.Y: 2>, 'b\\udcff')")  # as str(exc) said, surrogate escaped
+
+
+def test_what_the_second_red_team_pass_found_is_refused_or_kept_apart(monkeypatch):
+    """Sequences nested three deep (stacking doubles per level: 297 bytes ran 20 s), seed lists of a million words,
+    keys sharing hashes across many containers, a Text whose charset is megabytes, unicode past U+10FFFF (numpy
+    hands out strs that break str), and a decoded structured dtype renamed by the user (it was shared with every
+    later answer of that layout); a Graph space's values (GraphInstance) travel."""
+    seq = _ext(SPACE, "Discrete", [2, 0, _ext(DTYPE, "<i8")], None)
+    for _ in range(3):
+        seq = _ext(SPACE, "Sequence", [seq, False], None)
+    p = 2**61 - 1
+    colliding = [
+        {msgpack.ExtType(wire.BIG_INT, (k * p + j).to_bytes(16, "little", signed=True)): 0 for k in range(60)} for j in range(40)
+    ]
+    for value, said in (
+        (seq, "Sequence spaces nested more than 2 deep"),
+        (
+            _ext(
+                RANDOM,
+                "Generator",
+                "PCG64",
+                np.random.PCG64(1).state,
+                {"entropy": [1] * 2000, "spawn_key": [], "pool_size": 4, "n_children_spawned": 0},
+            ),
+            "entropy",
+        ),
+        (colliding, "keys sharing a hash with another across its containers"),
+        (_array("<U1", [2], False, (0x41).to_bytes(4, "little") + (0x7FFFFFFF).to_bytes(4, "little")), "beyond U\\+10FFFF"),
+        (msgpack.ExtType(SCALAR, b"\x03<U1" + (0x110000).to_bytes(4, "little")), "beyond U\\+10FFFF"),
+    ):
+        with pytest.raises(errors.IsolationError, match=said):
+            decode(_forged(["ok", value]))
+    monkeypatch.setattr(wire, "BUDGET_FLOOR", 0)  # the budget as it scales with the answer (no floor)
+    text = _ext(SPACE, "Text", [5, 1, "".join(map(chr, range(0x10000, 0x10000 + 600_000)))], None)
+    with pytest.raises(errors.AnswerTooLargeError, match="at Text"):
+        decode(_forged(["ok", text]))
+    monkeypatch.undo()
+    two = S.Sequence(S.Sequence(S.Discrete(2)), stack=False)
+    assert decode(encode(two)) == two
+    data = encode({"obs": np.zeros(2, [("x", "<f4"), ("y", "<f4")])})
+    decode(data)["obs"].dtype.names = ("p", "q")
+    assert decode(data)["obs"].dtype.names == ("x", "y")
+    graph = S.Graph(S.Box(0, 1, (3,)), S.Discrete(4), seed=1).sample()
+    back = decode(encode(graph))
+    assert type(back) is type(graph) and all(
+        (a is None and b is None) or np.array_equal(a, b) for a, b in zip(back, graph, strict=True)
+    )

@@ -368,6 +368,8 @@ class Worker:
         try:
             _, reward, terminated, truncated = FAST_ANSWER.unpack_from(data)
             info = self._infos(data[FAST_ANSWER.size :])
+            if type(info) is not dict:
+                raise ValueError(f"a fast step answer whose info is a {type(info).__name__}")
         except AnswerTooLargeError as e:
             raise AnswerTooLargeError(f"{self.where}: {e} (in step)") from None
         except Exception as e:

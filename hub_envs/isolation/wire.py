@@ -11,7 +11,7 @@ first. Nothing is ever imported, called by name or built bigger than the bytes t
 Plain msgpack (exact types only): ``None``, ``bool``, ``int`` (64-bit), ``float``, ``str``, ``bytes``, ``list``,
 ``dict`` (keys of any hashable type here; a ``bytearray`` or ``memoryview`` arrives as ``bytes``). Extension records
 (:data:`KINDS`): ``tuple``, ``int`` beyond 64 bits, ``set``, ``frozenset``, ``complex``, ``range``, ``slice``, ``OrderedDict``, ``defaultdict`` (its factory
-one of :func:`type_names`), ``deque``, numpy arrays (dtype, shape, order, bytes; object arrays as their items),
+one of :func:`type_names`), ``deque``, gymnasium's ``GraphInstance``, numpy arrays (dtype, shape, order, bytes; object arrays as their items),
 numpy scalars and dtypes, the types of :func:`type_names`, gymnasium's spaces (their constructor arguments and
 random generator) and numpy random generators (bit generator name and state, positions checked). Anything else,
 subclasses included, cannot be sent: :func:`encode` raises :class:`Unsendable` naming where it is.
@@ -36,6 +36,7 @@ import collections
 import math
 import struct
 import sys
+import threading
 from typing import Any
 
 import msgpack
@@ -47,7 +48,7 @@ from hub_envs.errors import AnswerTooLargeError, IsolationError
 np: Any = None
 
 TUPLE, BIG_INT, SET, FROZENSET, COMPLEX, RANGE, SLICE = 1, 2, 3, 4, 6, 7, 8
-ORDERED_DICT, DEFAULT_DICT, DEQUE, ARRAY, OBJECT_ARRAY, SCALAR, DTYPE, TYPE, SPACE, RANDOM = range(9, 19)
+ORDERED_DICT, DEFAULT_DICT, DEQUE, ARRAY, OBJECT_ARRAY, SCALAR, DTYPE, TYPE, SPACE, RANDOM, GRAPH = range(9, 20)
 #: the extension records, by code
 KINDS = {
     TUPLE: "tuple",
@@ -67,6 +68,7 @@ KINDS = {
     TYPE: "type",
     SPACE: "gymnasium space",
     RANDOM: "numpy random generator",
+    GRAPH: "gymnasium GraphInstance",
 }
 #: extension records nested deeper than this are refused (each level is a Python call while decoding)
 MAX_DEPTH = 64
@@ -74,6 +76,14 @@ MAX_DEPTH = 64
 MAX_EMPTY_ITEMS = 1 << 16
 #: at most this many keys of one dict (or items of one set) may share a hash with another (see :func:`_check_hashes`)
 MAX_SHARED_HASHES = 64
+#: at most this many keys of all the containers of one answer may share a hash with another
+MAX_SHARED_HASHES_PER_ANSWER = 1024
+#: at most this many items in a seed sequence's entropy or spawn key (numpy makes an array of each, in Python)
+MAX_SEED_WORDS = 1024
+#: a Sequence space inside a Sequence inside a Sequence is refused (gymnasium stacks and samples them exponentially)
+MAX_SEQUENCE_NESTING = 2
+#: the decoder of the answer being decoded in this thread (records charge it)
+_ACTIVE = threading.local()
 #: an :data:`ARRAY` record starts with the length of its header
 _HEAD = struct.Struct("<I")
 
@@ -158,7 +168,7 @@ def _dtype_desc(dt: np.dtype) -> Any:
 def _array(a: np.ndarray) -> msgpack.ExtType:
     if a.dtype.hasobject:
         if a.dtype != np.dtype(object):
-            raise Unsendable("a structured numpy dtype holding Python objects")
+            raise Unsendable(f"a numpy array of dtype {a.dtype} (its items are Python objects: use a plain dtype)")
         return msgpack.ExtType(OBJECT_ARRAY, _pack([list(a.shape), a.ravel().tolist() if a.ndim else [a.item()]]))
     fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
     writeable = a.flags.writeable
@@ -167,8 +177,9 @@ def _array(a: np.ndarray) -> msgpack.ExtType:
     if head is None:
         head = _pack([_dtype_desc(a.dtype), list(a.shape), fortran] + ([] if writeable else [False]))
         head = _HEAD.pack(len(head)) + head
-        if len(_ARRAY_HEADS_OUT) < _CACHED_HEADS:
-            _ARRAY_HEADS_OUT[key] = head
+        if len(_ARRAY_HEADS_OUT) >= _CACHED_HEADS:
+            _ARRAY_HEADS_OUT.clear()
+        _ARRAY_HEADS_OUT[key] = head
     if a.size == 0 or a.dtype.itemsize == 0:
         data: Any = b""
     else:  # the bytes in memory order without a copy when they are contiguous (a copy of a big array is page faults)
@@ -316,6 +327,8 @@ def _default(obj: Any) -> Any:
     spaces = sys.modules.get("gymnasium.spaces")
     if spaces is not None and isinstance(obj, spaces.Space):
         return _encode_space(obj)
+    if spaces is not None and kind is getattr(spaces, "GraphInstance", None):  # a Graph space's value
+        return msgpack.ExtType(GRAPH, _pack([obj.nodes, obj.edges, obj.edge_links]))
     raise Unsendable(
         f"of type {kind.__module__}.{kind.__qualname__}" if kind.__module__ != "builtins" else f"of type {kind.__qualname__}"
     )
@@ -414,6 +427,13 @@ def _dtype(desc: Any, depth: int = 0) -> np.dtype:
     return dt
 
 
+def _fields(dt: Any) -> int:
+    """How many fields and subarrays ``dt`` holds, at every level."""
+    if dt.subdtype is not None:
+        return 1 + _fields(dt.subdtype[0])
+    return sum(1 + _fields(dt.fields[n][0]) for n in dt.names) if dt.names else 0
+
+
 def _check_layout(dt: Any) -> None:
     """Refuse a dtype with a subarray or fields of zero bytes: such items weigh nothing whatever they claim to
     hold, so an array of them that says it is small can hold 10**14 elements once a field is taken."""
@@ -449,7 +469,11 @@ def _decode_array(payload: bytes) -> np.ndarray:
         desc, shape, fortran = items[:3]
         dt, shape = _dtype(desc), _shape(shape)
         layout = (dt, shape, fortran, math.prod(shape), len(items) == 3)
-        if len(_ARRAY_HEADS_IN) < _CACHED_HEADS and n <= 256:
+        if dt.names is not None or dt.subdtype is not None:  # fields are objects of their own (and names mutable)
+            _charge(160 * _fields(dt), "a structured dtype")
+        elif n <= 256:  # a shared dtype only when nothing of it can be renamed
+            if len(_ARRAY_HEADS_IN) >= _CACHED_HEADS:
+                _ARRAY_HEADS_IN.clear()
             _ARRAY_HEADS_IN[head] = layout
     dt, shape, fortran, count, writeable = layout
     size = len(payload) - start
@@ -461,9 +485,25 @@ def _decode_array(payload: bytes) -> np.ndarray:
         raise _refuse(f"asks for an array of {count * dt.itemsize:,} bytes ({dt}, shape {shape}) from {size:,} bytes")
     else:  # over a copy of the bytes (padding included)
         out = np.frombuffer(bytearray(memoryview(payload)[start:]), dt, count).reshape(shape, order="F" if fortran else "C")
+    if dt.kind == "U" or (dt.names is not None or dt.subdtype is not None) and "U" in str(dt):
+        _check_text(out)
     if not writeable:  # as the env's own array was
         out.flags.writeable = False
     return out
+
+
+def _check_text(a: np.ndarray) -> None:
+    """Refuse unicode arrays holding code points no Python str may (above U+10FFFF: numpy hands them out as strs
+    that break str's invariants, SystemError in iteration or upper())."""
+    if a.dtype.names is not None:
+        for name in a.dtype.names:
+            _check_text(a[name])
+        return
+    if a.dtype.subdtype is not None or a.dtype.kind != "U" or not a.size or not a.dtype.itemsize:
+        return
+    codes = np.ascontiguousarray(a).view(a.dtype.byteorder.replace("|", "=") + "u4" if a.dtype.byteorder != "=" else "=u4")
+    if codes.size and int(codes.max()) > 0x10FFFF:
+        raise _refuse("holds text with code points beyond U+10FFFF")
 
 
 def _decode_object_array(items: Any) -> np.ndarray:
@@ -494,12 +534,15 @@ def _decode_scalar(payload: bytes) -> np.generic:
     dt = _SCALAR_DTYPES.get(desc)
     if dt is None:
         dt = _dtype(desc.decode("ascii", "replace"))
-        if len(_SCALAR_DTYPES) < 256:
-            _SCALAR_DTYPES[desc] = dt
+        if len(_SCALAR_DTYPES) >= _CACHED_HEADS:
+            _SCALAR_DTYPES.clear()
+        _SCALAR_DTYPES[desc] = dt
     if dt.fields is not None or dt.subdtype is not None:
         raise _refuse("holds a structured numpy scalar in the plain form")
     if dt.itemsize == 0 and len(payload) == 1 + n:
         return np.zeros((), dt)[()]
+    if dt.kind == "U" and len(payload) - 1 - n == dt.itemsize:
+        _check_text(np.frombuffer(payload, dt, 1, 1 + n))
     if len(payload) - 1 - n != dt.itemsize:
         raise _refuse(f"asks for a numpy {dt} scalar of {dt.itemsize} bytes from {len(payload) - 1 - n} bytes")
     return np.frombuffer(payload, dt, 1, 1 + n)[0]
@@ -553,10 +596,18 @@ def _decode_random(items: Any) -> Any:
         entropy, key = seq_state["entropy"], seq_state["spawn_key"]
         # numpy splits big ints into words in a quadratic Python loop: entropy and keys stay small
         if entropy is not None and not (type(entropy) is int and 0 <= entropy < 1 << 4096):
-            if type(entropy) not in (list, tuple) or not all(type(e) is int and 0 <= e < 1 << 128 for e in entropy):
-                raise _refuse("holds a seed sequence whose entropy is not small non-negative integers")
-        if type(key) not in (list, tuple) or not all(type(k) is int and 0 <= k < 1 << 128 for k in key):
-            raise _refuse("holds a seed sequence whose spawn key is not small non-negative integers")
+            if (
+                type(entropy) not in (list, tuple)
+                or len(entropy) > MAX_SEED_WORDS
+                or not all(type(e) is int and 0 <= e < 1 << 128 for e in entropy)
+            ):
+                raise _refuse("holds a seed sequence whose entropy is not a few small non-negative integers")
+        if (
+            type(key) not in (list, tuple)
+            or len(key) > MAX_SEED_WORDS
+            or not all(type(k) is int and 0 <= k < 1 << 128 for k in key)
+        ):
+            raise _refuse("holds a seed sequence whose spawn key is not a few small non-negative integers")
         seq = np.random.SeedSequence(
             entropy,
             spawn_key=tuple(key),
@@ -600,6 +651,28 @@ def _elements(space: Any) -> int:
     return max(1, math.prod(space.shape or (1,)))
 
 
+def _sequence_depth(space: Any) -> int:
+    """How many Sequence spaces are nested in ``space`` (itself included), at most."""
+    from gymnasium import spaces as s
+
+    parts = getattr(space, "spaces", None)
+    if parts is not None:
+        return max((_sequence_depth(p) for p in (parts.values() if isinstance(parts, dict) else parts)), default=0)
+    if isinstance(space, s.Sequence):
+        return 1 + _sequence_depth(space.feature_space)
+    if isinstance(space, s.Graph):
+        return max(_sequence_depth(space.node_space), _sequence_depth(space.edge_space) if space.edge_space else 0)
+    return 0
+
+
+def _decode_graph(items: Any) -> Any:
+    from gymnasium.spaces import GraphInstance
+
+    if type(items) is not list or len(items) != 3 or not all(x is None or type(x) is np.ndarray for x in items):
+        raise _refuse("holds a malformed GraphInstance")
+    return GraphInstance(*items)
+
+
 def _decode_space(items: Any, dec: _Decoder) -> Any:
     from gymnasium import spaces as s
 
@@ -608,10 +681,13 @@ def _decode_space(items: Any, dec: _Decoder) -> Any:
     kind, args, rng = items
     if kind == "MultiBinary" and len(args) == 1:  # what its sample() will build
         dec.charge(8 * math.prod(_shape(args[0]) if type(args[0]) is list else (_int(args[0], "a MultiBinary n", 1),)), kind)
-    elif kind == "Text" and len(args) == 3:
-        dec.charge(8 * _int(args[0], "a Text max_length", 0, 1 << 62), kind)
-    elif kind == "Sequence" and len(args) == 2 and args[1] is True and isinstance(args[0], s.Space):
-        dec.charge(16 * _elements(args[0]), "a stacked Sequence")  # built here (batch_space), and by each sample()
+    elif kind == "Text" and len(args) == 3:  # its sample(), and a dict, a list and a str per character of its charset
+        dec.charge(8 * _int(args[0], "a Text max_length", 0, 1 << 62) + 128 * len(str(args[2])), kind)
+    elif kind == "Sequence" and len(args) == 2 and isinstance(args[0], s.Space):
+        if _sequence_depth(args[0]) >= MAX_SEQUENCE_NESTING:  # stacking and sampling grow exponentially with it
+            raise _refuse(f"holds Sequence spaces nested more than {MAX_SEQUENCE_NESTING} deep")
+        if args[1] is True:
+            dec.charge(16 * _elements(args[0]), "a stacked Sequence")  # built here (batch_space), and by each sample()
     elif kind == "Box" and len(args) == 2 and type(args[0]) is np.ndarray:
         dec.charge(6 * args[0].nbytes, kind)  # the bounds, cast and compared
     elif kind == "Graph" and len(args) == 2 and all(a is None or isinstance(a, s.Space) for a in args):
@@ -679,12 +755,17 @@ def _check_hashes(keys: list, what: str) -> None:
     """Refuse keys (or set items) of which many share one hash: Python's hashes of ints, floats and tuples of them
     are not randomized, so a sender can pick thousands of keys a dict must compare with each other (a HashDoS:
     quadratic time after the watchdog). ``str`` and ``bytes`` hashes are keyed per process."""
-    if len(keys) <= MAX_SHARED_HASHES or all(type(k) is str for k in keys):
+    if len(keys) < 2 or all(type(k) is str for k in keys):
         return
     hashes = [hash(k) for k in keys]  # an unhashable key: TypeError, as building the dict would raise
     shared = len(hashes) - len(set(hashes))
     if shared > MAX_SHARED_HASHES:
         raise _refuse(f"holds a {what} of {len(keys):,} keys of which {shared:,} share a hash (a hash-collision attack)")
+    dec = getattr(_ACTIVE, "decoder", None)
+    if shared and dec is not None:  # many containers of a few colliding keys each (with long equal prefixes)
+        dec.shared += shared
+        if dec.shared > MAX_SHARED_HASHES_PER_ANSWER:
+            raise _refuse(f"holds {dec.shared:,} keys sharing a hash with another across its containers")
 
 
 def _pairs(items: Any, what: str) -> list:
@@ -753,6 +834,7 @@ _DECODERS: dict[int, Any] = {
     OBJECT_ARRAY: _decode_object_array,
     DTYPE: _dtype,
     SPACE: _decode_space,  # with the decoder: see _Decoder.ext
+    GRAPH: _decode_graph,
     RANDOM: _decode_random,
 }
 #: records whose payload is raw bytes, not msgpack
@@ -779,10 +861,11 @@ class _Decoder:
     ``MultiBinary(10**9)`` is a few bytes whose ``sample()`` builds a gigabyte; ``Sequence(stack=True)`` builds
     its stacked space at once)."""
 
-    __slots__ = ("depth", "budget", "size")
+    __slots__ = ("depth", "budget", "size", "shared")
 
     def __init__(self, size: int) -> None:
         self.depth = 0
+        self.shared = 0
         self.size = size
         self.budget = BUDGET_PER_BYTE * size + BUDGET_FLOOR
 
@@ -807,13 +890,13 @@ class _Decoder:
         )
 
     def list(self, items: list) -> list:
-        self.charge(56 + 8 * len(items), "a list")
+        self.charge(56 + 64 * len(items), "a list")  # its slots, and items that are objects of their own ("ā": 76 B)
         return items
 
     def pairs(self, pairs: list) -> dict:
         """Every msgpack map: a dict of its pairs once :func:`_check_hashes` passed."""
-        self.charge(64 + 64 * len(pairs), "a dict")
-        if len(pairs) > MAX_SHARED_HASHES:
+        self.charge(64 + 128 * len(pairs), "a dict")  # the table, and keys and values that are objects of their own
+        if len(pairs) > 1:
             _check_hashes([k for k, _ in pairs], "dict")
         return dict(pairs)
 
@@ -837,8 +920,8 @@ class _Decoder:
             if code == SPACE:
                 return _decode_space(items, self)
             built = build(items)
-            if code == DTYPE and built.names:  # a structured dtype's fields cost their own objects
-                self.charge(160 * len(built.names), "a structured dtype")
+            if code == DTYPE and (built.names or built.subdtype):  # a structured dtype's fields cost their own objects
+                self.charge(160 * _fields(built), "a structured dtype")
             return built
         finally:
             self.depth -= 1
@@ -855,7 +938,18 @@ def decode(data: bytes) -> Any:
     Traceback (most recent call last):
     ValueError: 2147483647 exceeds max_array_len(9)
     """
+    decoder = _Decoder(len(data))
+    _ACTIVE.decoder = decoder
     try:
-        return _Decoder(len(data)).load(data)
+        return decoder.load(data)
     except RecursionError:
         raise _refuse("nests values too deep") from None
+    finally:
+        _ACTIVE.decoder = None
+
+
+def _charge(nbytes: int, what: str) -> None:
+    """Charge the answer being decoded in this thread (records decoded without their decoder)."""
+    dec = getattr(_ACTIVE, "decoder", None)
+    if dec is not None:
+        dec.charge(nbytes, what)
