@@ -4,6 +4,7 @@ exactly; what a hostile worker could forge is refused before anything is built."
 from __future__ import annotations
 
 import collections
+import math
 
 import gymnasium as gym
 import msgpack
@@ -38,11 +39,12 @@ def test_values_envs_return_come_back_exactly():
         "c": 1 + 2j,
         "sl": slice(1, None, "a"),
         "od": collections.OrderedDict(b=1, a=2),
-        3: [0.1, float("nan"), -0.0, True],
+        3: [0.1, float("inf"), -0.0, True],
         (1, 2): "tuple key",
     }
     back = decode(encode(plain))
-    assert list(back) == list(plain) and repr(back) == repr(plain)
+    assert list(back) == list(plain) and back == plain  # (a set's repr may list its items in another order)
+    assert str(back[3][2]) == "-0.0" and math.isnan(decode(encode(float("nan"))))
     for k in plain:
         assert type(back[k]) is type(plain[k])
     assert back["d"].default_factory is list and back["q"].maxlen == 5 and back["types"][2] is np.float32
