@@ -405,7 +405,7 @@ class Worker:
             raise self.dead from None
         except (OSError, EOFError):
             raise self._died(op) from None
-        if self._spin.active:
+        if self._spin.active and op in ("step", "vstep"):  # how long a step takes (a make or reset says nothing of it)
             self._spin.observe(time.perf_counter() - self._sent_at)
         return data
 
