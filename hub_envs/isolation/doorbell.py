@@ -131,12 +131,41 @@ def sealed_memfd(name: str, size: int) -> int:
     return fd
 
 
-def available_cpus() -> int:
-    """The CPUs this process may run on."""
+def available_cpus(cgroup: str = "/sys/fs/cgroup") -> int:
+    """The CPUs this process may run on: its affinity, capped by a cgroup CPU quota (a container started with
+    ``--cpus=2`` on a 64-CPU host has 64 in its affinity and 2 CPUs of time: busy-waiting on 63 would burn it).
+
+    >>> import pathlib, tempfile
+    >>> root = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (root / "cpu.max").write_text("150000 100000")
+    >>> available_cpus(str(root)) <= 2
+    True
+    """
     try:
-        return len(os.sched_getaffinity(0))
+        cpus = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
+        cpus = os.cpu_count() or 1
+    quota = _cgroup_quota(cgroup)
+    return max(1, min(cpus, math.ceil(quota))) if quota else cpus
+
+
+def _cgroup_quota(root: str) -> float | None:
+    """CPUs' worth of time the cgroup grants (v2 ``cpu.max``, else v1 ``cpu.cfs_quota_us`` / ``cfs_period_us``),
+    None without a quota."""
+    try:
+        with open(os.path.join(root, "cpu.max")) as f:
+            quota, period = f.read().split()[:2]
+        return None if quota == "max" else int(quota) / int(period)
+    except (OSError, ValueError):
+        pass
+    try:
+        with open(os.path.join(root, "cpu", "cpu.cfs_quota_us")) as f:
+            quota_us = int(f.read())
+        with open(os.path.join(root, "cpu", "cpu.cfs_period_us")) as f:
+            period_us = int(f.read())
+        return None if quota_us <= 0 or period_us <= 0 else quota_us / period_us
+    except (OSError, ValueError):
+        return None
 
 
 class Doorbell:
