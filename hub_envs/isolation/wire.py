@@ -6,15 +6,17 @@ the parent allocate gigabytes (a memo index, a call of an allowed type), recurse
 a dict key) or read out of bounds (a random generator's position). So the answers are msgpack, decoded by its C
 reader with hard limits (no length larger than the message, nesting bounded), and everything that is not plain
 msgpack data travels as an *extension record* of a closed set of kinds, each rebuilt here from data it checks
-first. Nothing is ever imported, called by name or built bigger than the bytes that describe it.
+first. Nothing is ever imported or called by name, and each answer has a memory budget (:class:`_Decoder`): one
+that would build far more than it weighs is :class:`~hub_envs.errors.AnswerTooLargeError` before it is built.
 
 Plain msgpack (exact types only): ``None``, ``bool``, ``int`` (64-bit), ``float``, ``str``, ``bytes``, ``list``,
 ``dict`` (keys of any hashable type here; a ``bytearray`` or ``memoryview`` arrives as ``bytes``). Extension records
 (:data:`KINDS`): ``tuple``, ``int`` beyond 64 bits, ``set``, ``frozenset``, ``complex``, ``range``, ``slice``, ``OrderedDict``, ``defaultdict`` (its factory
 one of :func:`type_names`), ``deque``, gymnasium's ``GraphInstance``, numpy arrays (dtype, shape, order, bytes; object arrays as their items),
 numpy scalars and dtypes, the types of :func:`type_names`, gymnasium's spaces (their constructor arguments and
-random generator) and numpy random generators (bit generator name and state, positions checked). Anything else,
-subclasses included, cannot be sent: :func:`encode` raises :class:`Unsendable` naming where it is.
+random generator) and numpy random generators (bit generator name and state, positions checked). Anything else
+(subclasses of the plain types included; a subclass of a numpy scalar type or dtype travels as its base) cannot be
+sent: :func:`encode` raises :class:`Unsendable` naming where it is.
 
 Example:
     >>> import numpy as np
@@ -673,26 +675,26 @@ def _decode_graph(items: Any) -> Any:
     return GraphInstance(*items)
 
 
-def _decode_space(items: Any, dec: _Decoder) -> Any:
+def _decode_space(items: Any) -> Any:
     from gymnasium import spaces as s
 
     if type(items) is not list or len(items) != 3 or type(items[1]) is not list:
         raise _refuse("holds a malformed gymnasium space")
     kind, args, rng = items
     if kind == "MultiBinary" and len(args) == 1:  # what its sample() will build
-        dec.charge(8 * math.prod(_shape(args[0]) if type(args[0]) is list else (_int(args[0], "a MultiBinary n", 1),)), kind)
+        _charge(8 * math.prod(_shape(args[0]) if type(args[0]) is list else (_int(args[0], "a MultiBinary n", 1),)), kind)
     elif kind == "Text" and len(args) == 3:  # its sample(), and a dict, a list and a str per character of its charset
-        dec.charge(8 * _int(args[0], "a Text max_length", 0, 1 << 62) + 128 * len(str(args[2])), kind)
+        _charge(8 * _int(args[0], "a Text max_length", 0, 1 << 62) + 128 * len(str(args[2])), kind)
     elif kind == "Sequence" and len(args) == 2 and isinstance(args[0], s.Space):
         if _sequence_depth(args[0]) >= MAX_SEQUENCE_NESTING:  # stacking and sampling grow exponentially with it
             raise _refuse(f"holds Sequence spaces nested more than {MAX_SEQUENCE_NESTING} deep")
         if args[1] is True:
-            dec.charge(16 * _elements(args[0]), "a stacked Sequence")  # built here (batch_space), and by each sample()
+            _charge(16 * _elements(args[0]), "a stacked Sequence")  # built here (batch_space), and by each sample()
     elif kind == "Box" and len(args) == 2 and type(args[0]) is np.ndarray:
-        dec.charge(6 * args[0].nbytes, kind)  # the bounds, cast and compared
+        _charge(6 * args[0].nbytes, kind)  # the bounds, cast and compared
     elif kind == "Graph" and len(args) == 2 and all(a is None or isinstance(a, s.Space) for a in args):
         # its sample() draws up to 10 nodes and 90 edges, each a sample of the node / edge space, in float64
-        dec.charge(80 * _elements(args[0]) + (720 * _elements(args[1]) if args[1] is not None else 0), kind)
+        _charge(80 * _elements(args[0]) + (720 * _elements(args[1]) if args[1] is not None else 0), kind)
 
     def space(x):
         if not isinstance(x, s.Space):
@@ -833,7 +835,7 @@ _DECODERS: dict[int, Any] = {
     DEQUE: _decode_deque,
     OBJECT_ARRAY: _decode_object_array,
     DTYPE: _dtype,
-    SPACE: _decode_space,  # with the decoder: see _Decoder.ext
+    SPACE: _decode_space,
     GRAPH: _decode_graph,
     RANDOM: _decode_random,
 }
@@ -916,10 +918,7 @@ class _Decoder:
             raise _refuse(f"nests values more than {MAX_DEPTH} records deep")
         self.depth += 1
         try:
-            items = self.load(data)
-            if code == SPACE:
-                return _decode_space(items, self)
-            built = build(items)
+            built = build(self.load(data))
             if code == DTYPE and (built.names or built.subdtype):  # a structured dtype's fields cost their own objects
                 self.charge(160 * _fields(built), "a structured dtype")
             return built
