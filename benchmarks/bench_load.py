@@ -18,6 +18,10 @@ measured in the same run):
   (download, verification, import, registration, checks) ÷ seconds of a bare ``snapshot_download``
   into an empty cache plus importing the env and config classes with plain importlib. Goal <= 1.2.
   In one process, alternating; the env code is forgotten between samples.
+* ``first_files_direct_vs_hf``: seconds to fetch the files a cold load needs before it can import (the env's
+  code, assets, manifest and ``meta/info.json``), 8 at a time into an empty cache, with hub-envs' one ``GET``
+  per file (``hub_io._get_into_cache``) ÷ with ``hf_hub_download`` (a ``HEAD``, then the ``GET``). Why
+  hub-envs writes these into huggingface_hub's cache itself; alternating, worst env. Informational.
 
 Run: ``python -m benchmarks.bench_load [--repeats 7] [--profile]``; ``run()`` returns the dict.
 """
@@ -215,6 +219,48 @@ def cold_load(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> di
     }
 
 
+def first_files(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> dict:
+    """The files a cold load fetches before anything else, by one GET each vs by hf_hub_download (see the docstring)."""
+    import concurrent.futures
+
+    from huggingface_hub import HfApi, hf_hub_download
+
+    from hub_envs import hub_io
+    from hub_envs.load import _needed_first
+    from hub_envs.repo_format import is_on_demand_file
+    from hub_envs.testing import hub_environment
+
+    with hub_environment(endpoint, tmp / "first-list"):
+        siblings = HfApi().repo_info(repo, revision=sha).siblings or []
+    names = [s.rfilename for s in siblings if not is_on_demand_file(s.rfilename) and _needed_first(s.rfilename)]
+
+    def direct(name: str) -> str | None:
+        return hub_io._get_into_cache(repo, sha, name, token=None, cache_dir=None)
+
+    def hf(name: str) -> str:
+        return hf_hub_download(repo, name, revision=sha, repo_type=hub_io.REPO_TYPE)
+
+    times: dict[str, list[float]] = {"direct": [], "hf": []}
+    for rep in range(repeats + 1):  # the first round warms up and is dropped
+        for which in ("direct", "hf") if rep % 2 == 0 else ("hf", "direct"):
+            with hub_environment(endpoint, tmp / f"first-{which}-{rep}"):
+                HfApi().repo_info(repo, revision=sha)  # the client's HTTP session exists before the clock starts
+                with concurrent.futures.ThreadPoolExecutor(hub_io.MAX_WORKERS) as pool:
+                    t = time.perf_counter()
+                    got = list(pool.map(direct if which == "direct" else hf, names))
+                    seconds = time.perf_counter() - t
+                if which == "direct" and not all(got):
+                    raise RuntimeError(f"{repo}: the one-GET fetch fell back to hf_hub_download for {names}: {got}")
+                if rep:
+                    times[which].append(seconds)
+    return {
+        "files": len(names),
+        "direct_s": round(statistics.median(times["direct"]), 4),
+        "hf_hub_download_s": round(statistics.median(times["hf"]), 4),
+        "ratio": round(statistics.median(a / b for a, b in zip(times["direct"], times["hf"])), 3),
+    }
+
+
 def warm_load(zygote: FreshProcesses, ref: str, endpoint: str, home: str, repeats: int) -> dict:
     for which in ("hub_envs", "lerobot"):  # warm up: both loaders' first calls fill what they cache
         zygote.sample(which, ref, endpoint, home, True)
@@ -283,6 +329,7 @@ def run(repeats: int = 7, verbose: bool = True, profile: bool = False) -> dict:
                     loaded.unregister()
                 results[f"warm_{name}"] = warm_load(zygote, ref, server.endpoint, str(home), repeats)
                 results[f"cold_{name}"] = cold_load(repo, sha, server.endpoint, tmp, repeats)
+                results[f"first_files_{name}"] = first_files(repo, sha, server.endpoint, tmp, repeats)
                 if verbose:
                     print(
                         f"{name}: wrapper {results[f'wrapper_{name}']['ratio']}, warm {results[f'warm_{name}']['ratio']} "
@@ -301,6 +348,7 @@ def run(repeats: int = 7, verbose: bool = True, profile: bool = False) -> dict:
     results["warm_load_check_share"] = results[f"warm_{worst_warm}"]["check_share"]
     results["warm_load_no_checks_vs_lerobot"] = max(results[f"warm_{n}"]["ratio_no_checks"] for n in ENVS)
     results["cold_load_vs_snapshot"] = max(results[f"cold_{n}"]["ratio"] for n in ENVS)
+    results["first_files_direct_vs_hf"] = max(results[f"first_files_{n}"]["ratio"] for n in ENVS)
     results["load_average_after"] = os.getloadavg()
     return results
 

@@ -56,6 +56,7 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "cold_load_vs_snapshot": ("bench_load", (LE, 1.2), "cold load_env ÷ snapshot_download + import (worst env)"),
     "cold_load_vs_snapshot_pendulum": ("bench_load", (LE, 1.2), "  pendulum"),
     "cold_load_vs_snapshot_hover": ("bench_load", (LE, 1.2), "  hover"),
+    "first_files_direct_vs_hf": ("bench_load", None, "a cold load's first files: one GET each ÷ hf_hub_download (worst env)"),
     "datagen_vs_lerobot": ("bench_datagen", (GE, 3.0), "dataset frames/s ÷ LeRobot add_frame/save_episode"),
     "datagen_vs_raw": ("bench_datagen", (GE, 0.33), "dataset frames/s ÷ raw env stepping"),
     "replay_vs_raw": ("bench_replay", (GE, 0.8), "replay-verify steps/s ÷ raw env stepping"),

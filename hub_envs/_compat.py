@@ -122,6 +122,29 @@ def reset_http_sessions() -> None:
     reset()
 
 
+@contextlib.contextmanager
+def stream_file(url: str, headers: Mapping[str, str], timeout: float):
+    """``GET url`` through huggingface_hub's own HTTP client (its session, hooks and proxies), redirects
+    followed, the body streamed: yields ``(status, hub_headers, final_headers, chunks)``. ``hub_headers``
+    are those of the first answer (the Hub's own, with ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it
+    redirects a large file to a CDN), ``final_headers`` those of the answer that carries the body. A
+    redirect to another host drops the ``Authorization`` header (both libraries do)."""
+    from huggingface_hub.utils import get_session
+
+    session = get_session()
+    if HF_HUB_MAJOR >= 1:
+        with session.stream("GET", url, headers=dict(headers), follow_redirects=True, timeout=timeout) as response:
+            first = response.history[0] if response.history else response
+            yield response.status_code, first.headers, response.headers, response.iter_bytes(2**20)
+        return
+    response = session.get(url, headers=dict(headers), stream=True, allow_redirects=True, timeout=timeout)
+    try:
+        first = response.history[0] if response.history else response
+        yield response.status_code, first.headers, response.headers, response.iter_content(2**20)
+    finally:
+        response.close()
+
+
 def install_response_hook(hook) -> bool:
     """Run ``hook(url, headers, read_body)`` on every HTTP response huggingface_hub's client receives.
 

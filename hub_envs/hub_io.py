@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -25,7 +26,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
-from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, constants, hf_hub_download, snapshot_download
+from huggingface_hub import (
+    CommitOperationAdd,
+    CommitOperationDelete,
+    HfApi,
+    constants,
+    hf_hub_download,
+    hf_hub_url,
+    snapshot_download,
+)
 from huggingface_hub.errors import (
     EntryNotFoundError,
     HfHubHTTPError,
@@ -35,10 +44,10 @@ from huggingface_hub.errors import (
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
+from huggingface_hub.utils import build_hf_headers, validate_repo_id
 from huggingface_hub.utils import tqdm as hf_tqdm
-from huggingface_hub.utils import validate_repo_id
 
-from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet
+from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet, stream_file
 from hub_envs._text import safe_text
 from hub_envs.errors import (
     ConcurrentPushError,
@@ -345,7 +354,7 @@ def _fetch(
 ) -> tuple[Path, dict[str, concurrent.futures.Future], concurrent.futures.ThreadPoolExecutor]:
     """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache, ``MAX_WORKERS`` at a time, each with
     ``hf_hub_download`` (what snapshot_download does per file; huggingface_hub's cache is safe for concurrent
-    downloads). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
+    downloads; small files take one request instead of two: :func:`_get_into_cache`). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
     futures of the others, which start then (so they do not slow the first down) and download while the caller
     goes on, and the pool (``shutdown(wait=True)`` joins its threads). Call inside :func:`translate_hub_errors`."""
     names = sorted(set(names))
@@ -354,7 +363,8 @@ def _fetch(
 
     def one(name: str) -> str:
         try:
-            return hf_hub_download(
+            got = _get_into_cache(repo_id, sha, name, token=token, cache_dir=cache_dir, force_download=force_download)
+            return got or hf_hub_download(
                 repo_id, name, revision=sha, repo_type=REPO_TYPE, cache_dir=cache_dir, token=token, force_download=force_download
             )
         finally:
@@ -382,6 +392,94 @@ def _fetch(
     if not pending:
         pool.shutdown(wait=True)
     return path, pending, pool
+
+
+#: The largest file :func:`_get_into_cache` fetches itself; bigger ones go through hf_hub_download (progress bar, resume).
+DIRECT_GET_MAX_BYTES = 16 * 2**20
+
+
+def _get_into_cache(
+    repo_id: str, sha: str, name: str, *, token: str | None, cache_dir: str | Path | None, force_download: bool = False
+) -> str | None:
+    """Fetch ``name`` at commit ``sha`` with one ``GET`` into huggingface_hub's cache, laid out as the client lays it
+    out (``blobs/<etag>``; ``snapshots/<sha>/<name>``, a relative symlink to it), so the client, LeRobot's loader and
+    ``scan_cache_dir`` take it for their own; returns its path there.
+
+    ``hf_hub_download`` asks for a file's metadata first (a ``HEAD``), then for its content: two round trips per file,
+    which for the small files a cold load needs before anything can run is most of its download time (measured:
+    ``benchmarks/bench_load.py``, ``first_files_direct_vs_hf``). Here the commit and the ETag come with the content
+    (the headers of the Hub's own answer, before any redirect to a CDN). Anything but a plain answer returns None,
+    having written nothing, and the caller asks ``hf_hub_download``, with its retries, resumes and errors: a status
+    other than 200, another commit, an ETag missing or not of the Hub's forms, no ``Content-Length`` or more than
+    :data:`DIRECT_GET_MAX_BYTES`, a body of another length or whose digest is not its ETag (git's blob sha1, or the
+    sha256 of an LFS file), a broken transfer, a partial download of huggingface_hub's own to resume, a file system
+    without symlinks. An answer
+    :func:`check_hub_response` refuses is refused (:class:`~hub_envs.errors.HostileResponseError`).
+
+    The blob is written under a temporary name and renamed, the symlink made under a temporary name in ``blobs/``
+    and renamed over the pointer: a process reading the cache meanwhile sees the old file or the new one, never none
+    (huggingface_hub removes a pointer before re-linking it) and never a file the commit does not hold.
+    """
+    parts = name.split("/")
+    if not name or "\\" in name or any(p in ("", ".", "..") for p in parts):
+        return None
+    snapshot = _cache_snapshot_dir(repo_id, sha, cache_dir)
+    pointer = snapshot.joinpath(*parts)
+    if not force_download and pointer.is_file():
+        return str(pointer)
+    blobs = snapshot.parent.parent / "blobs"
+    scratch = f"{os.getpid()}.{threading.get_ident()}.hub-envs-partial"
+    url = hf_hub_url(repo_id, name, revision=sha, repo_type=REPO_TYPE, endpoint=constants.ENDPOINT)
+    headers = build_hf_headers(token=token)
+    headers["Accept-Encoding"] = "identity"  # the bytes as stored: their length and digest are the file's
+    try:
+        with stream_file(url, headers, constants.HF_HUB_DOWNLOAD_TIMEOUT) as (status, hub, final, chunks):
+            etag = (hub.get("X-Linked-Etag") or hub.get("ETag") or "").removeprefix("W/").strip('"')
+            length = final.get("Content-Length") or ""
+            if (
+                status != 200
+                or hub.get("X-Repo-Commit") != sha
+                or not _HUB_ETAG.fullmatch(etag)
+                or not length.isdigit()
+                or int(length) > DIRECT_GET_MAX_BYTES
+                or hub.get("X-Linked-Size", length) != length
+            ):
+                return None
+            blob = blobs / etag
+            if (blobs / f"{etag}.incomplete").exists():  # huggingface_hub's partial download: it resumes it (under its lock)
+                return None
+            if force_download or not blob.is_file():
+                size = int(length)
+                digest = hashlib.sha256() if len(etag) == 64 else hashlib.sha1(b"blob %d\0" % size)
+                blobs.mkdir(parents=True, exist_ok=True)
+                partial = blobs / f".{etag}.{scratch}"
+                try:
+                    got = 0
+                    with open(partial, "wb") as f:
+                        for chunk in chunks:
+                            got += len(chunk)
+                            if got > size:
+                                return None
+                            digest.update(chunk)
+                            f.write(chunk)
+                    if got != size or digest.hexdigest() != etag:
+                        return None
+                    os.replace(partial, blob)
+                finally:
+                    partial.unlink(missing_ok=True)
+    except HostileResponseError:
+        raise
+    except Exception:  # noqa: BLE001 - hf_hub_download asks again and raises what it raises
+        return None
+    pointer.parent.mkdir(parents=True, exist_ok=True)
+    link = blobs / f".link.{scratch}"  # not in the snapshot folder, where a reader would take it for a file of the commit
+    try:
+        os.symlink(os.path.relpath(blob, pointer.parent), link)
+        os.replace(link, pointer)
+    except OSError:
+        link.unlink(missing_ok=True)
+        return None
+    return str(pointer)
 
 
 def fetch_files(

@@ -4,6 +4,11 @@ Faults are injected into the server itself (``HUB_ENVS_SERVER_FAULTS``, see
 :mod:`hub_envs.server.faults`): 500 answers, a connection dropped mid-file, the server process
 dying in the middle of a push. What huggingface_hub does about them, on 0.35 (requests) and 1.x (httpx):
 
+``load_env`` fetches an env's small files with one ``GET`` each into huggingface_hub's cache
+(``hub_io._get_into_cache``); any answer out of the ordinary there (a 5xx, a body cut off) makes it
+ask ``hf_hub_download``, whose behaviour follows. Larger files and the dataset's data go through
+``hf_hub_download`` / ``snapshot_download`` directly.
+
 * A 5xx on a file's metadata ``HEAD .../resolve/...`` is retried by both. 0.35 sends every HEAD
   through ``http_backoff`` (500/502/503/504 and connection errors, up to 5 retries, sleeping 1, 2,
   4, 8, 8 s); 1.x sends the first HEAD without retries and, when it fails with a retryable error
@@ -31,7 +36,7 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 from helpers import TINY, copy_env
-from huggingface_hub import HfApi
+from huggingface_hub import HfApi, hf_hub_download, scan_cache_dir
 
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.testing import HubServer, hub_environment
@@ -74,15 +79,40 @@ def _incomplete(home: Path) -> list[Path]:
     return list((home / "hub").rglob("*.incomplete")) if (home / "hub").is_dir() else []
 
 
-def test_transient_500s_on_file_downloads_are_retried_and_the_load_succeeds(faulty, tmp_path):
-    # the metadata HEAD of each file: both client versions retry a 5xx there
+def test_a_cold_load_asks_once_per_file_and_the_cache_is_huggingface_hubs_own(faulty, tmp_path):
+    # load_env fetches an env's small files with one GET each (no metadata HEAD first): with every HEAD failing
+    # the load succeeds and not one fault is injected
+    home, ref = tmp_path / "home", f"flt/base@{faulty.sha}"
     before = faulty.injected()
-    faulty.inject({"match": rf"HEAD /flt/base/resolve/{faulty.sha}/", "times": 3})
+    faulty.inject({"match": rf"HEAD /flt/base/resolve/{faulty.sha}/", "times": -1})
     try:
-        with hub_environment(faulty.endpoint, tmp_path / "home"):
-            loaded = load_env(f"flt/base@{faulty.sha}", trust_remote_code=True)
+        with hub_environment(faulty.endpoint, home):
+            loaded = load_env(ref, trust_remote_code=True)
             assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
             loaded.unregister()
+    finally:
+        faulty.heal()
+    assert faulty.injected() == before
+    # laid out as huggingface_hub lays it out: its own reader and scan_cache_dir find every file, offline too
+    with hub_environment(faulty.endpoint, home, offline=True):
+        for rel in loaded.manifest.files:
+            if (loaded.path / rel).is_file():
+                local = hf_hub_download("flt/base", rel, revision=faulty.sha)
+                assert Path(local) == loaded.path / rel and Path(local).is_symlink()
+        (repo,) = scan_cache_dir(home / "hub").repos
+        (revision,) = repo.revisions
+        assert revision.commit_hash == faulty.sha
+        assert {f.file_path for f in revision.files} == {p for p in loaded.path.rglob("*") if p.is_file()}
+        again = load_env(ref, trust_remote_code=True)
+        assert again.report.integrity.endswith("match the manifest")
+        again.unregister()
+    # the files fetched later (the dataset's data, through snapshot_download) still ask HEAD first: a 5xx there is
+    # retried by both client versions (0.x sends every HEAD through http_backoff; 1.x asks again through it)
+    before = faulty.injected()
+    faulty.inject({"match": rf"HEAD /flt/base/resolve/{faulty.sha}/dataset/data/", "times": 3})
+    try:
+        with hub_environment(faulty.endpoint, home):
+            assert loaded.open_dataset().num_frames == loaded.manifest.dataset["frames"]
     finally:
         faulty.heal()
     assert faulty.injected() - before == 3  # three HEADs failed, and huggingface_hub asked again each time
