@@ -227,12 +227,16 @@ def first_files(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> 
 
     from hub_envs import hub_io
     from hub_envs.load import _needed_first
-    from hub_envs.repo_format import is_on_demand_file
+    from hub_envs.repo_format import HUB_FILES, is_on_demand_file
     from hub_envs.testing import hub_environment
 
     with hub_environment(endpoint, tmp / "first-list"):
         siblings = HfApi().repo_info(repo, revision=sha).siblings or []
-    names = [s.rfilename for s in siblings if not is_on_demand_file(s.rfilename) and _needed_first(s.rfilename)]
+    names = [  # as hub_io.resolve_snapshot(lazy=True, first=_needed_first) picks them
+        s.rfilename
+        for s in siblings
+        if not is_on_demand_file(s.rfilename) and s.rfilename not in HUB_FILES and _needed_first(s.rfilename)
+    ]
 
     def direct(name: str) -> str | None:
         return hub_io._get_into_cache(repo, sha, name, token=None, cache_dir=None)

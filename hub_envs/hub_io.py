@@ -18,6 +18,7 @@ import hashlib
 import json
 import os
 import re
+import secrets
 import shutil
 import threading
 import warnings
@@ -173,8 +174,8 @@ def check_hub_response(url: str, headers, read_body) -> None:
         for sibling in info.get("siblings") or []:
             name = sibling.get("rfilename") if isinstance(sibling, dict) else None
             parts = name.split("/") if isinstance(name, str) else [""]
-            if not name or name.startswith("/") or "\\" in name or any(p in ("", ".", "..") for p in parts):
-                _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo")
+            if not name or name.startswith("/") or "\\" in name or "\0" in name or any(p in ("", ".", "..") for p in parts):
+                _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo or cannot be a file's")
 
 
 install_response_hook(check_hub_response)
@@ -412,26 +413,34 @@ def _get_into_cache(
     having written nothing, and the caller asks ``hf_hub_download``, with its retries, resumes and errors: a status
     other than 200, another commit, an ETag missing or not of the Hub's forms, no ``Content-Length`` or more than
     :data:`DIRECT_GET_MAX_BYTES`, a body of another length or whose digest is not its ETag (git's blob sha1, or the
-    sha256 of an LFS file), a broken transfer, a partial download of huggingface_hub's own to resume, a file system
-    without symlinks. An answer
+    sha256 of an LFS file), a compressed body, a broken transfer, a partial download of huggingface_hub's own to
+    resume, a file system without symlinks (or ``HF_HUB_DISABLE_SYMLINKS``), a name with control characters. A blob
+    already cached under the ETag is used only if its content is what the ETag says. An answer
     :func:`check_hub_response` refuses is refused (:class:`~hub_envs.errors.HostileResponseError`).
 
-    The blob is written under a temporary name and renamed, the symlink made under a temporary name in ``blobs/``
-    and renamed over the pointer: a process reading the cache meanwhile sees the old file or the new one, never none
-    (huggingface_hub removes a pointer before re-linking it) and never a file the commit does not hold.
+    The blob is written under a random temporary name (``<etag>.<random>.incomplete``, huggingface_hub 1.x's own
+    pattern) and renamed, the symlink made under a temporary name in ``blobs/`` and renamed over the pointer: a
+    process reading the cache meanwhile sees the old file or the new one, never none (huggingface_hub removes a
+    pointer before re-linking it) and never a file the commit does not list.
     """
     parts = name.split("/")
-    if not name or "\\" in name or any(p in ("", ".", "..") for p in parts):
+    if (
+        not name
+        or "\\" in name
+        or any(p in ("", ".", "..") for p in parts)
+        or any(ord(c) < 32 for c in name)
+        or getattr(constants, "HF_HUB_DISABLE_SYMLINKS", False)  # 1.x: files, not links, in snapshots/
+    ):
         return None
     snapshot = _cache_snapshot_dir(repo_id, sha, cache_dir)
     pointer = snapshot.joinpath(*parts)
     if not force_download and pointer.is_file():
         return str(pointer)
     blobs = snapshot.parent.parent / "blobs"
-    scratch = f"{os.getpid()}.{threading.get_ident()}.hub-envs-partial"
     url = hf_hub_url(repo_id, name, revision=sha, repo_type=REPO_TYPE, endpoint=constants.ENDPOINT)
     headers = build_hf_headers(token=token)
     headers["Accept-Encoding"] = "identity"  # the bytes as stored: their length and digest are the file's
+    link = partial = None
     try:
         with stream_file(url, headers, constants.HF_HUB_DOWNLOAD_TIMEOUT) as (status, hub, final, chunks):
             etag = (hub.get("X-Linked-Etag") or hub.get("ETag") or "").removeprefix("W/").strip('"')
@@ -443,43 +452,65 @@ def _get_into_cache(
                 or not length.isdigit()
                 or int(length) > DIRECT_GET_MAX_BYTES
                 or hub.get("X-Linked-Size", length) != length
+                or final.get("Content-Encoding", "identity").strip().lower() != "identity"
+                or (blobs / f"{etag}.incomplete").exists()  # 0.x's partial download of it: hf_hub_download resumes it
             ):
                 return None
-            blob = blobs / etag
-            if (blobs / f"{etag}.incomplete").exists():  # huggingface_hub's partial download: it resumes it (under its lock)
-                return None
-            if force_download or not blob.is_file():
-                size = int(length)
-                digest = hashlib.sha256() if len(etag) == 64 else hashlib.sha1(b"blob %d\0" % size)
-                blobs.mkdir(parents=True, exist_ok=True)
-                partial = blobs / f".{etag}.{scratch}"
-                try:
-                    got = 0
-                    with open(partial, "wb") as f:
-                        for chunk in chunks:
-                            got += len(chunk)
-                            if got > size:
-                                return None
-                            digest.update(chunk)
-                            f.write(chunk)
-                    if got != size or digest.hexdigest() != etag:
-                        return None
-                    os.replace(partial, blob)
-                finally:
-                    partial.unlink(missing_ok=True)
+            size, blob = int(length), blobs / etag
+            blobs.mkdir(parents=True, exist_ok=True)
+            # the link first, under a name of its own in blobs/ (in the snapshot folder a reader would take it for a
+            # file of the commit): where symlinks cannot be made, nothing else is written
+            link = blobs / f"{etag}.{secrets.token_hex(4)}.link.incomplete"
+            os.symlink(os.path.relpath(blob, pointer.parent), link)
+            if force_download or _digest_of(blob, etag) != etag:  # missing, or not what its name says: written anew
+                digest = _etag_digest(etag, size)
+                scratch = blobs / f"{etag}.{secrets.token_hex(4)}.incomplete"
+                fd = os.open(scratch, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as to any file
+                partial = scratch
+                got = 0
+                with open(fd, "wb") as f:
+                    for chunk in chunks:
+                        got += len(chunk)
+                        if got > size:
+                            return None
+                        digest.update(chunk)
+                        f.write(chunk)
+                if got != size or digest.hexdigest() != etag:
+                    return None
+                os.replace(partial, blob)
+                partial = None
+            pointer.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(link, pointer)
+            link = None
     except HostileResponseError:
         raise
     except Exception:  # noqa: BLE001 - hf_hub_download asks again and raises what it raises
         return None
-    pointer.parent.mkdir(parents=True, exist_ok=True)
-    link = blobs / f".link.{scratch}"  # not in the snapshot folder, where a reader would take it for a file of the commit
-    try:
-        os.symlink(os.path.relpath(blob, pointer.parent), link)
-        os.replace(link, pointer)
-    except OSError:
-        link.unlink(missing_ok=True)
-        return None
+    finally:
+        for leftover in (link, partial):
+            if leftover is not None:
+                with contextlib.suppress(OSError):
+                    leftover.unlink()
     return str(pointer)
+
+
+def _etag_digest(etag: str, size: int):
+    """The hash whose hex digest is a file's ETag: sha256 (an LFS or Xet file), else git's blob sha1."""
+    return hashlib.sha256() if len(etag) == 64 else hashlib.sha1(b"blob %d\0" % size)
+
+
+def _digest_of(blob: Path, etag: str) -> str | None:
+    """The ETag-kind digest of a cached blob (None if it is missing or larger than :data:`DIRECT_GET_MAX_BYTES`): a
+    blob another load wrote from a body the manifest later refused is not trusted for its name."""
+    try:
+        size = blob.stat().st_size
+        if size > DIRECT_GET_MAX_BYTES:
+            return None
+        digest = _etag_digest(etag, size)
+        digest.update(blob.read_bytes())
+        return digest.hexdigest()
+    except OSError:
+        return None
 
 
 def fetch_files(

@@ -160,6 +160,29 @@ def test_a_hostile_header_is_refused_before_the_client_writes_anything(hub, tmp_
     assert not list(tmp_path.rglob("escaped-commit"))
 
 
+def test_a_body_rewritten_under_its_honest_etag_is_refused_and_does_not_poison_the_cache(hub, tmp_path, marker, two_commits):
+    """A proxy that changes a file's bytes (not its length) and keeps the Hub's ETag: the load refuses the commit (the manifest's
+    sha256), nothing runs, and the blob stored under that ETag by huggingface_hub's fallback is not taken for
+    the file later: a load through the honest endpoint fetches it again and succeeds (it failed for ever)."""
+    a, _ = two_commits
+    victim = tmp_path / "victim"
+
+    def answer(method, p, status, headers, body):
+        if method == "GET" and "/resolve/" in p and p.endswith("/tiny.py"):
+            body = body[::-1]  # the same length, as the HEAD announced it
+        return status, headers, body
+
+    with LyingEndpoint(hub.endpoint, rewrite_answer=answer) as lie, hub_environment(lie.endpoint, victim):
+        with pytest.raises(errors.IntegrityError, match="tiny.py"):
+            load_env(f"mallory/env@{a}", trust_remote_code=True)
+    assert not marker.exists()
+    with hub_environment(hub.endpoint, victim):
+        loaded = load_env(f"mallory/env@{a}", trust_remote_code=True)
+        assert loaded.report.integrity.endswith("match the manifest")
+        loaded.unregister()
+    assert not marker.exists()
+
+
 def test_hub_envs_state_lives_outside_the_hf_cache(hub):
     assert hub.hf_home not in hub_envs_home().parents and hub_envs_home() != hub.hf_home
 

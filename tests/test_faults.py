@@ -37,6 +37,7 @@ import gymnasium as gym
 import pytest
 from helpers import TINY, copy_env
 from huggingface_hub import HfApi, hf_hub_download, scan_cache_dir
+from huggingface_hub import constants as hf_constants
 
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.testing import HubServer, hub_environment
@@ -116,6 +117,18 @@ def test_a_cold_load_asks_once_per_file_and_the_cache_is_huggingface_hubs_own(fa
     finally:
         faulty.heal()
     assert faulty.injected() - before == 3  # three HEADs failed, and huggingface_hub asked again each time
+
+
+@pytest.mark.skipif(
+    not hasattr(hf_constants, "HF_HUB_DISABLE_SYMLINKS"), reason="huggingface_hub 0.x has no HF_HUB_DISABLE_SYMLINKS"
+)
+def test_with_symlinks_disabled_a_load_keeps_files_not_links(faulty, tmp_path, monkeypatch):
+    monkeypatch.setattr(hf_constants, "HF_HUB_DISABLE_SYMLINKS", True)  # as HF_HUB_DISABLE_SYMLINKS=1 sets it
+    with hub_environment(faulty.endpoint, tmp_path / "home"):
+        loaded = load_env(f"flt/base@{faulty.sha}", trust_remote_code=True)
+        loaded.unregister()
+    files = [p for p in loaded.path.rglob("*") if not p.is_dir()]
+    assert files and not [p for p in files if p.is_symlink()]
 
 
 def test_transient_500s_on_file_contents_are_retried_by_0x_and_a_clear_error_on_1x(faulty, tmp_path):
