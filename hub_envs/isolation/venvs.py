@@ -184,7 +184,10 @@ def venv_for(
                 constrain = ["--constraint", str(tmp / "constraints.txt")]
             for cmd in (
                 [*uv, "venv", "--quiet", "--python", python, str(tmp / "venv")],
-                [*uv, "pip", "install", "--quiet", "--python", str(tmp / "venv" / "bin" / "python"), *constrain, *reqs],
+                # bytecode at build time: a sandboxed worker sees the venv read-only, and with PYTHONDONTWRITEBYTECODE
+                # every worker would compile numpy, gymnasium and the simulator again at each start
+                [*uv, "pip", "install", "--quiet", "--compile-bytecode", "--python", str(tmp / "venv" / "bin" / "python")]
+                + [*constrain, *reqs],
             ):
                 proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
                 if proc.returncode != 0:
