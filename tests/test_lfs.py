@@ -11,13 +11,16 @@ import hashlib
 import json
 import os
 import re
+import shutil
 from pathlib import Path
 
 import pytest
 import requests
-from huggingface_hub import CommitOperationAdd, HfApi, constants, hf_hub_download
+from helpers import TINY
+from huggingface_hub import CommitOperationAdd, HfApi, constants, hf_hub_download, snapshot_download
 
-from hub_envs import _compat, hub_io
+from hub_envs import _compat, hub_io, load_env, push_env
+from hub_envs.repo_format import MANIFEST_FILE, content_digest
 from hub_envs.testing import HubServer, hub_environment
 
 MiB = 1024 * 1024
@@ -98,6 +101,45 @@ def test_large_and_parquet_files_go_through_lfs_and_come_back_bit_identical(lfs,
     # the same content again: nothing uploaded, no new commit (the client compares preupload's sha256)
     again = api.create_commit("lfs/mixed", [CommitOperationAdd(p, d) for p, d in files.items()], commit_message="again")
     assert again.oid == sha and lfs.output().count(f"lfs: stored {_sha(big)}") == 1
+
+
+def test_an_env_repo_with_a_200_mib_dataset_goes_through_lfs_and_loads_back_bit_identical(lfs, tmp_path):
+    # push_env's repo of the tiny env, its dataset grown by 4 data files of 50 MiB listed in the manifest, published
+    # as push_env publishes (hub_io.publish_folder, one commit); a cold load fetches none of them, fetch_dataset()
+    # fetches and verifies all of them
+    small = push_env(TINY, "lfs/env", episodes=2, progress=False).sha
+    folder = Path(snapshot_download("lfs/env", revision=small, local_dir=tmp_path / "repo"))
+    shutil.rmtree(folder / ".cache", ignore_errors=True)
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    digests = {}
+    for i in range(4):
+        rel = f"dataset/data/chunk-001/file-{i:03d}.parquet"
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        h = hashlib.sha256()
+        with open(folder / rel, "wb") as f:
+            for _ in range(50):
+                block = os.urandom(MiB)
+                h.update(block)
+                f.write(block)
+        digests[rel] = manifest["files"][rel] = h.hexdigest()
+    manifest["content_digest"] = content_digest(manifest["files"])
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
+    big = hub_io.publish_folder(folder, "lfs/env", parent_commit=small, remote_files=[], message="a 200 MiB dataset")
+
+    stored = _stored(lfs)
+    assert all(stored.get(d) == "multipart" for d in digests.values()), stored  # through LFS, in parts
+
+    with hub_environment(lfs.endpoint, tmp_path / "loader"):
+        loaded = load_env(f"lfs/env@{big}", trust_remote_code=True)
+        loaded.unregister()
+        assert not any((loaded.path / rel).exists() for rel in digests)  # a cold load fetches no data file
+        root = loaded.fetch_dataset()
+        for rel, digest in digests.items():
+            h = hashlib.sha256()
+            with open(root.parent / rel, "rb") as f:
+                while block := f.read(8 * MiB):
+                    h.update(block)
+            assert h.hexdigest() == digest
 
 
 def test_preupload_follows_the_hubs_rules(lfs):
