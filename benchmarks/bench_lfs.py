@@ -24,7 +24,6 @@ returns the dict.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import os
 import shutil
 import subprocess
@@ -37,7 +36,7 @@ from pathlib import Path
 from huggingface_hub import CommitOperationAdd, HfApi, hf_hub_download
 
 from benchmarks import PRINT_PEAK_RSS_KIB
-from hub_envs.testing import HubServer, hub_environment
+from hub_envs.testing import HubServer, add_random_data_files, hub_environment
 
 MiB = 1024 * 1024
 
@@ -77,7 +76,7 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
 
     from hub_envs import hub_io, load_env, push_env
     from hub_envs.importing import forget_env_folder, module_key
-    from hub_envs.repo_format import MANIFEST_FILE, content_digest
+    from hub_envs.repo_format import MANIFEST_FILE
 
     repo_root = Path(__file__).resolve().parent.parent
     with HubServer(tmp / "hub-cold") as server:
@@ -87,18 +86,8 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
             shutil.rmtree(folder / ".cache", ignore_errors=True)
             manifest = json.loads((folder / MANIFEST_FILE).read_text())
             manifest["repo_id"] = "bench/big"
-            for i in range(max(1, big_mb // 50)):
-                rel = f"dataset/data/chunk-001/file-{i:03d}.parquet"
-                (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-                h = hashlib.sha256()
-                with open(folder / rel, "wb") as f:
-                    for _ in range(50):
-                        block = os.urandom(MiB)
-                        h.update(block)
-                        f.write(block)
-                manifest["files"][rel] = h.hexdigest()
-            manifest["content_digest"] = content_digest(manifest["files"])
             (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
+            add_random_data_files(folder, max(1, big_mb // 50), 50)
             big = hub_io.publish_folder(folder, "bench/big", parent_commit=None, remote_files=[], message="big dataset")
         times: dict[str, list[float]] = {"small": [], "big": []}
         stages: dict[str, list[dict]] = {"small": [], "big": []}

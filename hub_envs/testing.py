@@ -385,3 +385,31 @@ def _reset_client_state(huggingface_hub) -> None:
 
     reset_http_sessions()
     huggingface_hub.HfFileSystem.clear_instance_cache()
+
+
+def add_random_data_files(folder: Path, count: int, mib_each: int, *, chunk: str = "chunk-001") -> dict[str, str]:
+    """Grow the dataset of the env repo in ``folder`` (a published snapshot copied out, or push_env's folder) by
+    ``count`` files of ``mib_each`` MiB of random bytes under ``dataset/data/<chunk>/``, listed in its manifest (the
+    files and the content digest updated), as a large camera dataset would be; returns ``{path: sha256}``. For
+    tests and benchmarks of the Hub at real sizes (the bytes are not parquet: they are fetched and verified, not
+    decoded). Publish the folder with :func:`hub_envs.hub_io.publish_folder`."""
+    import hashlib
+    import json
+
+    from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, content_digest
+
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    added = {}
+    for i in range(count):
+        rel = f"{DATASET_DIR}/data/{chunk}/file-{i:03d}.parquet"
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        digest = hashlib.sha256()
+        with open(folder / rel, "wb") as f:
+            for _ in range(mib_each):
+                block = os.urandom(1 << 20)
+                digest.update(block)
+                f.write(block)
+        added[rel] = manifest["files"][rel] = digest.hexdigest()
+    manifest["content_digest"] = content_digest(manifest["files"])
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
+    return added

@@ -20,8 +20,7 @@ from helpers import TINY
 from huggingface_hub import CommitOperationAdd, HfApi, constants, hf_hub_download, snapshot_download
 
 from hub_envs import _compat, hub_io, load_env, push_env
-from hub_envs.repo_format import MANIFEST_FILE, content_digest
-from hub_envs.testing import HubServer, hub_environment
+from hub_envs.testing import HubServer, add_random_data_files, hub_environment
 
 MiB = 1024 * 1024
 CHUNK_MB = 4  # the module's server sends files over 4 MiB through the multipart transfer
@@ -110,20 +109,7 @@ def test_an_env_repo_with_a_200_mib_dataset_goes_through_lfs_and_loads_back_bit_
     small = push_env(TINY, "lfs/env", episodes=2, progress=False).sha
     folder = Path(snapshot_download("lfs/env", revision=small, local_dir=tmp_path / "repo"))
     shutil.rmtree(folder / ".cache", ignore_errors=True)
-    manifest = json.loads((folder / MANIFEST_FILE).read_text())
-    digests = {}
-    for i in range(4):
-        rel = f"dataset/data/chunk-001/file-{i:03d}.parquet"
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        h = hashlib.sha256()
-        with open(folder / rel, "wb") as f:
-            for _ in range(50):
-                block = os.urandom(MiB)
-                h.update(block)
-                f.write(block)
-        digests[rel] = manifest["files"][rel] = h.hexdigest()
-    manifest["content_digest"] = content_digest(manifest["files"])
-    (folder / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
+    digests = add_random_data_files(folder, 4, 50)
     big = hub_io.publish_folder(folder, "lfs/env", parent_commit=small, remote_files=[], message="a 200 MiB dataset")
 
     stored = _stored(lfs)
