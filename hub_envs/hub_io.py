@@ -16,6 +16,7 @@ import concurrent.futures
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import secrets
@@ -61,6 +62,8 @@ from hub_envs.errors import (
     RevisionNotFoundError,
 )
 from hub_envs.repo_format import DATASET_DIR, HUB_FILES, MANIFEST_FILE, is_commit_sha, is_on_demand_file
+
+logger = logging.getLogger(__name__)
 
 REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
 
@@ -414,9 +417,10 @@ def _get_into_cache(
     other than 200, another commit, an ETag missing or not of the Hub's forms, no ``Content-Length`` or more than
     :data:`DIRECT_GET_MAX_BYTES`, a body of another length or whose digest is not its ETag (git's blob sha1, or the
     sha256 of an LFS file), a compressed body, a broken transfer, a partial download of huggingface_hub's own to
-    resume, a file system without symlinks (or ``HF_HUB_DISABLE_SYMLINKS``), a name with control characters. A blob
-    already cached under the ETag is used only if its content is what the ETag says. An answer
-    :func:`check_hub_response` refuses is refused (:class:`~hub_envs.errors.HostileResponseError`).
+    resume, a file system without symlinks (or ``HF_HUB_DISABLE_SYMLINKS``), a name with characters that are not
+    printable. A blob already cached under the ETag is used only if its content is what the ETag says (its body is
+    read all the same, so that the connection is reused). An answer :func:`check_hub_response` refuses is refused
+    (:class:`~hub_envs.errors.HostileResponseError`).
 
     The blob is written under a random temporary name (``<etag>.<random>.incomplete``, huggingface_hub 1.x's own
     pattern) and renamed, the symlink made under a temporary name in ``blobs/`` and renamed over the pointer: a
@@ -428,7 +432,7 @@ def _get_into_cache(
         not name
         or "\\" in name
         or any(p in ("", ".", "..") for p in parts)
-        or any(ord(c) < 32 for c in name)
+        or not name.isprintable()
         or getattr(constants, "HF_HUB_DISABLE_SYMLINKS", False)  # 1.x: files, not links, in snapshots/
     ):
         return None
@@ -479,12 +483,19 @@ def _get_into_cache(
                     return None
                 os.replace(partial, blob)
                 partial = None
+            else:  # the blob is here already: the body is read to its end all the same, so the connection is reused
+                got = 0
+                for chunk in chunks:
+                    got += len(chunk)
+                    if got > size:
+                        return None
             pointer.parent.mkdir(parents=True, exist_ok=True)
             os.replace(link, pointer)
             link = None
     except HostileResponseError:
         raise
-    except Exception:  # noqa: BLE001 - hf_hub_download asks again and raises what it raises
+    except Exception as e:  # noqa: BLE001 - hf_hub_download asks again and raises what it raises
+        logger.debug("%s@%s: fetching %s with one GET failed (%r); huggingface_hub fetches it", repo_id, sha, name, e)
         return None
     finally:
         for leftover in (link, partial):
@@ -507,7 +518,9 @@ def _digest_of(blob: Path, etag: str) -> str | None:
         if size > DIRECT_GET_MAX_BYTES:
             return None
         digest = _etag_digest(etag, size)
-        digest.update(blob.read_bytes())
+        with open(blob, "rb") as f:
+            while block := f.read(1 << 20):
+                digest.update(block)
         return digest.hexdigest()
     except OSError:
         return None

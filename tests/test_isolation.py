@@ -858,35 +858,6 @@ def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(h
         env.close()
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: there is nothing to place")
-def test_while_both_busy_wait_the_worker_keeps_off_the_cpu_its_caller_spins_on(hostile):
-    """The busy-wait placement (hub_envs.isolation.affinity): a worker whose parent busy-waits runs the env's step on
-    the worker's CPUs but the one the parent spins on; with affinity off, on all of them again."""
-    from hub_envs.isolation import affinity
-
-    env = hostile.make()
-    mine = os.sched_getaffinity(0)
-    here = min(mine)
-    try:
-        os.sched_setaffinity(0, {here})  # the caller spins on this CPU
-        env.reset(seed=0)
-        worker = _inner(env).worker
-        for _ in range(30):  # busy-waiting starts once the answers' usual delay is known (short enough: a loaded host)
-            for _ in range(100):
-                env.step(env.action_space.sample())
-            if worker.spins:  # decided before the probe's step is sent (a reset does not change it)
-                break
-        else:
-            pytest.skip("the host is too loaded for busy-waiting: the answers' usual delay stayed over 0.5 ms")
-        assert _probe(env, "cpus") == sorted(mine - {here})
-        affinity.enabled = False
-        assert _probe(env, "cpus") == sorted(mine)
-    finally:
-        affinity.enabled = True
-        os.sched_setaffinity(0, mine)
-        env.close()
-
-
 def test_an_env_made_in_a_thread_that_ended_keeps_its_worker(hostile):
     """The parent-death signal follows the thread that started the worker: workers start from one long-lived
     launcher thread, so an env made in a short-lived thread (a pool, a loader) keeps working after it ends."""

@@ -111,6 +111,7 @@ def test_an_env_repo_with_a_200_mib_dataset_goes_through_lfs_and_loads_back_bit_
     shutil.rmtree(folder / ".cache", ignore_errors=True)
     digests = add_random_data_files(folder, 4, 50)
     big = hub_io.publish_folder(folder, "lfs/env", parent_commit=small, remote_files=[], message="a 200 MiB dataset")
+    shutil.rmtree(folder)  # two test legs side by side: no more copies of 200 MiB than needed
 
     stored = _stored(lfs)
     assert all(stored.get(d) == "multipart" for d in digests.values()), stored  # through LFS, in parts
@@ -126,6 +127,7 @@ def test_an_env_repo_with_a_200_mib_dataset_goes_through_lfs_and_loads_back_bit_
                 while block := f.read(8 * MiB):
                     h.update(block)
             assert h.hexdigest() == digest
+    shutil.rmtree(tmp_path / "loader")
 
 
 def test_preupload_follows_the_hubs_rules(lfs):

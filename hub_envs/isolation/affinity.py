@@ -4,7 +4,7 @@ A step through a worker process is two wake-ups: the parent wakes the worker, th
 Linux puts a woken task on an idle CPU when there is one, and waking an idle CPU costs far more than the
 rest of the round trip on a virtual machine whose idle CPUs halt (measured on the project's 2-CPU VM: a
 round trip between two processes on one CPU 7-14 us, on two CPUs 100-130 us). A single env's parent and worker
-first busy-wait a moment, talking through a shared page (:mod:`~hub_envs.isolation.doorbell`); when they sleep, the fix is
+first busy-wait a moment, talking through a shared page (:mod:`~hub_envs.isolation.doorbell`; then nothing is pinned); when they sleep, the fix is
 where they sleep:
 
 * the parent (:func:`pin_here` / :func:`unpin`) pins the *calling thread* to the CPU it is on while it
@@ -13,15 +13,6 @@ where they sleep:
 * the worker (:class:`Follower`) pins itself to that CPU only while it waits for the next request and
   goes back to its own CPU set the moment it is woken, so the env's code (and any thread it starts) runs
   with the worker's full CPU set.
-
-While both busy-wait, the opposite holds: each needs a CPU of its own. The parent (:func:`spinning_cpu`) puts the
-CPU it spins on in the request and the worker (:meth:`Follower.place`) keeps off it, on the rest of its CPU set,
-until the parent moves or stops spinning: left to the scheduler, the two can meet on one CPU or swap, and the
-env's step then runs on cold caches (inside a worker, hover's own step took 140-190 us at the median against
-131-139 us in-process; with both pinned by hand 138-157 us). What it buys is within this VM's noise: isolated
-hover steps/s ÷ in-process in four runs of ``bench_isolation``, with / without it side by side, 0.723 / 0.703,
-0.624 / 0.654, 0.774 / 0.747, 0.744 / 0.688 (8 pendulums in one worker: 0.791 / 0.727, 0.76 / 0.744, 0.739 / 0.715,
-0.849 / 0.788).
 
 Where a CPU cannot be read or pinned (not Linux, a CPU outside the allowed set), nothing is pinned and the
 call goes on as before: this is a placement hint, never a condition. ``affinity.enabled = False`` turns it
@@ -68,11 +59,6 @@ def current_cpu() -> int:
     return _GETCPU() if _GETCPU is not None else NO_CPU
 
 
-def spinning_cpu() -> int:
-    """The CPU the calling thread busy-waits on, for the worker to keep off (``NO_CPU`` when off or unknown)."""
-    return _GETCPU() if _GETCPU is not None and enabled else NO_CPU
-
-
 def pin_here() -> tuple[int, set[int] | None]:
     """Pin the calling thread to its current CPU: ``(cpu, CPU set to give back to unpin)``, or ``(NO_CPU, None)``."""
     if _GETCPU is None or not enabled:
@@ -107,31 +93,12 @@ class Follower:
         except (AttributeError, OSError):  # pragma: no cover - not Linux
             self.own = None
         self.pinned = False
-        self.avoiding = NO_CPU  # the CPU a busy-waiting parent spins on, kept off while it does
-
-    def place(self, parent_cpu: int) -> None:
-        """On a request: keep off ``parent_cpu``, the CPU the parent busy-waits on (``NO_CPU``: it does not, or did not
-        say; then the worker's own CPU set again)."""
-        own = self.own
-        if parent_cpu == self.avoiding or own is None:
-            return
-        rest = own - {parent_cpu}
-        try:
-            if parent_cpu != NO_CPU and rest and parent_cpu in own:
-                os.sched_setaffinity(0, rest)
-                self.avoiding = parent_cpu
-            elif self.avoiding != NO_CPU:
-                os.sched_setaffinity(0, own)
-                self.avoiding = NO_CPU
-        except OSError:  # pragma: no cover - e.g. a cpuset changed under us: stop trying
-            self.own, self.avoiding = None, NO_CPU
 
     def wait_on(self, cpu: int) -> None:
         """Before blocking for the next request: sleep on ``cpu`` (the parent's) if it is one of ours."""
         own = self.own
         if own is None or len(own) < 2 or cpu not in own:
             return
-        self.avoiding = NO_CPU  # pinned below: whatever it kept off before
         try:
             os.sched_setaffinity(0, (cpu,))
             self.pinned = True

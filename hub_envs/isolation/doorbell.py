@@ -92,25 +92,8 @@ PARENT, WORKER = "parent", "worker"
 #: the mail slots need stores seen in program order (x86-64's TSO; see the module docstring)
 MAIL = platform.machine().lower() in ("x86_64", "amd64")
 #: in a fast step request's CPU field (:data:`~hub_envs.isolation.protocol.FAST_HEADER`): the parent busy-waits
-#: for this answer (and is pinned nowhere); the worker then busy-waits for the next request. A value below it says
-#: the same and which CPU the parent spins on (:func:`spinning_on`, :func:`parent_cpu`)
+#: for this answer (and is pinned nowhere); the worker then busy-waits for the next request
 SPINNING = -2
-
-
-def spinning_on(cpu: int) -> int:
-    """The CPU field of a request whose parent busy-waits on ``cpu`` (unknown, -1: :data:`SPINNING`).
-
-    >>> [spinning_on(c) for c in (-1, 0, 5)], [parent_cpu(spinning_on(c)) for c in (-1, 0, 5)]
-    ([-2, -3, -8], [-1, 0, 5])
-    """
-    return SPINNING - 1 - cpu if cpu >= 0 else SPINNING
-
-
-def parent_cpu(field: int) -> int:
-    """The CPU a busy-waiting parent spins on, from a request's CPU field (-1 when it did not say)."""
-    return SPINNING - 1 - field if field < SPINNING else -1
-
-
 #: the longest a side busy-waits for the other before it sleeps
 MAX_SPIN_S = 0.0005
 #: False: never spin and never use the mail slots (both sides sleep in the socket); read at every message

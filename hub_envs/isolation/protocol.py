@@ -33,8 +33,8 @@ from hub_envs.isolation.wire import decode, encode
 PROTOCOL = 5
 #: the longest answer the parent reads from a worker (a longer one stops the worker: EnvCrashedError)
 MAX_MESSAGE_BYTES = 1 << 30
-#: the head of a fast step request: kind (b"s" single env, b"v" vector slice), the parent's CPU (-1: none; -2 or below:
-#: the parent busy-waits, :data:`~hub_envs.isolation.doorbell.SPINNING`, :func:`~hub_envs.isolation.doorbell.spinning_on`)
+#: the head of a fast step request: kind (b"s" single env, b"v" vector slice), the parent's CPU (-1: none; -2: the
+#: parent busy-waits, :data:`~hub_envs.isolation.doorbell.SPINNING`)
 FAST_HEADER = struct.Struct("<ci")
 #: the answer to a single env's fast step when the observation went through shared memory, the reward is a
 #: ``float`` and both flags ``bool`` (else the answer is the encoded ``["ok", ...]``): ``b"F"``, reward, terminated,

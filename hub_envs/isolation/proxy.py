@@ -46,8 +46,8 @@ import gymnasium as gym
 import numpy as np
 
 from hub_envs.errors import AnswerTooLargeError, EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.affinity import pin_here, spinning_cpu, unpin
-from hub_envs.isolation.doorbell import MAIL, Doorbell, Oversized, PastDeadline, SpinBudget, spinning_on
+from hub_envs.isolation.affinity import pin_here, unpin
+from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import (
     FAST_ANSWER,
@@ -601,7 +601,7 @@ class IsolatedEnv(gym.Env):
             worker = self._worker
             # a busy wait keeps both sides awake, each on its CPU; else this thread sleeps on its CPU, and the
             # worker is told to sleep there too (see affinity)
-            cpu, saved = (spinning_on(spinning_cpu()), None) if worker.spins else pin_here()
+            cpu, saved = (SPINNING, None) if worker.spins else pin_here()
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
                 reward, terminated, truncated, info, obs, shared = worker.receive_step(self._options.call_timeout)

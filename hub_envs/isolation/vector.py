@@ -40,8 +40,8 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from hub_envs.errors import ConfigError
-from hub_envs.isolation.affinity import NO_CPU, pin_here, spinning_cpu, unpin
-from hub_envs.isolation.doorbell import available_cpus, sealed_memfd, spinning_on
+from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.doorbell import SPINNING, available_cpus, sealed_memfd
 from hub_envs.isolation.protocol import FAST_HEADER
 from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker, warn_unsent_metadata
 
@@ -406,11 +406,10 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             and actions.dtype == space.dtype
             and actions.shape == (self.num_envs, *space.shape)
         ):  # raw bytes, one message per worker
-            # busy-waiting (a CPU for everyone): the workers keep off the CPU this thread spins on; else the first
-            # worker sleeps where this thread waits (see affinity) and the others, sent theirs first, run wherever the
-            # scheduler finds a CPU
+            # busy-waiting (a CPU for everyone): no pinning; else the first worker sleeps where this thread waits
+            # (see affinity) and the others, sent theirs first, run wherever the scheduler finds a CPU
             spinning = self._workers[0].spins
-            cpu, saved = (spinning_on(spinning_cpu()), None) if spinning else pin_here()
+            cpu, saved = (SPINNING, None) if spinning else pin_here()
             try:
                 for k in range(len(self._workers) - 1, -1, -1):
                     w, (o, c) = self._workers[k], self._slices[k]

@@ -27,7 +27,7 @@ import time
 from functools import partial
 from typing import Any
 
-from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget, parent_cpu
+from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
 from hub_envs.isolation.protocol import FAST_HEADER, encode_answer, error_info, fast_answer, vector_answer
 from hub_envs.isolation.wire import Unsendable, encode
 
@@ -236,7 +236,7 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
     clock = time.perf_counter
     answered = clock()
     while True:
-        budget = spin.seconds() if cpu <= SPINNING else 0.0  # only after a step the parent busy-waited for
+        budget = spin.seconds() if cpu == SPINNING else 0.0  # only after a step the parent busy-waited for
         try:
             # asleep, wait on the parent's CPU: waking it there is cheap (see affinity)
             data = bell.receive(None, answered + budget if budget else 0.0, from_socket, partial(follower.wait_on, cpu))
@@ -249,7 +249,6 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
         fast = kind in (b"s", b"v")  # raw action bytes: a single env's step, a vector slice's step
         if fast:
             cpu = FAST_HEADER.unpack_from(data)[1]
-            follower.place(parent_cpu(cpu))  # both busy-wait: off the parent's CPU (see affinity)
         msg = ("step",) if fast else pickle.loads(data)
         op, args = msg[0], msg[1:]
         fatal, result = False, None
