@@ -144,6 +144,13 @@ def _refuse(url: str, what: str) -> None:
     )
 
 
+def _escapes_repo(name: object) -> bool:
+    """Whether a file name an answer lists could not be a path inside the repo (empty, absolute, ``..``, ``\\``, NUL)."""
+    if not isinstance(name, str) or not name or "\\" in name or "\0" in name:
+        return True
+    return any(p in ("", ".", "..") for p in name.split("/"))
+
+
 def check_hub_response(url: str, headers, read_body) -> None:
     """Refuse a response whose commit id, ETag or file names are not of the forms the Hub uses.
 
@@ -176,8 +183,7 @@ def check_hub_response(url: str, headers, read_body) -> None:
             _refuse(url, f"a repo sha {str(sha)[:80]!r} (a commit id is 40 lowercase hex digits)")
         for sibling in info.get("siblings") or []:
             name = sibling.get("rfilename") if isinstance(sibling, dict) else None
-            parts = name.split("/") if isinstance(name, str) else [""]
-            if not name or name.startswith("/") or "\\" in name or "\0" in name or any(p in ("", ".", "..") for p in parts):
+            if _escapes_repo(name):
                 _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo or cannot be a file's")
 
 
@@ -358,8 +364,8 @@ def _fetch(
 ) -> tuple[Path, dict[str, concurrent.futures.Future], concurrent.futures.ThreadPoolExecutor]:
     """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache, ``MAX_WORKERS`` at a time, each with
     ``hf_hub_download`` (what snapshot_download does per file; huggingface_hub's cache is safe for concurrent
-    downloads; small files take one request instead of two: :func:`_get_into_cache`). Returns the snapshot folder once the files ``first`` accepts (all when None) are there, and the
-    futures of the others, which start then (so they do not slow the first down) and download while the caller
+    downloads; small files take one request instead of two: :func:`_get_into_cache`). Returns the snapshot folder
+    once the files ``first`` accepts (all when None) are there, and the futures of the others, which start then (so they do not slow the first down) and download while the caller
     goes on, and the pool (``shutdown(wait=True)`` joins its threads). Call inside :func:`translate_hub_errors`."""
     names = sorted(set(names))
     bar = hf_tqdm(total=len(names), desc=f"Fetching {len(names)} files", unit="file")
@@ -427,17 +433,14 @@ def _get_into_cache(
     process reading the cache meanwhile sees the old file or the new one, never none (huggingface_hub removes a
     pointer before re-linking it) and never a file the commit does not list.
     """
-    parts = name.split("/")
     if (
-        not name
-        or "\\" in name
-        or any(p in ("", ".", "..") for p in parts)
+        _escapes_repo(name)
         or not name.isprintable()
         or getattr(constants, "HF_HUB_DISABLE_SYMLINKS", False)  # 1.x: files, not links, in snapshots/
     ):
         return None
     snapshot = _cache_snapshot_dir(repo_id, sha, cache_dir)
-    pointer = snapshot.joinpath(*parts)
+    pointer = snapshot.joinpath(*name.split("/"))
     if not force_download and pointer.is_file():
         return str(pointer)
     blobs = snapshot.parent.parent / "blobs"
