@@ -27,7 +27,8 @@ import requests
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, hf_hub_download
 from huggingface_hub.errors import BadRequestError, HfHubHTTPError, RepositoryNotFoundError
 
-from hub_envs.testing import HubServer, hub_environment
+from hub_envs.errors import ConfigError
+from hub_envs.testing import HubServer, HubServerError, hub_environment
 
 MiB = 1024 * 1024
 TIMEOUT = 30  # client timeout (s) of requests that used to hang: a hang fails the test, never blocks it
@@ -610,6 +611,95 @@ def test_server_and_repo_format_agree_on_the_manifest_name():
     from hub_envs.server import app
 
     assert app._ENV_MANIFEST == MANIFEST_FILE
+
+
+# --- 8. (Medium, issue 30) any account could push commits onto another account's pull request -----
+
+OWNER, BOB, CAROL = "hf_owner_token", "hf_bob_token", "hf_carol_token"
+
+
+@pytest.fixture
+def three_accounts(tmp_path):
+    """A server whose own account (``local``) manages every repo, and two more accounts, ``bob`` and ``carol``."""
+    env = {"HUB_ENVS_SERVER_USERS": f"bob:{BOB},carol:{CAROL}"}
+    with HubServer(tmp_path / "accounts-data", token=OWNER, env=env) as server:
+        with hub_environment(server.endpoint, tmp_path / "accounts-home", token=OWNER):
+            yield server
+
+
+def test_only_its_author_and_the_owner_push_to_a_pull_request(three_accounts):
+    endpoint = three_accounts.endpoint
+    owner, bob, carol = (HfApi(endpoint=endpoint, token=t) for t in (OWNER, BOB, CAROL))
+    owner.create_repo("alice/env")
+    _commit(owner, "alice/env", {"a.txt": b"a"})
+    opened = bob.create_commit(
+        "alice/env", [CommitOperationAdd("reproductions/x.json", b"{}")], commit_message="attest", create_pr=True
+    )
+    head = owner.model_info("alice/env", revision="refs/pr/1").sha
+    assert opened.pr_num == 1 and head == opened.oid
+
+    # carol, through the client (revision="refs/pr/1", as huggingface_hub documents for adding to a PR)...
+    with pytest.raises(HfHubHTTPError) as exc:
+        _commit(carol, "alice/env", {"reproductions/x.json": b'{"forged": true}'}, revision="refs/pr/1")
+    assert exc.value.response.status_code == 403
+    assert "only the pull request's author (bob) or the repo's owner" in str(exc.value)
+    # ... and raw, with the ref spelled other ways, refused before the body is read
+    for revision in ("refs%2Fpr%2F1", "refs/pr/1", "refs%2Fheads%2Frefs%2Fpr%2F1"):
+        status, headers = _partial_request(
+            endpoint, "POST", f"/api/models/alice/env/commit/{revision}", declared=64 * MiB, headers=_auth(CAROL)
+        )
+        assert status == 403 and "bob" in headers["x-error-message"], (revision, status)
+    assert owner.model_info("alice/env", revision="refs/pr/1").sha == head
+    with pytest.raises(HfHubHTTPError) as exc:  # a pull request that does not exist
+        _commit(carol, "alice/env", {"x.txt": b"x"}, revision="refs/pr/7")
+    assert exc.value.response.status_code == 404
+
+    # its author and the repo's owner may; carol opens her own pull request
+    by_bob = _commit(bob, "alice/env", {"b.txt": b"b"}, revision="refs/pr/1")
+    by_owner = _commit(owner, "alice/env", {"c.txt": b"c"}, revision="refs/pr/1")
+    assert [c.commit_id for c in owner.list_repo_commits("alice/env", revision="refs/pr/1")][:3] == [by_owner, by_bob, head]
+    mine = carol.create_commit("alice/env", [CommitOperationAdd("d.txt", b"d")], commit_message="carol's", create_pr=True)
+    assert mine.pr_num == 2
+    _commit(carol, "alice/env", {"e.txt": b"e"}, revision="refs/pr/2")
+    details = owner.get_discussion_details("alice/env", 1)
+    assert [(e.type, e.author) for e in details.events if e.type == "commit"] == [
+        ("commit", "bob"),
+        ("commit", "bob"),
+        ("commit", "local"),
+    ]
+
+
+# --- 9. (Low, issue 30) accounts without a server token: anonymous callers acted as the owner -------
+
+
+def test_accounts_without_a_server_token_are_refused_at_start(tmp_path):
+    env = {"HUB_ENVS_SERVER_USERS": f"bob:{BOB}"}
+    started = []
+    try:
+        with pytest.raises(HubServerError) as exc:
+            started.append(HubServer(tmp_path / "no-token-data", env=env))
+    finally:
+        for server in started:  # a server that started anyway is stopped, whatever the test found
+            server.stop()
+    output = str(exc.value)
+    assert "hub-envs serve: Accounts are configured (HUB_ENVS_SERVER_USERS: bob)" in output
+    assert "--token=" in output and "Traceback" not in output
+    assert not (tmp_path / "no-token-data" / "FORMAT").exists()  # refused before the store was made
+    from hub_envs.server import create_app
+
+    with pytest.raises(ConfigError, match="would act as the owner account 'local'"):
+        create_app(tmp_path / "lib-data", users={BOB: "bob"})
+
+    # with the owner's token, an anonymous caller can neither create in bob's namespace nor delete his repo
+    with HubServer(tmp_path / "token-data", token=OWNER, env=env) as server:
+        bob = HfApi(endpoint=server.endpoint, token=BOB)
+        bob.create_repo("bob/env")
+        anonymous = HfApi(endpoint=server.endpoint, token=False)
+        for attempt in (lambda: anonymous.create_repo("bob/planted"), lambda: anonymous.delete_repo("bob/env")):
+            with pytest.raises(HfHubHTTPError) as exc:
+                attempt()
+            assert exc.value.response.status_code == 401
+        assert [m.id for m in bob.list_models(author="bob")] == ["bob/env"]
 
 
 # === attacks that already failed: keep them failing =============================================

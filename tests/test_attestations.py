@@ -28,9 +28,13 @@ REPO = "alice/att-tiny"
 
 @pytest.fixture(scope="module")
 def hub_two_users(tmp_path_factory) -> Iterator[Hub]:
-    """The server's own account (``local``) manages every repo; ``bob`` is a third party."""
+    """The server's own account (``local``, the default ``HF_TOKEN``) manages every repo; ``bob`` is a third party.
+    (A server with more accounts needs a token for its own: an anonymous caller would act as the owner.)"""
     yield from _start_hub(
-        tmp_path_factory.mktemp("hub-att"), token=None, suffix="-att", env={"HUB_ENVS_SERVER_USERS": f"bob:{BOB_TOKEN}"}
+        tmp_path_factory.mktemp("hub-att"),
+        token="hf_owner_attest_token",
+        suffix="-att",
+        env={"HUB_ENVS_SERVER_USERS": f"bob:{BOB_TOKEN}"},
     )
 
 

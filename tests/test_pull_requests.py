@@ -13,14 +13,16 @@ from conftest import Hub, _start_hub
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, hf_hub_download
 from huggingface_hub.errors import HfHubHTTPError
 
+OWNER_TOKEN = "hf_owner_test_token"  # the server's own account (``local``): with more accounts, a token is required
 BOB_TOKEN = "hf_bob_test_token"  # a second account: owns the namespace "bob" only
 
 
 @pytest.fixture(scope="module")
 def two_users(tmp_path_factory) -> Iterator[Hub]:
-    """A server whose own account (``local``) manages every repo, and a second account ``bob``."""
+    """A server whose own account (``local``, the default client's ``HF_TOKEN``) manages every repo, and a
+    second account ``bob``."""
     yield from _start_hub(
-        tmp_path_factory.mktemp("hub-prs"), token=None, suffix="-prs", env={"HUB_ENVS_SERVER_USERS": f"bob:{BOB_TOKEN}"}
+        tmp_path_factory.mktemp("hub-prs"), token=OWNER_TOKEN, suffix="-prs", env={"HUB_ENVS_SERVER_USERS": f"bob:{BOB_TOKEN}"}
     )
 
 

@@ -26,7 +26,7 @@ Protocol notes (matching huggingface.co, as ``huggingface_hub`` reads it):
   ``/discussions/N`` details them (events, ``changes.base``, ``mergeCommitId``), ``/discussions/N/merge``
   merges (a merge commit; 409 with ``filesWithConflicts`` when the branch changed the same files) and
   ``/discussions/N/status`` closes or reopens. Any account may open one on a repo it can read; only the
-  owner merges, and the owner or its author closes. Every read takes ``revision=refs/pr/N``.
+  owner merges, and the owner or its author pushes to it and closes it. Every read takes ``revision=refs/pr/N``.
   Plain discussions (comments without changes) are not kept.
 * ``/resolve`` answers HEAD and GET with ``X-Repo-Commit``, ``ETag`` (the git blob sha1; for an
   LFS file its sha256, also in ``X-Linked-Etag``, with ``X-Linked-Size``), ``Content-Length`` and
@@ -96,6 +96,7 @@ from starlette.requests import ClientDisconnect, Request
 from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
+from hub_envs.errors import ConfigError
 from hub_envs.server.faults import install_faults
 from hub_envs.server.lfs import LfsRoutes
 from hub_envs.server.lfs import logger as lfs_logger
@@ -233,17 +234,25 @@ class HubApp:
     ):
         if fsync is None:
             fsync = os.environ.get("HUB_ENVS_SERVER_FSYNC", "1").lower() not in ("0", "false", "no")
-        self.store = HubStore(root, fsync=fsync)
         self.token = token or None
+        self.user = user or os.environ.get("HUB_ENVS_SERVER_USER") or DEFAULT_USER
+        # more accounts (token -> name): each owns its own namespace only; see _can_manage
+        self.users = dict(users) if users is not None else _users_from_env(os.environ.get("HUB_ENVS_SERVER_USERS", ""))
+        if self.users and self.token is None:  # an anonymous caller would act as the owner, who manages every repo
+            names = ", ".join(sorted(set(self.users.values())))
+            raise ConfigError(
+                f"Accounts are configured (HUB_ENVS_SERVER_USERS: {names}) but the server has no token: every request "
+                f"without a token would act as the owner account {self.user!r}, which may create repos in any namespace "
+                f"and delete any repo. Start it with --token=<the owner's token> (clients of {self.user!r} set HF_TOKEN "
+                "to it), or without HUB_ENVS_SERVER_USERS for a single-account server open to anyone."
+            )
+        self.store = HubStore(root, fsync=fsync)
         if page_size is None and os.environ.get("HUB_ENVS_SERVER_PAGE_SIZE"):
             page_size = int(os.environ["HUB_ENVS_SERVER_PAGE_SIZE"])
         if page_size is not None and page_size < 1:
             raise ValueError(f"page_size must be >= 1, got {page_size}.")
         self.tree_page_size = page_size or TREE_PAGE_SIZE
         self.commits_page_size = page_size or COMMITS_PAGE_SIZE
-        self.user = user or os.environ.get("HUB_ENVS_SERVER_USER") or DEFAULT_USER
-        # more accounts (token -> name): each owns its own namespace only; see _can_manage
-        self.users = dict(users) if users is not None else _users_from_env(os.environ.get("HUB_ENVS_SERVER_USERS", ""))
         self.max_body = _limit_bytes(max_body_mb, "HUB_ENVS_SERVER_MAX_BODY_MB", DEFAULT_MAX_BODY_MB, "max_body_mb")
         self.max_line = _limit_bytes(max_line_mb, "HUB_ENVS_SERVER_MAX_LINE_MB", DEFAULT_MAX_LINE_MB, "max_line_mb")
         if allow_bytecode is None:
@@ -467,6 +476,23 @@ class HubApp:
                 403,
                 f"{ctx.user} cannot {what} {repo.repo_id}: only its owner can. "
                 "Open a pull request instead (create_commit(..., create_pr=True)).",
+            )
+
+    def _require_push(self, ctx: Ctx, repo: Repo, branch: str) -> None:
+        """403 unless ``ctx.user`` may commit to ``branch``: a branch needs the repo's owner (:meth:`_can_manage`);
+        a pull request's ``refs/pr/N`` its owner or the account that opened it (everyone else opens a pull request
+        of their own). Checked before any of the body is read."""
+        if self._can_manage(ctx.user, repo):
+            return
+        num = branch[len("refs/pr/") :] if branch.startswith("refs/pr/") else ""
+        if not (num.isdigit() and len(num) <= 9):
+            self._require_manage(ctx, repo, "commit to")
+        pr = repo.pull_request(int(num))  # 404 if there is none
+        if pr.author != ctx.user:
+            raise HTTPError(
+                403,
+                f"{ctx.user} cannot push to {branch} of {repo.repo_id}: only the pull request's author ({pr.author}) "
+                "or the repo's owner can. Open a pull request of your own instead (create_commit(..., create_pr=True)).",
             )
 
     def _open(self, ctx: Ctx, repo_type: str, repo_id: str, write: bool = False) -> Repo:
@@ -920,8 +946,8 @@ class HubApp:
         repo = await run_in_threadpool(self._open, ctx, repo_type, repo_id, True)
         create_pr = ctx.flag("create_pr")
         branch = revision[len("refs/heads/") :] if revision.startswith("refs/heads/") else revision
-        if not create_pr and not branch.startswith("refs/pr/"):  # anyone may open a PR or push to an open one
-            self._require_manage(ctx, repo, "commit to")
+        if not create_pr:  # anyone who can read the repo may open a PR; a push needs the owner, or the PR's author
+            await run_in_threadpool(self._require_push, ctx, repo, branch)
         builder = _CommitBuilder(repo, branch, check_parent=not create_pr)
         async for lines in _ndjson_lines(ctx.request, self.max_body, self.max_line):
             await run_in_threadpool(builder.feed, lines)
@@ -1554,8 +1580,9 @@ def create_app(root: str | os.PathLike, token: str | None = None, **options: Any
             ``HUB_ENVS_SERVER_MAX_LFS_MB``). LFS files stream to disk; see :mod:`hub_envs.server.lfs`.
         users: more accounts, ``{token: name}`` (env ``HUB_ENVS_SERVER_USERS="bob:TOKEN,..."``). A caller sending
             one of these tokens acts as that name: it may write to repos of its own namespace, open pull requests
-            on any repo it can read, and close its own pull requests; merging needs the repo's owner (or the
-            server's own ``user``, who manages every repo).
+            on any repo it can read, and push to and close its own pull requests; merging needs the repo's owner (or
+            the server's own ``user``, who manages every repo). Accounts need ``token`` (the owner's): without it,
+            every anonymous caller would act as the owner (:class:`~hub_envs.errors.ConfigError`).
     """
     hub = HubApp(root, token, **options)
     methods = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH"]
