@@ -702,6 +702,58 @@ def test_accounts_without_a_server_token_are_refused_at_start(tmp_path):
         assert [m.id for m in bob.list_models(author="bob")] == ["bob/env"]
 
 
+# --- 10. (Low, issue 30) a pathological card stalled other clients' API requests -------------------
+
+PATHOLOGICAL_CARD = ("![" * (256 * 1024)).encode()  # 512 KiB of nested image brackets: seconds of markdown-it
+
+
+@pytest.fixture
+def hub_with_card_budget(tmp_path):
+    """An open server that gives a card 2 s to render (default 3 s)."""
+    with HubServer(tmp_path / "card-data", env={"HUB_ENVS_SERVER_CARD_RENDER_SECONDS": "2"}) as server:
+        with hub_environment(server.endpoint, tmp_path / "card-home"):
+            yield server
+
+
+def test_the_api_answers_while_pathological_cards_render(hub_with_card_budget):
+    server = hub_with_card_budget
+    api = HfApi(endpoint=server.endpoint)
+    api.create_repo("mallory/card")
+    api.upload_file(path_or_fileobj=PATHOLOGICAL_CARD, path_in_repo="README.md", repo_id="mallory/card")
+    api.create_repo("alice/other")
+    _commit(api, "alice/other", {"a.txt": b"a"})
+    page = f"{server.endpoint}/mallory/card"
+    html = {"Accept": "text/html"}
+
+    # 48 browsers open the card at once: more than the server's threads (40) if each rendered it
+    pages: list[requests.Response] = []
+    viewers = [
+        threading.Thread(target=lambda: pages.append(requests.get(page, headers=html, timeout=120)), daemon=True)
+        for _ in range(48)
+    ]
+    for viewer in viewers:
+        viewer.start()
+    answered = 0
+    while any(v.is_alive() for v in viewers):  # every API request answers meanwhile (a client timeout, not a speed test)
+        assert requests.get(f"{server.endpoint}/api/whoami-v2", timeout=10).status_code == 200
+        assert api.model_info("alice/other", timeout=10).sha
+        answered += 1
+        time.sleep(0.05)
+    for viewer in viewers:
+        viewer.join()
+    assert answered >= 3 and len(pages) == 48 and all(p.status_code == 200 for p in pages)
+
+    # the card is shown as its text, escaped, with a note saying why; the next view comes from the cache
+    again = requests.get(page, headers=html, timeout=TIMEOUT)
+    assert "This card is shown as plain text: it takes longer than 2 s to render." in again.text
+    assert '<pre class="card-plain">![![![' in again.text and "<img" not in again.text
+    assert "takes longer than 2 s to render" in server.output()
+    # other cards still render (a fresh renderer replaced the one stopped past the budget)
+    api.upload_file(path_or_fileobj=b"# Fine\n\n*emphasis*\n", path_in_repo="README.md", repo_id="alice/other")
+    fine = requests.get(f"{server.endpoint}/alice/other", headers=html, timeout=TIMEOUT)
+    assert "<h1>Fine</h1>" in fine.text and "<em>emphasis</em>" in fine.text and "plain text" not in fine.text
+
+
 # === attacks that already failed: keep them failing =============================================
 
 

@@ -89,6 +89,8 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import parse_qs, quote, unquote, urlencode
 
+import anyio
+import anyio.to_thread
 import yaml
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
@@ -152,12 +154,17 @@ DEFAULT_MAX_LINE_MB = 1024.0
 _MAX_JSON_BODY = 32 * MiB  # the JSON bodies of the other routes (preupload, paths-info, validate-yaml...)
 _BODY_SETTING = "--max_body_mb / HUB_ENVS_SERVER_MAX_BODY_MB"
 _LINE_SETTING = "--max_line_mb / HUB_ENVS_SERVER_MAX_LINE_MB"
+_LINE_LIMIT = (
+    f"the limit of one commit line, i.e. one inline file in base64 ({_LINE_SETTING}); files over 10 MiB go through "
+    "Git LFS, as huggingface_hub sends them when /preupload says so"
+)
 _B64_PIECE = MiB  # base64 decoded this much at a time: the GIL is released between pieces
 _BIG_LINE = MiB  # lines over this size get the fast path of _parse_line
 # The README front matter (cardData): parsed with these limits, or left out.
 _CARD_MAX_BYTES = 64 * 1024
 _CARD_MAX_DEPTH = 64
 _CARD_CACHE_SIZE = 1024
+_PAGE_THREADS = 8  # web pages render in at most this many threads: a slow page never takes the API's threads
 _ENV_MANIFEST = "hub_env.json"  # hub_envs.repo_format.MANIFEST_FILE: what makes a repo an env repo
 
 
@@ -261,6 +268,7 @@ class HubApp:
         self._cards: OrderedDict[str, dict | None] = OrderedDict()  # README sha256 -> cardData
         self._cards_guard = threading.Lock()
         self.pages = Pages(self)  # the web pages
+        self._page_threads: anyio.CapacityLimiter | None = None  # pages wait for these, never for the API's threads
         self.lfs = LfsRoutes(self, max_lfs_mb=max_lfs_mb)  # Git LFS: preupload rules, batch API, uploads
 
     # -- entry point ---------------------------------------------------------------------------
@@ -325,7 +333,9 @@ class HubApp:
         segs = ctx.segs
         page = self.pages.match(ctx) if ctx.method in ("GET", "HEAD") else None
         if page is not None:  # the web pages (pages.py): "/" for browsers, /{user}/{repo}[/tree|blob|commits/...]
-            return await self._call(ctx, {"GET": lambda c: self.pages.handle(c, page)})
+            if self._page_threads is None:  # made in the event loop (anyio 3 needs one)
+                self._page_threads = anyio.CapacityLimiter(_PAGE_THREADS)
+            return await self._call(ctx, {"GET": lambda c: self.pages.handle(c, page)}, threads=self._page_threads)
         if segs and segs[0] == "api":
             rest = segs[1:]
             if rest == ["whoami-v2"]:
@@ -416,9 +426,17 @@ class HubApp:
             )
         raise HTTPError(404, f"Unknown API route /{'/'.join(ctx.segs)}: this server has pull requests, not comments.")
 
-    async def _call(self, ctx: Ctx, handlers: dict[str, Callable], body: bool = False, write: bool = False) -> Response:
+    async def _call(
+        self,
+        ctx: Ctx,
+        handlers: dict[str, Callable],
+        body: bool = False,
+        write: bool = False,
+        threads: anyio.CapacityLimiter | None = None,
+    ) -> Response:
         """Run the handler of ``ctx.method`` in a worker thread; ``write``: authenticate first;
-        ``body``: read the (JSON) request body into ``ctx.body`` first, capped."""
+        ``body``: read the (JSON) request body into ``ctx.body`` first, capped; ``threads``: the threads to
+        run it in (default: the API's)."""
         handler = handlers.get(ctx.method)
         if handler is None and ctx.method == "HEAD":
             handler = handlers.get("GET")  # HEAD is GET without the body (uvicorn drops it)

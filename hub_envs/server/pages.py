@@ -45,10 +45,14 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
 import mimetypes
+import os
 import posixpath
 import re
+import subprocess
+import sys
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -60,6 +64,7 @@ from urllib.parse import quote, unquote, urlencode, urlsplit
 
 import jinja2
 from markdown_it import MarkdownIt
+from markupsafe import escape
 from pygments import highlight as pygments_highlight
 from pygments.formatters import HtmlFormatter
 from pygments.lexers import get_lexer_by_name, get_lexer_for_filename
@@ -117,6 +122,11 @@ _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
 _ROLLOUT_VIDEO = "media/rollout.mp4"  # beside it when the dataset stores video: shown under the card
 _CACHE_SIZE = 1024
 _HIGHLIGHT_CACHE_SIZE = 64  # highlighted files (each at most a few MB of HTML)
+#: A card's Markdown is rendered in a worker process within this many seconds (env
+#: ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``); past it, the page shows the card as plain text, with a note.
+CARD_RENDER_SECONDS = 3.0
+_RENDER_WORKERS = 2  # cards rendered at once; a page waits at most the budget for one of them
+_RENDER_START_SECONDS = 60.0  # a worker's start (its imports) is not part of a card's budget
 
 
 class PageError(Exception):
@@ -249,6 +259,166 @@ def render_markdown(text: str, links: _Links | None = None) -> str:
     return md.renderer.render(tokens, md.options, {})
 
 
+# --- rendering cards in worker processes -------------------------------------------------------
+
+
+class CardNotRendered(Exception):
+    """A card could not be rendered: over the time budget (``cacheable``: it would be again), or no renderer."""
+
+    def __init__(self, message: str, cacheable: bool):
+        super().__init__(message)
+        self.cacheable = cacheable
+
+
+class _RenderWorker:
+    """One renderer process (:func:`render_worker`), spoken to over two pipes: a request is a JSON message
+    ``{"text", "base", "sha", "folders"}``, an answer ``{"html"}`` or ``{"error"}`` (length-prefixed bytes of
+    :class:`multiprocessing.connection.Connection`; JSON both ways, so nothing is unpickled)."""
+
+    def __init__(self):
+        from multiprocessing.connection import Connection
+
+        child_reads, parent_writes = os.pipe()
+        parent_reads, child_writes = os.pipe()
+        package_root = str(Path(__file__).resolve().parents[2])  # hub_envs' parent folder: importable in the child
+        env = {**os.environ, "PYTHONSAFEPATH": "1"}  # not the server's working folder on sys.path
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
+        code = f"from hub_envs.server.pages import render_worker; render_worker({child_reads}, {child_writes})"
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", code],
+                stdin=subprocess.DEVNULL,
+                pass_fds=(child_reads, child_writes),
+                env=env,
+                start_new_session=True,  # Ctrl-C on the server's terminal is the server's: it never reaches a renderer
+            )
+        except OSError:
+            os.close(parent_writes)
+            os.close(parent_reads)
+            raise
+        finally:
+            os.close(child_reads)
+            os.close(child_writes)
+        self.send = Connection(parent_writes, readable=False)
+        self.receive = Connection(parent_reads, writable=False)
+        try:
+            if not self.receive.poll(_RENDER_START_SECONDS) or self.receive.recv_bytes() != b"ready":
+                raise OSError(f"the card renderer did not start within {_RENDER_START_SECONDS:g} s")
+        except (EOFError, OSError):
+            self.kill()
+            raise
+
+    def kill(self) -> None:
+        self.process.kill()
+        self.process.wait()
+        self.send.close()
+        self.receive.close()
+
+
+class CardRenderer:
+    """Renders card Markdown in worker processes, each card within a time budget.
+
+    markdown-it is fast on cards people write, but some Markdown within the 512 KiB a page renders takes it
+    seconds to tens of seconds (thousands of nested ``![`` or ``[``). Rendered in the server's own process it
+    would share the GIL and the thread pool with every API request; here a worker process renders it, a page
+    waits at most ``budget`` seconds for a free worker and ``budget`` more for the HTML, and a worker past the
+    budget is killed (a new one starts for the next card). Then :class:`CardNotRendered` says so.
+
+    Args:
+        budget: seconds a card may take to render (default :data:`CARD_RENDER_SECONDS`, or env
+            ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``).
+        workers: renderer processes at most (started when first needed; each is reused).
+    """
+
+    def __init__(self, budget: float | None = None, workers: int = _RENDER_WORKERS):
+        if budget is None:
+            raw = os.environ.get("HUB_ENVS_SERVER_CARD_RENDER_SECONDS", "").strip()
+            try:
+                budget = float(raw) if raw else CARD_RENDER_SECONDS
+            except ValueError:
+                raise ValueError(f"HUB_ENVS_SERVER_CARD_RENDER_SECONDS={raw!r}: expected a number of seconds.") from None
+        if not 0 < budget < float("inf"):
+            raise ValueError(f"The card render budget must be a positive number of seconds, got {budget}.")
+        self.budget = budget
+        self._slots = threading.BoundedSemaphore(workers)
+        self._idle: list[_RenderWorker] = []
+        self._guard = threading.Lock()
+
+    def render(self, text: str, links: _Links) -> str:
+        """The HTML of card Markdown ``text`` (as :func:`render_markdown` makes it).
+
+        Raises:
+            CardNotRendered: over the budget (``cacheable``), every worker busy past the budget, or no
+                worker could start or answer (both not ``cacheable``: another view may render it).
+        """
+        if not self._slots.acquire(timeout=self.budget):
+            raise CardNotRendered(f"every card renderer stayed busy for {self.budget:g} s", cacheable=False)
+        worker = None
+        try:
+            with self._guard:
+                worker = self._idle.pop() if self._idle else None
+            if worker is None:
+                worker = _RenderWorker()  # its start is not part of the budget
+            request = {"text": text, "base": links.base, "sha": links.sha, "folders": sorted(links.folders)}
+            worker.send.send_bytes(json.dumps(request).encode())
+            if not worker.receive.poll(self.budget):
+                worker.kill()
+                worker = None
+                raise CardNotRendered(f"it takes longer than {self.budget:g} s to render", cacheable=True)
+            answer = json.loads(worker.receive.recv_bytes())
+            if "html" not in answer:
+                raise CardNotRendered(f"the renderer failed: {str(answer.get('error'))[:300]}", cacheable=True)
+            return answer["html"]
+        except (EOFError, OSError, ValueError) as err:  # the worker died, or never started
+            logger.error("Card renderer failed: %s: %s", type(err).__name__, err)
+            if worker is not None:
+                worker.kill()
+                worker = None
+            raise CardNotRendered("the renderer failed (details in the server's log)", cacheable=False) from None
+        finally:
+            if worker is not None:
+                with self._guard:
+                    self._idle.append(worker)
+            self._slots.release()
+
+    def close(self) -> None:
+        """Stop the idle workers (a busy one is stopped by its render)."""
+        with self._guard:
+            idle, self._idle = self._idle, []
+        for worker in idle:
+            worker.kill()
+
+
+def render_worker(read_fd: int, write_fd: int) -> None:
+    """The loop of a renderer process (see :class:`CardRenderer`): until the server closes its pipe, render
+    each request and answer it."""
+    from multiprocessing.connection import Connection
+
+    requests, answers = Connection(read_fd, writable=False), Connection(write_fd, readable=False)
+    render_markdown("warm up")  # imports and builds the parser before the first card's budget starts
+    answers.send_bytes(b"ready")
+    while True:
+        try:
+            request = json.loads(requests.recv_bytes())
+        except (EOFError, OSError):
+            return  # the server is gone (or stopped this worker)
+        try:
+            links = _Links(request["base"], request["sha"], set(request["folders"]))
+            answer = {"html": render_markdown(request["text"], links)}
+        except Exception as err:  # a bug in rendering: the page shows the card as text and the log says why
+            answer = {"error": f"{type(err).__name__}: {str(err)[:300]}"}
+        answers.send_bytes(json.dumps(answer).encode())
+
+
+def plain_card(text: str) -> str:
+    """Card Markdown shown as it is written, escaped: what a page shows when the card cannot be rendered.
+
+    >>> plain_card("# Hi <script>")
+    '<pre class="card-plain"># Hi &lt;script&gt;</pre>'
+    """
+    return f'<pre class="card-plain">{escape(text)}</pre>'
+
+
 # --- card metadata ----------------------------------------------------------------------------
 
 
@@ -329,6 +499,7 @@ class _Card:
     title: str | None
     html: str
     truncated: bool
+    not_rendered: str | None = None  # why the card is shown as plain text (None: rendered)
 
 
 class Pages:
@@ -351,6 +522,7 @@ class Pages:
         self._highlights: OrderedDict[tuple[str, str], str] = OrderedDict()  # (blob sha256, file name) -> HTML
         self._guard = threading.Lock()
         self._static = _static_files()
+        self.renderer = CardRenderer()  # card Markdown: in worker processes, within a time budget
 
     # -- routing --
 
@@ -442,7 +614,14 @@ class Pages:
         text = raw[:MAX_CARD_BYTES].decode("utf-8", "replace")
         body = strip_front_matter(text)
         links = _Links(base, commit.id, folders_of(commit.files))
-        card = _Card(card_title(body), render_markdown(body, links), truncated=len(raw) > MAX_CARD_BYTES)
+        card = _Card(card_title(body), "", truncated=len(raw) > MAX_CARD_BYTES)
+        try:
+            card.html = self.renderer.render(body, links)
+        except CardNotRendered as err:
+            card.html, card.not_rendered = plain_card(body), str(err)
+            logger.warning("Showing the card of %s at %s as plain text: %s", repo.repo_id, commit.id[:12], err)
+            if not err.cacheable:  # another view may render it
+                return card
         with self._guard:
             self._cards[key] = card
             while len(self._cards) > _CACHE_SIZE:
