@@ -2,7 +2,7 @@
 
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
-    hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=1024] [--max_lfs_mb=51200]
+    hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=16] [--max_lfs_mb=51200]
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false] [--video_gop=2] [--backend=ray]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
@@ -38,8 +38,12 @@ class ServeArgs:
     port: int = 8000
     token: str | None = None
     max_body_mb: float | None = None  # largest request body; default: $HUB_ENVS_SERVER_MAX_BODY_MB, else 2048
-    max_line_mb: float | None = None  # largest commit line (one base64 file); default: $HUB_ENVS_SERVER_MAX_LINE_MB, else 1024
+    max_line_mb: float | None = None  # largest commit line (one base64 file); default: $HUB_ENVS_SERVER_MAX_LINE_MB, else 16
     max_lfs_mb: float | None = None  # largest LFS file; default: $HUB_ENVS_SERVER_MAX_LFS_MB, else 51200 (the Hub's 50 GB)
+    header_timeout: float | None = (
+        None  # seconds to send a request head, then 408; default: $HUB_ENVS_SERVER_HEADER_TIMEOUT, else 20
+    )
+    max_connections: int | None = None  # connections open at once, then 503; default: $HUB_ENVS_SERVER_MAX_CONNECTIONS, else 1000
 
 
 @dataclass

@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from urllib.parse import unquote
 
 import pytest
@@ -318,7 +319,17 @@ def test_large_lines_must_be_base64_file_lines(hub):
     assert sorted(hub.api.list_repo_files("alice/env")) == [".gitattributes", "last.bin", "slashes.bin"]
 
 
-def test_small_requests_are_served_while_a_big_upload_is_in_flight(hub):
+@pytest.fixture
+def hub_with_long_lines(tmp_path):
+    """An open server whose operator raised the commit-line cap to 512 MiB (the default, 16 MiB, fits the largest
+    file huggingface_hub sends inline): to check that even such lines are parsed off the event loop."""
+    with HubServer(tmp_path / "long-data", env={"HUB_ENVS_SERVER_MAX_LINE_MB": "512"}) as server:
+        with hub_environment(server.endpoint, tmp_path / "long-home"):
+            yield SimpleNamespace(server=server, endpoint=server.endpoint, api=HfApi(endpoint=server.endpoint))
+
+
+def test_small_requests_are_served_while_a_big_upload_is_in_flight(hub_with_long_lines):
+    hub = hub_with_long_lines
     api = hub.api
     api.create_repo("alice/env")
     api.create_repo("alice/other")
@@ -752,6 +763,86 @@ def test_the_api_answers_while_pathological_cards_render(hub_with_card_budget):
     api.upload_file(path_or_fileobj=b"# Fine\n\n*emphasis*\n", path_in_repo="README.md", repo_id="alice/other")
     fine = requests.get(f"{server.endpoint}/alice/other", headers=html, timeout=TIMEOUT)
     assert "<h1>Fine</h1>" in fine.text and "<em>emphasis</em>" in fine.text and "plain text" not in fine.text
+
+
+# --- 11. (Low, issue 30) 1 GiB NDJSON lines; half-open connections held forever -------------------
+
+
+def test_commit_lines_are_capped_at_what_huggingface_hub_sends(hub):
+    api = hub.api
+    api.create_repo("alice/env")
+    head = api.model_info("alice/env").sha
+    # the largest file the client sends inline: 10 MiB of text (over it, /preupload sends it through LFS)
+    largest_inline = b"0123456789abcdef" * (640 * 1024)
+    sha = _commit(api, "alice/env", {"largest.txt": largest_inline, "larger.txt": largest_inline + b"!"})
+    info = {s.rfilename: s for s in api.model_info("alice/env", revision=sha, files_metadata=True).siblings}
+    assert info["largest.txt"].lfs is None and info["larger.txt"].lfs is not None
+    assert Path(hf_hub_download("alice/env", "largest.txt", revision=sha)).read_bytes() == largest_inline
+    # a client that ignores /preupload and sends 24 MiB inline: 413 naming the limit, nothing committed
+    response = _raw_commit(hub.endpoint, "alice/env", _ndjson(_header(), _file("big.txt", b"x" * (24 * MiB))))
+    _assert_error(response, 413, "16 MiB", "HUB_ENVS_SERVER_MAX_LINE_MB", "Git LFS")
+    assert api.model_info("alice/env").sha == sha != head
+
+
+def _half_open(endpoint: str, sent: bytes) -> socket.socket:
+    host, port = endpoint.removeprefix("http://").split(":")
+    sock = socket.create_connection((host, int(port)), timeout=TIMEOUT)
+    if sent:
+        sock.sendall(sent)
+    return sock
+
+
+def _closed_by_server(sock: socket.socket) -> bytes:
+    """What the server sends before closing ``sock`` (socket.timeout if it keeps it open past TIMEOUT)."""
+    received = b""
+    while True:
+        chunk = sock.recv(4096)
+        if not chunk:
+            return received
+        received += chunk
+
+
+def test_half_open_connections_are_dropped_and_connections_capped(tmp_path):
+    env = {"HUB_ENVS_SERVER_HEADER_TIMEOUT": "4", "HUB_ENVS_SERVER_MAX_CONNECTIONS": "200"}
+    with HubServer(tmp_path / "conn-data", env=env) as server, hub_environment(server.endpoint, tmp_path / "conn-home"):
+        api = HfApi(endpoint=server.endpoint)
+        api.create_repo("alice/env")
+        head = b"GET /api/whoami-v2 HTTP/1.1\r\nHost: x\r\n"  # a request head never finished
+        silent = [_half_open(server.endpoint, b"") for _ in range(80)]
+        partial = [_half_open(server.endpoint, head) for _ in range(80)]
+        assert api.model_info("alice/env").sha  # served meanwhile
+        # a slow loris: one more header byte every 0.2 s does not extend the deadline
+        loris = _half_open(server.endpoint, head)
+        with pytest.raises(OSError):  # BrokenPipe / ConnectionReset once the server closed it
+            for _ in range(int(TIMEOUT / 0.2)):
+                loris.sendall(b"X")
+                time.sleep(0.2)
+        # a keep-alive connection: one request answered, then the next head begun and never finished
+        reused = _half_open(server.endpoint, head + b"\r\n")
+        first = b""
+        while b"\r\n\r\n" not in first:
+            first += reused.recv(4096)
+        head_part, _, body = first.partition(b"\r\n\r\n")
+        length = int(next(h.split(b":")[1] for h in head_part.split(b"\r\n") if h.lower().startswith(b"content-length:")))
+        while len(body) < length:
+            body += reused.recv(4096)
+        assert first.startswith(b"HTTP/1.1 200 ") and json.loads(body)["name"] == "local", first[:100]
+        reused.sendall(head)
+        for sock in [*silent, *partial, reused]:
+            answer = _closed_by_server(sock)  # closed by the server, with a 408
+            assert answer.startswith(b"HTTP/1.1 408 "), answer[:100]
+            sock.close()
+        loris.close()
+        assert api.model_info("alice/env").sha
+
+        # past the connection cap, requests get a prompt 503, and are served again once connections are dropped
+        held = [_half_open(server.endpoint, b"") for _ in range(200)]
+        response = requests.get(f"{server.endpoint}/api/whoami-v2", timeout=TIMEOUT)
+        assert response.status_code == 503
+        for sock in held:
+            _closed_by_server(sock)
+            sock.close()
+        assert requests.get(f"{server.endpoint}/api/whoami-v2", timeout=TIMEOUT).status_code == 200
 
 
 # === attacks that already failed: keep them failing =============================================

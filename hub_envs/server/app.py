@@ -40,13 +40,18 @@ Limits (a hostile client must not be able to take the server down):
 * Writes are authenticated before any request body is read.
 * Request bodies are capped (``max_body_mb``, env ``HUB_ENVS_SERVER_MAX_BODY_MB``, default 2048), and
   so is each NDJSON line of a commit (``max_line_mb``, env ``HUB_ENVS_SERVER_MAX_LINE_MB``, default
-  1024: one line carries one file, base64) and every JSON body (32 MiB); over a cap: 413. Commit
+  16: one line carries one inline file, base64, and files over 10 MiB go through LFS) and every JSON body
+  (32 MiB); over a cap: 413. Commit
   bodies are read incrementally; their lines are parsed, decoded and stored in a worker thread, a
   large file's base64 in 1 MiB pieces, so other requests keep being served during a big upload.
 * README metadata (``cardData``) is parsed with limits: at most 64 KiB of front matter, no YAML
   aliases, nesting at most 64 deep. A card over a limit is left out of that repo's info (and
   logged); it never fails the listing or another repo's routes.
 * A 500 answers a generic message; the details go to the server's log only.
+* Web pages run in threads of their own (8), never the API's; a card's Markdown is rendered in a worker
+  process within a time budget (see :class:`~hub_envs.server.pages.CardRenderer`).
+* :func:`hub_envs.server.run` gives uvicorn a deadline for request heads (20 s), a keep-alive timeout (5 s)
+  and a cap on connections (1000).
 * In env repos (those with a ``hub_env.json`` manifest at the root), commits may not add compiled
   Python bytecode (``__pycache__/``, ``.pyc``, ``.pyo``): Python would run it instead of the sources.
   (huggingface.co stores it; ``HUB_ENVS_SERVER_ALLOW_BYTECODE=1`` does too, to test clients.)
@@ -146,11 +151,13 @@ _INVALID_CREDENTIALS = "Invalid credentials in Authorization header"
 _INTERNAL_ERROR = "Internal server error: the request failed on the server (the details are in the server's log)."
 
 MiB = 1024 * 1024
-#: Default caps (MiB) of a request body and of one NDJSON line of a commit. A line carries one file,
-#: base64-encoded (4/3 of its size), so 1024 admits files up to 768 MiB; a commit body carries all of
-#: its files. push_env's largest files (dataset shards, videos, the rollout GIF) are tens of MiB.
+#: Default caps (MiB) of a request body and of one NDJSON line of a commit. A line carries one file inline,
+#: base64-encoded (4/3 of its size), and is held in memory while it is stored. Only "regular" files come
+#: inline: /preupload sends every file over 10 MiB (lfs.LFS_SIZE_THRESHOLD), and every binary one, through Git
+#: LFS, so huggingface_hub's largest line is a 10 MiB text file: 13.3 MiB of base64 plus its path. A commit
+#: body carries all of its inline files, read line by line (never whole).
 DEFAULT_MAX_BODY_MB = 2048.0
-DEFAULT_MAX_LINE_MB = 1024.0
+DEFAULT_MAX_LINE_MB = 16.0
 _MAX_JSON_BODY = 32 * MiB  # the JSON bodies of the other routes (preupload, paths-info, validate-yaml...)
 _BODY_SETTING = "--max_body_mb / HUB_ENVS_SERVER_MAX_BODY_MB"
 _LINE_SETTING = "--max_line_mb / HUB_ENVS_SERVER_MAX_LINE_MB"
@@ -447,6 +454,8 @@ class HubApp:
             self._require_write(ctx)  # before reading a single byte of the body
         if body:
             ctx.body = await self._read_body(ctx)
+        if threads is not None:
+            return await anyio.to_thread.run_sync(handler, ctx, limiter=threads)
         return await run_in_threadpool(handler, ctx)
 
     def _json_body_limit(self) -> tuple[int, str]:
@@ -1218,14 +1227,14 @@ async def _ndjson_lines(request: Request, max_body: int, max_line: int) -> Async
                 break
             line += chunk[start:i]
             if len(line) > max_line:
-                raise _too_large(max_line, f"the limit of one commit line, i.e. one file in base64 ({_LINE_SETTING})")
+                raise _too_large(max_line, _LINE_LIMIT)
             if line and not line.isspace():
                 done.append(line)
             line = bytearray()
             start = i + 1
         line += chunk[start:]
         if len(line) > max_line:
-            raise _too_large(max_line, f"the limit of one commit line, i.e. one file in base64 ({_LINE_SETTING})")
+            raise _too_large(max_line, _LINE_LIMIT)
         if done:
             yield done
     if line and not line.isspace():
@@ -1588,9 +1597,10 @@ def create_app(root: str | os.PathLike, token: str | None = None, **options: Any
         fsync: fsync files before moving them into place (default on; env ``HUB_ENVS_SERVER_FSYNC=0``).
         max_body_mb: largest request body, in MiB (default 2048; env ``HUB_ENVS_SERVER_MAX_BODY_MB``):
             a commit carries all its files in its body. Over it: 413.
-        max_line_mb: largest line of a commit body, in MiB (default 1024; env
-            ``HUB_ENVS_SERVER_MAX_LINE_MB``): a line carries one file, base64 (4/3 of its size), and
-            is held in memory while it is decoded. Over it: 413.
+        max_line_mb: largest line of a commit body, in MiB (default 16; env
+            ``HUB_ENVS_SERVER_MAX_LINE_MB``): a line carries one inline file, base64 (4/3 of its size), and
+            is held in memory while it is decoded; huggingface_hub sends files over 10 MiB through LFS,
+            so its lines stay under 14 MiB. Over it: 413.
         allow_bytecode: store compiled Python bytecode in env repos too, as huggingface.co does
             (default off; env ``HUB_ENVS_SERVER_ALLOW_BYTECODE=1``): for tests of what clients do
             with a repo the real Hub would serve.
