@@ -166,10 +166,11 @@ def test_a_direct_reference_requirement_is_refused_before_anything_is_built(host
     marker = tmp_path / "build-ran"
     project = _probe_project(tmp_path / "payload", marker)
     ref = _with_requirements(hub_module.api, hostile, [f"cloudpickle @ {project.as_uri()}"])
-    with pytest.raises(errors.VenvBuildError, match="direct reference") as info:
+    with pytest.raises(errors.VenvBuildError) as info:
         load_env(ref, trust_remote_code=True, isolation="venv", sandbox=sandbox, check=False)
     assert not marker.exists(), f"the repo's build code ran outside the sandbox: {marker.read_text()}"
-    assert "cloudpickle @ file://" in str(info.value) and "Nothing was installed" in str(info.value)
+    assert "direct reference" in str(info.value) and "cloudpickle @ file://" in str(info.value)
+    assert "Nothing was installed" in str(info.value)
 
 
 def test_publisher_constraints_cannot_smuggle_uv_options(hostile, hub_module, user_token, tmp_path):
@@ -183,10 +184,10 @@ def test_publisher_constraints_cannot_smuggle_uv_options(hostile, hub_module, us
         manifest["resolved"] = dict(manifest["resolved"], cloudpickle=f"9.9.9\n--find-links {links}")
 
     ref = _with_requirements(hub_module.api, hostile, [], smuggle)
-    with pytest.raises(errors.VenvBuildError, match=r"resolved\['cloudpickle'\]") as info:
+    with pytest.raises(errors.VenvBuildError) as info:
         load_env(ref, trust_remote_code=True, isolation="venv", sandbox=True, versions="publisher", check=False)
     assert not marker.exists(), f"the repo's build code ran outside the sandbox: {marker.read_text()}"
-    assert "is not a version" in str(info.value)
+    assert "hub_env.json resolved['cloudpickle']" in str(info.value) and "is not a version" in str(info.value)
 
     def bad_pin(manifest):  # a recorded version becomes an ``==`` pin on uv's command line: checked the same way
         manifest["versions"] = dict(manifest["versions"], gymnasium="1.0 @ file:///etc")
@@ -315,7 +316,8 @@ def test_the_memory_limit_covers_every_process_of_the_sandbox_together(hostile):
     """Five forked children of 150 MB each under a 512 MB limit: each stayed under the per-process limit, and all
     together held 750 MB. Now the sandbox is stopped and says why; where no memory cgroup can be made here, the
     limit asked for is refused instead of being silently per process."""
-    if sandbox_module.sandbox_support().get("memory cgroup") is not True:
+    support = sandbox_module.sandbox_support()
+    if "memory cgroup" in support and support["memory cgroup"] is not True:  # none can be made on this machine
         with pytest.raises(errors.SandboxUnavailableError, match="memory cgroup"):
             load_env(hostile, trust_remote_code=True, sandbox=True, check=False, sandbox_limits={"memory_mb": 512})
         return
