@@ -585,26 +585,37 @@ def _top_level(dist) -> set[str]:
 _NEEDED: dict[tuple[str, ...], set[str]] = {}
 
 
-def python_folders(options, requirements=()) -> list[str]:
+def _installation(prefix: str, hidden: list[str]) -> list[str]:
+    """The folders of a Python installation at ``prefix`` a sandbox shows: all of it, or, when it holds a folder the
+    sandbox hides (a Python installed with ``--prefix=$HOME``), only its ``bin`` and ``lib`` folders."""
+    if not any(_under(h, prefix) for h in hidden):
+        return [prefix]
+    return [os.path.join(prefix, d) for d in ("bin", "lib", "lib64") if os.path.isdir(os.path.join(prefix, d))]
+
+
+def python_folders(options, requirements=(), hidden=()) -> list[str]:
     """The folders a sandboxed worker needs to import the env: the interpreter's installation (and its stdlib and
     site folders, or the venv and the folder linking ``hub_envs``), and from every other ``sys.path`` folder only
     the package folders the env needs (:func:`needed_import_names`; never the folder itself: the calling script's
     ``.env``, data or notes stay out), and ``hub_envs``."""
     import hub_envs
 
+    hidden = list(hidden)
     package = os.path.dirname(os.path.realpath(hub_envs.__file__))
     if options.python:  # isolation="venv": the venv, the interpreter it links to, the folder linking hub_envs
         venv = os.path.dirname(os.path.dirname(options.python))
         base = os.path.dirname(os.path.dirname(os.path.realpath(options.python)))
-        found = [venv, base, package] + ([options.pythonpath] if options.pythonpath else [])
+        found = [venv, *_installation(os.path.realpath(base), hidden), package]
+        found += [options.pythonpath] if options.pythonpath else []
         return sorted({os.path.realpath(p) for p in found})
     prefixes = {os.path.realpath(p) for p in (sys.base_prefix, sys.base_exec_prefix, sys.prefix, sys.exec_prefix)}
-    found = set(prefixes) | {os.path.dirname(os.path.realpath(sys.executable)), package}
+    installs = {f for p in prefixes for f in _installation(p, hidden)}
+    found = installs | {os.path.dirname(os.path.realpath(sys.executable)), package}
     entries = [p for p in sys.path if p and os.path.isdir(p)] if options.pythonpath is None else [options.pythonpath]
     wanted: set[str] | None = None
     for entry in entries:
         real = os.path.realpath(entry)
-        if any(_under(real, p) for p in prefixes) or os.path.basename(real) in ("site-packages", "dist-packages"):
+        if any(_under(real, p) for p in installs) or os.path.basename(real) in ("site-packages", "dist-packages"):
             found.add(real)
             continue
         try:
@@ -621,11 +632,12 @@ def python_folders(options, requirements=()) -> list[str]:
 
 def sandbox_init(target, options, scratch, cgroup: MemoryCgroup | None = None) -> dict[str, Any]:
     """The sandbox part of a worker's init message."""
+    hide = hidden_paths()
     return {
         "files": [list(f) for f in target.files],
         "system": [d for d in SYSTEM_DIRS if os.path.lexists(d)],
-        "hide": hidden_paths(),
-        "needed": python_folders(options, getattr(target, "requirements", ())),
+        "hide": hide,
+        "needed": python_folders(options, getattr(target, "requirements", ()), hide),
         "memory_mb": int(options.memory_mb),
         "nofile": int(options.max_open_files),
         "nproc": int(options.max_processes),
