@@ -196,6 +196,13 @@ def test_publisher_constraints_cannot_smuggle_uv_options(hostile, hub_module, us
     with pytest.raises(errors.VenvBuildError, match=r"versions\['gymnasium'\]"):
         load_env(ref, trust_remote_code=True, isolation="venv", sandbox=True, versions="publisher", check=False)
 
+    def odd_python(manifest):  # the publisher's Python becomes an argument of `uv python find`: a version only
+        manifest["versions"] = dict(manifest["versions"], python="/opt/elsewhere/python")
+
+    ref = _with_requirements(hub_module.api, hostile, [], odd_python)
+    with pytest.raises(errors.VenvBuildError, match=r"versions\['python'\]"):
+        load_env(ref, trust_remote_code=True, isolation="venv", sandbox=True, versions="publisher", check=False)
+
 
 def test_a_sandboxed_venv_builds_nothing_from_source(hostile, hub_module, user_token, tmp_path, monkeypatch):
     """A requirement the index (here: a local folder uv is told about) has only as an sdist: building it runs its

@@ -258,6 +258,8 @@ def publisher_pins(
     python, minor = None, None
     published = versions.get("python")
     if published:
+        if not isinstance(published, str) or not re.fullmatch(r"\d+\.\d+(\.\d+)?\S{0,16}", published):  # a uv argument
+            raise _refused(where, f"hub_env.json versions['python'] = {safe_text(repr(published))}", "it is not a Python version")
         minor = ".".join(published.split(".")[:2])
         if minor != f"{sys.version_info[0]}.{sys.version_info[1]}":
             try:
