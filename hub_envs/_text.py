@@ -38,3 +38,14 @@ def safe_text(value: Any) -> str:
     if text.isprintable() and "\\" not in text:
         return text
     return "".join(ch if ch == " " or (ch.isprintable() and ch != "\\") else _escape_char(ch) for ch in text)
+
+
+def safe_lines(value: Any) -> str:
+    """:func:`safe_text` line by line: the line breaks stay, everything else is escaped (for multi-line text from
+    an env's code: an exception message, a traceback, the tail of a worker's stderr).
+
+    >>> safe_lines("line 1\\n\\x1b[31mred")
+    'line 1\\n\\\\x1b[31mred'
+    """
+    text = value if isinstance(value, str) else str(value)
+    return "\n".join(safe_text(line) for line in text.split("\n"))

@@ -271,7 +271,9 @@ class LoadedEnv:
             error = getattr(errors, name, None)
             if not (isinstance(error, type) and issubclass(error, errors.HubEnvsError)):
                 error = errors.EnvCodeError
-            raise error(message)
+            from hub_envs._text import safe_lines
+
+            raise error(safe_lines(message))  # text from the env's code: escaped
         return ManifestConfig(answer["values"], where=f"{where}: its config with {sorted(fields)}")
 
     def load_line(self) -> str:
@@ -726,14 +728,17 @@ def load_env(
         sandbox: run the workers in a sandbox (implies ``isolation="process"``): no network, a read-only view
             of the files, no secrets in the environment, resource limits; fails closed where the machine does
             not allow a part of it (:class:`~hub_envs.errors.SandboxUnavailableError`).
-        versions: ``"current"`` (the packages installed here); ``"publisher"`` is not available yet.
+        versions: ``"current"`` (the packages installed here); ``"publisher"`` (with ``isolation="venv"``): the
+            venv pins the versions the publisher recorded.
         step_timeout: seconds a call into an isolated env may take before its worker is killed
             (:class:`~hub_envs.errors.EnvTimeoutError`); None: no limit (a sandbox: 60 s).
         restart: with isolation, ``reset()`` after a crash or timeout starts a fresh worker.
         envs_per_worker: with isolation, envs of one ``make_vec`` per worker process (0: spread over all CPUs but
             one; with fewer workers than CPUs both sides busy-wait, see :mod:`hub_envs.isolation.vector`).
-        sandbox_limits: the sandbox's resource limits, any of ``memory_mb`` (address space, default 4096),
-            ``open_files`` (256) and ``processes`` (64, counted for the sandbox's uid).
+        sandbox_limits: the sandbox's resource limits, any of ``memory_mb`` (default 4096: all its processes
+            together, by a memory cgroup; asked for where none can be made, it is refused; the default then holds
+            each process alone), ``open_files`` (256, per process) and ``processes`` (64, threads included, counted
+            for the sandbox's uid).
 
     Returns:
         A :class:`LoadedEnv`.
@@ -909,7 +914,7 @@ def _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs
         isolation = "process" if isolation == "none" else isolation
         from hub_envs.isolation.sandbox import require_sandbox
 
-        require_sandbox()  # SandboxUnavailableError naming what this machine does not allow
+        require_sandbox(limits.get("memory_mb"))  # SandboxUnavailableError naming what this machine does not allow
     return IsolationOptions(
         isolation=isolation,
         sandbox=bool(sandbox),
@@ -968,11 +973,13 @@ def _isolated_parts(repo, sha, path, key, manifest, local_folder, iso, overrides
             from hub_envs.isolation.venvs import publisher_pins
 
             reqs, constraints, python, minor, notes = publisher_pins(
-                manifest.requirements, dict(manifest.versions), dict(manifest.resolved)
+                manifest.requirements, dict(manifest.versions), dict(manifest.resolved), where=where
             )
-            venv, record = venv_for(reqs, where=where, python=python, minor=minor, constraints=constraints)
-        else:
-            venv, record = venv_for(manifest.requirements, where=where)
+            venv, record = venv_for(
+                reqs, where=where, python=python, minor=minor, constraints=constraints, wheels_only=iso.sandbox
+            )
+        else:  # a sandboxed env's venv holds wheels only: building a package runs its code, outside the sandbox
+            venv, record = venv_for(manifest.requirements, where=where, wheels_only=iso.sandbox)
         iso = dataclasses.replace(iso, python=str(venv_python(venv)), pythonpath=hub_envs_path())
         _VENVS[iso] = {**record, "path": str(venv), "notes": notes}
     target = EnvTarget(
@@ -982,6 +989,7 @@ def _isolated_parts(repo, sha, path, key, manifest, local_folder, iso, overrides
         key=key,
         entry_point=manifest.env_entry_point,
         files=tuple(sorted(code_files(manifest.files).items())),  # what ``path`` (the code copy) holds
+        requirements=tuple(manifest.requirements),
     )
     factory = _FACTORIES.setdefault((target, iso), IsolatedEnvFactory(target, iso))  # one entry point per load setting
     return factory, config_class, config

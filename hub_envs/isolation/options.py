@@ -12,6 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+#: the sandbox's memory limit when none is asked for (MB)
+DEFAULT_MEMORY_MB = 4096
+
 
 @dataclass(frozen=True)
 class IsolationOptions:
@@ -19,7 +22,8 @@ class IsolationOptions:
     ``sandbox`` (implies a worker process), the per-call watchdog ``step_timeout`` (seconds, None: none; a
     sandbox defaults to 60), ``start_timeout`` for a worker to import the env's code, ``restart`` (a fresh
     worker on ``reset()`` after a crash), ``envs_per_worker`` for ``make_vec`` (0: spread over all CPUs but one), and
-    the sandbox's resource limits."""
+    the sandbox's resource limits (``memory_limit_mb`` None: the default, :data:`DEFAULT_MEMORY_MB`, not asked for:
+    where no memory cgroup can be made it covers each process alone instead of being refused)."""
 
     isolation: str = "none"
     sandbox: bool = False
@@ -27,7 +31,7 @@ class IsolationOptions:
     start_timeout: float = 120.0
     restart: bool = False
     envs_per_worker: int = 0
-    memory_limit_mb: int = 4096
+    memory_limit_mb: int | None = None
     max_open_files: int = 256
     max_processes: int = 64
     versions: str = "current"  # "publisher": the venv pins the publisher's recorded versions
@@ -44,6 +48,11 @@ class IsolationOptions:
         return self.isolation + ("+sandbox" if self.sandbox else "") + ("+publisher" if self.versions == "publisher" else "")
 
     @property
+    def memory_mb(self) -> int:
+        """The sandbox's memory limit in MB (the one asked for, else the default)."""
+        return DEFAULT_MEMORY_MB if self.memory_limit_mb is None else int(self.memory_limit_mb)
+
+    @property
     def call_timeout(self) -> float | None:
         if self.step_timeout is not None:
             return float(self.step_timeout)
@@ -55,7 +64,7 @@ class IsolationOptions:
 
         >>> IsolationOptions(isolation="process", step_timeout=5.0).load_kwargs()["step_timeout"]
         5.0
-        >>> sorted(IsolationOptions(sandbox=True, isolation="process").load_kwargs()["sandbox_limits"])
+        >>> sorted(IsolationOptions(sandbox=True, isolation="process", memory_limit_mb=2048).load_kwargs()["sandbox_limits"])
         ['memory_mb', 'open_files', 'processes']
         """
         kwargs: dict[str, Any] = {
@@ -67,9 +76,7 @@ class IsolationOptions:
             "envs_per_worker": self.envs_per_worker,
         }
         if self.sandbox:
-            kwargs["sandbox_limits"] = {
-                "memory_mb": self.memory_limit_mb,
-                "open_files": self.max_open_files,
-                "processes": self.max_processes,
-            }
+            kwargs["sandbox_limits"] = {"open_files": self.max_open_files, "processes": self.max_processes}
+            if self.memory_limit_mb is not None:  # asked for: required there too
+                kwargs["sandbox_limits"]["memory_mb"] = self.memory_limit_mb
         return kwargs

@@ -201,19 +201,27 @@ def _remote_class(original: type) -> type:
 
 def rebuild_error(info: dict[str, Any], where: str, call: str) -> BaseException:
     """The exception the parent raises for an env error the worker reported in ``call``."""
+    from hub_envs._text import safe_lines, safe_text
+
     module, qualname, message = str(info.get("module")), str(info.get("qualname")), str(info.get("message"))
-    text = f"{where}: the env raised {qualname}: {message} (in {call}, inside its worker process; remote traceback above)"
+    # the env's own text, escaped: its terminal sequences never reach the caller's terminal
+    shown_module, shown_qualname = safe_text(module), safe_text(qualname)
+    text = (
+        f"{where}: the env raised {shown_qualname}: {safe_lines(message)} (in {call}, inside its worker process; "
+        f"remote traceback above)"
+    )
     original = getattr(builtins, qualname, None) if module == "builtins" else None
     if isinstance(original, type) and issubclass(original, Exception) and not issubclass(original, (KeyboardInterrupt,)):
         cls = _remote_class(original)
         try:
-            exc = cls(*info.get("args", [])) if cls is not RemoteEnvError else RemoteEnvError(text)
+            args = [safe_text(a) if isinstance(a, str) else a for a in info.get("args", [])]  # OSError's str shows them
+            exc = cls(*args) if cls is not RemoteEnvError else RemoteEnvError(text)
         except Exception:
             exc = RemoteEnvError(text)
         exc.args = (text,)
     else:
-        exc = RemoteEnvError(text.replace(f"raised {qualname}", f"raised {module}.{qualname}"))
-    exc.remote_type = f"{module}.{qualname}"
-    exc.remote_traceback = str(info.get("traceback", ""))
+        exc = RemoteEnvError(text.replace(f"raised {shown_qualname}", f"raised {shown_module}.{shown_qualname}", 1))
+    exc.remote_type = f"{shown_module}.{shown_qualname}"
+    exc.remote_traceback = safe_lines(info.get("traceback", ""))
     exc.__cause__ = RemoteTraceback(exc.remote_traceback)
     return exc

@@ -45,6 +45,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from hub_envs._text import safe_lines, safe_text
 from hub_envs.errors import AnswerTooLargeError, EnvCrashedError, EnvTimeoutError, IsolationError
 from hub_envs.isolation.affinity import pin_here, unpin
 from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
@@ -61,7 +62,11 @@ from hub_envs.isolation.protocol import (
 )
 
 STDERR_TAIL_LINES = 20
+_MEMORY_EXIT = 72  # hub_envs.isolation.sandbox.MEMORY_EXIT: the sandbox's supervisor stopped it for its memory
 _WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
+#: a sandboxed worker: ``-S``, so that nothing of site-packages (a venv's .pth files) runs before the sandbox is entered
+_SANDBOX_CODE = "from hub_envs.isolation.sandbox import boot; boot()"
+_ENTER_FAILED_EXIT = 71  # hub_envs.isolation.sandbox.ENTER_FAILED_EXIT
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,7 @@ class EnvTarget:
     key: str
     entry_point: str
     files: tuple[tuple[str, str], ...] = ()  # manifest sha256 per file (the sandbox verifies its copy)
+    requirements: tuple[str, ...] = ()  # the manifest's (a sandbox shows the package folders they need)
 
     @property
     def where(self) -> str:
@@ -116,7 +122,7 @@ def _kill_group(proc: subprocess.Popen, owner: int) -> None:
             pass
 
 
-def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str | None, owner: int) -> None:
+def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str | None, owner: int, cgroup=None) -> None:
     if os.getpid() != owner:
         return
     for handle in handles:  # the connection, its non-blocking reader, the doorbell
@@ -133,6 +139,8 @@ def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str
         import shutil
 
         shutil.rmtree(scratch, ignore_errors=True)
+    if cgroup is not None:  # the sandbox's memory cgroup, empty once its processes are gone
+        cgroup.remove()
 
 
 class _Launcher:
@@ -243,14 +251,18 @@ class Worker:
             "entry_point": target.entry_point,
         }
         t0 = time.perf_counter()
+        self.cgroup = None
         try:
             if options.sandbox:
-                from hub_envs.isolation.sandbox import sandbox_init, unshare_namespaces
+                from hub_envs.isolation.sandbox import memory_cgroup_for, sandbox_init, sandbox_preexec
 
-                init["sandbox"] = sandbox_init(target, options, scratch)
-                preexec = unshare_namespaces
+                self.cgroup = memory_cgroup_for(options)  # one memory limit for every process of the sandbox
+                init["sandbox"] = sandbox_init(target, options, scratch, self.cgroup)
+                preexec = sandbox_preexec(self.cgroup)
             self.proc = _launch(
-                [options.python or sys.executable, "-P", "-c", _WORKER_CODE, str(child_sock.fileno())]
+                [options.python or sys.executable]
+                + (["-S", "-P", "-c", _SANDBOX_CODE] if options.sandbox else ["-P", "-c", _WORKER_CODE])
+                + [str(child_sock.fileno())]
                 + [str(fd) for fd in self.bell.fds_for_worker()],
                 pass_fds=(child_sock.fileno(), *self.bell.fds_for_worker()),
                 stdin=subprocess.DEVNULL,
@@ -261,10 +273,19 @@ class Worker:
                 preexec_fn=preexec,
                 cwd="/" if options.sandbox else None,
             )
-        except BaseException:  # nothing started: nothing left open
+        except BaseException as e:  # nothing started: nothing left open
             self.bell.close()
             parent_sock.close()
             os.unlink(self.log_path)
+            if self.cgroup is not None:
+                self.cgroup.remove()
+            if isinstance(e, subprocess.SubprocessError) and options.sandbox:  # the preexec_fn failed: say so, typed
+                from hub_envs.errors import SandboxUnavailableError
+
+                raise SandboxUnavailableError(
+                    f"{target.where}: the sandboxed worker could not be started ({e}): joining its memory cgroup or "
+                    f"making its namespaces failed. Nothing was started."
+                ) from None
             raise
         finally:
             child_sock.close()
@@ -282,7 +303,17 @@ class Worker:
             self.log_path,
             str(scratch) if scratch else None,
             self._owner,
+            self.cgroup,
         )
+        if self.cgroup is not None and not self.cgroup.holds(self.pid):  # fail closed: a worker outside its limit
+            self._kill()
+            self._finalizer()
+            from hub_envs.errors import SandboxUnavailableError
+
+            raise SandboxUnavailableError(
+                f"{target.where}: the sandboxed worker (pid {self.pid}) is not in its memory cgroup {self.cgroup.path}; "
+                f"it was stopped before it ran anything."
+            )
         self._t0 = t0
         self.start_seconds: float | None = None
         self.send("init", init, raw=True)
@@ -413,11 +444,11 @@ class Worker:
         """Stop the worker for an answer that is not one (or carries a forbidden type): the error to raise."""
         self._kill()
         if isinstance(e, IsolationError):
-            self.dead = EnvCrashedError(f"{self.where}: {e} (in {op}; the worker was stopped)")
+            self.dead = EnvCrashedError(f"{self.where}: {safe_text(e)} (in {op}; the worker was stopped)")
         else:  # not a message a worker sends: something else wrote it (the env's code)
             self.dead = EnvCrashedError(
                 f"{self.where}: the env's worker process (pid {self.pid}) sent an answer to {op} that is not one "
-                f"({type(e).__name__}: {e}); it was stopped. The env's code wrote to its worker's socket or shared page."
+                f"({type(e).__name__}: {safe_text(e)}); it was stopped. The env's code wrote to its worker's socket or shared page."
             )
         return self.dead
 
@@ -474,12 +505,20 @@ class Worker:
         except subprocess.TimeoutExpired:
             code = None
         self._kill()
-        if reason is not None:
-            how = f"stopped after {reason}" + (
-                f" (the sandbox's memory limit is {self.options.memory_limit_mb} MB)"
+        over = self.cgroup is not None and (code == _MEMORY_EXIT or self.cgroup.breached())
+        if over:  # the kernel's count, not a guess from the exit status
+            how = (
+                f"went over the sandbox's memory limit of {self.cgroup.limit_mb} MB (all its processes together: the "
+                f"kernel's memory cgroup counted an out-of-memory kill) and was stopped with everything it started"
+            )
+        elif reason is not None:
+            how = f"stopped after {safe_text(reason)}" + (
+                f" (the sandbox's memory limit is {self.options.memory_mb} MB per process)"
                 if self.options.sandbox and "MemoryError" in reason
                 else ""
             )
+        elif self.options.sandbox and code == _ENTER_FAILED_EXIT:
+            how = "could not enter its sandbox (its stderr says why) and was stopped before any of the env's code ran"
         elif code is None:
             how = "stopped answering"
         elif code < 0:
@@ -490,7 +529,7 @@ class Worker:
         self.dead = EnvCrashedError(
             f"{self.where}: the env's worker process (pid {self.pid}) {how} during {op}.\n"
             + (f"Last lines of its stderr:\n{tail}\n" if tail else "It wrote nothing to stderr.\n")
-            + ("Remote traceback:\n" + str(remote.get("traceback", "")) if remote else "")
+            + ("Remote traceback:\n" + safe_lines(remote.get("traceback", "")) if remote else "")
             + "The env is gone: with restart=True, reset() starts a fresh worker; otherwise make a new env."
         )
         return self.dead
@@ -503,7 +542,7 @@ class Worker:
                 text = f.read().decode("utf-8", "replace")
         except OSError:
             return ""
-        return "\n".join("  " + line for line in text.splitlines()[-lines:])
+        return "\n".join("  " + safe_text(line) for line in text.splitlines()[-lines:])  # env output: escaped
 
     def _kill(self) -> None:
         _kill_group(self.proc, self._owner)

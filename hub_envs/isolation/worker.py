@@ -2,7 +2,9 @@
 
 Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
 main()" <fd> <page> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
-threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. ``<fd>`` is its end
+threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. A sandboxed
+worker starts as ``python -S -P -c "from hub_envs.isolation.sandbox import boot; boot()" ...`` instead: it
+enters its sandbox before the interpreter's ``site`` runs, then :func:`serve` as here. ``<fd>`` is its end
 of a socketpair, the others the shared page and the wake-up socket of its :mod:`~hub_envs.isolation.doorbell`
 (a single env's short messages travel in the page, the others in the socket). The first message is the init
 dict (repo@sha, snapshot folder, env entry point, sandbox settings); then one request, one answer
@@ -300,14 +302,9 @@ def main(argv: list[str] | None = None) -> None:
     if os.getppid() == 1:  # the parent died before the death signal was armed
         os._exit(0)
     init = pickle.loads(bell.receive(None, 0.0, lambda _deadline: conn.recv_bytes()))
-    if init.get("sandbox"):
-        from hub_envs.isolation.sandbox import enter_sandbox
-
-        try:
-            enter_sandbox(init)  # may fork: the caller of serve() below is then pid 1 of a new pid namespace
-        except BaseException as e:
-            bell.send(encode_answer("fatal", error_info(e)), conn.send_bytes)
-            os._exit(71)
+    if init.get("sandbox"):  # fail closed: a sandboxed worker enters its sandbox before its site runs (sandbox.boot)
+        os.write(2, b"hub-envs worker: a sandboxed worker starts through hub_envs.isolation.sandbox.boot\n")
+        os._exit(71)
     serve(conn, bell, init)
     os._exit(0)
 
