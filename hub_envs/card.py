@@ -121,10 +121,8 @@ def reproduced_table(entries) -> str:
         sim = a.stack.get("simulator", {})
         sim = ", ".join(f"{k} {v}" for k, v in sorted(sim.items())) if isinstance(sim, dict) else str(sim)
         system = f"{str(a.stack.get('platform', '-')).split('-')[0]} {a.stack.get('machine', '')}, {a.stack.get('cpu', '-')}"
-        if e.author is None:
-            by = "no pull request"
-        else:
-            by = _cell(f"@{e.author} (PR #{e.merged_from})" if e.merged_from is not None else f"@{e.author}")
+        by = "no pull request" if e.author is None else _cell(f"@{e.author}")
+        by += f" (PR #{e.merged_from})" if e.author is not None and e.merged_from is not None else ""
         cells = [
             _cell(a.created_at[:10]),
             f"{'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()}",
