@@ -30,6 +30,7 @@ import dataclasses
 import datetime as _dt
 import hashlib
 import json
+import logging
 import re
 import shutil
 import subprocess
@@ -40,8 +41,10 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs._text import safe_text
-from hub_envs.errors import AttestationError, ConfigError
+from hub_envs.errors import AttestationError, ConfigError, HostileResponseError, HubError
 from hub_envs.repo_format import REPRODUCTIONS_DIR, is_attestation_file
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "Attestation",
@@ -409,7 +412,7 @@ class AttestResult:
         return (
             f"Attested {self.attestation.verdict} for {self.attestation.repo_id}@{self.attestation.sha[:12]} "
             f"(stack {self.attestation.stack_digest}{', signed' if self.signed else ''}): pull request #{self.pr_num} "
-            f"adds {self.path}\n  {self.pr_url}\n  The repo's owner merges it: "
+            f"adds {self.path}\n  {safe_text(self.pr_url)}\n  The repo's owner merges it: "
             f"huggingface_hub.HfApi().merge_pull_request({self.attestation.repo_id!r}, {self.pr_num})"
         )
 
@@ -564,6 +567,18 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
         return {}
     client = hub_io.api(token)
     found: dict[str, tuple[str, int]] = {}
+    try:
+        _find_merged_authors(client, repo_id, head, wanted, found)
+    except HostileResponseError:
+        raise
+    except HubError as e:  # e.g. discussions disabled on this repo: then no pull request brought any file
+        logger.debug("%s: the Hub's pull requests could not be read (%s); merged attestations name no author", repo_id, e)
+    return found
+
+
+def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str], found: dict[str, tuple[str, int]]) -> None:
+    from hub_envs import hub_io
+
     with hub_io.translate_hub_errors(repo_id, head):
         now = {f.path: getattr(f, "blob_id", None) for f in client.get_paths_info(repo_id, sorted(wanted), revision=head)}
         merged = [
@@ -583,7 +598,6 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
                 if f.path in touched and now.get(f.path) is not None and getattr(f, "blob_id", None) == now[f.path]:
                     found[f.path] = (str(d.author), d.num)
             wanted -= touched  # a newer merge that changed the file hides older ones, whoever matches
-    return found
 
 
 def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:

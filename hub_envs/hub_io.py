@@ -252,28 +252,31 @@ def check_write_access(repo_id: str, *, token: str | None = None, pull_request: 
     where = f"{repo_id} at {constants.ENDPOINT}"
     namespace = repo_id.split("/")[0]
     if offline():
-        raise HubError(f"{where}: HF_HUB_OFFLINE is set, so nothing can be published. Unset it to push; nothing was built.")
+        raise HubError(f"{where}: HF_HUB_OFFLINE is set, so nothing can be published. Unset it and run again.")
     effective = token or get_token()
+    doing = "open a pull request" if pull_request else "publish"
+    need = "a token with write access" + ("" if pull_request else f" to {namespace!r}")
+    tail = "nothing was run" if pull_request else "nothing was built or published"
     status, info = _whoami(effective)
     if status in (401, 403) and not effective:
         raise HubAccessError(
-            f"{where}: no token is set, and this Hub needs one to publish. Set HF_TOKEN to a token with write access to "
-            f"{namespace!r} (or run `hf auth login`), then push again; nothing was built or published."
+            f"{where}: no token is set, and this Hub needs one to {doing}. Set HF_TOKEN to {need} (or run "
+            f"`hf auth login`), then run again; {tail}."
         )
     if status in (401, 403):
         raise HubAccessError(
-            f"{where}: the Hub refused the token ({status}: invalid, expired or revoked). Set HF_TOKEN to a valid token "
-            f"with write access to {namespace!r} (or run `hf auth login`); nothing was built or published."
+            f"{where}: the Hub refused the token ({status}: invalid, expired or revoked). Set HF_TOKEN to {need} "
+            f"(or run `hf auth login`); {tail}."
         )
     if status != 200 or info is None or not isinstance(info.get("name"), str):
-        raise HubError(f"{where}: the Hub answered {status} to whoami, not an account. Check HF_ENDPOINT; nothing was built.")
+        raise HubError(f"{where}: the Hub answered {status} to whoami, not an account. Check HF_ENDPOINT; {tail}.")
     name = info["name"]
     auth = info.get("auth") if isinstance(info.get("auth"), dict) else {}
     role = (auth.get("accessToken") or {}).get("role") if isinstance(auth.get("accessToken"), dict) else None
     if role == "read":
         raise HubAccessError(
-            f"{where}: the token of {safe_text(name)!r} is read-only. Create a token with write access to {namespace!r} "
-            f"and set HF_TOKEN to it (or run `hf auth login`); nothing was built or published."
+            f"{where}: the token of {safe_text(name)!r} is read-only, and this Hub needs {need} to {doing}. Create one "
+            f"and set HF_TOKEN to it (or run `hf auth login`); {tail}."
         )
     orgs = [o for o in info.get("orgs") or [] if isinstance(o, dict) and isinstance(o.get("name"), str)]
     writable = {name.lower()} | {o["name"].lower() for o in orgs if o.get("roleInOrg") != "read"}
