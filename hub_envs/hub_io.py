@@ -208,11 +208,11 @@ def api(token: str | None = None) -> HfApi:
 _WHOAMI_MAX_BYTES = 1 << 20
 
 
-def _whoami(token: str | None) -> tuple[int, dict | None]:
+def _whoami(token: str | None, repo_id: str) -> tuple[int, dict | None]:
     """``(status, answer)`` of ``GET /api/whoami-v2`` with ``token``, or anonymously when it is None (huggingface_hub's
     ``whoami`` refuses to ask without a token, but an open loopback server answers anonymous callers)."""
     url = f"{constants.ENDPOINT}/api/whoami-v2"
-    with translate_hub_errors("whoami", None):
+    with translate_hub_errors(repo_id, None):
         with stream_file(url, build_hf_headers(token=token or False), constants.HF_HUB_ETAG_TIMEOUT) as (status, _, _, chunks):
             body = bytearray()
             for chunk in chunks:
@@ -228,7 +228,7 @@ def _whoami(token: str | None) -> tuple[int, dict | None]:
     return status, answer if isinstance(answer, dict) else None
 
 
-def check_write_access(repo_id: str, *, token: str | None = None, pull_request: bool = False) -> str | None:
+def check_write_access(repo_id: str, *, token: str | None = None, pull_request: bool = False) -> str:
     """Refuse, before anything is built, a push the Hub would refuse at the end: it asks the Hub who the caller is.
 
     Args:
@@ -257,7 +257,7 @@ def check_write_access(repo_id: str, *, token: str | None = None, pull_request: 
     doing = "open a pull request" if pull_request else "publish"
     need = "a token with write access" + ("" if pull_request else f" to {namespace!r}")
     tail = "nothing was run" if pull_request else "nothing was built or published"
-    status, info = _whoami(effective)
+    status, info = _whoami(effective, repo_id)
     if status in (401, 403) and not effective:
         raise HubAccessError(
             f"{where}: no token is set, and this Hub needs one to {doing}. Set HF_TOKEN to {need} (or run "

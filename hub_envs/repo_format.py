@@ -144,8 +144,8 @@ def is_attestation_file(path: str) -> bool:
 
 def beyond_manifest(path: str) -> bool:
     """Whether a commit of an env repo may hold ``path`` although its manifest does not list it: the ONE rule
-    every reader and writer of env repos follows (load_env's snapshot checks, LeRobot's ``env.py`` aside, and
-    push_env, which keeps such files).
+    hub-envs' readers and writers of env repos follow (load_env's snapshot checks and lazy fetch, and push_env,
+    which keeps such files; the generated ``env.py``, which cannot import hub-envs, refuses unlisted code only).
 
     These are the files the Hub workflow adds after push_env published the commit: the manifest itself, the Hub's
     ``.gitattributes``, and the reproduction attestations the owner merges from pull requests
