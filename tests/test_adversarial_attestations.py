@@ -23,8 +23,9 @@ from conftest import Hub, _start_hub
 from helpers import TINY
 from huggingface_hub import CommitOperationAdd, HfApi, hf_hub_download
 
-from hub_envs import push_env, reproduce
+from hub_envs import load_env, push_env, reproduce
 from hub_envs.attestation import Attestation, attest, stack_digest
+from hub_envs.testing import hub_environment
 
 ALICE_TOKEN = "hf_alice_adv_attest"
 MALLORY_TOKEN = "hf_mallory_adv_attest"
@@ -130,6 +131,9 @@ def test_a_merged_attestation_cannot_inject_markdown_nor_forge_its_author(lab, p
     if signed is not None:
         (bob_row,) = [line for line in card.splitlines() if line.startswith("|") and "@bob" in line]
         assert bob_row.rstrip().endswith(f"`@bob` (PR #{signed.pr_num}) | signed (OpenSSH) |")
+        assert signed.path + ".sig" in lab.api.list_repo_files(REPO, revision=again.sha)  # kept by the re-push
+        with hub_environment(lab.endpoint, tmp_path / "fresh"):  # and a commit holding it loads
+            load_env(f"{REPO}@{again.sha}", trust_remote_code=True).unregister()
 
     listing = _attestations_cli(lab)
     _assert_terminal_safe(listing)
