@@ -1,7 +1,7 @@
 """Reproduction attestations: "this env, at this commit, reproduced (or not) on this stack", published on the
 env's own repo through a Hub pull request, so anyone can attest and the owner merges.
 
-An :class:`Attestation` is one JSON file, ``reproductions/<date>-<stack digest>.json``: the verdict, the replay
+An :class:`Attestation` is one JSON file, ``reproductions/<date>-<commit sha12>-<stack digest>.json``: the verdict, the replay
 and benchmark summaries with their confidence intervals, the env's commit, content digest and dataset
 fingerprint, the stack it ran on (python, platform, CPU model, the versions of lerobot/torch/numpy/gymnasium, the
 simulator and the env's whole requirement closure, hub-envs), the command line that reproduces it, and the
@@ -30,6 +30,7 @@ import dataclasses
 import datetime as _dt
 import hashlib
 import json
+import logging
 import re
 import shutil
 import subprocess
@@ -39,7 +40,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hub_envs.errors import AttestationError, ConfigError
+from hub_envs._text import safe_text
+from hub_envs.errors import AttestationError, ConfigError, HostileResponseError, HubError
+from hub_envs.repo_format import REPRODUCTIONS_DIR, is_attestation_file
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "Attestation",
@@ -60,13 +65,11 @@ __all__ = [
 
 FORMAT_VERSION = 1
 KIND = "hub-envs reproduction attestation"
-REPRODUCTIONS_DIR = "reproductions"
 SIGNATURE_NAMESPACE = "hub-envs"
 SIGNATURE_SUFFIX = ".sig"
 VERDICTS = ("REPRODUCED", "NOT REPRODUCED")
 _HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
-_NAME = re.compile(r"^reproductions/\d{4}-\d{2}-\d{2}-[0-9a-f]{12}\.json$")
 
 
 def stack_digest(stack: dict[str, Any]) -> str:
@@ -148,7 +151,7 @@ def _benchmark_summary(b: dict[str, Any]) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class Attestation:
-    """One reproduction attestation: what ``reproductions/<date>-<stack digest>.json`` holds. Frozen."""
+    """One reproduction attestation: what ``reproductions/<date>-<commit sha12>-<stack digest>.json`` holds. Frozen."""
 
     repo_id: str
     sha: str
@@ -173,8 +176,10 @@ class Attestation:
 
     @property
     def path(self) -> str:
-        """Where it goes in the env repo: ``reproductions/<date>-<stack digest>.json``."""
-        return f"{REPRODUCTIONS_DIR}/{self.created_at[:10]}-{self.stack_digest}.json"
+        """Where it goes in the env repo: ``reproductions/<date>-<commit sha12>-<stack digest>.json`` (the commit in
+        the name: attesting another commit of the same content, on the same stack and day, adds a file, not replaces one).
+        """
+        return f"{REPRODUCTIONS_DIR}/{self.created_at[:10]}-{self.sha[:12]}-{self.stack_digest}.json"
 
     @classmethod
     def from_report(
@@ -407,7 +412,7 @@ class AttestResult:
         return (
             f"Attested {self.attestation.verdict} for {self.attestation.repo_id}@{self.attestation.sha[:12]} "
             f"(stack {self.attestation.stack_digest}{', signed' if self.signed else ''}): pull request #{self.pr_num} "
-            f"adds {self.path}\n  {self.pr_url}\n  The repo's owner merges it: "
+            f"adds {self.path}\n  {safe_text(self.pr_url)}\n  The repo's owner merges it: "
             f"huggingface_hub.HfApi().merge_pull_request({self.attestation.repo_id!r}, {self.pr_num})"
         )
 
@@ -474,20 +479,39 @@ def attest(
 @dataclass(frozen=True)
 class AttestationEntry:
     """One attestation file as found on the Hub: where (``merged`` on main, or an open pull request), and either
-    the parsed attestation or why it could not be read."""
+    the parsed attestation or why it could not be read.
+
+    ``author`` is who the Hub says opened the pull request the file came from (its discussion data: for an open
+    one, that pull request; for a merged file, the latest merged pull request whose merge left the file as it is on
+    main), never the attestation's own ``attested_by``, which whoever wrote the file chose. None: no pull request
+    brought it (someone with write access committed it directly) or the Hub did not say.
+    """
 
     path: str
-    where: str  # "merged" or "PR #N (open)"
+    where: str  # "merged" or "PR #N (open, by <author>)"
     revision: str  # the commit it was read at
     attestation: Attestation | None
     error: str | None
     data: bytes
     signature: bytes | None
-    pr_num: int | None = None
+    pr_num: int | None = None  # the open pull request it is in (None: merged on main)
+    author: str | None = None
+    merged_from: int | None = None  # the pull request a merged file came from
 
     @property
     def merged(self) -> bool:
         return self.pr_num is None
+
+    @property
+    def signed(self) -> bool:
+        return self.signature is not None
+
+    def by(self) -> str:
+        """Who attests, as far as the Hub knows (safe to print): ``bob`` (an open pull request's author), ``bob (merged
+        PR #3)``, or why nobody is named."""
+        if self.author is None:
+            return "no pull request (committed directly by the repo's owner)" if self.merged else "unknown"
+        return f"{safe_text(self.author)} (merged PR #{self.merged_from})" if self.merged else safe_text(self.author)
 
 
 def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | None:
@@ -512,7 +536,7 @@ def _entries_at(
     files = hub_io.list_remote_files(repo_id, revision, token=token)
     out = []
     for path in sorted(files):
-        if not (path.startswith(f"{REPRODUCTIONS_DIR}/") and path.endswith(".json")):
+        if not (is_attestation_file(path) and path.endswith(".json")):
             continue
         data = _read(repo_id, path, revision, token)
         if data is None or (skip is not None and skip.get(path) == data):
@@ -529,14 +553,67 @@ def _entries_at(
     return out
 
 
+_DIFF_PATH = re.compile(r"^diff --git a/(\S+) b/(\S+)$", re.MULTILINE)
+
+
+def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None) -> dict[str, tuple[str, int]]:
+    """``{path: (author, pull request number)}`` for the files of ``head`` a merged pull request brought as they are:
+    the latest merged pull request whose diff touches the path and whose merge commit holds the same blob as ``head``
+    (the Hub's discussion data and its paths-info; a later direct edit names nobody)."""
+    from hub_envs import hub_io
+
+    wanted = set(paths)
+    if not wanted:
+        return {}
+    client = hub_io.api(token)
+    found: dict[str, tuple[str, int]] = {}
+    try:
+        _find_merged_authors(client, repo_id, head, wanted, found)
+    except HostileResponseError:
+        raise
+    except HubError as e:  # e.g. discussions disabled on this repo: then no pull request brought any file
+        logger.debug("%s: the Hub's pull requests could not be read (%s); merged attestations name no author", repo_id, e)
+    return found
+
+
+def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str], found: dict[str, tuple[str, int]]) -> None:
+    from hub_envs import hub_io
+
+    with hub_io.translate_hub_errors(repo_id, head):
+        now = {f.path: getattr(f, "blob_id", None) for f in client.get_paths_info(repo_id, sorted(wanted), revision=head)}
+        merged = [
+            d
+            for d in client.get_repo_discussions(repo_id, repo_type=hub_io.REPO_TYPE, discussion_type="pull_request")
+            if d.status == "merged"
+        ]
+        for d in sorted(merged, key=lambda d: d.num, reverse=True):
+            if not wanted:
+                break
+            details = client.get_discussion_details(repo_id, d.num, repo_type=hub_io.REPO_TYPE)
+            touched = {p for m in _DIFF_PATH.finditer(details.diff or "") for p in m.groups()} & wanted
+            if not touched or not details.merge_commit_oid:
+                continue
+            then = client.get_paths_info(repo_id, sorted(touched), revision=details.merge_commit_oid)
+            for f in then:
+                if f.path in touched and now.get(f.path) is not None and getattr(f, "blob_id", None) == now[f.path]:
+                    found[f.path] = (str(d.author), d.num)
+            wanted -= touched  # a newer merge that changed the file hides older ones, whoever matches
+
+
 def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:
-    """The attestations on main (or at ``revision``): those merged by the repo's owner."""
+    """The attestations on main (or at ``revision``): those merged by the repo's owner, each with the author of the
+    pull request it came from (:attr:`AttestationEntry.author`)."""
     from hub_envs import hub_io
 
     head = revision or hub_io.remote_head(repo_id, token=token)
     if head is None:
         return []
-    return _entries_at(repo_id, head, "merged", None, token)
+    entries = _entries_at(repo_id, head, "merged", None, token)
+    authors = _merged_authors(repo_id, head, [e.path for e in entries], token)
+    return [
+        dataclasses.replace(e, author=authors[e.path][0], merged_from=authors[e.path][1]) if e.path in authors else e
+        for e in entries
+    ]
 
 
 def collect_attestations(repo_id: str, *, token: str | None = None) -> list[AttestationEntry]:
@@ -556,44 +633,70 @@ def collect_attestations(repo_id: str, *, token: str | None = None) -> list[Atte
     for d in sorted(prs, key=lambda d: d.num):
         with hub_io.translate_hub_errors(repo_id, f"refs/pr/{d.num}"):
             head = client.repo_info(repo_id, revision=f"refs/pr/{d.num}", repo_type=hub_io.REPO_TYPE).sha
-        out += _entries_at(repo_id, head, f"PR #{d.num} (open, by {d.author})", d.num, token, skip=on_main)
+        found = _entries_at(repo_id, head, f"PR #{d.num} (open, by {safe_text(d.author)})", d.num, token, skip=on_main)
+        out += [dataclasses.replace(e, author=str(d.author)) for e in found]
     return out
 
 
+def _signature_mark(entry: AttestationEntry, verified: tuple[bool, str] | None) -> str:
+    """``unsigned``, ``signed`` (not checked), ``verified`` or ``SIGNATURE FAILED``."""
+    if not entry.signed:
+        return "unsigned"
+    if verified is None:
+        return "signed"
+    return "verified" if verified[0] else "SIGNATURE FAILED"
+
+
 def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool, str]] | None = None) -> str:
-    """The matrix env revision x stack -> verdict, the stacks' legend, and one line per file."""
-    good = [e for e in entries if e.attestation is not None]
+    """The matrix env revision x stack -> verdict (each cell says whether the claim is signed), the stacks' legend,
+    and one line per file naming who attests: the pull request's author, as the Hub says. Every repo-controlled
+    field is made safe to print (:func:`hub_envs._text.safe_text`)."""
+    good = [(i, e) for i, e in enumerate(entries) if e.attestation is not None]
     if not entries:
         return "No attestations yet: hub-envs reproduce --repo_id=<repo>@<sha> --trust_remote_code=true --attest=true"
+    verified = verified or {}
     lines = []
     if good:
-        revisions = list(dict.fromkeys(e.attestation.sha for e in good))  # type: ignore[union-attr]
-        stacks = list(dict.fromkeys(e.attestation.stack_digest for e in good))  # type: ignore[union-attr]
+        revisions = list(dict.fromkeys(e.attestation.sha for _, e in good))  # type: ignore[union-attr]
+        stacks = list(dict.fromkeys(e.attestation.stack_digest for _, e in good))  # type: ignore[union-attr]
         cells: dict[tuple[str, str], list[str]] = {}
-        for e in good:
+        for i, e in good:
             a = e.attestation
-            mark = ("✓" if a.reproduced else "✗") + ("" if e.merged else f" (PR #{e.pr_num})")  # type: ignore[union-attr]
+            mark = f"{'✓' if a.reproduced else '✗'} {_signature_mark(e, verified.get(i))}"  # type: ignore[union-attr]
+            mark += "" if e.merged else f" (PR #{e.pr_num})"
             cells.setdefault((a.sha, a.stack_digest), []).append(mark)  # type: ignore[union-attr]
         header = ["env revision \\ stack", *stacks]
         rows = [[sha[:12], *[", ".join(cells.get((sha, st), ["–"])) for st in stacks]] for sha in revisions]
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines.append("  ".join(h.ljust(w) for h, w in zip(header, widths)))
         lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
-        lines += ["", "✓ reproduced, ✗ did not; (PR #N): in an open pull request, not merged yet", "", "stacks:"]
+        lines += [
+            "",
+            "✓ reproduced, ✗ did not. unsigned: only the pull request's author (below) vouches for it; signed: an OpenSSH",
+            "signature is attached (check it: --verify=true --allowed_signers=FILE); verified: a key in your allowed_signers",
+            "signed these bytes. (PR #N): in an open pull request, not merged yet.",
+            "",
+            "stacks:",
+        ]
         for st in stacks:
-            a = next(e.attestation for e in good if e.attestation.stack_digest == st)  # type: ignore[union-attr]
-            lines.append(f"  {st}  {describe_stack(a.stack)}")  # type: ignore[union-attr]
+            a = next(e.attestation for _, e in good if e.attestation.stack_digest == st)  # type: ignore[union-attr]
+            lines.append(f"  {st}  {safe_text(describe_stack(a.stack))}")  # type: ignore[union-attr]
     lines += ["", "files:"]
     for i, e in enumerate(entries):
+        path = safe_text(e.path)
+        where = "merged" if e.merged else e.where
         if e.attestation is None:
-            lines.append(f"  {e.path} [{e.where}]: INVALID: {e.error}")
+            lines.append(f"  {path} [{where}]: INVALID: {safe_text(e.error)}")
             continue
         a = e.attestation
-        sig = "unsigned" if e.signature is None else "signed"
-        if verified is not None and i in verified:
+        sig = _signature_mark(e, None)
+        if i in verified:
             ok, who = verified[i]
-            sig = f"signature verified ({who})" if ok else f"SIGNATURE FAILED ({who})"
-        lines.append(f"  {e.path} [{e.where}]: {a.verdict} at {a.sha[:12]}, by {a.attested_by or '?'}, {a.created_at}; {sig}")
+            sig = f"{'signature verified' if ok else 'SIGNATURE FAILED'} ({safe_text(who)})"
+        line = f"  {path} [{where}]: {a.verdict} at {a.sha[:12]}, by {e.by()}, {safe_text(a.created_at)}; {sig}"
+        if a.attested_by and a.attested_by != e.author:
+            line += f"; the file names its author '{safe_text(a.attested_by)}' (self-declared, not checked)"
+        lines.append(line)
     return "\n".join(lines)
 
 
@@ -634,6 +737,8 @@ def attestations_cli(args: AttestationsArgs) -> int:
                         "path": e.path,
                         "where": e.where,
                         "pr_num": e.pr_num,
+                        "author": e.author,  # who opened the pull request it came from, as the Hub says
+                        "merged_from": e.merged_from,
                         "revision": e.revision,
                         "error": e.error,
                         "signed": e.signature is not None,

@@ -76,29 +76,66 @@ def describe_space(space) -> str:
     return str(space)
 
 
-def reproduced_table(attestations) -> str:
-    """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.attestation.Attestation`),
-    oldest first; "" without any.
+#: What a "Reproduced on" cell may show of an attestation's free-text fields (versions, CPU, platform, an account):
+#: letters, digits and a few separators; no Markdown or HTML syntax, no backtick, no '|', no line break.
+_CELL_UNSAFE = re.compile(r"[^A-Za-z0-9 .,:;/@()+=_-]")
+_CELL_MAX = 60
+
+
+def _cell(value) -> str:
+    """A field an attestation's author wrote, as one inert table cell: whitelisted characters (any other becomes
+    ``?``), one line, at most 60 characters, inside a code span (so no link, emphasis or HTML is rendered).
+
+    >>> _cell("3.2.7"), _cell("0.6 |\\n\\n## Load it"), _cell("")
+    ('`3.2.7`', '`0.6 ? ?? Load it`', '-')
+    """
+    text = _CELL_UNSAFE.sub("?", " ".join(str(value).split()))
+    text = text if len(text) <= _CELL_MAX else text[: _CELL_MAX - 1] + "…"
+    return f"`{text}`" if text.strip() else "-"
+
+
+def reproduced_table(entries) -> str:
+    """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.attestation.AttestationEntry`
+    with a valid attestation), oldest first; "" without any.
+
+    Every field the attestation's author wrote goes through :func:`_cell`; the rest is validated (dates, hex shas,
+    the verdict). "by" is the account that opened the merged pull request (the Hub's discussion data), never the
+    file's self-declared ``attested_by``; "signature" says whether the claim is signed (a card cannot check a key:
+    ``hub-envs attestations --verify=true`` does).
 
     >>> reproduced_table([])
     ''
     """
-    rows = sorted(attestations, key=lambda a: (a.created_at, a.stack_digest))
+    rows = sorted(entries, key=lambda e: (e.attestation.created_at, e.attestation.stack_digest, e.path))
     if not rows:
         return ""
     out = [
-        "| date | verdict | commit | stack | python | lerobot | torch | numpy | gymnasium | simulator | platform / CPU | by |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| date | verdict | commit | stack | python | lerobot | torch | numpy | gymnasium | simulator | platform / CPU | by "
+        "| signature |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for a in rows:
+    for e in rows:
+        a = e.attestation
         pk = a.stack.get("packages", {})
-        sim = ", ".join(f"{k} {v}" for k, v in sorted(a.stack.get("simulator", {}).items())) or "-"
+        pk = pk if isinstance(pk, dict) else {}
+        sim = a.stack.get("simulator", {})
+        sim = ", ".join(f"{k} {v}" for k, v in sorted(sim.items())) if isinstance(sim, dict) else str(sim)
         system = f"{str(a.stack.get('platform', '-')).split('-')[0]} {a.stack.get('machine', '')}, {a.stack.get('cpu', '-')}"
-        out.append(
-            f"| {a.created_at[:10]} | {'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()} | `{a.sha[:12]}` | `{a.stack_digest}` | "
-            f"{a.stack.get('python', '-')} | {pk.get('lerobot', '-')} | {pk.get('torch', '-')} | {pk.get('numpy', '-')} | "
-            f"{pk.get('gymnasium', '-')} | {sim} | {system} | {a.attested_by or '-'} |"
-        )
+        by = "no pull request" if e.author is None else _cell(f"@{e.author}")
+        by += f" (PR #{e.merged_from})" if e.author is not None and e.merged_from is not None else ""
+        cells = [
+            _cell(a.created_at[:10]),
+            f"{'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()}",
+            f"`{a.sha[:12]}`",
+            _cell(a.stack_digest),
+            _cell(a.stack.get("python", "-")),
+            *(_cell(pk.get(n, "-")) for n in ("lerobot", "torch", "numpy", "gymnasium")),
+            _cell(sim or "-"),
+            _cell(system),
+            by,
+            "signed (OpenSSH)" if e.signed else "**unsigned**",
+        ]
+        out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 
 
@@ -115,8 +152,8 @@ def render_card(
     card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
-    claims none. ``reproductions``: merged attestations (:class:`hub_envs.attestation.Attestation`); those of this
-    content (its digest) make the "Reproduced on" table.
+    claims none. ``reproductions``: merged attestations (:class:`hub_envs.attestation.AttestationEntry`, valid ones);
+    those of this content (its digest) make the "Reproduced on" table.
     """
 
     repo_id = manifest.repo_id
@@ -188,6 +225,6 @@ def render_card(
         fingerprint_digest=manifest.fingerprint.get("digest", "-"),
         versions=manifest.versions,
         processors=list(manifest.processors),
-        reproduced_table=reproduced_table([a for a in reproductions if a.content_digest == manifest.content_digest]),
+        reproduced_table=reproduced_table([e for e in reproductions if e.attestation.content_digest == manifest.content_digest]),
     )
     return str(card)

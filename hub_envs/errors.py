@@ -135,6 +135,11 @@ class HostileResponseError(HubError, IntegrityError):
     refused before the client wrote anything with it."""
 
 
+class HubAccessError(HubError, PermissionError):
+    """The Hub will not let this caller write the repo: no token, a token it refuses, a read-only token, or an
+    account that cannot write the namespace. Raised before anything is built."""
+
+
 class ConcurrentPushError(HubError):
     """The repo's main moved while push_env was preparing its commit (another push landed first); nothing was written."""
 

@@ -56,12 +56,13 @@ from hub_envs.errors import (
     ConfigError,
     EnvRepoNotFoundError,
     HostileResponseError,
+    HubAccessError,
     HubError,
     IntegrityError,
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import DATASET_DIR, HUB_FILES, MANIFEST_FILE, is_commit_sha, is_on_demand_file
+from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, beyond_manifest, is_commit_sha, is_on_demand_file
 
 logger = logging.getLogger(__name__)
 
@@ -203,6 +204,93 @@ def api(token: str | None = None) -> HfApi:
     return HfApi(endpoint=constants.ENDPOINT, token=token)
 
 
+#: The largest whoami answer read (the Hub's lists an account's organizations: a few KiB).
+_WHOAMI_MAX_BYTES = 1 << 20
+
+
+def _whoami(token: str | None, repo_id: str) -> tuple[int, dict | None]:
+    """``(status, answer)`` of ``GET /api/whoami-v2`` with ``token``, or anonymously when it is None (huggingface_hub's
+    ``whoami`` refuses to ask without a token, but an open loopback server answers anonymous callers)."""
+    url = f"{constants.ENDPOINT}/api/whoami-v2"
+    with translate_hub_errors(repo_id, None):
+        with stream_file(url, build_hf_headers(token=token or False), constants.HF_HUB_ETAG_TIMEOUT) as (status, _, _, chunks):
+            body = bytearray()
+            for chunk in chunks:
+                body += chunk
+                if len(body) > _WHOAMI_MAX_BYTES:
+                    break
+    if status != 200:
+        return status, None
+    try:
+        answer = json.loads(bytes(body))
+    except ValueError:
+        answer = None
+    return status, answer if isinstance(answer, dict) else None
+
+
+def check_write_access(repo_id: str, *, token: str | None = None, pull_request: bool = False) -> str:
+    """Refuse, before anything is built, a push the Hub would refuse at the end: it asks the Hub who the caller is.
+
+    Args:
+        repo_id: ``namespace/name``, the repo about to be written.
+        token: the token the push will send; default: huggingface_hub's (``HF_TOKEN``, else ``hf auth login``'s).
+        pull_request: the write is a pull request (an attestation), which any account may open on a repo it can
+            read: the namespace is not checked.
+
+    Returns:
+        The account the Hub says the caller is (an open loopback server answers anonymous callers too).
+
+    Raises:
+        HubAccessError: no token and the Hub wants one; the Hub refuses the token; the token is read-only; the
+            account is neither the namespace nor one of its organizations with write access (unless the Hub says
+            the account manages every repo, as the loopback server's own account does, or ``pull_request``). A
+            fine-grained token's scopes are left to the Hub to judge at publish time.
+        HubError: the Hub cannot be reached, or HF_HUB_OFFLINE is set.
+    """
+    from huggingface_hub import get_token
+
+    where = f"{repo_id} at {constants.ENDPOINT}"
+    namespace = repo_id.split("/")[0]
+    if offline():
+        raise HubError(f"{where}: HF_HUB_OFFLINE is set, so nothing can be published. Unset it and run again.")
+    effective = token or get_token()
+    doing = "open a pull request" if pull_request else "publish"
+    need = "a token with write access" + ("" if pull_request else f" to {namespace!r}")
+    tail = "nothing was run" if pull_request else "nothing was built or published"
+    status, info = _whoami(effective, repo_id)
+    if status in (401, 403) and not effective:
+        raise HubAccessError(
+            f"{where}: no token is set, and this Hub needs one to {doing}. Set HF_TOKEN to {need} (or run "
+            f"`hf auth login`), then run again; {tail}."
+        )
+    if status in (401, 403):
+        raise HubAccessError(
+            f"{where}: the Hub refused the token ({status}: invalid, expired or revoked). Set HF_TOKEN to {need} "
+            f"(or run `hf auth login`); {tail}."
+        )
+    if status != 200 or info is None or not isinstance(info.get("name"), str):
+        raise HubError(f"{where}: the Hub answered {status} to whoami, not an account. Check HF_ENDPOINT; {tail}.")
+    name = info["name"]
+    auth = info.get("auth") if isinstance(info.get("auth"), dict) else {}
+    role = (auth.get("accessToken") or {}).get("role") if isinstance(auth.get("accessToken"), dict) else None
+    if role == "read":
+        raise HubAccessError(
+            f"{where}: the token of {safe_text(name)!r} is read-only, and this Hub needs {need} to {doing}. Create one "
+            f"and set HF_TOKEN to it (or run `hf auth login`); {tail}."
+        )
+    orgs = [o for o in info.get("orgs") or [] if isinstance(o, dict) and isinstance(o.get("name"), str)]
+    writable = {name.lower()} | {o["name"].lower() for o in orgs if o.get("roleInOrg") != "read"}
+    if pull_request or role == "fineGrained" or info.get("managesEveryRepo") is True or namespace.lower() in writable:
+        return name
+    theirs = ", ".join(sorted(repr(safe_text(o["name"])) for o in orgs)) or "none"
+    raise HubAccessError(
+        f"{where}: the account {safe_text(name)!r} (HF_TOKEN / `hf auth login`) cannot write to the namespace "
+        f"{namespace!r}: it is neither that account nor one of its organizations with write access (its "
+        f"organizations: {theirs}). Push to {safe_text(name)}/{repo_id.split('/')[1]}, or use a token of an account "
+        f"that may write to {namespace!r}; nothing was built or published."
+    )
+
+
 def cache_snapshots_dir(repo_id: str, cache_dir: str | Path | None = None) -> Path:
     """The ``snapshots/`` folder of ``repo_id`` in the HF cache (huggingface_hub's own naming; may not exist).
 
@@ -234,6 +322,14 @@ def snapshot_origin(folder: Path) -> tuple[str, str] | None:
 
 def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) -> Path:
     return cache_snapshots_dir(repo_id, cache_dir) / sha
+
+
+def _sent_a_token(response) -> bool:
+    """Whether the request of ``response`` (requests' or httpx's, both keep it) carried an Authorization header."""
+    try:
+        return bool(response.request.headers.get("authorization"))
+    except Exception:  # noqa: BLE001 - no request kept: say what the Hub said, a refused token
+        return True
 
 
 @contextlib.contextmanager
@@ -275,8 +371,10 @@ def translate_hub_errors(repo_id: str, revision: str | None):
     except HfHubHTTPError as e:
         status = getattr(e.response, "status_code", "?")
         if status == 401:
+            said = "refused the token" if _sent_a_token(e.response) else "wants a token, and none was sent"
             raise HubError(
-                f"{where}: the Hub at {constants.ENDPOINT} refused the token (401). Set HF_TOKEN to a token with access."
+                f"{where}: the Hub at {constants.ENDPOINT} {said} (401). Set HF_TOKEN to a token with access "
+                f"(or run `hf auth login`)."
             ) from e
         raise HubError(f"{where}: the Hub at {constants.ENDPOINT} answered {status}: {e}. Retry, or check the server.") from e
     except NETWORK_ERRORS as e:
@@ -311,7 +409,8 @@ def resolve_snapshot(
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
     ``lazy``: leave the files fetched on demand out (the dataset's data and the card's media:
     :func:`hub_envs.repo_format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
-    :func:`fetch_files`), and the Hub's ``.gitattributes``. ``first``: return once the files it accepts are on disk; the others keep
+    :func:`fetch_files`), and what the manifest does not cover (:func:`hub_envs.repo_format.beyond_manifest`: the
+    Hub's ``.gitattributes``, merged attestations). ``first``: return once the files it accepts are on disk; the others keep
     downloading in the background (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
     """
     if (
@@ -334,8 +433,8 @@ def resolve_snapshot(
         sha = info.sha
         _check_resolved(repo_id, revision, sha)
         names = [s.rfilename for s in info.siblings or []]
-        if lazy:  # nor the Hub's .gitattributes, which nothing of an env reads
-            names = [n for n in names if not is_on_demand_file(n) and n not in HUB_FILES]
+        if lazy:  # nor .gitattributes and reproductions/ (beyond the manifest), which nothing of an env reads
+            names = [n for n in names if not is_on_demand_file(n) and (n == MANIFEST_FILE or not beyond_manifest(n))]
         path, pending, pool = _fetch(
             repo_id, sha, names, token=token, cache_dir=cache_dir, force_download=force_download, first=first
         )
@@ -586,8 +685,9 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
     """A cache snapshot holds exactly the manifest's files, each a link into its repo's ``blobs/``.
 
     huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving
-    anywhere else, or a file the manifest does not list (``.gitattributes`` and the manifest excepted),
-    was not put there by a download of this commit: the snapshot is refused.
+    anywhere else, or a file the manifest does not list (but those the Hub workflow adds after publication:
+    :func:`hub_envs.repo_format.beyond_manifest`), was not put there by a download of this commit: the snapshot
+    is refused.
     """
     blobs = path.parent.parent / "blobs"
     bad = []
@@ -600,7 +700,7 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
                 if blobs.resolve() not in target.parents:
                     bad.append(f"{rel} -> {target} (a link outside the cache's blobs/)")
                     continue
-            if name in filenames and rel not in listed and rel not in (MANIFEST_FILE, ".gitattributes"):
+            if name in filenames and rel not in listed and not beyond_manifest(rel):
                 bad.append(f"{rel} (not in the manifest)")
     if bad:
         raise IntegrityError(
@@ -745,6 +845,18 @@ def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | No
                     f"Tag {name!r} of {repo_id} already names commit {current}, not {sha}. Choose another --tag, "
                     f"or delete the old one with HfApi().delete_tag({repo_id!r}, tag={name!r})."
                 ) from e
+
+
+def move_tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None) -> None:
+    """Point the existing tag ``name`` at ``sha`` (the Hub has no tag update: delete it, then create it again)."""
+    client = api(token)
+    with translate_hub_errors(repo_id, sha):
+        try:
+            client.delete_tag(repo_id, tag=name, repo_type=REPO_TYPE)
+        except HfHubHTTPError as e:
+            if getattr(e.response, "status_code", None) != 404:  # already gone: create it
+                raise
+    tag(repo_id, sha, name, message=message, token=token)
 
 
 def tag_target(repo_id: str, name: str, *, token: str | None = None) -> str | None:

@@ -59,12 +59,12 @@ from hub_envs.repo_format import (
     ENV_ENTRY_FILE,
     FORMAT_VERSION,
     GIF_FILE,
-    HUB_FILES,
     MANIFEST_FILE,
     MEDIA_DIR,
     MP4_FILE,
     EnvFolder,
     Manifest,
+    beyond_manifest,
     check_publishable,
     content_digest,
     content_tag,
@@ -197,16 +197,12 @@ def _code_files(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
     return dict(sorted(files.items()))
 
 
-def _attestation_file(path: str) -> bool:
-    """A reproduction attestation (``reproductions/``): merged through pull requests, kept by every push."""
-    return path.startswith("reproductions/")
-
-
 def _merged_attestations(repo_id: str, token: str | None) -> list:
-    """The valid attestations on main (:func:`hub_envs.attestation.merged_attestations`); invalid ones are skipped."""
+    """The valid attestations on main (:func:`hub_envs.attestation.merged_attestations`: entries naming the author
+    of the pull request each came from); invalid ones are skipped."""
     from hub_envs.attestation import merged_attestations
 
-    return [e.attestation for e in merged_attestations(repo_id, token=token) if e.attestation is not None]
+    return [e for e in merged_attestations(repo_id, token=token) if e.attestation is not None]
 
 
 def _card_shows(repo_id: str, sha: str, table: str, token: str | None) -> bool:
@@ -290,10 +286,10 @@ def _published_unchanged(
     )
     if not same:
         return None
-    remote_files = {p for p in hub_io.list_remote_files(repo_id, head, token=token) if not _attestation_file(p)} - set(HUB_FILES)
-    if remote_files != set(remote.files) | {MANIFEST_FILE}:
+    remote_files = {p for p in hub_io.list_remote_files(repo_id, head, token=token) if not beyond_manifest(p)}
+    if remote_files != set(remote.files):
         return None
-    table = reproduced_table([a for a in attestations if a.content_digest == remote.content_digest])
+    table = reproduced_table([e for e in attestations if e.attestation.content_digest == remote.content_digest])
     return head, remote, _card_shows(repo_id, head, table, token)
 
 
@@ -564,13 +560,23 @@ def build_repo(
     return manifest
 
 
-def _tag(repo_id: str, sha: str, manifest: Manifest, tag: str | None, *, token: str | None) -> list[str]:
-    """Put the content tag (unless an earlier commit with the same content holds it) and ``tag`` on ``sha``."""
+def _tag(
+    repo_id: str, sha: str, manifest: Manifest, tag: str | None, *, token: str | None, card_refresh: bool = False
+) -> list[str]:
+    """Put the content tag (unless an earlier commit with the same content holds it) and ``tag`` on ``sha``.
+
+    ``card_refresh``: ``sha`` is a card-only commit on top of the one holding the content tag (:func:`_refresh_card`):
+    the tag moves to it. Both commits hold the same content (the tag's promise), and the card names the tag for its
+    load line (a commit cannot name its own sha), so the tag must follow the card that shows the reproductions.
+    """
     tags = [content_tag(manifest.content_digest)] + ([tag] if tag else [])
+    message = f"hub-envs content {manifest.content_digest}"
     for name in tags:
         if name == tags[0] and hub_io.tag_target(repo_id, name, token=token) not in (None, sha):
-            continue  # an earlier commit holds the same content and keeps its content tag
-        hub_io.tag(repo_id, sha, name, message=f"hub-envs content {manifest.content_digest}", token=token)
+            if card_refresh:
+                hub_io.move_tag(repo_id, sha, name, message=message, token=token)
+            continue  # otherwise an earlier commit holds the same content and keeps its content tag
+        hub_io.tag(repo_id, sha, name, message=message, token=token)
     return tags
 
 
@@ -616,6 +622,10 @@ def push_env(
     dataset and the content tag are identical to the local backend's. ``out``: a folder where a Ray run keeps
     its finished shards (the same push started again skips them). Nothing is committed until every
     episode is written: an interrupted push leaves no commit and no partial dataset.
+
+    Before anything is built, the Hub is asked who the caller is (:func:`hub_envs.hub_io.check_write_access`): no
+    token where one is needed, a refused or read-only token, or an account that cannot write ``repo_id``'s
+    namespace raises :class:`~hub_envs.errors.HubAccessError` at once.
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -630,6 +640,7 @@ def push_env(
     check_publishable(env_dir)  # before anything runs: a symlink out of the folder would publish its target
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    hub_io.check_write_access(repo_id, token=token)  # before anything is built: no token, or one that cannot write here
     loaded = load_env(env_dir.resolve(), check=False, config=config)
     try:
         attestations = _merged_attestations(repo_id, token)
@@ -656,7 +667,7 @@ def push_env(
             if not card_current:
                 say("Reproductions were merged since its card was rendered: committing the card again, nothing else")
                 sha, manifest = _refresh_card(loaded, repo_id, sha, manifest, attestations, token=token)
-            tags = _tag(repo_id, sha, manifest, tag, token=token)
+            tags = _tag(repo_id, sha, manifest, tag, token=token, card_refresh=not card_current)
             timings["total"] = time.perf_counter() - t0
             return PushResult(
                 repo_id=repo_id,
@@ -688,9 +699,9 @@ def push_env(
             _stage_printer(progress)(f"Publishing to {repo_id} at {hub_io.endpoint()}")
             head = hub_io.remote_head(repo_id, token=token)
             remote_manifest = _remote_manifest(repo_id, head, token) if head is not None else None
-            # the attestations merged on main stay: they are not the env's files, and the push neither lists nor deletes them
-            remote_files = [p for p in hub_io.list_remote_files(repo_id, head, token=token) if not _attestation_file(p)]
-            same_files = set(remote_files) - {".gitattributes"} == set(manifest.files) | {MANIFEST_FILE}
+            # what the Hub workflow added (merged attestations: beyond_manifest) stays: the push neither lists nor deletes it
+            remote_files = [p for p in hub_io.list_remote_files(repo_id, head, token=token) if not beyond_manifest(p)]
+            same_files = set(remote_files) == set(manifest.files)
             if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files:
                 sha, created = head, False
             else:

@@ -355,7 +355,7 @@ class ReproduceArgs(EnvFlags):
     benchmarks: bool = True
     resamples: int = 1000
     json: bool = False  # also print the JSON report to stdout
-    attest: bool = False  # publish the outcome as reproductions/<date>-<stack>.json through a pull request on the repo
+    attest: bool = False  # publish the outcome as reproductions/<date>-<sha12>-<stack>.json through a pull request on the repo
     sign_key: Path | None = None  # with --attest: sign it with this OpenSSH private key (ssh-keygen -Y sign)
 
 
@@ -385,6 +385,10 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         raise ConfigError("--sign_key signs an attestation: add --attest=true (or drop --sign_key).")
     if args.sign_key is not None and not Path(args.sign_key).expanduser().is_file():
         raise ConfigError(f"--sign_key={args.sign_key}: no such file; pass an OpenSSH private key. Nothing was run.")
+    if args.attest:  # the pull request comes last: a Hub that will refuse it says so before anything runs
+        from hub_envs import hub_io
+
+        hub_io.check_write_access(hub_io.parse_repo_ref(args.repo_id)[0], pull_request=True)
     report = call_with_flags(reproduce, args, args.repo_id, workers=args.workers or None)
     if args.json:
         print(report.to_json(), end="")

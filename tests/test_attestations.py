@@ -14,13 +14,14 @@ from pathlib import Path
 
 import pytest
 from conftest import Hub, _start_hub
-from helpers import TINY
-from huggingface_hub import CommitOperationAdd, HfApi, hf_hub_download
+from helpers import TINY, copy_env
+from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, hf_hub_download
 from huggingface_hub.errors import HfHubHTTPError
 
-from hub_envs import errors, push_env, reproduce
+from hub_envs import diff, errors, load_env, push_env, reproduce
 from hub_envs.attestation import Attestation, attest, collect_attestations, stack_digest
 from hub_envs.cli import main as cli_main
+from hub_envs.testing import hub_environment
 
 BOB_TOKEN = "hf_bob_attest_token"
 REPO = "alice/att-tiny"
@@ -73,7 +74,7 @@ def test_reproduce_attest_opens_a_pull_request_listed_then_merged_into_the_card(
     assert pr.is_pull_request and pr.status == "open" and pr.author == "local"
     path, data = _pr_file(api, 1)
     att = Attestation.from_json(data)  # validates
-    assert path == att.path == f"reproductions/{att.created_at[:10]}-{att.stack_digest}.json"
+    assert path == att.path == f"reproductions/{att.created_at[:10]}-{pushed.sha[:12]}-{att.stack_digest}.json"
     assert (att.repo_id, att.sha, att.verdict, att.reproduced) == (REPO, pushed.sha, "REPRODUCED", True)
     assert att.content_digest == pushed.manifest.content_digest
     assert att.dataset_fingerprint == pushed.manifest.dataset["fingerprint"]
@@ -90,14 +91,15 @@ def test_reproduce_attest_opens_a_pull_request_listed_then_merged_into_the_card(
     # listed while open
     assert cli_main(["attestations", f"--repo_id={REPO}"]) == 0
     listing = capsys.readouterr().out
-    assert f"{pushed.sha[:12]}" in listing and "✓ (PR #1)" in listing and att.stack_digest in listing
-    assert "signed" not in listing.replace("unsigned", "")
+    assert f"{pushed.sha[:12]}" in listing and "✓ unsigned (PR #1)" in listing and att.stack_digest in listing
+    (file_line,) = [line for line in listing.splitlines() if line.strip().startswith(path)]
+    assert file_line.endswith("; unsigned") and "by local," in file_line
 
     # merged by the owner; a re-push of the same content renders the card table and keeps the file
     api.merge_pull_request(REPO, 1)
     assert cli_main(["attestations", f"--repo_id={REPO}"]) == 0
     listing = capsys.readouterr().out
-    assert "[merged]" in listing and "(PR #1)" not in listing
+    assert "[merged]" in listing and "(PR #1)" not in listing and "by local (merged PR #1)" in listing
     again = push_env(TINY, REPO, episodes=2, progress=False)
     assert again.created_commit and again.manifest.content_digest == pushed.manifest.content_digest
     card = Path(hf_hub_download(REPO, "README.md", revision=again.sha, endpoint=hub_two_users.endpoint)).read_text()
@@ -181,3 +183,78 @@ def test_invalid_attestations_are_refused_with_the_field_named(bob_report, tmp_p
     # --sign_key without --attest, or a missing key: refused before anything runs
     assert cli_main(["reproduce", f"--repo_id={REPO}", f"--sign_key={tmp_path / 'k'}"]) == 1
     assert cli_main(["reproduce", f"--repo_id={REPO}", "--attest=true", f"--sign_key={tmp_path / 'nope'}"]) == 1
+
+
+def test_a_merged_attestation_leaves_main_and_every_later_commit_loadable(hub_two_users, tmp_path):
+    """Issue 29 item 1: once the owner merges an attestation, the merge commit, the card-only re-push and a later code
+    change all load, reproduce and diff in a fresh HF_HOME; the content tag follows the card that shows the
+    reproduction; the re-pushes keep the merged files; a later commit is attested in a file of its own."""
+    repo, api = "alice/att-later", hub_two_users.api
+
+    def fresh(name: str):  # another machine: an empty HF_HOME (and hub-envs home) pointed at the same Hub
+        return hub_environment(hub_two_users.endpoint, tmp_path / name)
+
+    def bob_attests(sha: str, name: str):
+        with fresh(name):
+            report = reproduce(f"{repo}@{sha}", trust_remote_code=True, workers=1, out=tmp_path / name, progress=False)
+            assert report.reproduced, report.summary()
+            return attest(report, command=["hub-envs", "reproduce", f"--repo_id={repo}@{sha}"], token=BOB_TOKEN)
+
+    first = push_env(TINY, repo, episodes=2, progress=False)
+    one = bob_attests(first.sha, "bob-1")
+    api.merge_pull_request(repo, one.pr_num)
+    merged = api.repo_info(repo).sha
+    assert merged != first.sha and one.path in api.list_repo_files(repo, revision=merged)
+    with fresh("merge-commit"):
+        loaded = load_env(f"{repo}@{merged}", trust_remote_code=True)
+        assert loaded.revision == merged
+        loaded.unregister()
+
+    # the card-only re-push: the content tag moves onto it, so the card's own pinned line loads the card with the table
+    card_commit = push_env(TINY, repo, episodes=2, progress=False)
+    assert card_commit.created_commit and "build" not in card_commit.timings
+    assert {t.name: t.target_commit for t in api.list_repo_refs(repo).tags} == {first.content_tag: card_commit.sha}
+    assert one.path in api.list_repo_files(repo, revision=card_commit.sha)  # kept, not deleted
+    with fresh("card-line"):
+        loaded = load_env(f"{repo}@{first.content_tag}", trust_remote_code=True)  # what the card's "Load it" pins
+        assert loaded.revision == card_commit.sha
+        loaded.unregister()
+        card = Path(hf_hub_download(repo, "README.md", revision=first.content_tag)).read_text()
+        assert "## Reproduced on" in card and f"`{first.sha[:12]}`" in card
+
+    # a later code change keeps the merged files and loads, diffs and reproduces; bob attests it in a new file
+    changed = copy_env(tmp_path, edits={"tiny.py": lambda text: text + "\n# a comment: new content, same behaviour\n"})
+    later = push_env(changed, repo, episodes=2, progress=False)
+    assert later.manifest.content_digest != first.manifest.content_digest
+    assert one.path in api.list_repo_files(repo, revision=later.sha)
+    with fresh("diff"):
+        assert diff(
+            f"{repo}@{merged}", f"{repo}@{later.sha}", trust_remote_code=True, write=False, random_episodes=0
+        ).behaviour_identical
+    two = bob_attests(later.sha, "bob-2")
+    assert two.path != one.path
+    in_pr = api.list_repo_files(repo, revision=f"refs/pr/{two.pr_num}")
+    assert one.path in in_pr and two.path in in_pr
+    api.merge_pull_request(repo, two.pr_num)
+    with fresh("after-second-merge"):
+        load_env(repo, trust_remote_code=True).unregister()  # main, with both attestations
+
+
+def test_files_beyond_the_manifest_are_still_refused_unless_they_are_attestations(hub_two_users, tmp_path):
+    """The one rule (repo_format.beyond_manifest) accepts reproductions/<name>.json and .json.sig only: code or any other
+    file a merged pull request adds is still refused by a load."""
+    from hub_envs.repo_format import beyond_manifest  # new: imported here so the module still imports on older main
+
+    repo, api = "alice/att-strict", hub_two_users.api
+    push_env(TINY, repo, episodes=2, progress=False)
+    bob = HfApi(endpoint=hub_two_users.endpoint, token=BOB_TOKEN)
+    for i, name in enumerate(("reproductions/helper.py", "reproductions/notes.txt", "reproductions/a/b.json", "notes.json")):
+        assert not beyond_manifest(name)
+        pr = bob.create_commit(
+            repo, [CommitOperationAdd(path_in_repo=name, path_or_fileobj=b"{}\n")], commit_message="add", create_pr=True
+        )
+        api.merge_pull_request(repo, pr.pr_num)
+        sha = api.repo_info(repo).sha
+        with hub_environment(hub_two_users.endpoint, tmp_path / f"h{i}"), pytest.raises(errors.IntegrityError, match=name):
+            load_env(f"{repo}@{sha}", trust_remote_code=True)
+        api.create_commit(repo, [CommitOperationDelete(path_in_repo=name)], commit_message="remove")

@@ -622,6 +622,9 @@ class HubApp:
                     "type": "access_token",
                     "accessToken": {"displayName": "hub-envs", "role": "write", "createdAt": format_date_now()},
                 },
+                # hub-envs' own field (the Hub has none): this server's own account manages every repo (_can_manage),
+                # so a client must not apply the Hub's rule (own namespace or an organization's) to it
+                "managesEveryRepo": ctx.user == self.user,
             }
         )
 
