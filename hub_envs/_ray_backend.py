@@ -5,8 +5,9 @@ How a run goes (:meth:`RayBackend.episodes`):
 1. connect: ``ray_address`` (or ``$RAY_ADDRESS``) is probed first, so an unreachable cluster is one
    :class:`~hub_envs.errors.ClusterUnreachableError` naming it, and a cluster that uses Ray's token
    authentication without this process having its token one :class:`~hub_envs.errors.ClusterAuthError` saying what
-   to set (:func:`_check_auth`); with neither, a local Ray is started for the run (dashboard off) and stopped after
-   it. ``import ray`` happens here, and only here.
+   to set (:func:`_check_auth`; both also when the backend is made, :meth:`RayBackend.preflight`, so a command
+   fails before any work); with neither, a local Ray is started for the run (dashboard off) and stopped after
+   it. ``import ray`` happens here (and in that preflight), nowhere else.
 2. shards run as Ray tasks (one CPU each; Ray retries a task whose worker process died). A worker gets
    the env the way a user does: ``load_env("user/name@<sha>")`` in the worker (the Hub distributes the
    code, integrity is verified there), or, for ``push_env`` of a local folder, the folder's files shipped
@@ -142,7 +143,7 @@ def _check_auth(address: str) -> None:
     """
     if "://" in address or address in ("auto", "local"):
         return  # Ray Client (ray://) authenticates in its own protocol; auto: Ray's own discovery and rules
-    try:  # Ray's token authentication (Ray >= 2.52); an older Ray has none to check
+    try:  # Ray's token authentication (in Ray 2.60); a Ray without it has nothing to check
         from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
         from ray.exceptions import AuthenticationError, RpcError
     except ImportError:
@@ -168,8 +169,8 @@ def _check_auth(address: str) -> None:
         raise ClusterAuthError(
             f"The Ray cluster at {address} uses token authentication and this process sent no token ({said}). Ray sends "
             f"its token to an address you name only with RAY_AUTH_MODE=token: set it for this command, with the "
-            f"cluster's token{found}; on the head node, `ray get-auth-token` prints it. See docs/scaling.md, "
-            f"'Token authentication'."
+            f"cluster's token{found}; on the head node, `ray get-auth-token` prints it. See docs/scaling.md "
+            f"('Running on a Ray cluster', steps 3 and 4)."
         ) from None
     except RpcError as exc:
         raise ClusterUnreachableError(
