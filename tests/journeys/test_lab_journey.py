@@ -33,8 +33,17 @@ from hub_envs import push_env, reproduce
 from hub_envs.testing import HubServer, hub_environment
 
 RAY = shutil.which("ray", path=str(Path(sys.executable).parent))  # this venv's `ray` command
+
+
+def _ray_installed() -> bool:
+    try:
+        return importlib.util.find_spec("ray") is not None and RAY is not None
+    except (ImportError, ValueError):  # (a blocked import: sys.modules["ray"] = None)
+        return False
+
+
 pytestmark = pytest.mark.skipif(
-    importlib.util.find_spec("ray") is None or RAY is None,
+    not _ray_installed(),
     reason="ray is not installed in this Python (pip install 'hub-envs[ray]'): the lab journey starts real `ray start` nodes",
 )
 HUB_TOKEN = "hf_lab_journey_token"
@@ -101,22 +110,25 @@ class RayNodes:
         raise AssertionError(f"no raylet runs for the {node} node")
 
     def stop(self) -> None:
-        """SIGKILL to both process groups (the daemons and the workers they started), then to any process still using
-        the cluster's folders; the folders are removed. Not SIGTERM: Ray's GCS and raylet take over 10 s to drain
-        on it, and this cluster is thrown away."""
-        for group in self.groups:
-            try:
-                os.killpg(group, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        deadline = time.monotonic() + 10  # a hang guard: killed processes are gone once their parents reaped them
-        while time.monotonic() < deadline and any(_group_alive(g) for g in self.groups):
-            time.sleep(0.05)
-        for pid in _pids_using(self.root):
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        """SIGKILL to both process groups (the daemons and the workers they started) and to every process using the
+        cluster's folders or descending from one (found first: a killed daemon's children lose their parent); the
+        folders are removed. Not SIGTERM: Ray's GCS and raylet take over 10 s to drain on it, and this cluster is
+        thrown away."""
+        for _ in range(2):  # twice: a process could have been starting while the first round ran
+            stragglers = _pids_using(self.root)
+            for group in self.groups:
+                try:
+                    os.killpg(group, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            for pid in stragglers:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + 10  # a hang guard: killed processes are gone once they are reaped
+            while time.monotonic() < deadline and any(_group_alive(g) for g in self.groups):
+                time.sleep(0.05)
         shutil.rmtree(self.root, ignore_errors=True)
         atexit.unregister(self.stop)
 
