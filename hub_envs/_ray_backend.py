@@ -3,9 +3,11 @@
 How a run goes (:meth:`RayBackend.episodes`):
 
 1. connect: ``ray_address`` (or ``$RAY_ADDRESS``) is probed first, so an unreachable cluster is one
-   :class:`~hub_envs.errors.ClusterUnreachableError` naming it; with neither, a local Ray is started for
-   the run (dashboard off, its workers at normal priority rather than Ray's default nice 15) and stopped
-   after it. ``import ray`` happens here, and only here.
+   :class:`~hub_envs.errors.ClusterUnreachableError` naming it, and a cluster that uses Ray's token
+   authentication without this process having its token one :class:`~hub_envs.errors.ClusterAuthError` saying what
+   to set (:func:`_check_auth`; both also when the backend is made, :meth:`RayBackend.preflight`, so a command
+   fails before any work); with neither, a local Ray is started for the run (dashboard off) and stopped after
+   it. ``import ray`` happens here (and in that preflight), nowhere else.
 2. shards run as Ray tasks (one CPU each; Ray retries a task whose worker process died). A worker gets
    the env the way a user does: ``load_env("user/name@<sha>")`` in the worker (the Hub distributes the
    code, integrity is verified there), or, for ``push_env`` of a local folder, the folder's files shipped
@@ -13,7 +15,12 @@ How a run goes (:meth:`RayBackend.episodes`):
    the run's env (and policy) in a small cache: they are built once per worker, not per shard or episode.
    The worker loads it with the driver's isolation settings (:class:`~hub_envs.backends.EnvSource`): with
    ``isolation="process"`` (or ``"venv"``, ``sandbox=True``) the env's code runs in a worker process of the Ray
-   worker, never in the Ray worker itself.
+   worker, never in the Ray worker itself. The worker's load is bound to the content the driver's consent covers
+   (the manifest's content digest; a policy checkpoint's too): other files under the same commit are refused there.
+   A cluster started by someone else knows nothing of the driver's Hub: the run's tasks carry the driver's Hub
+   client settings (:func:`worker_env`, as Ray ``runtime_env`` environment variables) and the token travels with
+   the env's source in the object store (:meth:`RayBackend.worker_token`); folders (``HF_HOME``, ``HUB_ENVS_HOME``)
+   stay each node's own.
 3. episodes are cut into shards of consecutive indices (their seeds and, for a replay, their recorded
    actions go with them); shard ``k`` goes to actor ``k mod workers``; at most ``2 x workers`` shards are
    in flight, and the driver consumes them **in shard order**, so what it writes (a dataset, a report)
@@ -28,6 +35,7 @@ How a run goes (:meth:`RayBackend.episodes`):
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -45,10 +53,23 @@ from typing import Any
 import numpy as np
 
 from hub_envs.backends import Backend, EnvSource
-from hub_envs.errors import ClusterUnreachableError, ConfigError, EnvCodeError, HubEnvsError, MissingRequirementsError
+from hub_envs.errors import (
+    ClusterAuthError,
+    ClusterUnreachableError,
+    ConfigError,
+    EnvCodeError,
+    HubEnvsError,
+    MissingRequirementsError,
+)
 from hub_envs.harness.rollout import EpisodeRollout, _check_seeds, _progress, _Runner
 
 PIP_LINE = "pip install 'hub-envs[ray]'"
+#: Hub client settings a Ray worker gets from the driver (besides ``HF_ENDPOINT``, always sent), when set here: how
+#: to reach the Hub. Folders (``HF_HOME``, ``HF_HUB_CACHE``, ``HUB_ENVS_HOME``...) are not sent: the driver's paths
+#: need not exist on a node (or may be someone else's there), so each node keeps its own cache and hub-envs state.
+HUB_SETTINGS = ("HF_HUB_DISABLE_TELEMETRY", "HF_HUB_DISABLE_XET", "HF_HUB_ETAG_TIMEOUT", "HF_HUB_DOWNLOAD_TIMEOUT")
+#: ``0``: do not send the driver's Hub token to the workers (they use their node's own, e.g. ``HF_TOKEN`` set there)
+SEND_TOKEN_VAR = "HUB_ENVS_RAY_SEND_TOKEN"
 #: retries of a shard whose worker process died
 MAX_RESTARTS = 3
 MAX_SHARD_SIZE = 32
@@ -85,6 +106,13 @@ def import_ray():
     return ray
 
 
+def _send_token_setting() -> bool:
+    value = os.environ.get(SEND_TOKEN_VAR, "1").strip().lower()
+    if value not in ("0", "1", "false", "true", "no", "yes"):
+        raise ConfigError(f"{SEND_TOKEN_VAR}={value!r}: set 1 (send the driver's Hub token to the Ray workers) or 0 (do not).")
+    return value in ("1", "true", "yes")
+
+
 def _probe(address: str, timeout: float = 5.0) -> None:
     """Raise ClusterUnreachableError unless something listens at ``host:port`` (ray:// too)."""
     if address in ("auto", "local"):
@@ -101,6 +129,66 @@ def _probe(address: str, timeout: float = 5.0) -> None:
             f"No Ray cluster answers at {address} ({exc.strerror or exc}). Start one there (ray start --head), "
             "fix --ray_address / RAY_ADDRESS, or leave both unset to start a local Ray for the run."
         ) from None
+
+
+def _check_auth(address: str) -> None:
+    """Fail at once, saying what to set, when the Ray cluster at ``host:port`` uses token authentication and this
+    process cannot authenticate to it.
+
+    ``ray.init`` would retry for about 20 s and then say only "Failed to connect" (the cause, ``InvalidAuthToken``,
+    is in its log lines). Ray sends its token to an address the caller names only when ``RAY_AUTH_MODE=token`` is
+    set (it turns token mode on by itself only for a cluster it finds on this machine, ``address="auto"``);
+    hub-envs keeps that rule rather than sending a token found here to any address: a token is one cluster's
+    credential. One request to the cluster's GCS (its cluster id) answers at once, or is refused for the token.
+    """
+    if "://" in address or address in ("auto", "local"):
+        return  # Ray Client (ray://) authenticates in its own protocol; auto: Ray's own discovery and rules
+    try:  # Ray's token authentication (in Ray 2.60); a Ray without it has nothing to check
+        from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
+        from ray.exceptions import AuthenticationError, RpcError
+    except ImportError:
+        return
+    token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
+    has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
+    where = "RAY_AUTH_TOKEN, a file named by RAY_AUTH_TOKEN_PATH, or ~/.ray/auth_token"
+    if token_mode and not has_token:  # (Ray's client aborts the whole process on a request in this state)
+        raise ClusterAuthError(
+            f"RAY_AUTH_MODE=token is set, but no Ray token was found here ({where}): nothing was sent to {address}. "
+            f"Put the cluster's token in one of them (on the head node, `ray get-auth-token` prints it)."
+        )
+    try:
+        GcsClient(address=address)
+    except AuthenticationError as exc:
+        said = getattr(exc, "message", str(exc))
+        if token_mode:
+            raise ClusterAuthError(
+                f"The Ray cluster at {address} refused this process's Ray token ({said}): the token found here (the first "
+                f"of {where}) is not this cluster's. Use the head node's (`ray get-auth-token` there prints it)."
+            ) from None
+        found = " (one was found here: it is sent once RAY_AUTH_MODE=token is set)" if has_token else f" in {where}"
+        raise ClusterAuthError(
+            f"The Ray cluster at {address} uses token authentication and this process sent no token ({said}). Ray sends "
+            f"its token to an address you name only with RAY_AUTH_MODE=token: set it for this command, with the "
+            f"cluster's token{found}; on the head node, `ray get-auth-token` prints it. See docs/scaling.md "
+            f"('Running on a Ray cluster', steps 3 and 4)."
+        ) from None
+    except RpcError as exc:
+        raise ClusterUnreachableError(
+            f"Nothing at {address} answers as a Ray cluster ({exc}). Pass the address of the head node's GCS "
+            f"(`ray start --head` prints it; port 6379 unless --port was given), not the dashboard's."
+        ) from None
+
+
+def worker_env() -> dict[str, str]:
+    """The environment variables a run's Ray tasks get (Ray ``runtime_env``): the driver's Hub endpoint (as
+    huggingface_hub resolved it here) and the :data:`HUB_SETTINGS` set here. A cluster someone else started (``ray
+    start`` from a shell without them) would otherwise send its workers to huggingface.co. No secret goes here: a task's
+    ``runtime_env`` is part of the cluster's job and task metadata (``ray list tasks --detail``, the dashboard)."""
+    from hub_envs import hub_io
+
+    env = {"HF_ENDPOINT": hub_io.endpoint()}
+    env.update({name: os.environ[name] for name in HUB_SETTINGS if os.environ.get(name)})
+    return env
 
 
 # --- the worker side ------------------------------------------------------------------------------
@@ -254,6 +342,7 @@ class RayBackend(Backend):
         shard_size: int | None = None,
         object_store_memory: int | None = None,
         worker_niceness: int | None = None,
+        send_token: bool | None = None,
     ):
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
             raise ConfigError(f"workers={workers!r}: pass a positive number of Ray actors (0 or None: the cluster's CPUs).")
@@ -267,6 +356,10 @@ class RayBackend(Backend):
         self.object_store_memory = object_store_memory
         #: the niceness of a local Ray's workers (None: Ray's own default, 15; a cluster you start sets its own)
         self.worker_niceness = worker_niceness
+        #: whether the workers get the driver's Hub token (None: ``$HUB_ENVS_RAY_SEND_TOKEN``, default yes)
+        self.send_token = _send_token_setting() if send_token is None else bool(send_token)
+        if self.address:  # commands make their backend first: a cluster that cannot be used fails them before any work
+            self.preflight()
         self._depth = 0
         self._runs: weakref.WeakSet[RayRun] = weakref.WeakSet()  # runs not finished yet: closed on __exit__
         self._started = False
@@ -274,6 +367,26 @@ class RayBackend(Backend):
 
     def __repr__(self) -> str:
         return f"RayBackend(address={self.address!r}, workers={self.workers!r})"
+
+    def preflight(self) -> None:
+        """Raise the typed error now if nothing answers at :attr:`address` (:class:`ClusterUnreachableError`) or the
+        cluster refuses this process (:class:`ClusterAuthError`, saying what to set); nothing is started."""
+        _probe(self.address)
+        _check_auth(self.address)
+
+    def worker_token(self, token: str | None) -> str | None:
+        """The Hub token the workers download with: ``token`` (the load's own), else the one huggingface_hub finds
+        here (``HF_TOKEN``, ``$HF_HOME/token``); None when :attr:`send_token` is off (the workers use their node's).
+
+        It travels inside the env's source through Ray's object store (memory of the nodes that run the job, and
+        their spill folder on disk when the store is full), never in the job's or the tasks' metadata."""
+        if not self.send_token:
+            return None
+        if token:
+            return token
+        from huggingface_hub import get_token
+
+        return get_token()
 
     # -- the connection --
     def __enter__(self) -> RayBackend:
@@ -286,6 +399,7 @@ class RayBackend(Backend):
             t = time.perf_counter()
             os.environ.setdefault("RAY_DEDUP_LOGS", "0")
             if self.address:
+                _check_auth(self.address)  # (again: the cluster may have changed since the backend was made)
                 try:
                     ray.init(address=self.address, log_to_driver=False, logging_level="warning")
                 except ConnectionError as exc:
@@ -358,13 +472,15 @@ class RayBackend(Backend):
             stats["shards"] = len(shards)
             shared, per_episode = _policy_parts(policy, n)
             source = EnvSource.from_loaded(loaded)
+            if source.folder is None:  # a Hub repo, which each worker downloads (private: with a token)
+                source = dataclasses.replace(source, token=self.worker_token(source.token))
             ckpt = self._checkpoints(source, seeds, max_steps, policy, record_states, size)
             done = {k for k in range(len(shards)) if ckpt is not None and (ckpt / f"shard-{k:06d}.pkl").is_file()}
             todo = deque(k for k in range(len(shards)) if k not in done)
             bar = _progress(n, desc, progress)
             status = _Status(ray, bar, workers, resumed=len(done)) if progress else None
             pending: dict[int, Any] = {}
-            task = ray.remote(num_cpus=1, max_retries=MAX_RESTARTS)(run_shard)
+            task = ray.remote(num_cpus=1, max_retries=MAX_RESTARTS, runtime_env={"env_vars": worker_env()})(run_shard)
             source_ref = ray.put(source)
             policy_ref = ray.put(shared)
             # a worker's cached env is per (content, isolation, policy): an isolated and an in-process run of one

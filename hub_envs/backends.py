@@ -59,6 +59,9 @@ class EnvSource:
     config fields (a local folder); ``identity`` names the exact content (for checkpoints). ``isolation`` is the
     :func:`~hub_envs.load_env` isolation keywords the env was loaded with (empty: in-process): a worker loads it
     the same way, so with ``isolation="process"`` the env's code runs in a worker process of the Ray worker.
+    ``content_digest`` is the manifest's content digest the driver's consent covers: a worker's load refuses a
+    commit that holds anything else (its path to the Hub may differ from the driver's). ``token`` is the Hub
+    token the worker downloads with (None: the worker node's own, if it has one).
     """
 
     ref: str
@@ -66,12 +69,14 @@ class EnvSource:
     folder: bytes | None = None
     config: dict[str, Any] = field(default_factory=dict)
     trust_remote_code: bool = False
-    token: str | None = None
+    token: str | None = field(default=None, repr=False)
     isolation: dict[str, Any] = field(default_factory=dict)
+    content_digest: str | None = None
 
     @classmethod
     def from_loaded(cls, loaded: Any) -> EnvSource:
-        """The source of an env this process loaded (consent given here carries over to the workers)."""
+        """The source of an env this process loaded (consent given here carries over to the workers, bound to the
+        content it was given for)."""
         isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
         if loaded.local_folder is not None:
             from hub_envs.envconfig import encode_config
@@ -86,7 +91,15 @@ class EnvSource:
                 isolation=isolation,
             )
         ref = f"{loaded.repo_id}@{loaded.revision}"
-        return cls(ref=ref, identity=ref, trust_remote_code=True, token=getattr(loaded, "_token", None), isolation=isolation)
+        digest = loaded.manifest.content_digest
+        return cls(
+            ref=ref,
+            identity=f"{ref}#{digest}",  # a commit id alone is what the endpoint says it is: the content is named too
+            trust_remote_code=True,
+            token=getattr(loaded, "_token", None),
+            isolation=isolation,
+            content_digest=digest,
+        )
 
     def load(self, scratch: Path | None = None) -> Any:
         """``load_env`` in this (worker) process, with the driver's isolation; checks already ran where the run
@@ -100,6 +113,7 @@ class EnvSource:
                 check=False,
                 fingerprint="off",
                 token=self.token,
+                content_digest=self.content_digest,  # the driver's consent covers this content only
                 **self.isolation,
             )
         root = Path(scratch) if scratch is not None else Path(tempfile.mkdtemp(prefix="hub-envs-worker-"))

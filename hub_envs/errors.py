@@ -122,6 +122,11 @@ class ClusterUnreachableError(HubEnvsError, ConnectionError):
     """``--backend=ray``: nothing answers at the Ray address (``--ray_address`` or ``RAY_ADDRESS``); the message names it."""
 
 
+class ClusterAuthError(ClusterUnreachableError):
+    """``--backend=ray``: the Ray cluster uses token authentication and refused this process (Ray's ``InvalidAuthToken``);
+    the message says what to set (``RAY_AUTH_MODE=token`` and where the cluster's token goes)."""
+
+
 class ProcessorError(InvalidRepoFormatError):
     """An env processor declared in the manifest is malformed or cannot be built."""
 

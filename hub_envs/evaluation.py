@@ -89,12 +89,12 @@ def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust
     if callable(policy):
         return policy, getattr(policy, "__qualname__", type(policy).__name__)
     if isinstance(policy, str):
-        from hub_envs.harness.benchmark import _policy_for
+        from hub_envs.harness.benchmark import _policy_for, remote_policy_spec
 
         spec = {"type": "lerobot", "checkpoint": policy}
         built = _policy_for(spec, loaded, token, trust_policy_code)  # consent and loading errors surface here
         # on a local backend the built policy runs here; a remote worker builds its own from the spec, once
-        return (built if backend.name == "local" else spec), policy
+        return (built if backend.name == "local" else remote_policy_spec(spec, built)), policy
     raise ConfigError(
         f"policy={policy!r}: pass None or 'random', a LeRobot checkpoint 'user/policy@<sha>', or a callable (obs, t) -> action."
     )

@@ -457,6 +457,19 @@ def _check_content_tag(requested: str | None, manifest: Manifest, where: str) ->
         )
 
 
+def _check_content_digest(expected: str | None, manifest: Manifest, where: str) -> None:
+    """``content_digest=`` binds a load to the content consent was given for (a Ray worker gets the driver's): a
+    commit that holds other content is refused before anything of it is imported."""
+    if expected is None or manifest.content_digest == expected:
+        return
+    raise UntrustedCodeError(
+        f"{where} holds content {manifest.content_digest[:16]}…, not the content {expected[:16]}… this load was bound to "
+        f"(content_digest=, the digest consent was given for); nothing was imported. The endpoint {hub_io.endpoint()}, or "
+        f"the network path to it, serves other files under this commit id than the ones that were consented to. Do not "
+        f"run it: compare the endpoint with the one the consent was given through (HF_ENDPOINT), or use TLS."
+    )
+
+
 def _needed_first(path: str) -> bool:
     """The files the stages before ``load_env``'s checks read: the manifest, the code and its assets (what
     :func:`~hub_envs.code_copy.code_copy` copies) and the dataset's ``meta/info.json`` (the feature check). The
@@ -616,6 +629,7 @@ def _resolve_source(
     report: LoadReport,
     timings: dict[str, float],
     t0: float,
+    content_digest: str | None = None,
 ) -> _Source:
     """Resolve (a local folder, or a Hub repo@revision to a commit), verify (every file against the manifest)
     and pass the trust gate; nothing of the repo is imported. Fills ``report``'s integrity and trust lines."""
@@ -650,6 +664,7 @@ def _resolve_source(
             manifest = dataclasses.replace(manifest, config_overrides=dict(config))
         local_folder = path
         requested = None
+        _check_content_digest(content_digest, manifest, str(path))
         if folder is None:
             manifest.verify_files(path, where=str(path))
             report.integrity = f"{len(manifest.files)} files match the manifest"
@@ -666,6 +681,7 @@ def _resolve_source(
         sha, path = snap.sha, snap.path
         try:
             _check_content_tag(requested, manifest, f"{repo}@{sha}")
+            _check_content_digest(content_digest, manifest, f"{repo}@{sha}")
             if not snap.pinned and not _CONTENT_TAG.fullmatch(requested or ""):
                 warnings.warn(
                     f"{repo}: revision {requested or 'main'!r} resolved to {sha}. Pin it for reproducible results: "
@@ -700,6 +716,7 @@ def load_env(
     restart: bool = False,
     envs_per_worker: int = 0,
     sandbox_limits: dict[str, int] | None = None,
+    content_digest: str | None = None,
 ) -> LoadedEnv:
     """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
 
@@ -739,6 +756,9 @@ def load_env(
             together, by a memory cgroup; asked for where none can be made, it is refused; the default then holds
             each process alone), ``open_files`` (256, per process) and ``processes`` (64, threads included, counted
             for the sandbox's uid).
+        content_digest: the manifest content digest (64 hex, ``loaded.manifest.content_digest``) the load must find: a
+            commit holding other content is refused with :class:`~hub_envs.errors.UntrustedCodeError` before anything
+            of it is imported. A Ray worker gets the driver's, so consent given on the driver covers only that content.
 
     Returns:
         A :class:`LoadedEnv`.
@@ -748,6 +768,8 @@ def load_env(
     """
     if fingerprint not in ("error", "warn", "off"):
         raise ConfigError(f"fingerprint={fingerprint!r} is not a policy: pass 'error' (the default), 'warn' or 'off'.")
+    if content_digest is not None and not (isinstance(content_digest, str) and trust_list._DIGEST.fullmatch(content_digest)):
+        raise ConfigError(f"content_digest={content_digest!r}: pass a manifest's content digest (64 lowercase hex digits).")
     iso = _isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -767,6 +789,7 @@ def load_env(
         report=report,
         timings=timings,
         t0=t0,
+        content_digest=content_digest,
     )
     repo, sha, path, manifest = src.repo, src.sha, src.path, src.manifest
     local_folder, requested = src.local_folder, src.requested

@@ -4,9 +4,10 @@ Run by ``tests/test_ray.py`` in a pytest process of its own (``python -m pytest 
 directly), so what Ray leaves in a process stays out of the rest of the suite (see :func:`_release_gcs_clients`).
 
 One cluster for the module (``ray.cluster_utils.Cluster`` on 127.0.0.1: a head and one more node, one CPU
-each, dashboard off, a small object store), started after the module's loopback Hub so its workers reach
-that Hub the way a user's would, and always shut down. Episode counts stay tiny: Ray is slow to start on
-a busy machine.
+each, dashboard off, a small object store), started after the module's loopback Hub, and always shut down.
+The nodes' own ``HF_ENDPOINT`` is :func:`worker_path`, a proxy in front of that Hub (honest unless a test makes
+it lie): the workers' path to the Hub, which need not be the driver's. Episode counts stay tiny: Ray is slow to
+start on a busy machine.
 """
 
 from __future__ import annotations
@@ -21,12 +22,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import ray
-from helpers import TINY, comparable_report, republish
+from helpers import TINY, comparable_report, copy_env, republish
+from lying_endpoint import LyingEndpoint
 from ray.cluster_utils import Cluster
 
 from hub_envs import errors, evaluate, load_env, push_env, reproduce
 from hub_envs._ray_backend import RayBackend
 from hub_envs.backends import LocalBackend, make_backend
+from hub_envs.testing import hub_environment
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"
 NODE = {"num_cpus": 1, "object_store_memory": 80 * 2**20}
@@ -52,14 +55,24 @@ def _start_cluster(attempts: int = 3) -> Cluster:
 
 
 @pytest.fixture(scope="module")
-def cluster(hub_module):
+def worker_path(hub_module):
+    """The nodes' own path to the Hub (their ``HF_ENDPOINT``): a proxy in front of the module's Hub, honest until a
+    test sets its ``rewrite_path`` / ``rewrite_answer`` (and sets them back)."""
+    with LyingEndpoint(hub_module.endpoint) as proxy:
+        yield proxy
+
+
+@pytest.fixture(scope="module")
+def cluster(hub_module, worker_path):
     # Ray replaces 127.0.0.1 by this machine's outward address (services.resolve_ip_for_localhost) unless
     # it is told this host is not part of a multi-machine cluster: then every node and worker stays on loopback.
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # for the cluster's processes
         mp.setattr(ray._private.ray_constants, "ENABLE_RAY_CLUSTER", False)  # for this driver (read at import)
         mp.setenv("RAY_DEDUP_LOGS", "0")
-        c = _start_cluster()
+        with pytest.MonkeyPatch.context() as node:  # the nodes' environment only: this driver keeps its endpoint
+            node.setenv("HF_ENDPOINT", worker_path.endpoint)
+            c = _start_cluster()
         try:
             assert c.address.startswith("127.0.0.1:")
             # one driver connection for the module: every run below reuses it (a run connects by itself otherwise)
@@ -280,6 +293,88 @@ def test_a_resumed_run_skips_the_checkpointed_shards(cluster, tiny, tmp_path):
         assert len(list(other)) == 2 and other.stats["shards_resumed"] == 0
     finally:
         loaded.unregister()
+
+
+# --- consent on the workers ----------------------------------------------------------------------
+
+
+def _serve_instead(repo: str, a: str, b: str, after: int = 0):
+    """``(rewrite_path, rewrite_answer)`` of a path to the Hub that serves commit ``b`` of ``repo`` whenever ``a`` is
+    asked for, and says it is ``a`` (a consistent repo: what a hostile mirror serves), once ``after`` downloads of
+    ``repo@a`` were served honestly (a download starts with one listing of the commit: ``/revision/`` on
+    huggingface_hub 0.x, ``/tree/`` on 1.x)."""
+    seen = {"listings": 0}
+    lying = {"on": after == 0}
+
+    def path(method: str, p: str) -> str:
+        if p.startswith((f"/api/models/{repo}/revision/{a}", f"/api/models/{repo}/tree/{a}")):
+            seen["listings"] += 1
+            lying["on"] = lying["on"] or seen["listings"] > after
+        return p.replace(a, b) if lying["on"] and repo in p else p
+
+    def answer(method, p, status, headers, body):
+        if lying["on"] and repo in p:
+            headers = {k: (v.replace(b, a) if k.lower() == "x-repo-commit" else v) for k, v in headers.items()}
+            if p.startswith("/api/"):
+                body = body.replace(b.encode(), a.encode())
+        return status, headers, body
+
+    return path, answer
+
+
+def _honest(proxy) -> None:
+    proxy.rewrite_path = lambda method, path: path
+    proxy.rewrite_answer = lambda method, path, status, headers, body: (status, headers, body)
+
+
+def test_a_worker_whose_hub_serves_other_content_under_the_consented_commit_runs_nothing(cluster, worker_path, tmp_path):
+    """The driver consented to ``ray/swapped@A`` (its content); a worker's path to the Hub then serves commit B's files
+    (other code, a consistent manifest) under A's id. The worker refuses them with the typed error, naming its node,
+    and B's code never runs there (it would write the marker when imported)."""
+    marker = tmp_path / "pwned"
+    a = push_env(TINY, "ray/swapped", episodes=1, progress=False).sha
+    payload = f"import pathlib\npathlib.Path({str(marker)!r}).write_text('pwned')\n"
+    b = push_env(
+        copy_env(tmp_path, name="swapped", edits={"tiny.py": lambda s: payload + s}), "ray/swapped", episodes=1, progress=False
+    ).sha
+    marker.unlink()  # push_env imported B's code here, on the publisher's side
+    # the driver reaches the Hub through the same proxy (on Ray the workers get the driver's endpoint); A is honest here
+    with hub_environment(worker_path.endpoint, tmp_path / "driver"):
+        loaded = load_env(f"ray/swapped@{a}", trust_remote_code=True, check=False, fingerprint="off")
+        try:
+            worker_path.rewrite_path, worker_path.rewrite_answer = _serve_instead("ray/swapped", a, b)
+            with pytest.raises(
+                errors.UntrustedCodeError, match=r"(?s)on Ray node .*ray/swapped@.* holds content .*not the content"
+            ):
+                list(RayBackend(address=cluster.address, workers=1).episodes(loaded, [0], max_steps=5, progress=False))
+        finally:
+            _honest(worker_path)
+            loaded.unregister()
+    assert worker_path.requests, "the workers did not reach the Hub through their path"
+    assert not marker.exists()  # B's code never ran on the worker
+
+
+def test_a_worker_whose_hub_serves_other_policy_files_refuses_them(cluster, hub_module, worker_path, tmp_path, tiny):
+    """The same for a policy checkpoint the workers build their own copy of: the driver consented to ``ray/policy@A``'s
+    files; a worker served other files under A refuses them before LeRobot loads anything of them."""
+    from test_reproduce import _tiny_lerobot_policy
+
+    api = hub_module.api
+    repo = api.create_repo("ray/policy").repo_id
+    a = api.upload_folder(repo_id=repo, folder_path=str(_tiny_lerobot_policy(tmp_path / "policy"))).oid
+    b = api.upload_file(path_or_fileobj=b"one more file\n", path_in_repo="notes.txt", repo_id=repo).oid  # (a card is not content)
+    good, _ = tiny
+    with hub_environment(worker_path.endpoint, tmp_path / "driver"):
+        # the driver downloads A honestly, every later download of A gets B's files
+        worker_path.rewrite_path, worker_path.rewrite_answer = _serve_instead(repo, a, b, after=1)
+        try:
+            with pytest.raises(errors.UntrustedCodeError, match=r"(?s)on Ray node .*policy ray/policy@.* holds files of content"):
+                evaluate(
+                    f"ray/tiny@{good}", policy=f"{repo}@{a}", episodes=2, trust_remote_code=True, trust_policy_code=True,
+                    backend="ray", ray_address=cluster.address, workers=1, progress=False,
+                )  # fmt: skip
+        finally:
+            _honest(worker_path)
 
 
 # --- errors --------------------------------------------------------------------------------------

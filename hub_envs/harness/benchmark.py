@@ -166,12 +166,20 @@ def _processor_classes(path: str) -> list[str]:
     return out
 
 
-def _check_policy_consent(repo_id: str, revision: str, path: str, trusted: Any, trust_policy_code: bool) -> None:
+def _check_policy_consent(
+    repo_id: str, revision: str, path: str, trusted: Any, trust_policy_code: bool, digest: str, bound_to: str | None = None
+) -> None:
     """A policy checkpoint is a second repo whose loading runs code (LeRobot's processor factory imports the
-    classes its JSON names): the same gate as the env's, with its own consent."""
-    from hub_envs.trust_list import snapshot_digest
-
-    if trust_policy_code or trusted.covers(repo_id, revision, snapshot_digest(Path(path))):
+    classes its JSON names): the same gate as the env's, with its own consent. ``digest``: the downloaded files'
+    (:func:`~hub_envs.trust_list.snapshot_digest`); ``bound_to``: the digest consent was given for elsewhere (a Ray
+    worker gets the driver's), other files are refused whatever ``trust_policy_code`` says."""
+    if bound_to is not None and digest != bound_to:
+        raise UntrustedCodeError(
+            f"policy {repo_id}@{revision} holds files of content {digest[:16]}…, not the content {bound_to[:16]}… its consent "
+            f"was given for; nothing of it was loaded. The endpoint (or the network path to it) serves other files under "
+            f"this commit id than the ones that were consented to: do not run it."
+        )
+    if trust_policy_code or trusted.covers(repo_id, revision, digest):
         return
     classes = _processor_classes(path)
     raise UntrustedCodeError(
@@ -218,15 +226,17 @@ def _checkpoint_policy(
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     except ImportError as exc:  # pragma: no cover - lerobot is a dependency
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
-    from hub_envs.trust_list import read_trust_list
+    from hub_envs.trust_list import read_trust_list, snapshot_digest
 
+    digest = None
     if isinstance(local, str):
         path, repo_id, revision = str(local), str(local), "local"
     else:
         trusted = read_trust_list()  # before the download, as load_env does
         with hub_io.translate_hub_errors(repo_id, revision):
             path = snapshot_download(repo_id, revision=revision, token=token)
-        _check_policy_consent(repo_id, revision, path, trusted, trust_policy_code)
+        digest = snapshot_digest(Path(path))
+        _check_policy_consent(repo_id, revision, path, trusted, trust_policy_code, digest, spec.get("content_digest"))
     torch.set_num_threads(1)  # see act(): identical results in every worker, no OpenMP pool across fork
     try:
         cfg = PreTrainedConfig.from_pretrained(path)
@@ -257,7 +267,15 @@ def _checkpoint_policy(
             action = post(policy.select_action(pre(batch)))
         return action.detach().cpu().numpy()[0]
 
+    act.content_digest = digest  # what a remote worker's copy must hold (remote_policy_spec)
     return act
+
+
+def remote_policy_spec(spec: dict[str, Any], built: Any) -> dict[str, Any]:
+    """The spec a remote (Ray) worker builds its own copy of the policy ``built`` (built here from ``spec``) from: bound
+    to the checkpoint content consent was given for here, so a worker whose Hub serves other files refuses them."""
+    digest = getattr(built, "content_digest", None)
+    return {**spec, "content_digest": digest} if digest is not None else dict(spec)
 
 
 def policy_observation(env_observation: dict, task: str | None = "") -> dict:
@@ -374,7 +392,7 @@ class BenchmarkRun:
             if self.runnable:
                 policy = self.policy
                 if policy is not None and backend.name != "local" and isinstance(self.benchmark.get("policy"), dict):
-                    policy = dict(self.benchmark["policy"])  # a remote worker builds its own from the spec, once
+                    policy = remote_policy_spec(self.benchmark["policy"], policy)  # a remote worker builds its own, once
                 for rollout in backend.episodes(
                     loaded,
                     self.seeds,
