@@ -494,11 +494,13 @@ def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | 
     from huggingface_hub import hf_hub_download
 
     from hub_envs import hub_io
-    from hub_envs.errors import HubError
+    from hub_envs.errors import HostileResponseError, HubError
 
     try:
         with hub_io.translate_hub_errors(repo_id, revision):
             local = hf_hub_download(repo_id, path, revision=revision, repo_type=hub_io.REPO_TYPE, token=token)
+    except HostileResponseError:
+        raise  # the endpoint lies: not a file that went missing
     except HubError:
         return None
     return Path(local).read_bytes()
