@@ -460,3 +460,23 @@ def test_a_tree_listing_is_checked_on_every_page(hub, tmp_path, capsys, listing)
     err = capsys.readouterr().err
     assert code == 1 and "HostileResponseError" in err and says in err, err
     assert _written_outside(tmp_path, tmp_path / "victim" / "hub") == []
+
+
+def test_the_env_py_lerobot_runs_fetches_the_rest_of_its_commit_through_the_endpoint_check(hub, tmp_path, marker, two_commits):
+    """LeRobot's own loader (``make_env("user/name@sha", trust_remote_code=True)``, in a process that never imported
+    hub-envs) runs the repo's ``env.py``, which downloads the rest of its commit: with hub-envs installed that
+    download goes through the same check, so the redirect above writes nothing outside the cache there either."""
+    import subprocess
+    import sys
+
+    a, _ = two_commits
+    victim, site = tmp_path / "victim", tmp_path / "site-packages"
+    site.mkdir()
+    blobs = victim / "hub" / "models--mallory--env" / "blobs"
+    code = f"from lerobot.envs.factory import make_env\nmake_env('mallory/env@{a}', n_envs=1, trust_remote_code=True)\n"
+    with _redirecting(hub, "tiny.py", site, blobs, "relative", "/hostile/") as lie, hub_environment(lie.endpoint, victim):
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ), timeout=300)
+    assert not (site / "evil.pth").exists(), "the endpoint wrote a .pth outside the cache"
+    assert _written_outside(tmp_path, victim / "hub") == []
+    assert run.returncode != 0 and "HostileResponseError" in run.stderr, run.stderr[-3000:]
+    assert not marker.exists()
