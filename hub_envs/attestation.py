@@ -535,6 +535,7 @@ def merged_attestations(repo_id: str, revision: str | None = None, *, token: str
     """The attestations on main (or at ``revision``): those merged by the repo's owner."""
     from hub_envs import hub_io
 
+    hub_io.check_repo_id(repo_id)
     head = revision or hub_io.remote_head(repo_id, token=token)
     if head is None:
         return []
@@ -545,6 +546,7 @@ def collect_attestations(repo_id: str, *, token: str | None = None) -> list[Atte
     """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
     from hub_envs import hub_io
 
+    hub_io.check_repo_id(repo_id)
     merged = merged_attestations(repo_id, token=token)
     on_main = {e.path: e.data for e in merged}
     out = list(merged)

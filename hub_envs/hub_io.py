@@ -40,13 +40,12 @@ from huggingface_hub import (
 from huggingface_hub.errors import (
     EntryNotFoundError,
     HfHubHTTPError,
-    HFValidationError,
     LocalEntryNotFoundError,
     OfflineModeIsEnabled,
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
-from huggingface_hub.utils import build_hf_headers, validate_repo_id
+from huggingface_hub.utils import build_hf_headers
 from huggingface_hub.utils import tqdm as hf_tqdm
 
 from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet, stream_file
@@ -61,7 +60,15 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import DATASET_DIR, HUB_FILES, MANIFEST_FILE, is_commit_sha, is_on_demand_file
+from hub_envs.repo_format import (
+    DATASET_DIR,
+    HUB_FILES,
+    MANIFEST_FILE,
+    REPO_ID_RULE,
+    is_commit_sha,
+    is_on_demand_file,
+    repo_id_problem,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -104,29 +111,92 @@ class Snapshot:
             self._pool.shutdown(wait=True, cancel_futures=True)  # joins its threads
 
 
-_REPO_ID_CHARS = re.compile(r"[\w.-]+(/[\w.-]+)?", re.ASCII)
+def check_repo_id(repo_id: object, *, what: str = "Repo id") -> str:
+    """``repo_id`` if it is a Hub repo id (``user/name``), else a :class:`~hub_envs.errors.ConfigError` naming the
+    value (its ``repr``: a trailing newline shows) and the rule (:func:`hub_envs.repo_format.repo_id_problem`).
+
+    Args:
+        repo_id: the value given.
+        what: how the message names it (``"--repo_id"``, ``"Repo id"``...).
+
+    Returns:
+        ``repo_id``, unchanged.
+
+    Raises:
+        ConfigError: ``repo_id`` is not a repo id.
+    """
+    problem = repo_id_problem(repo_id)
+    if problem is not None:
+        raise ConfigError(f"{what} {repo_id!r} is not valid: {problem}; {REPO_ID_RULE}.")  # repr: escapes shown
+    return repo_id  # type: ignore[return-value]
 
 
-def parse_repo_ref(ref: str) -> tuple[str, str | None]:
+def parse_repo_ref(ref: str, *, what: str = "Repo id") -> tuple[str, str | None]:
     """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``.
 
     Never a path: ``./x``, ``/abs``, ``~/x`` and anything with characters a Hub repo id cannot have
-    (a trailing newline included) are refused.
+    (a trailing newline included) are refused (:func:`check_repo_id`, ``what`` names the value in the message).
     """
     if not isinstance(ref, str) or not ref:
-        raise ConfigError(f"Repo id {ref!r} is not valid: use 'user/name', optionally '@revision'.")
+        raise ConfigError(f"{what} {ref!r} is not valid: use 'user/name', optionally '@revision'.")
     repo_id, _, revision = ref.partition("@")
-    try:
-        validate_repo_id(repo_id)
-    except HFValidationError as e:
-        raise ConfigError(f"Repo id {repo_id!r} is not valid ({e}). Use 'user/name', optionally '@revision'.") from None
-    if not _REPO_ID_CHARS.fullmatch(repo_id):  # huggingface_hub's check ends in `$`, which lets "user/name\n" through
-        raise ConfigError(f"Repo id {repo_id!r} is not valid: only ASCII letters, digits, '-', '_' and '.' around one '/'.")
-    if "/" not in repo_id:
-        raise ConfigError(f"Repo id {repo_id!r} needs a namespace: 'user/{repo_id}'.")
+    check_repo_id(repo_id, what=what)
     if "@" in ref and not revision:
         raise ConfigError(f"{ref!r} ends with '@' but names no revision. Write 'user/name@<sha, tag or branch>'.")
+    if revision and not revision.isprintable():
+        raise ConfigError(f"{what} {ref!r} is not valid: its revision holds characters that are not printable.")
     return repo_id, revision or None
+
+
+#: Text that looks like a path (what ``local_path`` takes for a local folder whether or not it exists).
+_PATH_PREFIXES = ("./", "../", "/", "~", ".\\")
+#: What could name a Hub repo (``parse_repo_ref`` checks it): ``user/name``, optionally ``@revision``.
+_REPO_REF_SHAPE = re.compile(r"[^/@]+/[^/@]+(@.*)?", re.S)
+
+
+def local_path(ref: str | os.PathLike, *, stacklevel: int = 2) -> Path | None:
+    """The local folder ``ref`` names, or None when it names a Hub repo: the one rule of every entry that takes
+    either (``load_env`` and the commands' ``--repo_id``, ``compare``'s ``--policies``...).
+
+    A local folder's code runs without consent, so it must never be picked by accident:
+
+    * a ``Path`` (any ``os.PathLike``), or text that looks like a path (``./x``, ``../x``, ``/abs``, ``~/x``), is
+      local, whether or not it exists (the caller says so when it does not);
+    * ``user/name`` (optionally ``@revision``) always means the Hub, even when a folder of that name exists here
+      (a warning then says to write ``./user/name`` for the folder; a :class:`~hub_envs.errors.ConfigError` if the
+      text is no valid repo id);
+    * other text (a bare ``name``, ``outputs/train/x``: no Hub repo id has that shape) is local when such a folder
+      exists, else the caller's Hub parsing refuses it.
+
+    Args:
+        ref: what the caller was given.
+        stacklevel: of the warning, as for :func:`warnings.warn` (counted from the caller of this function).
+
+    Returns:
+        The path (``~`` expanded), or None: a Hub repo reference.
+    """
+    if isinstance(ref, os.PathLike):
+        return Path(ref).expanduser()
+    if not isinstance(ref, str):
+        return None
+    path = Path(ref).expanduser()
+    if ref.startswith(_PATH_PREFIXES):
+        return path
+    if _REPO_REF_SHAPE.fullmatch(ref):
+        problem = repo_id_problem(ref.partition("@")[0])
+        if path.is_dir() and problem is not None:
+            raise ConfigError(
+                f"{ref!r} is not a Hub repo id ({problem}), and a folder of that name exists here: "
+                f"write './{safe_text(ref)}' to use the folder (a local folder is written as a path)."
+            )
+        if path.is_dir():
+            warnings.warn(
+                f"{ref!r} is taken from the Hub; a local folder of that name exists too: pass "
+                f"'./{safe_text(ref)}' to use the folder instead.",
+                stacklevel=stacklevel + 1,
+            )
+        return None
+    return path if path.is_dir() else None
 
 
 # --- what a hostile endpoint could make the client write ----------------------------------------
