@@ -252,10 +252,10 @@ def check_hub_response(method: str, url: str, status: int, headers, read_body) -
 
     * ``X-Repo-Commit``: 40 lowercase hex digits; ``X-Linked-Etag``: a 40- or 64-hex digest; ``X-Xet-Hash``:
       64 hex digits.
-    * ``ETag``: a 40- or 64-hex digest on every answer huggingface_hub could take a file's metadata from:
-      one to a ``/resolve/`` URL, any answer to a ``HEAD`` (the metadata request, which follows redirects
-      to other paths of the same host: the final answer, wherever it is, is the one used), and any answer
-      that names a commit or a linked file (the client refuses metadata without ``X-Repo-Commit``).
+    * ``ETag``: a 40- or 64-hex digest on every answer huggingface_hub could take a file's metadata from (any
+      but an error): one to a ``/resolve/`` URL, any answer to a ``HEAD`` (the metadata request, which follows
+      redirects to other paths of the same host: the final answer, wherever it is, is the one used), and any
+      answer that names a commit or a linked file (the client refuses metadata without ``X-Repo-Commit``).
     * The repo-info, tree and paths-info API answers: ``sha`` a commit id, every listed ``path`` /
       ``rfilename`` inside the repo, an ``lfs.oid`` or ``xetHash`` 64 hex digits. Their bodies are checked
       by URL, so a redirect of one (``Location``) or its next page (``Link``) must be an answer of the
@@ -277,9 +277,9 @@ def check_hub_response(method: str, url: str, status: int, headers, read_body) -
     xet_hash = headers.get("X-Xet-Hash")
     if xet_hash is not None and not _SHA256.fullmatch(xet_hash):
         _refuse(url, f"X-Xet-Hash {xet_hash[:80]!r} (a Xet file's hash is 64 hex digits)")
-    file_metadata = (
+    file_metadata = status < 400 and (  # an error answer's ETag names nothing: the client raises
         "/resolve/" in unquote(urlsplit(url).path)
-        or (method.upper() == "HEAD" and status < 400)
+        or method.upper() == "HEAD"
         or any(h in headers for h in ("X-Repo-Commit", "X-Linked-Etag", "X-Linked-Size"))
     )
     for name in ("X-Linked-Etag", "ETag") if file_metadata else ("X-Linked-Etag",):

@@ -267,8 +267,8 @@ def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[st
     if path is not None:
         if not path.is_dir():
             raise ConfigError(
-                f"--policies: {text!r} is not a folder here (a LeRobot pretrained_model); a Hub "
-                "checkpoint is written user/name[@revision]."
+                f"--policies: {text!r} is neither 'random', an existing folder (a LeRobot pretrained_model), nor a Hub "
+                "repo id user/name[@revision]."
             )
         return {"type": "lerobot", "path": str(path.resolve())}
     repo_id, rev = hub_io.parse_repo_ref(text, what="--policies: policy")

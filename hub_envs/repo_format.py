@@ -325,7 +325,7 @@ def repo_id_problem(value: object) -> str | None:
     >>> repo_id_problem("user/name\\n")
     "it holds a character that is not an ASCII letter, digit, '-', '_' or '.'"
     >>> repo_id_problem("name")
-    "it has no namespace: 'user/name'"
+    "it needs a namespace: 'user/name'"
     """
     if not isinstance(value, str):
         return f"it is a {type(value).__name__}, not text"
@@ -334,7 +334,7 @@ def repo_id_problem(value: object) -> str | None:
     if _NOT_REPO_ID_CHAR.search(value):
         return "it holds a character that is not an ASCII letter, digit, '-', '_' or '.'"
     if "/" not in value:
-        return f"it has no namespace: 'user/{value}'"
+        return f"it needs a namespace: 'user/{value}'"
     if value.count("/") != 1:
         return "it has more than one '/'"
     from huggingface_hub.errors import HFValidationError
