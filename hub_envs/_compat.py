@@ -146,11 +146,13 @@ def stream_file(url: str, headers: Mapping[str, str], timeout: float):
 
 
 def install_response_hook(hook) -> bool:
-    """Run ``hook(url, headers, read_body)`` on every HTTP response huggingface_hub's client receives.
+    """Run ``hook(method, url, status, headers, read_body)`` on every HTTP response huggingface_hub's client
+    receives: each hop of a redirect chain, whether the client (1.x's metadata ``HEAD``, 0.35's relative
+    redirects) or its HTTP library (``GET``) follows it.
 
-    ``read_body()`` returns the response body (call it only for small API answers, never for file
-    downloads). An exception raised by the hook propagates out of the client call before the client
-    uses the response. 0.x: a ``requests`` response hook on every session its backend factory makes
+    ``method`` is the request's, ``url`` the URL this answer came from, ``read_body()`` returns the response body
+    (call it only for small API answers, never for file downloads). An exception raised by the hook propagates out
+    of the client call before the client uses the response. 0.x: a ``requests`` response hook on every session its backend factory makes
     (``configure_http_backend``); 1.x: an ``httpx`` event hook on the clients of ``set_client_factory``.
     Whatever factory was configured before (by the user or another library) is kept and wrapped.
     Idempotent per hook; returns True when it installed it now. Reads the current factory from a private
@@ -167,7 +169,8 @@ def install_response_hook(hook) -> bool:
     if HF_HUB_MAJOR >= 1:
 
         def on_response(response) -> None:
-            hook(str(response.request.url), response.headers, lambda: response.read())
+            request = response.request
+            hook(request.method, str(request.url), response.status_code, response.headers, lambda: response.read())
 
         def factory():
             client = previous()
@@ -179,7 +182,8 @@ def install_response_hook(hook) -> bool:
     else:
 
         def on_response(response, *args, **kwargs):
-            hook(response.url, response.headers, lambda: response.content)
+            method = response.request.method if response.request is not None else "GET"
+            hook(method, response.url, response.status_code, response.headers, lambda: response.content)
             return response
 
         def factory():

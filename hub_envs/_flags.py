@@ -98,3 +98,46 @@ def call_with_flags(fn: Callable[..., T], flags: Any, *args: Any, **overrides: A
     }
     kwargs.update(overrides)
     return fn(*args, **kwargs)
+
+
+#: The flags that name a Hub repo (or a local folder) or one of its revisions, in hub-envs' commands and LeRobot's.
+REPO_FLAGS = ("repo_id", "revision", "old", "new", "policy", "policies", "env.repo_id", "env.revision", "env.type")
+
+
+def check_repo_flags(argv: list[str]) -> None:
+    """Refuse a repo flag (:data:`REPO_FLAGS`) whose text holds a newline, a control character or surrounding spaces.
+
+    draccus reads every flag's value as YAML, which drops a trailing newline or space without a word
+    (``--repo_id=$'user/name\\n'`` became ``user/name``) and fails on a control character with a parser
+    traceback; the raw text is checked first, by the rule of :func:`hub_envs.hub_io.parse_repo_ref` when it
+    has the shape of a repo reference.
+
+    >>> check_repo_flags(["--repo_id=user/name@main", "--policies=random, ./ckpt", "--episodes=3"])
+    >>> check_repo_flags(["--repo_id=user/name\\n"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    hub_envs.errors.ConfigError: --repo_id 'user/name\\n' is not valid: it holds a character that is not an ASCII letter, ...
+
+    Raises:
+        ConfigError: naming the flag, its value (``repr``) and the rule.
+    """
+    for i, arg in enumerate(argv):
+        name, sep, value = arg.removeprefix("--").partition("=")
+        if not arg.startswith("--") or name not in REPO_FLAGS:
+            continue
+        if not sep:  # --flag value
+            if i + 1 >= len(argv):
+                continue
+            value = argv[i + 1]
+        items = [v.strip(" ") for v in value.split(",")] if name == "policies" else [value]
+        for item in items:
+            if item.isprintable() and item == item.strip():
+                continue
+            if "/" in item and "revision" not in name:
+                from hub_envs import hub_io
+
+                hub_io.parse_repo_ref(item, what=f"--{name}")
+            raise ConfigError(
+                f"--{name} {item!r} holds a newline, a control character or surrounding spaces: write it as it is "
+                f"(a repo id 'user/name', a revision, or a path), nothing around it."
+            )

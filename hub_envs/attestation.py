@@ -518,11 +518,13 @@ def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | 
     from huggingface_hub import hf_hub_download
 
     from hub_envs import hub_io
-    from hub_envs.errors import HubError
+    from hub_envs.errors import HostileResponseError, HubError
 
     try:
         with hub_io.translate_hub_errors(repo_id, revision):
             local = hf_hub_download(repo_id, path, revision=revision, repo_type=hub_io.REPO_TYPE, token=token)
+    except HostileResponseError:
+        raise  # the endpoint lies: not a file that went missing
     except HubError:
         return None
     return Path(local).read_bytes()
@@ -605,6 +607,7 @@ def merged_attestations(repo_id: str, revision: str | None = None, *, token: str
     pull request it came from (:attr:`AttestationEntry.author`)."""
     from hub_envs import hub_io
 
+    hub_io.check_repo_id(repo_id)
     head = revision or hub_io.remote_head(repo_id, token=token)
     if head is None:
         return []
@@ -620,6 +623,7 @@ def collect_attestations(repo_id: str, *, token: str | None = None) -> list[Atte
     """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
     from hub_envs import hub_io
 
+    hub_io.check_repo_id(repo_id)
     merged = merged_attestations(repo_id, token=token)
     on_main = {e.path: e.data for e in merged}
     out = list(merged)

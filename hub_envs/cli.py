@@ -26,7 +26,7 @@ from pathlib import Path
 
 import draccus
 
-from hub_envs._flags import EnvFlags, call_with_flags
+from hub_envs._flags import EnvFlags, call_with_flags, check_repo_flags
 
 
 @dataclass
@@ -288,6 +288,7 @@ def run_command(name: str, argv: list[str]) -> int:
         print(f"hub-envs: unknown command {name!r}\n{_usage()}", file=sys.stderr)
         return 2
     try:
+        check_repo_flags(argv)  # before draccus, which drops a trailing newline of a flag's value
         if name in RAW_COMMANDS:
             return int(RAW_COMMANDS[name](argv) or 0)
         entry = COMMANDS[name] if name in COMMANDS else _lazy_command(name)

@@ -26,7 +26,7 @@ import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import unquote, urlsplit
+from urllib.parse import unquote, urljoin, urlsplit
 
 from huggingface_hub import (
     CommitOperationAdd,
@@ -40,13 +40,12 @@ from huggingface_hub import (
 from huggingface_hub.errors import (
     EntryNotFoundError,
     HfHubHTTPError,
-    HFValidationError,
     LocalEntryNotFoundError,
     OfflineModeIsEnabled,
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
-from huggingface_hub.utils import build_hf_headers, validate_repo_id
+from huggingface_hub.utils import build_hf_headers
 from huggingface_hub.utils import tqdm as hf_tqdm
 
 from hub_envs._compat import NETWORK_ERRORS, TRANSFER_ERRORS, install_response_hook, lfs_instead_of_xet, stream_file
@@ -62,7 +61,15 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, beyond_manifest, is_commit_sha, is_on_demand_file
+from hub_envs.repo_format import (
+    DATASET_DIR,
+    MANIFEST_FILE,
+    REPO_ID_RULE,
+    beyond_manifest,
+    is_commit_sha,
+    is_on_demand_file,
+    repo_id_problem,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -105,42 +112,113 @@ class Snapshot:
             self._pool.shutdown(wait=True, cancel_futures=True)  # joins its threads
 
 
-_REPO_ID_CHARS = re.compile(r"[\w.-]+(/[\w.-]+)?", re.ASCII)
+def check_repo_id(repo_id: object, *, what: str = "Repo id") -> str:
+    """``repo_id`` if it is a Hub repo id (``user/name``), else a :class:`~hub_envs.errors.ConfigError` naming the
+    value (its ``repr``: a trailing newline shows) and the rule (:func:`hub_envs.repo_format.repo_id_problem`).
+
+    Args:
+        repo_id: the value given.
+        what: how the message names it (``"--repo_id"``, ``"Repo id"``...).
+
+    Returns:
+        ``repo_id``, unchanged.
+
+    Raises:
+        ConfigError: ``repo_id`` is not a repo id.
+    """
+    problem = repo_id_problem(repo_id)
+    if problem is not None:
+        raise ConfigError(f"{what} {repo_id!r} is not valid: {problem}; {REPO_ID_RULE}.")  # repr: escapes shown
+    return repo_id  # type: ignore[return-value]
 
 
-def parse_repo_ref(ref: str) -> tuple[str, str | None]:
+def parse_repo_ref(ref: str, *, what: str = "Repo id") -> tuple[str, str | None]:
     """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``.
 
     Never a path: ``./x``, ``/abs``, ``~/x`` and anything with characters a Hub repo id cannot have
-    (a trailing newline included) are refused.
+    (a trailing newline included) are refused (:func:`check_repo_id`, ``what`` names the value in the message).
     """
     if not isinstance(ref, str) or not ref:
-        raise ConfigError(f"Repo id {ref!r} is not valid: use 'user/name', optionally '@revision'.")
+        raise ConfigError(f"{what} {ref!r} is not valid: use 'user/name', optionally '@revision'.")
     repo_id, _, revision = ref.partition("@")
-    try:
-        validate_repo_id(repo_id)
-    except HFValidationError as e:
-        raise ConfigError(f"Repo id {repo_id!r} is not valid ({e}). Use 'user/name', optionally '@revision'.") from None
-    if not _REPO_ID_CHARS.fullmatch(repo_id):  # huggingface_hub's check ends in `$`, which lets "user/name\n" through
-        raise ConfigError(f"Repo id {repo_id!r} is not valid: only ASCII letters, digits, '-', '_' and '.' around one '/'.")
-    if "/" not in repo_id:
-        raise ConfigError(f"Repo id {repo_id!r} needs a namespace: 'user/{repo_id}'.")
+    check_repo_id(repo_id, what=what)
     if "@" in ref and not revision:
         raise ConfigError(f"{ref!r} ends with '@' but names no revision. Write 'user/name@<sha, tag or branch>'.")
+    if revision and not revision.isprintable():
+        raise ConfigError(f"{what} {ref!r} is not valid: its revision holds characters that are not printable.")
     return repo_id, revision or None
+
+
+#: Text that looks like a path (what ``local_path`` takes for a local folder whether or not it exists).
+_PATH_PREFIXES = ("./", "../", "/", "~", ".\\")
+#: What could name a Hub repo (``parse_repo_ref`` checks it): ``user/name``, optionally ``@revision``.
+_REPO_REF_SHAPE = re.compile(r"[^/@]+/[^/@]+(@.*)?", re.S)
+
+
+def local_path(ref: str | os.PathLike, *, stacklevel: int = 2) -> Path | None:
+    """The local folder ``ref`` names, or None when it names a Hub repo: the one rule of every entry that takes
+    either (``load_env`` and the commands' ``--repo_id``, ``compare``'s ``--policies``...).
+
+    A local folder's code runs without consent, so it must never be picked by accident:
+
+    * a ``Path`` (any ``os.PathLike``), or text that looks like a path (``./x``, ``../x``, ``/abs``, ``~/x``), is
+      local, whether or not it exists (the caller says so when it does not);
+    * ``user/name`` (optionally ``@revision``) always means the Hub, even when a folder of that name exists here
+      (a warning then says to write ``./user/name`` for the folder; a :class:`~hub_envs.errors.ConfigError` if the
+      text is no valid repo id);
+    * other text (a bare ``name``, ``outputs/train/x``: no Hub repo id has that shape) is local when such a folder
+      exists, else the caller's Hub parsing refuses it.
+
+    Args:
+        ref: what the caller was given.
+        stacklevel: of the warning, as for :func:`warnings.warn` (counted from the caller of this function).
+
+    Returns:
+        The path (``~`` expanded), or None: a Hub repo reference.
+    """
+    if isinstance(ref, os.PathLike):
+        return Path(ref).expanduser()
+    if not isinstance(ref, str):
+        return None
+    path = Path(ref).expanduser()
+    if ref.startswith(_PATH_PREFIXES):
+        return path
+    if _REPO_REF_SHAPE.fullmatch(ref):
+        problem = repo_id_problem(ref.partition("@")[0])
+        if path.is_dir() and problem is not None:
+            raise ConfigError(
+                f"{ref!r} is not a Hub repo id ({problem}), and a folder of that name exists here: "
+                f"write './{safe_text(ref)}' to use the folder (a local folder is written as a path)."
+            )
+        if path.is_dir():
+            warnings.warn(
+                f"{ref!r} is taken from the Hub; a local folder of that name exists too: pass "
+                f"'./{safe_text(ref)}' to use the folder instead.",
+                stacklevel=stacklevel + 1,
+            )
+        return None
+    return path if path.is_dir() else None
 
 
 # --- what a hostile endpoint could make the client write ----------------------------------------
 
 _HUB_ETAG = re.compile(r"[0-9a-f]{40}|[0-9a-f]{64}")  # git blob sha1, or the sha256 of an LFS/Xet file
-_REVISION_API = re.compile(r"/api/(models|datasets|spaces)/[^/]+/[^/]+/revision/")
+_SHA256 = re.compile(r"[0-9a-f]{64}")  # an LFS file's oid, a Xet file's hash
+#: the API answers whose bodies huggingface_hub builds cache paths from: a repo's info (``sha``, ``siblings``) with
+#: or without a revision, its tree and paths-info listings (``path``, ``lfs.oid``, ``xetHash``)
+_REPO_API = r"/api/(?:models|datasets|spaces)/[^/]+/[^/]+"
+_CHECKED_APIS = {
+    "revision": re.compile(_REPO_API + r"(?:/revision/.*)?/?"),
+    "tree": re.compile(_REPO_API + r"/tree/.*"),
+    "paths-info": re.compile(_REPO_API + r"/paths-info/.*"),
+}
+_NEXT_PAGE = re.compile(r'<([^>]*)>\s*;[^,]*\brel="?next"?', re.IGNORECASE)  # a paginated list's next page (``Link``)
 
 
-def _refuse(url: str, what: str) -> None:
-
+def _refuse(url: str, what: str, why: str = "huggingface_hub would have used it as a file name in the cache") -> None:
     raise HostileResponseError(
         f"The endpoint {safe_text(urlsplit(url).netloc)} answered {safe_text(url)} with {what}: no Hub sends that, and "
-        f"huggingface_hub would have used it as a file name in the cache. Refused before anything was written. "
+        f"{why}. Refused before anything was written. "
         f"Check HF_ENDPOINT (and use https to a Hub you trust: plain http on a shared network can be rewritten)."
     )
 
@@ -152,43 +230,124 @@ def _escapes_repo(name: object) -> bool:
     return any(p in ("", ".", "..") for p in name.split("/"))
 
 
-def check_hub_response(url: str, headers, read_body) -> None:
-    """Refuse a response whose commit id, ETag or file names are not of the forms the Hub uses.
+def _api_kind(url: str) -> str | None:
+    """Which checked API answer (:data:`_CHECKED_APIS`) ``url`` asks for, if any."""
+    path = unquote(urlsplit(url).path)
+    return next((kind for kind, pattern in _CHECKED_APIS.items() if pattern.fullmatch(path)), None)
+
+
+def _normalized_etag(value: str) -> str:
+    return value.lstrip("W/").strip('"')  # huggingface_hub's own _normalize_etag, character for character (0.35 and 1.x)
+
+
+def check_hub_response(method: str, url: str, status: int, headers, read_body) -> None:
+    """Refuse an answer whose commit id, ETag, redirect or file names are not of the forms the Hub uses.
 
     huggingface_hub (0.35 and 1.x alike) builds cache paths from them without checking: the blob path
     from the ETag (``blobs/<etag>``), the snapshot folder from ``X-Repo-Commit`` or the revision API's
-    ``sha``, files from its ``siblings``. A lying endpoint could write anywhere the user can (a ``.pth``
-    into site-packages, hub-envs' trust list) before any hub-envs check ran. Installed on huggingface_hub's
-    HTTP client when this module is imported (see :func:`hub_envs._compat.install_response_hook`).
+    ``sha``, files from its ``siblings`` or the tree's ``path``, and (1.x, Xet) a blob from the tree's
+    ``lfs.oid``. A lying endpoint could write anywhere the user can (a ``.pth`` into site-packages,
+    hub-envs' trust list) before any hub-envs check ran. Installed on huggingface_hub's HTTP client when
+    this module is imported (see :func:`hub_envs._compat.install_response_hook`), so it runs on every
+    answer the client receives, each hop of a redirect included, whatever its URL:
+
+    * ``X-Repo-Commit``: 40 lowercase hex digits; ``X-Linked-Etag``: a 40- or 64-hex digest; ``X-Xet-Hash``:
+      64 hex digits.
+    * ``ETag``: a 40- or 64-hex digest on every answer huggingface_hub could take a file's metadata from (any
+      but an error): one to a ``/resolve/`` URL, any answer to a ``HEAD`` (the metadata request, which follows
+      redirects to other paths of the same host: the final answer, wherever it is, is the one used), and any
+      answer that names a commit or a linked file (the client refuses metadata without ``X-Repo-Commit``).
+    * The repo-info, tree and paths-info API answers: ``sha`` a commit id, every listed ``path`` /
+      ``rfilename`` inside the repo, an ``lfs.oid`` or ``xetHash`` 64 hex digits. Their bodies are checked
+      by URL, so a redirect of one (``Location``) or its next page (``Link``) must be an answer of the
+      same API: otherwise the body the client parses would come from a URL the check does not read.
+
+    Args:
+        method: the request's method (``"HEAD"``, ``"GET"``...).
+        url: the URL this answer came from (one hop of a redirect chain).
+        status: the answer's status code.
+        headers: the answer's headers (case-insensitive mapping).
+        read_body: returns the answer's body; called only for the small API answers above.
+
+    Raises:
+        HostileResponseError: before the client uses the answer, naming the endpoint, the URL and the value.
     """
     commit = headers.get("X-Repo-Commit")
     if commit is not None and not is_commit_sha(commit):
         _refuse(url, f"X-Repo-Commit {commit[:80]!r} (a commit id is 40 lowercase hex digits)")
-    path = unquote(urlsplit(url).path)
-    if "/resolve/" in path:
-        for name in ("X-Linked-Etag", "ETag"):
-            value = headers.get(name)
-            if value is not None and not _HUB_ETAG.fullmatch(
-                value.lstrip("W/").strip('"')
-            ):  # huggingface_hub's own normalization
-                _refuse(url, f"{name} {value[:80]!r} (a file's ETag is its 40-hex git or 64-hex sha256 digest)")
-    elif _REVISION_API.match(path):
-        try:
-            info = json.loads(read_body())
-        except (ValueError, UnicodeDecodeError):
-            return  # not JSON: the client raises its own error
-        if not isinstance(info, dict):
-            return
+    xet_hash = headers.get("X-Xet-Hash")
+    if xet_hash is not None and not _SHA256.fullmatch(xet_hash):
+        _refuse(url, f"X-Xet-Hash {xet_hash[:80]!r} (a Xet file's hash is 64 hex digits)")
+    file_metadata = status < 400 and (  # an error answer's ETag names nothing: the client raises
+        "/resolve/" in unquote(urlsplit(url).path)
+        or method.upper() == "HEAD"
+        or any(h in headers for h in ("X-Repo-Commit", "X-Linked-Etag", "X-Linked-Size"))
+    )
+    for name in ("X-Linked-Etag", "ETag") if file_metadata else ("X-Linked-Etag",):
+        value = headers.get(name)
+        if value is not None and not _HUB_ETAG.fullmatch(_normalized_etag(value)):
+            _refuse(url, f"{name} {value[:80]!r} (a file's ETag is its 40-hex git or 64-hex sha256 digest)")
+    kind = _api_kind(url)
+    if kind is None:
+        return
+    _check_api_links(url, kind, status, headers)
+    if 200 <= status < 300:
+        _check_api_body(url, read_body)
+
+
+def _check_api_links(url: str, kind: str, status: int, headers) -> None:
+    """A redirect or next page of a checked API answer is an answer of the same API (whose body is then checked)."""
+    location = headers.get("Location") if 300 <= status < 400 else None
+    if location is not None and _api_kind(urljoin(url, location)) != kind:
+        _refuse(
+            url,
+            f"a redirect to {location[:200]!r}",
+            f"the {kind} answer the client would parse from there is not where hub-envs checks it",
+        )
+    for nxt in _NEXT_PAGE.findall(headers.get("Link") or ""):
+        if _api_kind(urljoin(url, nxt)) != kind:
+            _refuse(
+                url,
+                f"a next page at {nxt[:200]!r}",
+                f"the {kind} listing the client would read from there is not where hub-envs checks it",
+            )
+
+
+def _check_api_body(url: str, read_body) -> None:
+    """The names and ids a repo-info, tree or paths-info answer lists are of the Hub's forms."""
+    try:
+        info = json.loads(read_body())
+    except (ValueError, UnicodeDecodeError):
+        return  # not JSON: the client raises its own error
+    if isinstance(info, dict):
         sha = info.get("sha")
         if sha is not None and not is_commit_sha(sha):
             _refuse(url, f"a repo sha {str(sha)[:80]!r} (a commit id is 40 lowercase hex digits)")
-        for sibling in info.get("siblings") or []:
-            name = sibling.get("rfilename") if isinstance(sibling, dict) else None
-            if _escapes_repo(name):
-                _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo or cannot be a file's")
+        entries, key = info.get("siblings") or [], "rfilename"
+    elif isinstance(info, list):
+        entries, key = info, "path"
+    else:
+        return
+    for entry in entries if isinstance(entries, list) else [entries]:
+        entry = entry if isinstance(entry, dict) else {}
+        name = entry.get(key)
+        if _escapes_repo(name):
+            _refuse(url, f"a file name {str(name)[:80]!r} that escapes the repo or cannot be a file's")
+        lfs = entry.get("lfs")
+        oid = lfs.get("oid", lfs.get("sha256")) if isinstance(lfs, dict) else None
+        for what, value in (("an LFS oid", oid), ("a xetHash", entry.get("xetHash"))):
+            if value is not None and not (isinstance(value, str) and _SHA256.fullmatch(value)):
+                _refuse(url, f"{what} {str(value)[:80]!r} for {safe_text(name)} (64 hex digits on the Hub)")
 
 
-install_response_hook(check_hub_response)
+def ensure_checked() -> None:
+    """Put :func:`check_hub_response` back on huggingface_hub's client if something replaced the client factory
+    since this module was imported (``configure_http_backend`` / ``set_client_factory``). Cheap when it is there;
+    every call hub-envs makes to the Hub passes through here (:func:`api`, :func:`translate_hub_errors`)."""
+    install_response_hook(check_hub_response)
+
+
+ensure_checked()
 
 
 def offline() -> bool:
@@ -201,6 +360,7 @@ def endpoint() -> str:
 
 def api(token: str | None = None) -> HfApi:
     """A fresh client at the current endpoint (never the one captured when huggingface_hub was imported)."""
+    ensure_checked()
     return HfApi(endpoint=constants.ENDPOINT, token=token)
 
 
@@ -336,6 +496,7 @@ def _sent_a_token(response) -> bool:
 def translate_hub_errors(repo_id: str, revision: str | None):
     """Turn huggingface_hub / HTTP errors into hub-envs errors that say what to do next."""
     where = f"{repo_id}@{revision}" if revision else repo_id
+    ensure_checked()
     try:
         yield
     except RuntimeError as e:

@@ -79,9 +79,6 @@ from hub_envs.requirements import check_requirements
 FingerprintPolicy = Literal["error", "warn", "off"]
 
 
-_REPO_ID_RE = re.compile(r"[\w.-]+/[\w.-]+(@[^/]+)?")
-
-
 class UnpinnedRevisionWarning(UserWarning):
     """load_env was given a branch or tag: the result is pinned to the sha it resolved to, but the call is not."""
 
@@ -634,23 +631,15 @@ def _resolve_source(
     """Resolve (a local folder, or a Hub repo@revision to a commit), verify (every file against the manifest)
     and pass the trust gate; nothing of the repo is imported. Fills ``report``'s integrity and trust lines."""
     local_folder = None
-    original, repo_id = repo_id, os.fspath(repo_id)
-    path_candidate = Path(repo_id).expanduser()
-    if repo_id.startswith(("./", "../", "/", "~", ".\\")) and not path_candidate.is_dir():
+    # a folder's code runs without consent: 'user/name' names a Hub repo even if a folder of that name exists here
+    path_candidate = hub_io.local_path(repo_id, stacklevel=3)
+    use_local = path_candidate is not None
+    if use_local and not path_candidate.is_dir():
         raise EnvFolderError(
-            f"Env folder {repo_id} does not exist. Pass a folder holding pyproject.toml and the env's code, "
-            f"or a Hub repo id such as 'user/name'."
+            f"Env folder {safe_text(os.fspath(repo_id))} does not exist. Pass a folder holding pyproject.toml and the "
+            f"env's code, or a Hub repo id such as 'user/name'."
         )
-    explicit_path = isinstance(original, os.PathLike) or repo_id.startswith(("./", "../", "/", "~", ".\\"))
-    use_local = path_candidate.is_dir() and (explicit_path or not _REPO_ID_RE.fullmatch(repo_id))
-    if path_candidate.is_dir() and not use_local:
-        # 'user/name' names a Hub repo even if a folder of that name exists here: a folder's code runs
-        # without consent, so it must never be picked by accident
-        warnings.warn(
-            f"{repo_id!r} is loaded from the Hub; a local folder of that name exists too: pass "
-            f"'./{repo_id}' to load the folder instead.",
-            stacklevel=3,
-        )
+    repo_id = os.fspath(repo_id)
     if config and not use_local:
         raise ConfigError(
             f"load_env({repo_id!r}, config=...): config fields can be set for a local folder only; a Hub repo's config "

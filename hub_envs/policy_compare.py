@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import statistics
 import sys
 import time
@@ -250,22 +251,27 @@ class CompareReport(ReportFiles):
         return save_figure(fig, path)
 
 
-def policy_spec(text: str, *, token: str | None = None) -> dict[str, Any]:
-    """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha)."""
+def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[str, Any]:
+    """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha).
+
+    A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.hub_io.local_path`):
+    ``user/name`` always means the Hub, even when a folder of that name exists here (a local checkpoint's code runs
+    as the caller's own, without consent); write ``./user/name`` for the folder."""
     from hub_envs import hub_io
 
-    text = text.strip()
-    if text.lower() == "random":
-        return {"type": "random"}
-    path = Path(text).expanduser()
-    if path.is_dir():
+    if isinstance(text, str):
+        text = text.strip(" ")  # around the commas of --policies=a, b (a newline or other character is refused below)
+        if text.lower() == "random":
+            return {"type": "random"}
+    path = hub_io.local_path(text, stacklevel=3)
+    if path is not None:
+        if not path.is_dir():
+            raise ConfigError(
+                f"--policies: {text!r} is neither 'random', an existing folder (a LeRobot pretrained_model), nor a Hub "
+                "repo id user/name[@revision]."
+            )
         return {"type": "lerobot", "path": str(path.resolve())}
-    if text.startswith((".", "/", "~")) or text.count("/") != 1 and "@" not in text:
-        raise ConfigError(
-            f"--policies: {text!r} is neither 'random', an existing folder (a LeRobot pretrained_model), nor a Hub repo "
-            "id user/name[@revision]."
-        )
-    repo_id, rev = hub_io.parse_repo_ref(text)
+    repo_id, rev = hub_io.parse_repo_ref(text, what="--policies: policy")
     with hub_io.translate_hub_errors(repo_id, rev or "main"):
         sha = hub_io.api(token).repo_info(repo_id, revision=rev).sha
     return {"type": "lerobot", "checkpoint": f"{repo_id}@{sha}"}
@@ -324,7 +330,7 @@ def _paired(a: PolicyResult, b: PolicyResult, *, resamples: int, confidence: flo
 
 def compare(
     repo_id: str,
-    policies: list[str],
+    policies: Sequence[str | os.PathLike],
     *,
     episodes: int = 20,
     seed: int = 0,
@@ -346,7 +352,8 @@ def compare(
 
     Args:
         repo_id: ``user/name@<sha>`` (pin it: the comparison names the commit), or a local folder.
-        policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder, a Hub repo id.
+        policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder written as a path
+            (``./x``, ``/abs``, a ``Path``; as for envs, ``user/name`` always means the Hub), a Hub repo id.
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`).
@@ -366,11 +373,11 @@ def compare(
         raise ConfigError(f"confidence={confidence}: pass a level between 0 and 1, e.g. 0.95.")
     from hub_envs.backends import make_backend
 
-    workers = int(workers) if workers else max(1, min(2, __import__("os").cpu_count() or 1))
+    workers = int(workers) if workers else max(1, min(2, os.cpu_count() or 1))
     runner = make_backend(backend, workers=workers, ray_address=ray_address)
     t0 = time.perf_counter()
     specs = [policy_spec(p, token=token) for p in policies]
-    labels = _labels([p.strip() for p in policies])
+    labels = _labels([os.fspath(p).strip() for p in policies])
     with load_for_evaluation(
         repo_id, revision, trust_remote_code=trust_remote_code, token=token, run=run, where="compare"
     ) as loaded:

@@ -341,8 +341,46 @@ def content_tag(digest: str) -> str:
 
 # --- the manifest -----------------------------------------------------------------------------
 
-#: ``user/name`` (what the Hub accepts; the name part as huggingface_hub validates it, simplified).
-_REPO_ID_RE = re.compile(r"^[\w.-]+/[\w.-]+$")
+#: What a Hub repo id is, said in every error that refuses one.
+REPO_ID_RULE = (
+    "a Hub repo id is 'user/name': ASCII letters, digits, '-', '_' and '.' on each side of one '/' and nothing else "
+    "(no spaces, newlines or control characters); neither part starts or ends with '-' or '.' or holds '--' or '..'"
+)
+_NOT_REPO_ID_CHAR = re.compile(r"[^\w./-]", re.ASCII)  # searched in the whole text: "user/name\n" has one
+
+
+def repo_id_problem(value: object) -> str | None:
+    """Why ``value`` is not a Hub repo id (``user/name``), or None when it is one: the one rule of every entry that
+    takes a repo id (``load_env``, ``push_env``, ``trust``, the commands' flags, a manifest's ``repo_id``...).
+
+    huggingface_hub's own check (``validate_repo_id``) is applied too, after a match to the end of the text: its
+    pattern ends in ``$``, which lets ``"user/name\\n"`` through (0.35).
+
+    >>> repo_id_problem("user/pendulum-lerobot") is None
+    True
+    >>> repo_id_problem("user/name\\n")
+    "it holds a character that is not an ASCII letter, digit, '-', '_' or '.'"
+    >>> repo_id_problem("name")
+    "it needs a namespace: 'user/name'"
+    """
+    if not isinstance(value, str):
+        return f"it is a {type(value).__name__}, not text"
+    if not value:
+        return "it is empty"
+    if _NOT_REPO_ID_CHAR.search(value):
+        return "it holds a character that is not an ASCII letter, digit, '-', '_' or '.'"
+    if "/" not in value:
+        return f"it needs a namespace: 'user/{value}'"
+    if value.count("/") != 1:
+        return "it has more than one '/'"
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id
+
+    try:
+        validate_repo_id(value)
+    except HFValidationError as e:
+        return str(e).rstrip(".")
+    return None
 
 
 def _namespace(name: str) -> str | None:
@@ -581,8 +619,9 @@ class Manifest:
                     f"':' and one optional 'namespace/'). {_REPUBLISH}"
                 )
         repo_id = data.get("repo_id")
-        if repo_id is not None and not (isinstance(repo_id, str) and _REPO_ID_RE.match(repo_id)):
-            raise ManifestError(f"{where}: repo_id {safe_text(repr(repo_id))} is not a Hub repo id 'user/name'. {_REPUBLISH}")
+        problem = repo_id_problem(repo_id) if repo_id is not None else None
+        if problem is not None:
+            raise ManifestError(f"{where}: repo_id {repo_id!r} is not valid: {problem}; {REPO_ID_RULE}. {_REPUBLISH}")
         if repo_id is not None:
             _check_namespaces(repo_id, data["gym_id"], data["env_type"], where=where, what="its own repo_id")
         if "path" in data.get("dataset", {}):

@@ -208,6 +208,9 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
 
 def untrust(repo_id: str, sha: str | None = None) -> int:
     """Withdraw consent for one sha (or every sha when ``sha`` is None). Returns how many were removed."""
+    from hub_envs import hub_io
+
+    hub_io.check_repo_id(repo_id)  # a mistyped id would remove nothing and say so as if it were done
     with _locked() as path:
         entries = _load(path)
         keep = [e for e in entries if not (e.repo_id == repo_id and (sha is None or e.sha == sha))]
@@ -217,5 +220,8 @@ def untrust(repo_id: str, sha: str | None = None) -> int:
 
 def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
     """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
+    from hub_envs import hub_io
+
+    hub_io.check_repo_id(repo_id)
     digest = content_digest if content_digest is not None else commit_digest(repo_id, sha)
     return read_trust_list().covers(repo_id, sha, digest)

@@ -2,7 +2,8 @@
 
 Plain HTTP on a lab network is a documented setup, so an attacker in the middle (or a compromised
 server) can change any request or answer. :class:`LyingEndpoint` forwards every request to the real
-server and lets a test rewrite the request path and the answer's status, headers and body on the way.
+server and lets a test rewrite the request path and the answer's status, headers and body on the way,
+or answer a request itself (``serve``: a compromised server, e.g. the target of a redirect it sent).
 Everything else is real: the unmodified huggingface_hub client talks to it as to any Hub.
 """
 
@@ -18,15 +19,25 @@ from urllib.parse import urlsplit
 PathRewrite = Callable[[str, str], str]
 #: (method, path, status, headers, body) -> (status, headers, body)
 AnswerRewrite = Callable[[str, str, int, dict[str, str], bytes], tuple[int, dict[str, str], bytes]]
+#: (method, path) -> (status, headers, body) answered without asking the real server, or None to forward
+Serve = Callable[[str, str], "tuple[int, dict[str, str], bytes] | None"]
 
 _HOP_BY_HOP = {"connection", "keep-alive", "transfer-encoding", "content-length", "proxy-connection", "upgrade"}
 
 
 class LyingEndpoint:
-    """``with LyingEndpoint(upstream, rewrite_path=..., rewrite_answer=...) as lie: HF_ENDPOINT=lie.endpoint``."""
+    """``with LyingEndpoint(upstream, rewrite_path=..., rewrite_answer=..., serve=...) as lie: HF_ENDPOINT=lie.endpoint``."""
 
-    def __init__(self, upstream: str, *, rewrite_path: PathRewrite | None = None, rewrite_answer: AnswerRewrite | None = None):
+    def __init__(
+        self,
+        upstream: str,
+        *,
+        rewrite_path: PathRewrite | None = None,
+        rewrite_answer: AnswerRewrite | None = None,
+        serve: Serve | None = None,
+    ):
         self.upstream = urlsplit(upstream)
+        self.serve = serve or (lambda method, path: None)
         self.rewrite_path = rewrite_path or (lambda method, path: path)
         self.rewrite_answer = rewrite_answer or (lambda method, path, status, headers, body: (status, headers, body))
         self.requests: list[tuple[str, str]] = []
@@ -41,6 +52,18 @@ class LyingEndpoint:
             def _forward(self) -> None:
                 length = int(self.headers.get("Content-Length") or 0)
                 body = self.rfile.read(length) if length else b""
+                own = proxy.serve(self.command, self.path)
+                if own is not None:  # a compromised server's own answer (a HEAD announces the body's length)
+                    proxy.requests.append((self.command, self.path))
+                    status, out_headers, data = own
+                    self.send_response(status)
+                    for k, v in out_headers.items():
+                        self.send_header(k, v)
+                    self.send_header("Content-Length", str(len(data)))
+                    self.end_headers()
+                    if self.command != "HEAD":
+                        self.wfile.write(data)
+                    return
                 path = proxy.rewrite_path(self.command, self.path)
                 proxy.requests.append((self.command, path))
                 conn = http.client.HTTPConnection(proxy.upstream.hostname, proxy.upstream.port, timeout=60)

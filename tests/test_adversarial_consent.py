@@ -18,6 +18,7 @@ from helpers import TINY, copy_env
 from lying_endpoint import LyingEndpoint
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, trust
+from hub_envs._compat import HF_HUB_MAJOR
 from hub_envs.hub_io import parse_repo_ref
 from hub_envs.load import UnpinnedRevisionWarning
 from hub_envs.paths import hub_envs_home
@@ -294,3 +295,188 @@ def test_a_local_folder_with_an_at_sign_in_its_name_loads(tmp_path, monkeypatch)
     finally:
         loaded.unregister()
     assert folder.is_dir()
+
+
+# --- issue 30 (1). a same-host redirect: the answer huggingface_hub takes a file's metadata from ---------------
+
+#: what a hostile endpoint writes: a ``.pth`` file runs its import line at the next Python start
+PTH = "import os, pathlib; pathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
+REDIRECTS = {
+    "relative": lambda endpoint, to: to,  # what huggingface_hub 0.35 and 1.x both follow for a HEAD
+    "absolute": lambda endpoint, to: endpoint + to,  # followed by 1.x only (same host)
+}
+
+
+def _follows(redirect: str) -> bool:
+    """Whether huggingface_hub's metadata HEAD follows this redirect (0.35: relative ones only)."""
+    return redirect == "relative" or HF_HUB_MAJOR >= 1
+
+
+def _redirecting(hub, name: str, site: Path, blobs: Path, redirect: str, to: str) -> LyingEndpoint:
+    """A compromised endpoint: ``/resolve/`` of ``name`` answers a redirect (naming no commit) to ``to`` + the commit
+    on its own host, whose answer names the commit asked for, a body that is a ``.pth`` line and an ETag that is the
+    path from the cache's ``blobs/`` to ``site/evil.pth``. Everything else is the real Hub's."""
+    etag = f'"{os.path.relpath(site / "evil.pth", blobs)}"'
+    holder: list[LyingEndpoint] = []
+
+    def serve(method: str, p: str):
+        if "/resolve/" in p and p.endswith(f"/{name}"):
+            sha = p.split("/resolve/")[1].split("/")[0]
+            return 302, {"Location": REDIRECTS[redirect](holder[0].endpoint, f"{to}{sha}/{name}")}, b""
+        if p.startswith(to):
+            sha = p[len(to) :].split("/")[0]
+            return 200, {"X-Repo-Commit": sha, "ETag": etag, "Content-Type": "text/plain"}, PTH.encode()
+        return None
+
+    holder.append(LyingEndpoint(hub.endpoint, serve=serve))
+    return holder[0]
+
+
+def _written_outside(tmp_path: Path, cache: Path) -> list[Path]:
+    """Files under ``tmp_path`` outside the victim's ``cache`` (the server's store, the publisher's cache and env
+    folder excepted)."""
+    theirs = {"hub-data", "hf_home", "evil"}
+    return [
+        p
+        for p in tmp_path.rglob("*")
+        if p.is_file() and cache not in p.parents and not theirs & set(p.relative_to(tmp_path).parts)
+    ]
+
+
+@pytest.mark.parametrize("to", ["/hostile/", "/api/resolve-cache/models/mallory/env/"])
+@pytest.mark.parametrize("redirect", sorted(REDIRECTS))
+def test_a_same_host_redirect_cannot_make_load_env_write_outside_the_cache(hub, tmp_path, marker, two_commits, redirect, to):
+    """Red-team finding (issue 30, High 1): the one-GET fetch hands the odd answer to hf_hub_download, whose HEAD
+    follows the redirect and took the ETag of the final answer unchecked: a ``.pth`` landed in site-packages, without
+    consent. Now the answer that carries the file's metadata is checked wherever it sits in the chain."""
+    _, b = two_commits
+    victim, site = tmp_path / "victim", tmp_path / "site-packages"
+    site.mkdir()
+    blobs = victim / "hub" / "models--mallory--env" / "blobs"
+    with _redirecting(hub, "tiny.py", site, blobs, redirect, to) as lie, hub_environment(lie.endpoint, victim):
+        with pytest.raises(errors.HubEnvsError) as raised:
+            load_env(f"mallory/env@{b}")  # no consent
+    assert not (site / "evil.pth").exists(), "the endpoint wrote a .pth outside the cache"
+    assert _written_outside(tmp_path, victim / "hub") == [], "nothing but the cache is written"
+    if _follows(redirect):  # else huggingface_hub took the redirect itself for the metadata: no commit, no file
+        assert isinstance(raised.value, errors.HostileResponseError) and "ETag" in str(raised.value), raised.value
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("redirect", sorted(REDIRECTS))
+def test_a_same_host_redirect_cannot_make_hub_envs_attestations_write_outside_the_cache(hub, tmp_path, marker, capsys, redirect):
+    """``hub-envs attestations`` asks no consent: it reads the repo's attestation files with hf_hub_download. The
+    hostile answer is refused with its type named, not skipped as a missing file."""
+    from hub_envs.cli import main as cli_main
+
+    sha = _push(TINY, "mallory/att").sha
+    name = "2026-01-01-0123456789ab.json"
+    hub.api.upload_file(path_or_fileobj=b"{}", path_in_repo=f"reproductions/{name}", repo_id="mallory/att")
+    victim, site = tmp_path / "victim", tmp_path / "site-packages"
+    site.mkdir()
+    blobs = victim / "hub" / "models--mallory--att" / "blobs"
+    with _redirecting(hub, name, site, blobs, redirect, "/hostile/") as lie, hub_environment(lie.endpoint, victim):
+        code = cli_main(["attestations", "--repo_id=mallory/att"])
+    assert not (site / "evil.pth").exists(), "the endpoint wrote a .pth outside the cache"
+    assert _written_outside(tmp_path, victim / "hub") == []
+    err = capsys.readouterr().err
+    if _follows(redirect):
+        assert code == 1 and "HostileResponseError" in err and "ETag" in err, err
+    assert sha
+
+
+@pytest.mark.parametrize("redirect", sorted(REDIRECTS))
+def test_a_redirected_repo_info_cannot_name_a_commit_that_is_a_path(hub, tmp_path, redirect):
+    """The repo-info answer is checked by its URL; a redirect to another path of the same host handed the client a
+    body nobody checked, whose ``sha`` names cache paths: on 1.x snapshot_download wrote the tree listing to
+    ``trees/<sha>.json``, outside the cache. ``env_from_dataset("user/dataset")`` downloads a dataset repo so."""
+    hub.api.create_repo("mallory/data", repo_type="dataset")
+    hub.api.upload_file(path_or_fileobj=b"{}", path_in_repo="meta/info.json", repo_id="mallory/data", repo_type="dataset")
+    victim, site = tmp_path / "victim", tmp_path / "site-packages"
+    site.mkdir()
+    repo_folder = victim / "hub" / "datasets--mallory--data"
+    escaped = os.path.relpath(site / "evil", repo_folder / "trees")
+    holder: list[LyingEndpoint] = []
+
+    def serve(method: str, p: str):
+        if p.startswith("/api/datasets/mallory/data/revision/"):
+            return 302, {"Location": REDIRECTS[redirect](holder[0].endpoint, "/hostile/info")}, b""
+        if p.startswith("/hostile/info"):
+            info = {"id": "mallory/data", "sha": escaped, "siblings": [{"rfilename": "meta/info.json"}]}
+            return 200, {"Content-Type": "application/json"}, json.dumps(info).encode()
+        if p.startswith("/api/datasets/mallory/data/tree/"):  # the listing of that "commit" (1.x asks for it)
+            tree = [{"type": "file", "path": "meta/info.json", "oid": "0" * 40, "size": 2}]
+            return 200, {"Content-Type": "application/json"}, json.dumps(tree).encode()
+        return None
+
+    holder.append(LyingEndpoint(hub.endpoint, serve=serve))
+    with holder[0] as lie, hub_environment(lie.endpoint, victim):
+        with pytest.raises(errors.HubEnvsError) as raised:
+            env_from_dataset("mallory/data")
+    assert list(site.iterdir()) == [], "the endpoint wrote outside the cache"
+    assert isinstance(raised.value, errors.HostileResponseError) and "redirect" in str(raised.value), raised.value
+
+
+def _entry(path: str, **extra) -> dict:
+    return {"type": "file", "path": path, "oid": "0" * 40, "size": 2, **extra}
+
+
+#: what a hostile tree listing says, and the value the refusal names
+LISTINGS = {
+    "a path out of the repo": ([_entry("reproductions/../../../../evil.json")], "escapes the repo"),
+    "an LFS oid that is a path": (
+        [_entry("reproductions/x.json", lfs={"oid": "../../../evil", "size": 2, "pointerSize": 130})],
+        "LFS oid",
+    ),
+    "a next page elsewhere": ("next", "next page"),
+}
+
+
+@pytest.mark.parametrize("listing", sorted(LISTINGS))
+def test_a_tree_listing_is_checked_on_every_page(hub, tmp_path, capsys, listing):
+    """The tree API's entries name cache paths (``path``; on 1.x with Xet, ``lfs.oid`` names the blob): they are
+    checked like the repo-info answer's, and a next page (``Link``) elsewhere than the tree API is refused, since its
+    body would not be. ``hub-envs attestations`` lists a repo's files so."""
+    from hub_envs.cli import main as cli_main
+
+    hub.api.create_repo("mallory/tree")
+    hub.api.upload_file(path_or_fileobj=b"{}", path_in_repo="reproductions/x.json", repo_id="mallory/tree")
+    entries, says = LISTINGS[listing]
+    holder: list[LyingEndpoint] = []
+
+    def serve(method: str, p: str):
+        if p.startswith("/api/models/mallory/tree/tree/"):
+            if entries != "next":
+                return 200, {"Content-Type": "application/json"}, json.dumps(entries).encode()
+            link = f'<{holder[0].endpoint}/hostile/page2>; rel="next"'
+            return 200, {"Content-Type": "application/json", "Link": link}, json.dumps([_entry("reproductions/x.json")]).encode()
+        if p.startswith("/hostile/page2"):
+            return 200, {"Content-Type": "application/json"}, json.dumps([_entry("../../../../evil.json")]).encode()
+        return None
+
+    holder.append(LyingEndpoint(hub.endpoint, serve=serve))
+    with holder[0] as lie, hub_environment(lie.endpoint, tmp_path / "victim"):
+        code = cli_main(["attestations", "--repo_id=mallory/tree"])
+    err = capsys.readouterr().err
+    assert code == 1 and "HostileResponseError" in err and says in err, err
+    assert _written_outside(tmp_path, tmp_path / "victim" / "hub") == []
+
+
+def test_the_env_py_lerobot_runs_fetches_the_rest_of_its_commit_through_the_endpoint_check(hub, tmp_path, marker, two_commits):
+    """LeRobot's own loader (``make_env("user/name@sha", trust_remote_code=True)``, in a process that never imported
+    hub-envs) runs the repo's ``env.py``, which downloads the rest of its commit: with hub-envs installed that
+    download goes through the same check, so the redirect above writes nothing outside the cache there either."""
+    import subprocess
+    import sys
+
+    a, _ = two_commits
+    victim, site = tmp_path / "victim", tmp_path / "site-packages"
+    site.mkdir()
+    blobs = victim / "hub" / "models--mallory--env" / "blobs"
+    code = f"from lerobot.envs.factory import make_env\nmake_env('mallory/env@{a}', n_envs=1, trust_remote_code=True)\n"
+    with _redirecting(hub, "tiny.py", site, blobs, "relative", "/hostile/") as lie, hub_environment(lie.endpoint, victim):
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ), timeout=300)
+    assert not (site / "evil.pth").exists(), "the endpoint wrote a .pth outside the cache"
+    assert _written_outside(tmp_path, victim / "hub") == []
+    assert run.returncode != 0 and "HostileResponseError" in run.stderr, run.stderr[-3000:]
+    assert not marker.exists()

@@ -39,11 +39,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from hub_envs import hub_io
 from hub_envs._compat import missing_training_packages
+from hub_envs._flags import check_repo_flags
 from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
 
 PROVENANCE_FILE = "hub_envs_provenance.json"
-_PER_REPO_RE = re.compile(r"^(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})$")
+_PER_REPO_RE = re.compile(r"(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})")  # fullmatch: no trailing newline
 _CONSUMED = ("repo_id", "revision", "trust_remote_code", "fingerprint", "check")
 
 
@@ -67,8 +69,6 @@ def _true(value: str | None) -> bool:
 
 def _resolve_short_sha(repo_id: str, prefix: str) -> str:
     """The full sha of ``repo_id`` starting with ``prefix``: from the local cache, else the Hub's commit list."""
-    from hub_envs import hub_io
-
     snapshots = hub_io.cache_snapshots_dir(repo_id)
     cached = sorted(p.name for p in snapshots.glob(f"{prefix}*")) if snapshots.is_dir() else []
     if len(cached) == 1:
@@ -92,6 +92,7 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
 
     install_hooks()
     argv = list(argv)
+    check_repo_flags(argv)  # LeRobot's draccus drops a trailing newline of a flag's value: the raw text first
     env_type = flag(argv, "env.type")
     top_trust = command in ("eval", "plugin") and _true(flag(argv, "trust_remote_code"))
     trust = _true(flag(argv, "env.trust_remote_code")) or top_trust
@@ -114,9 +115,9 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
             sandbox=_true(flag(argv, "env.sandbox")),
             versions=flag(argv, "env.versions") or "current",
         )
-    elif env_type and _PER_REPO_RE.match(env_type):
-        m = _PER_REPO_RE.match(env_type)
-        repo_id = flag(argv, "env.repo_id") or m["repo"]
+    elif env_type and _PER_REPO_RE.fullmatch(env_type):
+        m = _PER_REPO_RE.fullmatch(env_type)
+        repo_id = flag(argv, "env.repo_id") or hub_io.check_repo_id(m["repo"], what="--env.type: repo id")
         revision = flag(argv, "env.revision")
         if revision is None:
             revision = _resolve_short_sha(repo_id, m["prefix"])

@@ -64,7 +64,7 @@ REPO_TYPES = ("model", "dataset", "space")
 DEFAULT_BRANCH = "main"
 _HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _PR_REF = re.compile(r"^refs/pr/[1-9][0-9]{0,8}$")
-_NAME_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9._-]{0,95})$")
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,95}")  # fullmatch: "$" would let a trailing newline through
 _RESERVED_NAMESPACES = {"api", "models", "datasets", "spaces", "resolve", "tree", "blob"}
 _MAX_PATH_LEN = 1024
 _MAX_SEGMENT_BYTES = 255  # NAME_MAX of ext4, APFS, NTFS...: a longer name cannot be checked out
@@ -193,7 +193,7 @@ def validate_repo_id(repo_id: str) -> tuple[str, str]:
             f"Invalid repo id {repo_id!r}: expected 'namespace/name' (this server has no namespace-less repos)."
         )
     for part in parts:
-        if not _NAME_RE.match(part) or "--" in part or ".." in part or part.endswith(".git"):
+        if not _NAME_RE.fullmatch(part) or "--" in part or ".." in part or part.endswith(".git"):
             raise InvalidNameError(
                 f"Invalid repo id {repo_id!r}: each part must be 1-96 characters among letters, digits, '-', '_' "
                 "and '.', start with a letter or digit, and contain neither '--' nor '..' nor end with '.git'."

@@ -74,6 +74,10 @@ def _ensure_snapshot() -> dict:
             raise FileNotFoundError(f"{_HERE} holds only env.py and is not a Hub cache snapshot; download the whole repo.")
         from huggingface_hub import snapshot_download
 
+        try:  # hub-envs, where installed, checks every answer of the endpoint before the client writes anything
+            import hub_envs.hub_io  # noqa: F401
+        except ImportError:
+            pass
         repo_id, sha, cache_dir = origin
         # the same commit into the same cache folder; HF_ENDPOINT / HF_TOKEN apply as usual
         snapshot_download(repo_id, revision=sha, cache_dir=cache_dir,
