@@ -1,31 +1,8 @@
 """The web pages of the loopback Hub: what a person sees who points a browser at ``hub-envs serve``.
 
-Server-rendered HTML (Jinja templates under ``templates/``, one stylesheet and one small script
-under ``static/``; no build step, no framework):
-
-* ``/`` (only when the request accepts ``text/html``: API clients still get the API's 404): every
-  repo, newest commit first, with its card's title line, tags, last commit and rollout GIF; a
-  search box (``?q=``: repo name or tag) and tag links (``?tag=``).
-* ``/{user}/{repo}`` and ``/{user}/{repo}/tree/{rev}[/{folder}]``: the file list (sizes, LFS
-  markers), the card rendered from its Markdown, its YAML metadata as tags and evaluation results,
-  the load line pinned to the commit sha with a copy button, branches, tags, recent commits and
-  the reproduction reports the revision holds (``reproductions/*.json``).
-* ``/{user}/{repo}/blob/{rev}/{path}``: a text file (highlighted with Pygments), an image or video
-  inline, or anything else as a download link.
-* ``/{user}/{repo}/commits/{rev}``: the history, paged.
-
-The same paths under ``/datasets/`` and ``/spaces/`` show those repo types.
-
-Safe by construction:
-
-* Card Markdown is rendered by markdown-it-py with raw HTML off (a ``<script>`` in a card is shown
-  as text) and its link validation (no ``javascript:`` links); every page carries a
-  Content-Security-Policy that allows scripts, styles, images and media from this server only, and no
-  inline script or style at all. ``/resolve/`` answers (files a repo author wrote) get a ``sandbox``
-  policy, so an HTML or SVG file opened from a repo runs nothing either.
-* Paths go through :func:`~hub_envs.server.storage.validate_path`, the API's traversal check: 400.
-* Private repos need the token, as the API does (``Authorization: Bearer``): without it they are
-  left out of ``/`` and their pages answer 401, as the API's routes do.
+Server-rendered HTML (Jinja templates under ``templates/``, static files under ``static/``, no build step):
+the home page, each repo's files and card, a file, the history. What each page shows and why it is safe:
+``docs/server.md``.
 
 Example:
     >>> import tempfile
@@ -45,36 +22,30 @@ Example:
 
 from __future__ import annotations
 
-import json
 import logging
 import mimetypes
-import os
 import posixpath
-import re
-import subprocess
-import sys
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
-from urllib.parse import quote, unquote, urlencode, urlsplit
+from urllib.parse import quote, urlencode
 
 import jinja2
-from markdown_it import MarkdownIt
-from markupsafe import escape
-from pygments import highlight as pygments_highlight
 from pygments.formatters import HtmlFormatter
-from pygments.lexers import get_lexer_by_name, get_lexer_for_filename
-from pygments.util import ClassNotFound
 from starlette.responses import Response
 
+from hub_envs.server.access import Access
+from hub_envs.server.cards import CardData, card_fields, card_tags, card_title, eval_results, strip_front_matter
+from hub_envs.server.formats import ENV_MANIFEST
+from hub_envs.server.httputil import PLURAL, URL_PREFIX, Ctx
+from hub_envs.server.rendering import CardNotRendered, CardRenderer, Links, as_text, highlight_file, plain_card
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     Commit,
     EntryNotFoundError,
+    HubStore,
     InvalidNameError,
     InvalidPathError,
     Repo,
@@ -85,15 +56,10 @@ from hub_envs.server.storage import (
     validate_path,
 )
 
-if TYPE_CHECKING:  # app imports this module; this module needs app's types for hints only
-    from hub_envs.server.app import Ctx, HubApp
-
 logger = logging.getLogger("hub_envs.server")
 
 HERE = Path(__file__).resolve().parent
 STATIC_PREFIX = "/_hub/static/"  # "_hub" cannot be a namespace: repo ids start with a letter or digit
-_PLURAL = {"models": "model", "datasets": "dataset", "spaces": "space"}
-_URL_PREFIX = {"model": "", "dataset": "datasets/", "space": "spaces/"}
 
 #: Every page: scripts, styles, images and media from this server only; no inline script or style,
 #: no plugins, no frames, forms post back here only.
@@ -113,7 +79,6 @@ _PAGE_HEADERS = {
 
 MAX_CARD_BYTES = 512 * 1024  # the card rendered: at most this much Markdown (the rest is cut, and said)
 MAX_TEXT_BYTES = 1024 * 1024  # a text file shown: at most this large
-MAX_HIGHLIGHT_BYTES = 256 * 1024  # highlighted up to this size; plain text above
 RECENT_COMMITS = 8
 COMMITS_PAGE = 50
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".svg", ".ico"}
@@ -122,11 +87,6 @@ _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
 _ROLLOUT_VIDEO = "media/rollout.mp4"  # beside it when the dataset stores video: shown under the card
 _CACHE_SIZE = 1024
 _HIGHLIGHT_CACHE_SIZE = 64  # highlighted files (each at most a few MB of HTML)
-#: A card's Markdown is rendered in a worker process within this many seconds (env
-#: ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``); past it, the page shows the card as plain text, with a note.
-CARD_RENDER_SECONDS = 3.0
-_RENDER_WORKERS = 2  # cards rendered at once; a page waits at most the budget for one of them
-_RENDER_START_SECONDS = 60.0  # a worker's start (its imports) is not part of a card's budget
 
 
 class PageError(Exception):
@@ -142,6 +102,9 @@ class PageError(Exception):
 def wants_html(accept: str | None) -> bool:
     """Whether an ``Accept`` header asks for HTML (browsers send ``text/html,...``).
 
+    Args:
+        accept: the header's value, or None.
+
     >>> wants_html("text/html,application/xhtml+xml,*/*;q=0.8"), wants_html("*/*"), wants_html(None)
     (True, False, False)
     """
@@ -150,6 +113,9 @@ def wants_html(accept: str | None) -> bool:
 
 def format_size(n: int) -> str:
     """A file size for people.
+
+    Args:
+        n: a number of bytes.
 
     >>> format_size(0), format_size(1023), format_size(1536), format_size(5 * 1024**2)
     ('0 B', '1023 B', '1.5 kB', '5.0 MB')
@@ -161,332 +127,6 @@ def format_size(n: int) -> str:
         if n < 1024 or unit == "TB":
             return f"{n:.1f} {unit}"
     raise AssertionError("unreachable")
-
-
-def _highlight_code(code: str, lang: str, _attrs: str) -> str:
-    """markdown-it's fence highlighter: Pygments for a known language, else markdown-it's escaping."""
-    if not lang or len(code) > MAX_HIGHLIGHT_BYTES:
-        return ""
-    try:
-        lexer = get_lexer_by_name(lang.split()[0].lower())
-    except ClassNotFound:
-        return ""
-    # starts with "<pre": markdown-it then uses it as the whole block (no second <pre><code> around it)
-    return f'<pre class="highlight"><code>{pygments_highlight(code, lexer, _FENCE_FORMATTER)}</code></pre>'
-
-
-_FENCE_FORMATTER = HtmlFormatter(nowrap=True)
-_FILE_FORMATTER = HtmlFormatter(cssclass="highlight", wrapcode=True, linenos="table", lineanchors="L", anchorlinenos=True)
-
-
-@lru_cache(maxsize=1)
-def _markdown() -> MarkdownIt:
-    # CommonMark with raw HTML off (a card's <script> or <img onerror> becomes text), plus tables
-    # and strikethrough as on the Hub. Links keep markdown-it's validation (no javascript:/vbscript:/
-    # file: links; data: only for images, which the page's CSP then blocks).
-    return MarkdownIt("commonmark", {"html": False, "highlight": _highlight_code}).enable(["table", "strikethrough"])
-
-
-_ALIGN_RE = re.compile(r"^text-align:(left|right|center)$")
-_SCHEME_RE = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
-
-
-@dataclass
-class _Links:
-    """How a card's relative links and images resolve: into the repo at the pinned commit."""
-
-    base: str  # /{prefix}{repo_id}
-    sha: str
-    folders: set[str]  # the commit's folders: a link to one goes to its tree page
-
-    def target(self, url: str) -> str | None:
-        """The repo path a relative ``url`` names (``./media/a.gif#x`` -> ``media/a.gif``), or None."""
-        if not url or url.startswith(("#", "/", "?")) or _SCHEME_RE.match(url):
-            return None
-        path = unquote(urlsplit(url).path)
-        norm = posixpath.normpath(path)
-        if norm in ("", ".") or norm.startswith(".."):
-            return None
-        try:
-            return validate_path(norm)
-        except InvalidPathError:
-            return None
-
-    def image(self, url: str) -> str:
-        path = self.target(url)
-        if path is None:
-            return url
-        return f"{self.base}/resolve/{self.sha}/{quote(path)}"
-
-    def link(self, url: str) -> str:
-        path = self.target(url)
-        if path is None:
-            return url
-        fragment = urlsplit(url).fragment
-        kind = "tree" if path in self.folders else "blob"
-        return f"{self.base}/{kind}/{self.sha}/{quote(path)}" + (f"#{fragment}" if fragment else "")
-
-
-def render_markdown(text: str, links: _Links | None = None) -> str:
-    """Card Markdown as HTML: raw HTML escaped, relative images served from the repo at the pinned
-    commit, relative links to the file pages, table alignment as classes (the page's CSP allows no
-    inline style).
-
-    >>> render_markdown("Hi <script>alert(1)</script> [x](javascript:alert(1))")
-    '<p>Hi &lt;script&gt;alert(1)&lt;/script&gt; [x](javascript:alert(1))</p>\\n'
-    >>> links = _Links("/alice/env", "a" * 40, folders=set())
-    >>> render_markdown("![roll](media/a.gif)", links)
-    '<p><img src="/alice/env/resolve/aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa/media/a.gif" alt="roll" /></p>\\n'
-    """
-    md = _markdown()
-    tokens = md.parse(text)
-    for token in tokens:
-        style = token.attrGet("style")
-        if style is not None:
-            match = _ALIGN_RE.match(str(style))
-            token.attrs.pop("style", None)
-            if match:
-                token.attrSet("class", f"align-{match.group(1)}")
-        if token.type == "table_open":
-            token.attrSet("class", "card-table")
-        for child in token.children or ():
-            if links is None:
-                continue
-            if child.type == "image":
-                child.attrSet("src", links.image(str(child.attrGet("src") or "")))
-            elif child.type == "link_open":
-                child.attrSet("href", links.link(str(child.attrGet("href") or "")))
-    return md.renderer.render(tokens, md.options, {})
-
-
-# --- rendering cards in worker processes -------------------------------------------------------
-
-
-class CardNotRendered(Exception):
-    """A card could not be rendered: over the time budget (``cacheable``: it would be again), or no renderer."""
-
-    def __init__(self, message: str, cacheable: bool):
-        super().__init__(message)
-        self.cacheable = cacheable
-
-
-class _RenderWorker:
-    """One renderer process (:func:`render_worker`), spoken to over two pipes: a request is a JSON message
-    ``{"text", "base", "sha", "folders"}``, an answer ``{"html"}`` or ``{"error"}`` (length-prefixed bytes of
-    :class:`multiprocessing.connection.Connection`; JSON both ways, so nothing is unpickled)."""
-
-    def __init__(self):
-        from multiprocessing.connection import Connection
-
-        child_reads, parent_writes = os.pipe()
-        parent_reads, child_writes = os.pipe()
-        package_root = str(Path(__file__).resolve().parents[2])  # hub_envs' parent folder: importable in the child
-        env = {**os.environ, "PYTHONSAFEPATH": "1"}  # not the server's working folder on sys.path
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
-        code = f"from hub_envs.server.pages import render_worker; render_worker({child_reads}, {child_writes})"
-        try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", code],
-                stdin=subprocess.DEVNULL,
-                pass_fds=(child_reads, child_writes),
-                env=env,
-                start_new_session=True,  # Ctrl-C on the server's terminal is the server's: it never reaches a renderer
-            )
-        except OSError:
-            os.close(parent_writes)
-            os.close(parent_reads)
-            raise
-        finally:
-            os.close(child_reads)
-            os.close(child_writes)
-        self.send = Connection(parent_writes, readable=False)
-        self.receive = Connection(parent_reads, writable=False)
-        try:
-            if not self.receive.poll(_RENDER_START_SECONDS) or self.receive.recv_bytes() != b"ready":
-                raise OSError(f"the card renderer did not start within {_RENDER_START_SECONDS:g} s")
-        except (EOFError, OSError):
-            self.kill()
-            raise
-
-    def kill(self) -> None:
-        self.process.kill()
-        self.process.wait()
-        self.send.close()
-        self.receive.close()
-
-
-class CardRenderer:
-    """Renders card Markdown in worker processes, each card within a time budget.
-
-    markdown-it is fast on cards people write, but some Markdown within the 512 KiB a page renders takes it
-    seconds to tens of seconds (thousands of nested ``![`` or ``[``). Rendered in the server's own process it
-    would share the GIL and the thread pool with every API request; here a worker process renders it, a page
-    waits at most ``budget`` seconds for a free worker and ``budget`` more for the HTML, and a worker past the
-    budget is killed (a new one starts for the next card). Then :class:`CardNotRendered` says so.
-
-    Args:
-        budget: seconds a card may take to render (default :data:`CARD_RENDER_SECONDS`, or env
-            ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``).
-        workers: renderer processes at most (started when first needed; each is reused).
-    """
-
-    def __init__(self, budget: float | None = None, workers: int = _RENDER_WORKERS):
-        if budget is None:
-            raw = os.environ.get("HUB_ENVS_SERVER_CARD_RENDER_SECONDS", "").strip()
-            try:
-                budget = float(raw) if raw else CARD_RENDER_SECONDS
-            except ValueError:
-                raise ValueError(f"HUB_ENVS_SERVER_CARD_RENDER_SECONDS={raw!r}: expected a number of seconds.") from None
-        if not 0 < budget < float("inf"):
-            raise ValueError(f"The card render budget must be a positive number of seconds, got {budget}.")
-        self.budget = budget
-        self._slots = threading.BoundedSemaphore(workers)
-        self._idle: list[_RenderWorker] = []
-        self._guard = threading.Lock()
-
-    def render(self, text: str, links: _Links) -> str:
-        """The HTML of card Markdown ``text`` (as :func:`render_markdown` makes it).
-
-        Raises:
-            CardNotRendered: over the budget (``cacheable``), every worker busy past the budget, or no
-                worker could start or answer (both not ``cacheable``: another view may render it).
-        """
-        if not self._slots.acquire(timeout=self.budget):
-            raise CardNotRendered(f"every card renderer stayed busy for {self.budget:g} s", cacheable=False)
-        worker = None
-        try:
-            with self._guard:
-                worker = self._idle.pop() if self._idle else None
-            if worker is None:
-                worker = _RenderWorker()  # its start is not part of the budget
-            request = {"text": text, "base": links.base, "sha": links.sha, "folders": sorted(links.folders)}
-            worker.send.send_bytes(json.dumps(request).encode())
-            if not worker.receive.poll(self.budget):
-                worker.kill()
-                worker = None
-                raise CardNotRendered(f"it takes longer than {self.budget:g} s to render", cacheable=True)
-            answer = json.loads(worker.receive.recv_bytes())
-            if "html" not in answer:
-                raise CardNotRendered(f"the renderer failed: {str(answer.get('error'))[:300]}", cacheable=True)
-            return answer["html"]
-        except (EOFError, OSError, ValueError) as err:  # the worker died, or never started
-            logger.error("Card renderer failed: %s: %s", type(err).__name__, err)
-            if worker is not None:
-                worker.kill()
-                worker = None
-            raise CardNotRendered("the renderer failed (details in the server's log)", cacheable=False) from None
-        finally:
-            if worker is not None:
-                with self._guard:
-                    self._idle.append(worker)
-            self._slots.release()
-
-    def close(self) -> None:
-        """Stop the idle workers (a busy one is stopped by its render)."""
-        with self._guard:
-            idle, self._idle = self._idle, []
-        for worker in idle:
-            worker.kill()
-
-
-def render_worker(read_fd: int, write_fd: int) -> None:
-    """The loop of a renderer process (see :class:`CardRenderer`): until the server closes its pipe, render
-    each request and answer it."""
-    from multiprocessing.connection import Connection
-
-    requests, answers = Connection(read_fd, writable=False), Connection(write_fd, readable=False)
-    render_markdown("warm up")  # imports and builds the parser before the first card's budget starts
-    answers.send_bytes(b"ready")
-    while True:
-        try:
-            request = json.loads(requests.recv_bytes())
-        except (EOFError, OSError):
-            return  # the server is gone (or stopped this worker)
-        try:
-            links = _Links(request["base"], request["sha"], set(request["folders"]))
-            answer = {"html": render_markdown(request["text"], links)}
-        except Exception as err:  # a bug in rendering: the page shows the card as text and the log says why
-            answer = {"error": f"{type(err).__name__}: {str(err)[:300]}"}
-        answers.send_bytes(json.dumps(answer).encode())
-
-
-def plain_card(text: str) -> str:
-    """Card Markdown shown as it is written, escaped: what a page shows when the card cannot be rendered.
-
-    >>> plain_card("# Hi <script>")
-    '<pre class="card-plain"># Hi &lt;script&gt;</pre>'
-    """
-    return f'<pre class="card-plain">{escape(text)}</pre>'
-
-
-# --- card metadata ----------------------------------------------------------------------------
-
-
-def card_title(body: str) -> str | None:
-    """The card's title line: its first ``# heading`` (front matter already cut off).
-
-    >>> card_title("Intro\\n\\n# tiny-env — a hub-envs environment\\n## Load it")
-    'tiny-env — a hub-envs environment'
-    """
-    for line in body.splitlines()[:200]:
-        if line.startswith("# "):
-            return line[2:].strip().strip("#").strip() or None
-    return None
-
-
-def eval_results(card: dict | None) -> list[dict]:
-    """The evaluation results of a card's ``model-index`` metadata, one row per metric.
-
-    >>> eval_results({"model-index": [{"name": "a/b", "results": [{"task": {"type": "rl"},
-    ...     "dataset": {"name": "tiny"}, "metrics": [{"type": "mean_return", "value": -8.2, "name": "mean_return (random policy)"}]}]}]})
-    [{'model': 'a/b', 'task': 'rl', 'dataset': 'tiny', 'metric': 'mean_return (random policy)', 'value': '-8.2', 'verified': False}]
-    """
-    rows: list[dict] = []
-    index = card.get("model-index") if isinstance(card, dict) else None
-    if not isinstance(index, list):
-        return rows
-    for model in index[:20]:
-        if not isinstance(model, dict):
-            continue
-        for result in (model.get("results") or [])[:50] if isinstance(model.get("results"), list) else []:
-            if not isinstance(result, dict):
-                continue
-            task = result.get("task") if isinstance(result.get("task"), dict) else {}
-            dataset = result.get("dataset") if isinstance(result.get("dataset"), dict) else {}
-            metrics = result.get("metrics") if isinstance(result.get("metrics"), list) else []
-            for metric in metrics[:50]:
-                if not isinstance(metric, dict):
-                    continue
-                value = metric.get("value")
-                rows.append(
-                    {
-                        "model": str(model.get("name") or ""),
-                        "task": str(task.get("name") or task.get("type") or ""),
-                        "dataset": str(dataset.get("name") or dataset.get("type") or ""),
-                        "metric": str(metric.get("name") or metric.get("type") or ""),
-                        "value": f"{value:.4g}" if isinstance(value, float) else str(value),
-                        "verified": metric.get("verified") is True,
-                    }
-                )
-    return rows
-
-
-def card_fields(card: dict | None) -> list[tuple[str, str]]:
-    """The card metadata's plain fields (``library_name``, ``license``...) as ``(key, value)`` rows;
-    tags and model-index are shown on their own."""
-    if not isinstance(card, dict):
-        return []
-    out = []
-    for key, value in card.items():
-        if key in ("tags", "model-index") or isinstance(value, (dict, list)) or value is None:
-            continue
-        out.append((str(key), str(value)[:200]))
-    return out[:20]
-
-
-def card_tags(card: dict | None) -> list[str]:
-    tags = card.get("tags") if isinstance(card, dict) else None
-    return [str(t) for t in tags[:50]] if isinstance(tags, list) else []
 
 
 # --- the pages --------------------------------------------------------------------------------
@@ -503,10 +143,18 @@ class _Card:
 
 
 class Pages:
-    """The page routes, bound to a :class:`~hub_envs.server.app.HubApp` (its store and its auth)."""
+    """The page routes.
 
-    def __init__(self, hub: HubApp):
-        self.hub = hub
+    Args:
+        store: the repos.
+        access: who may see what (a private repo's page needs the token, as its API routes do).
+        cards: the README metadata, shared with the API's repo info.
+    """
+
+    def __init__(self, store: HubStore, access: Access, cards: CardData):
+        self.store = store
+        self.access = access
+        self.cards = cards
         self.env = jinja2.Environment(
             loader=jinja2.FileSystemLoader(HERE / "templates"),
             autoescape=True,
@@ -521,45 +169,60 @@ class Pages:
         self._cards: OrderedDict[tuple[str, str], _Card] = OrderedDict()  # (README sha256, commit) -> card
         self._highlights: OrderedDict[tuple[str, str], str] = OrderedDict()  # (blob sha256, file name) -> HTML
         self._guard = threading.Lock()
-        self._static = _static_files()
+        self._assets = _static_files()
         self.renderer = CardRenderer()  # card Markdown: in worker processes, within a time budget
 
     # -- routing --
 
     def match(self, ctx: Ctx) -> Callable[[Ctx], Response] | None:
-        """The handler of a page route, or None if ``ctx`` is not one (then the API routes it)."""
+        """The handler of a page route, or None if ``ctx`` is not one (then the API routes it).
+
+        Args:
+            ctx: the request (GET or HEAD).
+
+        Returns:
+            The page's handler, or None.
+        """
         segs = ctx.segs
         if segs == [""]:
-            return self.home if wants_html(ctx.request.headers.get("accept")) else None
+            return self._home if wants_html(ctx.request.headers.get("accept")) else None
         if len(segs) == 3 and segs[0] == "_hub" and segs[1] == "static":
-            return lambda c: self.static(segs[2])
+            return lambda c: self._static(segs[2])
         if not segs or segs[0] == "api":
             return None
         repo_type, rest = "model", segs
-        if rest[0] in _PLURAL:
-            repo_type, rest = _PLURAL[rest[0]], rest[1:]
+        if rest[0] in PLURAL:
+            repo_type, rest = PLURAL[rest[0]], rest[1:]
         if len(rest) < 2 or not rest[0] or not rest[1]:
             return None
         repo_id = f"{rest[0]}/{rest[1]}"
         if len(rest) == 2:
-            return lambda c: self.repo_page(c, repo_type, repo_id, None, "")
+            return lambda c: self._repo_page(c, repo_type, repo_id, None, "")
         action, args = rest[2], rest[3:]
         if action == "tree" and args:
-            return lambda c: self.repo_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
+            return lambda c: self._repo_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
         if action == "blob" and len(args) >= 2:
-            return lambda c: self.blob_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
+            return lambda c: self._blob_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
         if action == "commits" and len(args) == 1:
-            return lambda c: self.commits_page(c, repo_type, repo_id, args[0])
+            return lambda c: self._commits_page(c, repo_type, repo_id, args[0])
         return None
 
     def handle(self, ctx: Ctx, handler: Callable[[Ctx], Response]) -> Response:
-        """Run a page handler; an error becomes an HTML page (its status, what was not found)."""
+        """Run a page handler; an error becomes an HTML page (its status, what was not found).
+
+        Args:
+            ctx: the request.
+            handler: what :meth:`match` returned.
+
+        Returns:
+            The page, or an HTML error page with the error's status.
+        """
         try:
             return handler(ctx)
         except PageError as err:
             return self._error(ctx, err)
         except RepoNotFoundError:
-            status = 401 if (self.hub.token is not None and not ctx.authenticated) else 404
+            status = 401 if (self.access.token is not None and not ctx.authenticated) else 404
             path = "/" + "/".join(ctx.segs)
             hint = (
                 " This server was started with a token: a private repo is shown only to requests that send it "
@@ -587,8 +250,8 @@ class Pages:
     def _error(self, ctx: Ctx, err: PageError) -> Response:
         return self._render("error.html", status=err.status, title=err.title, message=err.message)
 
-    def static(self, name: str) -> Response:
-        found = self._static.get(name)
+    def _static(self, name: str) -> Response:
+        found = self._assets.get(name)
         if found is None:
             raise PageError(404, "Not found", f"No static file {name!r} on this server.")
         data, media_type = found
@@ -598,7 +261,7 @@ class Pages:
     # -- repos --
 
     def _open(self, ctx: Ctx, repo_type: str, repo_id: str) -> Repo:
-        return self.hub._open(ctx, repo_type, repo_id)  # private repos: the token, as the API
+        return self.access.open(ctx, repo_type, repo_id)  # private repos: the token, as the API
 
     def _card(self, repo: Repo, commit: Commit, base: str) -> _Card | None:
         entry = commit.files.get("README.md")
@@ -613,7 +276,7 @@ class Pages:
             raw = f.read(MAX_CARD_BYTES + 1)
         text = raw[:MAX_CARD_BYTES].decode("utf-8", "replace")
         body = strip_front_matter(text)
-        links = _Links(base, commit.id, folders_of(commit.files))
+        links = Links(base, commit.id, folders_of(commit.files))
         card = _Card(card_title(body), "", truncated=len(raw) > MAX_CARD_BYTES)
         try:
             card.html = self.renderer.render(body, links)
@@ -646,26 +309,26 @@ class Pages:
                 self._cards.popitem(last=False)
         return card.title
 
-    def home(self, ctx: Ctx) -> Response:
+    def _home(self, ctx: Ctx) -> Response:
         query = (ctx.query("q") or "").strip()
         tag = (ctx.query("tag") or "").strip()
         needle = query.lower()
         repos = []
         for repo_type in ("model", "dataset", "space"):
-            for meta in self.hub.store.list_repos(repo_type):
+            for meta in self.store.list_repos(repo_type):
                 if meta.private and not ctx.authenticated:
                     continue
                 try:
-                    repo = self.hub.store.open(repo_type, meta.repo_id)
+                    repo = self.store.open(repo_type, meta.repo_id)
                     head = repo.head()
-                    card = self.hub._card_data(repo, head)
+                    card = self.cards.get(repo, head)
                     tags = card_tags(card)
                     if tag and tag not in tags:
                         continue
                     if needle and needle not in meta.repo_id.lower() and not any(needle in t.lower() for t in tags):
                         continue
                     thumb = _thumbnail(head)
-                    base = "/" + _URL_PREFIX[repo_type] + meta.repo_id
+                    base = "/" + URL_PREFIX[repo_type] + meta.repo_id
                     repos.append(
                         {
                             "id": meta.repo_id,
@@ -691,7 +354,7 @@ class Pages:
         rev = revision or DEFAULT_BRANCH
         commit = repo.resolve(rev)
         refs = repo.refs()
-        base = "/" + _URL_PREFIX[repo_type] + repo.repo_id
+        base = "/" + URL_PREFIX[repo_type] + repo.repo_id
         return {
             "repo": repo,
             "repo_id": repo.repo_id,
@@ -707,7 +370,7 @@ class Pages:
             "crumbs": _crumbs(path),
         }
 
-    def repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
+    def _repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
         path = path.strip("/")
         if path:
             validate_path(path)
@@ -730,7 +393,7 @@ class Pages:
                 entries.append({"name": p[len(prefix) :], "path": p, "folder": False, "size": entry.size, "lfs": entry.lfs})
         entries.sort(key=lambda e: (not e["folder"], e["name"].lower()))
         card = self._card(repo, commit, c["base"]) if not path else None
-        data = self.hub._card_data(repo, commit) if not path else None
+        data = self.cards.get(repo, commit) if not path else None
         recent = []
         for i, old in enumerate(repo.history(commit)):
             if i >= RECENT_COMMITS:
@@ -754,7 +417,7 @@ class Pages:
             total_size=sum(e.size for e in commit.files.values()),
         )
 
-    def blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
+    def _blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
         validate_path(path)  # before anything: a traversal attempt is a 400, as in the API
         c = self._context(ctx, repo_type, repo_id, revision, path)
         repo, commit = c["repo"], c["commit"]
@@ -773,7 +436,7 @@ class Pages:
         elif entry.size <= MAX_TEXT_BYTES:
             with repo.open_blob(entry) as f:
                 data = f.read()
-            text = _as_text(data)
+            text = as_text(data)
             if text is not None:
                 kind, code = "text", self._highlighted(entry.sha256, path, text)
         return self._render(
@@ -793,14 +456,14 @@ class Pages:
             if key in self._highlights:
                 self._highlights.move_to_end(key)
                 return self._highlights[key]
-        code = _highlight_file(path, text)
+        code = highlight_file(path, text)
         with self._guard:
             self._highlights[key] = code
             while len(self._highlights) > _HIGHLIGHT_CACHE_SIZE:
                 self._highlights.popitem(last=False)
         return code
 
-    def commits_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
+    def _commits_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
         c = self._context(ctx, repo_type, repo_id, revision)
         try:
             page = max(0, int(ctx.query("p") or 0))
@@ -821,26 +484,17 @@ class Pages:
 
 def load_line(repo_id: str, repo_type: str, commit: Commit) -> str:
     """The line that loads this repo pinned to this commit: ``load_env`` for an env repo (one with a
-    ``hub_env.json``), else ``snapshot_download``; the same text push_env prints."""
-    if repo_type == "model" and "hub_env.json" in commit.files:
+    ``hub_env.json``), else ``snapshot_download``; the same text push_env prints.
+
+    Args:
+        repo_id: ``namespace/name``.
+        repo_type: ``model``, ``dataset`` or ``space``.
+        commit: the commit to pin.
+    """
+    if repo_type == "model" and ENV_MANIFEST in commit.files:
         return f'load_env("{repo_id}@{commit.id}", trust_remote_code=True)'
     kind = "" if repo_type == "model" else f', repo_type="{repo_type}"'
     return f'snapshot_download("{repo_id}"{kind}, revision="{commit.id}")'
-
-
-_FRONT_RE = re.compile(r"\A---[ \t]*\r?\n.*?^---[ \t]*(?:\r?\n|\Z)", flags=re.S | re.M)
-
-
-def strip_front_matter(text: str) -> str:
-    """The README without its YAML metadata block (shown as tags and results, never as raw text).
-
-    >>> strip_front_matter("---\\ntags: [a]\\n---\\n# Title\\n")
-    '# Title\\n'
-    >>> strip_front_matter("# No metadata\\n")
-    '# No metadata\\n'
-    """
-    match = _FRONT_RE.match(text)
-    return text[match.end() :] if match else text
 
 
 def _thumbnail(commit: Commit) -> str | None:
@@ -848,38 +502,6 @@ def _thumbnail(commit: Commit) -> str | None:
         return _THUMBNAIL
     gifs = sorted(p for p in commit.files if p.lower().endswith(".gif"))
     return gifs[0] if gifs else None
-
-
-def _read_text(repo: Repo, commit: Commit, path: str, limit: int = 64 * 1024) -> str | None:
-    entry = commit.files.get(path)
-    if entry is None:
-        return None
-    with repo.open_blob(entry) as f:
-        return f.read(limit).decode("utf-8", "replace")
-
-
-def _as_text(data: bytes) -> str | None:
-    """``data`` as text, or None if it looks binary (a NUL byte, or not UTF-8)."""
-    if b"\x00" in data[:8192]:
-        return None
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        return None
-
-
-def _highlight_file(path: str, text: str) -> str:
-    """A file's text as highlighted HTML (Pygments; plain text when no lexer knows the name or the
-    file is large). Pygments escapes the text."""
-    lexer = None
-    if len(text) <= MAX_HIGHLIGHT_BYTES:
-        try:
-            lexer = get_lexer_for_filename(path.rsplit("/", 1)[-1], stripnl=False)
-        except ClassNotFound:
-            lexer = None
-    if lexer is None:
-        lexer = get_lexer_by_name("text", stripnl=False)
-    return pygments_highlight(text, lexer, _FILE_FORMATTER)
 
 
 def _crumbs(path: str) -> list[tuple[str, str]]:
