@@ -1,8 +1,9 @@
 """The web pages of the loopback Hub: what a person sees who points a browser at ``hub-envs serve``.
 
 Server-rendered HTML (Jinja templates under ``templates/``, static files under ``static/``, no build step):
-the home page, each repo's files and card, a file, the history. What each page shows and why it is safe:
-``docs/server.md``.
+the home page, each repo's files, card and reproductions matrix, a file, the history, the dataset viewer
+(``/{user}/{repo}/episodes``) and the pull requests (``/{user}/{repo}/discussions``, for browsers). What each
+page shows and why it is safe: ``docs/server.md``.
 
 Example:
     >>> import tempfile
@@ -22,14 +23,18 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
 import mimetypes
 import posixpath
+import struct
 import threading
+import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote, urlencode
 
 import jinja2
@@ -38,9 +43,12 @@ from starlette.responses import Response
 
 from hub_envs.server.access import Access
 from hub_envs.server.cards import CardData, card_fields, card_tags, card_title, eval_results, strip_front_matter
+from hub_envs.server.diffs import changes
+from hub_envs.server.episodes import INFO, PREFIXES, DatasetUnreadable, EpisodeReader, find_dataset
 from hub_envs.server.formats import ENV_MANIFEST
 from hub_envs.server.httputil import PLURAL, URL_PREFIX, Ctx
 from hub_envs.server.rendering import CardNotRendered, CardRenderer, Links, as_text, highlight_file, plain_card
+from hub_envs.server.reproductions import Records, is_record, matrix
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     Commit,
@@ -48,6 +56,7 @@ from hub_envs.server.storage import (
     HubStore,
     InvalidNameError,
     InvalidPathError,
+    PullRequestNotFoundError,
     Repo,
     RepoNotFoundError,
     RevisionNotFoundError,
@@ -61,10 +70,10 @@ logger = logging.getLogger("hub_envs.server")
 HERE = Path(__file__).resolve().parent
 STATIC_PREFIX = "/_hub/static/"  # "_hub" cannot be a namespace: repo ids start with a letter or digit
 
-#: Every page: scripts, styles, images and media from this server only; no inline script or style,
-#: no plugins, no frames, forms post back here only.
+#: Every page: scripts, styles, images, media and fetches (the dataset viewer's data) from this server only; no
+#: inline script or style, no plugins, no frames, forms post back here only.
 PAGE_CSP = (
-    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; media-src 'self'; "
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; media-src 'self'; connect-src 'self'; "
     "form-action 'self'; base-uri 'none'; frame-ancestors 'none'"
 )
 #: ``/resolve/`` answers: repo files opened in the browser (an .html or .svg a repo author wrote)
@@ -81,6 +90,7 @@ MAX_CARD_BYTES = 512 * 1024  # the card rendered: at most this much Markdown (th
 MAX_TEXT_BYTES = 1024 * 1024  # a text file shown: at most this large
 RECENT_COMMITS = 8
 COMMITS_PAGE = 50
+EPISODES_PAGE = 100  # episodes listed per page
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".svg", ".ico"}
 _VIDEO_EXT = {".mp4", ".webm", ".ogv"}
 _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
@@ -171,6 +181,8 @@ class Pages:
         self._guard = threading.Lock()
         self._assets = _static_files()
         self.renderer = CardRenderer()  # card Markdown: in worker processes, within a time budget
+        self.episodes = EpisodeReader()  # the dataset viewer's reads, cached
+        self.records = Records()  # reproduction attestations, cached
 
     # -- routing --
 
@@ -184,8 +196,11 @@ class Pages:
             The page's handler, or None.
         """
         segs = ctx.segs
+        html = wants_html(ctx.request.headers.get("accept"))
         if segs == [""]:
-            return self._home if wants_html(ctx.request.headers.get("accept")) else None
+            return self._home if html else None
+        if segs == ["favicon.ico"]:
+            return lambda c: self._static("favicon.ico")
         if len(segs) == 3 and segs[0] == "_hub" and segs[1] == "static":
             return lambda c: self._static(segs[2])
         if not segs or segs[0] == "api":
@@ -205,6 +220,27 @@ class Pages:
             return lambda c: self._blob_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
         if action == "commits" and len(args) == 1:
             return lambda c: self._commits_page(c, repo_type, repo_id, args[0])
+        if action == "episodes":
+            return self._match_episodes(repo_type, repo_id, args)
+        if action == "discussions" and html and len(args) <= 1:  # API clients keep the API's answer there
+            if not args:
+                return lambda c: self._discussions_page(c, repo_type, repo_id)
+            return lambda c: self._discussion_page(c, repo_type, repo_id, _number(args[0], "pull request"))
+        return None
+
+    def _match_episodes(self, repo_type: str, repo_id: str, args: list[str]) -> Callable[[Ctx], Response] | None:
+        """``episodes``, ``episodes/{i}``, ``episodes/{i}/data.json``, ``episodes/{i}/frames/{key}/{step}.png``."""
+        if not args:
+            return lambda c: self._episodes_page(c, repo_type, repo_id)
+        if len(args) == 1:
+            return lambda c: self._episode_page(c, repo_type, repo_id, _number(args[0], "episode"))
+        if len(args) == 2 and args[1] == "data.json":
+            return lambda c: self._episode_data(c, repo_type, repo_id, _number(args[0], "episode"))
+        if len(args) == 4 and args[1] == "frames" and args[3].endswith(".png"):
+            step = args[3][: -len(".png")]
+            return lambda c: self._episode_frame(
+                c, repo_type, repo_id, _number(args[0], "episode"), args[2], _number(step, "frame")
+            )
         return None
 
     def handle(self, ctx: Ctx, handler: Callable[[Ctx], Response]) -> Response:
@@ -239,6 +275,10 @@ class Pages:
             return self._error(ctx, PageError(400, "Invalid path", str(err)))
         except InvalidNameError as err:
             return self._error(ctx, PageError(400, "Invalid name", str(err)))
+        except PullRequestNotFoundError:
+            return self._error(ctx, PageError(404, "Pull request not found", f"No pull request at /{'/'.join(ctx.segs)}."))
+        except DatasetUnreadable as err:
+            return self._error(ctx, PageError(422, "Dataset not shown", f"The viewer cannot show this dataset: {err}"))
         except StoreError:
             logger.exception("Store error on page %s", ctx.request.url.path)
             return self._error(ctx, PageError(500, "Server error", "The page failed on the server (details in its log)."))
@@ -368,6 +408,8 @@ class Pages:
             "private": repo.meta.private,
             "path": path,
             "crumbs": _crumbs(path),
+            "has_dataset": any(p + INFO in commit.files for p in PREFIXES.get(repo_type, ())),
+            "open_prs": sum(1 for pr in refs.pulls.values() if pr.status == "open"),
         }
 
     def _repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
@@ -399,9 +441,8 @@ class Pages:
             if i >= RECENT_COMMITS:
                 break
             recent.append(old)
-        reproductions = sorted(
-            (p, e.size) for p, e in commit.files.items() if p.startswith("reproductions/") and p.endswith(".json")
-        )
+        shown = [e for p, e in commit.files.items() if p.startswith(prefix)]  # the folder's files (all of them at the root)
+        attested = self.records.attested(repo, commit, c["base"]) if not path else []
         return self._render(
             "repo.html",
             **c,
@@ -412,9 +453,11 @@ class Pages:
             results=eval_results(data),
             load_line=load_line(repo.repo_id, repo_type, commit),
             recent=recent,
-            reproductions=reproductions,
+            reproductions=matrix(attested),
+            merge_rights=self._merge_rights(repo),
             rollout_video=_ROLLOUT_VIDEO if not path and _ROLLOUT_VIDEO in commit.files else None,
-            total_size=sum(e.size for e in commit.files.values()),
+            shown_files=len(shown),
+            shown_size=sum(e.size for e in shown),
         )
 
     def _blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
@@ -478,6 +521,131 @@ class Pages:
                 commits.append(old)
         return self._render("commits.html", **c, commits=commits, page=page, more=more, next_query=urlencode({"p": page + 1}))
 
+    # -- the dataset viewer --
+
+    def _dataset(self, ctx: Ctx, repo_type: str, repo_id: str) -> tuple[dict, Any]:
+        """The repo's page context at ``?rev=`` (default main) and the dataset it holds (404 if none)."""
+        c = self._context(ctx, repo_type, repo_id, ctx.query("rev") or None)
+        ds = find_dataset(c["repo"], c["commit"])
+        if ds is None:
+            where = " or ".join(f"{p or 'the root'}" for p in PREFIXES.get(repo_type, ())) or "this kind of repo"
+            raise PageError(
+                404,
+                "No dataset",
+                f"{c['repo_id']} at {c['rev']} holds no LeRobot dataset (no {INFO} in {where}).",
+            )
+        return c, ds
+
+    def _episodes_page(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        c, ds = self._dataset(ctx, repo_type, repo_id)
+        index = self.episodes.index(ds)
+        page = _number(ctx.query("p") or "0", "page", minimum=0)
+        rows = index.episodes[page * EPISODES_PAGE : (page + 1) * EPISODES_PAGE]
+        if page and not rows:
+            raise PageError(404, "No such page", f"Page {page} is past the last episode ({len(index)} episodes).")
+        return self._render(
+            "episodes.html",
+            **c,
+            ds=ds,
+            rows=rows,
+            total=len(index),
+            page=page,
+            pages=(len(index) + EPISODES_PAGE - 1) // EPISODES_PAGE,
+            frames=sum(e.length for e in index.episodes),
+        )
+
+    def _episode(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> tuple[dict, Any, Any, Any]:
+        c, ds = self._dataset(ctx, repo_type, repo_id)
+        index = self.episodes.index(ds)
+        episode = index.get(i)
+        if episode is None:
+            raise PageError(404, "Episode not found", f"No episode {i} in {c['repo_id']} at {c['rev']} ({len(index)} episodes).")
+        return c, ds, index, episode
+
+    def _episode_page(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> Response:
+        c, ds, index, episode = self._episode(ctx, repo_type, repo_id, i)
+        sha = c["commit"].id
+        videos = []
+        for key, (chunk, file, start, stop) in sorted(episode.videos.items()):
+            path = ds.path("video_path", video_key=key, chunk_index=chunk, file_index=file)
+            if ds.file(path) is not None:
+                videos.append(
+                    {"key": key, "url": f"{c['base']}/resolve/{sha}/{quote(ds.prefix + path)}", "from": start, "to": stop}
+                )
+        position = index.episodes.index(episode)
+        neighbours = index.episodes[max(position - 1, 0) : position + 2]
+        return self._render(
+            "episode.html",
+            **c,
+            ds=ds,
+            episode=episode,
+            total=len(index),
+            previous=neighbours[0] if neighbours[0] is not episode else None,
+            next=neighbours[-1] if neighbours[-1] is not episode else None,
+            videos=videos,
+            images=ds.image_keys,
+            series=[(k, ds.names(k)) for k in ds.series_keys],
+            data_url=f"{c['base']}/episodes/{episode.index}/data.json?{urlencode({'rev': sha})}",
+            frames_url=f"{c['base']}/episodes/{episode.index}/frames",
+            extra_scripts=["viewer.js"],
+        )
+
+    def _episode_data(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> Response:
+        c, ds, _, episode = self._episode(ctx, repo_type, repo_id, i)
+        data = {"episode": episode.index, "length": episode.length, "fps": ds.fps, **self.episodes.series(ds, episode)}
+        headers = {**_PAGE_HEADERS, **_immutable(ctx, c["commit"].id)}
+        return Response(json.dumps(data, allow_nan=False), media_type="application/json", headers=headers)
+
+    def _episode_frame(self, ctx: Ctx, repo_type: str, repo_id: str, i: int, key: str, step: int) -> Response:
+        c, ds, _, episode = self._episode(ctx, repo_type, repo_id, i)
+        png = self.episodes.frame(ds, episode, key, step)
+        headers = {**_PAGE_HEADERS, **_immutable(ctx, c["commit"].id)}
+        return Response(png, media_type="image/png", headers=headers)
+
+    # -- pull requests --
+
+    def _merge_rights(self, repo: Repo) -> str:
+        """Who may merge the repo's pull requests, in words."""
+        owner = repo.repo_id.split("/")[0]
+        if owner.lower() == self.access.user.lower():
+            return f"the account {self.access.user!r}"
+        return f"the account {owner!r} (the repo's namespace) or the server's own account {self.access.user!r}"
+
+    def _discussions_page(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        c = self._context(ctx, repo_type, repo_id, None)
+        repo = c["repo"]
+        prs = repo.pull_requests()
+        rows = []
+        for pr in prs:
+            base, head = repo.load_commit(pr.base), repo.load_commit(pr.head)
+            changed = [p for p in set(base.files) | set(head.files) if base.files.get(p) != head.files.get(p)]
+            rows.append({"pr": pr, "files": len(changed), "records": sum(1 for p in changed if is_record(p) and p in head.files)})
+        return self._render("discussions.html", **c, rows=rows)
+
+    def _discussion_page(self, ctx: Ctx, repo_type: str, repo_id: str, num: int) -> Response:
+        c = self._context(ctx, repo_type, repo_id, None)
+        repo = c["repo"]
+        pr = repo.pull_request(num)
+        base, head = repo.load_commit(pr.base), repo.load_commit(pr.head)
+        files = changes(repo, base, head)
+        records = []
+        for f in files:
+            if f.new is not None and is_record(f.path):
+                record = self.records.read(repo, f.path, f.new)
+                records.append({"record": record, "signed": f.path + ".sig" in head.files})
+        kind = "" if repo_type == "model" else f", repo_type={repo_type!r}"
+        return self._render(
+            "discussion.html",
+            **c,
+            pr=pr,
+            head=head,
+            files=files,
+            records=records,
+            merge_call=f"HfApi().merge_pull_request({repo.repo_id!r}, {pr.num}{kind})",
+            merge_rights=self._merge_rights(repo),
+            events=[_event_row(e) for e in pr.events],
+        )
+
 
 # --- helpers ----------------------------------------------------------------------------------
 
@@ -495,6 +663,35 @@ def load_line(repo_id: str, repo_type: str, commit: Commit) -> str:
         return f'load_env("{repo_id}@{commit.id}", trust_remote_code=True)'
     kind = "" if repo_type == "model" else f', repo_type="{repo_type}"'
     return f'snapshot_download("{repo_id}"{kind}, revision="{commit.id}")'
+
+
+def _number(text: str, what: str, minimum: int = 0) -> int:
+    """A non-negative number from a path segment or query value; 400 if it is not one."""
+    if not text.isdigit() or len(text) > 9 or int(text) < minimum:
+        raise PageError(400, f"Invalid {what} number", f"Invalid {what} number {text[:20]!r}: expected 0, 1, 2...")
+    return int(text)
+
+
+def _immutable(ctx: Ctx, sha: str) -> dict:
+    """Cache headers of an answer for a pinned commit (``?rev=<sha>``): it never changes."""
+    return {"Cache-Control": "public, max-age=86400, immutable"} if ctx.query("rev") == sha else {}
+
+
+def _event_row(event: dict) -> dict:
+    """A pull request event as the page lists it: who, when, what."""
+    data = event.get("data") if isinstance(event.get("data"), dict) else {}
+    author = event.get("author", {}).get("name") if isinstance(event.get("author"), dict) else None
+    kind = event.get("type")
+    if kind == "comment":
+        latest = data.get("latest") if isinstance(data.get("latest"), dict) else {}
+        text = str(latest.get("raw") or "")
+    elif kind == "commit":
+        text = f"pushed {str(data.get('oid', ''))[:12]}: {data.get('subject', '')}"
+    elif kind == "status-change":
+        text = f"changed the status to {data.get('status')}"
+    else:
+        text = str(kind)
+    return {"type": kind, "author": author, "date": event.get("createdAt"), "text": text[:20_000]}
 
 
 def _thumbnail(commit: Commit) -> str | None:
@@ -523,7 +720,44 @@ def _static_files() -> dict[str, tuple[bytes, str]]:
     return {
         "hub.css": (css.encode(), "text/css; charset=utf-8"),
         "hub.js": ((static / "hub.js").read_bytes(), "text/javascript; charset=utf-8"),
+        "viewer.js": ((static / "viewer.js").read_bytes(), "text/javascript; charset=utf-8"),
+        "favicon.svg": (FAVICON_SVG.encode(), "image/svg+xml"),
+        "favicon.ico": (_favicon_ico(), "image/x-icon"),
     }
+
+
+#: The pages' icon: a rounded square in the pages' accent colour with a white "h".
+FAVICON_SVG = (
+    '<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 32 32"><rect width="32" height="32" rx="7" fill="#0b5fcc"/>'
+    '<path d="M10 7v18M10 16c2-3 9-3 10 1v8" stroke="#fff" stroke-width="4" fill="none" stroke-linecap="round"/></svg>'
+)
+
+
+def _favicon_ico(size: int = 32) -> bytes:
+    """``/favicon.ico`` (what a browser asks for on a page without an icon link, e.g. a file opened raw): the
+    accent-coloured square of :data:`FAVICON_SVG`, as an ICO holding one PNG, drawn here (no image library)."""
+    color, white = (0x0B, 0x5F, 0xCC, 255), (255, 255, 255, 255)
+    rows = []
+    for y in range(size):
+        row = bytearray([0])  # PNG filter: none
+        for x in range(size):
+            stem = 9 <= x <= 12 and 6 <= y <= 25
+            leg = 18 <= x <= 21 and 15 <= y <= 25
+            arch = 11 <= x <= 21 and 13 <= y <= 16
+            row += bytes(white if (stem or leg or arch) else color)
+        rows.append(bytes(row))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", size, size, 8, 6, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(b"".join(rows), 9))
+        + chunk(b"IEND", b"")
+    )
+    header = struct.pack("<HHH", 0, 1, 1) + struct.pack("<BBBBHHII", size, size, 0, 0, 1, 32, len(png), 6 + 16)
+    return header + png
 
 
 class ResolveSandbox:

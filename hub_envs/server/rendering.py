@@ -130,9 +130,11 @@ def render_markdown(text: str, links: Links | None = None) -> str:
     >>> links = Links("/alice/env", "a" * 40, folders=set())
     >>> render_markdown("![roll](media/a.gif)", links)
     '<p><img src="/alice/env/resolve/aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa/media/a.gif" alt="roll" /></p>\\n'
+    >>> "<thead>" in render_markdown("| | |\\n|---|---|\\n| repo | a/b |\\n")  # a header row of empty cells: none
+    False
     """
     md = _markdown()
-    tokens = md.parse(text)
+    tokens = _without_empty_headers(md.parse(text))
     for token in tokens:
         style = token.attrGet("style")
         if style is not None:
@@ -150,6 +152,22 @@ def render_markdown(text: str, links: Links | None = None) -> str:
             elif child.type == "link_open":
                 child.attrSet("href", links.link(str(child.attrGet("href") or "")))
     return md.renderer.render(tokens, md.options, {})
+
+
+def _without_empty_headers(tokens: list) -> list:
+    """The tokens without the header row of tables whose header cells are all empty (``| | |``, a common way to
+    write a two-column table of facts): rendered, it would be an empty shaded row."""
+    out, i = [], 0
+    while i < len(tokens):
+        if tokens[i].type == "thead_open":
+            end = next(j for j in range(i, len(tokens)) if tokens[j].type == "thead_close")
+            cells = [t for t in tokens[i:end] if t.type == "inline"]
+            if all(not (t.content or "").strip() for t in cells):
+                i = end + 1  # drop thead_open ... thead_close
+                continue
+        out.append(tokens[i])
+        i += 1
+    return out
 
 
 # --- rendering cards in worker processes -------------------------------------------------------
