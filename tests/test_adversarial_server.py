@@ -619,9 +619,9 @@ def test_a_server_can_store_bytecode_like_the_real_hub_to_test_clients(tmp_path)
 
 def test_server_and_repo_format_agree_on_the_manifest_name():
     from hub_envs.repo_format import MANIFEST_FILE
-    from hub_envs.server import app
+    from hub_envs.server.formats import ENV_MANIFEST
 
-    assert app._ENV_MANIFEST == MANIFEST_FILE
+    assert ENV_MANIFEST == MANIFEST_FILE
 
 
 # --- 8. (Medium, issue 30) any account could push commits onto another account's pull request -----

@@ -1,10 +1,6 @@
-"""A loopback server speaking the Hugging Face Hub HTTP protocol.
-
-The unmodified ``huggingface_hub`` client creates repos, commits, tags, lists and downloads
-against it: point ``HF_ENDPOINT`` at it. It is the default hub of the demo, the fixture of the
-tests (see :mod:`hub_envs.testing`), and a real hub for air-gapped labs. Repos live on disk under
-``root`` (see :mod:`hub_envs.server.storage`); a restarted server serves the same repos. Run one
-server process per root.
+"""A loopback server speaking the Hugging Face Hub HTTP protocol (``hub-envs serve``): the unmodified
+``huggingface_hub`` client creates repos, commits, tags, lists and downloads against it, and a browser gets
+its web pages. How it works and what it bounds: ``docs/server.md``.
 
 Example:
     Start it (blocking)::
@@ -20,11 +16,6 @@ Example:
         api.upload_file(path_or_fileobj=b'hello', path_in_repo='hello.txt', repo_id='alice/pendulum')
         print(api.list_repo_files('alice/pendulum'))"
         ['.gitattributes', 'hello.txt']
-
-    With ``--token=T``, writes (and reads of private repos) need ``HF_TOKEN=T`` on the client.
-
-    A browser pointed at ``http://127.0.0.1:8000/`` gets the web pages (:mod:`hub_envs.server.pages`):
-    the repos, each env's card, files and pinned load line.
 """
 
 from __future__ import annotations
@@ -35,6 +26,7 @@ import socket
 import sys
 
 from hub_envs.server.app import create_app
+from hub_envs.server.storage import StoreError
 
 __all__ = ["create_app", "run"]
 
@@ -92,8 +84,6 @@ def run(
             port cannot be bound; the message says what to change.
     """
     import uvicorn
-
-    from hub_envs.server.storage import StoreError
 
     try:
         header_timeout = _setting(header_timeout, "HUB_ENVS_SERVER_HEADER_TIMEOUT", DEFAULT_HEADER_TIMEOUT, float)

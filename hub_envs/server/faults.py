@@ -1,24 +1,6 @@
-"""Fault injection for the loopback Hub server: make it fail on purpose, to test the clients.
-
-Off unless the environment variable ``HUB_ENVS_SERVER_FAULTS`` is set when the server starts. Its
-value is either inline JSON or the path of a JSON file; a file is re-read whenever it changes (its
-rules' counters start again), so a test can switch faults on and off while one server runs.
-
-The JSON is a list of rules (or one rule). Each request is matched against the rules in order; the
-first matching rule that still has uses left applies:
-
-``match``
-    a regular expression searched in ``"METHOD /raw/path"``, e.g. ``"GET /alice/env/resolve/"``.
-``times``
-    how many matching requests it applies to (default 1; ``-1``: all of them).
-``skip``
-    let this many matching requests through first (default 0).
-``action``
-    ``"status"`` (default): answer ``status`` (default 500) with a JSON error body, without running
-    the request; ``"drop"``: run the request, send ``after_bytes`` bytes of the response body, then
-    abort the connection (as a network failure mid-file would); ``"exit"``: read ``after_bytes``
-    bytes of the *request* body, then end the server process at once (``os._exit``), as a crash or
-    ``kill -9`` during an upload would.
+"""Fault injection for the loopback Hub server: make it fail on purpose, to test the clients. Off unless
+``HUB_ENVS_SERVER_FAULTS`` (inline JSON, or a JSON file re-read when it changes) holds rules; each rule
+answers a status, drops a response mid-body or ends the server mid-upload. The rules: ``docs/server.md#fault-injection``.
 
 Example:
     >>> import json, os, tempfile
@@ -107,7 +89,7 @@ class _Rules:
 
 
 class FaultMiddleware:
-    """ASGI middleware applying the rules of ``HUB_ENVS_SERVER_FAULTS`` (see the module docstring)."""
+    """ASGI middleware applying the rules of ``HUB_ENVS_SERVER_FAULTS`` (``docs/server.md#fault-injection``)."""
 
     def __init__(self, app, spec: str):
         self.app = app
@@ -162,7 +144,12 @@ class FaultMiddleware:
 
 
 def install_faults(app) -> None:
-    """Add :class:`FaultMiddleware` to a Starlette ``app`` if ``HUB_ENVS_SERVER_FAULTS`` is set."""
+    """Add :class:`FaultMiddleware` to a Starlette ``app`` if ``HUB_ENVS_SERVER_FAULTS`` is set.
+
+    Args:
+        app: the Starlette app. Rules that are not valid (``docs/server.md#fault-injection``) raise ValueError
+            when the app builds its middleware, at its first request.
+    """
     spec = os.environ.get(ENV_VAR)
     if spec:
         app.add_middleware(FaultMiddleware, spec=spec)

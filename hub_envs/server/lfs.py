@@ -1,41 +1,6 @@
-"""Git LFS in the loopback Hub server, as huggingface.co speaks it to ``huggingface_hub``.
-
-What the client does for a commit, and what answers it here:
-
-1. ``POST /api/<type>s/<id>/preupload/<rev>`` with each file's path, size and first 512 bytes: the
-   answer is ``"lfs"`` by the Hub's rules (:func:`upload_mode`): the path matches an LFS pattern of
-   the repo's ``.gitattributes`` at that revision (a new repo gets the Hub's default one:
-   ``*.parquet``, ``*.png``, ``*.mp4``...), or the file is over 10 MiB, or its sample is binary.
-   For a file already there, ``oid`` is its sha256 (LFS) or git sha1 (regular), so an unchanged
-   file is skipped as on the Hub.
-2. ``POST /<prefix><id>.git/info/lfs/objects/batch`` (the Git LFS batch API; the write token is
-   checked before the body is read): each object gets an upload action, or none if the repo
-   already holds it. Up to ``chunk size`` bytes (``HUB_ENVS_SERVER_LFS_CHUNK_MB``, default 64):
-   the *basic* transfer, one ``PUT`` of the whole file; larger, when the client offers
-   ``multipart``: the Hub's multipart transfer (``header.chunk_size`` and one URL per part, numbered
-   ``"1"``, ``"2"``...; the action's ``href`` is the completion URL). Upload URLs are signed (HMAC,
-   this process's secret, 24 h) for one repo, object and size, as the Hub's presigned storage URLs
-   are: the client sends them no token.
-3. ``PUT`` the bytes: streamed to a scratch file under the store's ``tmp/`` (never whole in
-   memory), hashed on the way; too many or too few bytes, or a sha256 other than the object's, is
-   refused and the scratch file deleted. A part answers its ``ETag``; the completion ``POST``
-   (all parts, their ETags) hashes the assembled file. Only a file whose sha256 matches becomes a
-   blob of the repo; an interrupted upload never does (and ``tmp/`` is emptied at start).
-4. ``POST .../objects/verify`` (token needed): 200 if the repo holds the object with that size.
-5. The NDJSON commit names each LFS file by ``lfsFile`` ``{path, algo, oid, size}``: refused
-   unless this repo holds that object (uploaded, or from an earlier commit).
-
-Reads: ``paths-info``, the tree and ``?blobs=true`` siblings carry ``lfs: {oid, size,
-pointerSize}``; git ids are the pointer file's (as in git), so commit ids stay git's. ``resolve``
-answers an LFS file with ``ETag`` = ``X-Linked-Etag`` = its sha256 and ``X-Linked-Size``, and
-serves ``Range`` requests as for any file (an interrupted download resumes).
-
-Xet is not offered: repo info says ``xetEnabled: false`` (huggingface_hub 0.3x then uploads
-through LFS) and ``/xet-*-token`` answers 501 with what to do: huggingface_hub 1.x uploads through
-Xet whenever the ``hf_xet`` package is installed, so it needs ``HF_HUB_DISABLE_XET=1`` against this
-server (hub-envs' own pushes set it themselves when a repo is not Xet-enabled).
-
-Every stored object logs one line (``lfs: stored <oid> ...``, logger ``hub_envs.server.lfs``).
+"""Git LFS in the loopback Hub server, as huggingface.co speaks it to ``huggingface_hub``: the preupload
+rules (which files go through LFS), the batch API with basic and multipart transfers (signed upload URLs,
+bytes streamed to disk and sha256-checked) and verify. The steps, in order: ``docs/server.md#git-lfs``.
 """
 
 from __future__ import annotations
@@ -53,15 +18,14 @@ import shutil
 import threading
 import time
 from collections import OrderedDict
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
-from hub_envs.server.storage import Commit, Repo
-
-if TYPE_CHECKING:  # pragma: no cover
-    from hub_envs.server.app import Ctx, HubApp
+from hub_envs.server.access import Access
+from hub_envs.server.httputil import Ctx, HTTPError, body_json, call, json_response, limit_bytes, only, read_body, repo_url
+from hub_envs.server.storage import Commit, HubStore, Repo
 
 logger = logging.getLogger("hub_envs.server.lfs")
 
@@ -138,7 +102,14 @@ def _pattern_regex(pattern: str) -> re.Pattern | None:
 
 def parse_gitattributes(text: str) -> list[tuple[re.Pattern, bool]]:
     """``(pattern, lfs)`` rules of a ``.gitattributes``, in order (the last match wins): ``lfs`` is
-    True for ``filter=lfs``, False for ``-filter``, ``!filter`` or another filter."""
+    True for ``filter=lfs``, False for ``-filter``, ``!filter`` or another filter.
+
+    Args:
+        text: the file's text.
+
+    Returns:
+        ``(regex, lfs)`` pairs; malformed lines and patterns are skipped (at most 10,000 rules).
+    """
     rules: list[tuple[re.Pattern, bool]] = []
     for line in text.splitlines():
         parts = line.split()
@@ -162,7 +133,11 @@ def parse_gitattributes(text: str) -> list[tuple[re.Pattern, bool]]:
 
 def is_binary(sample: bytes) -> bool:
     """The Hub's test on a file's first 512 bytes: a NUL byte, or bytes that are not UTF-8 (a
-    character cut at the end of the sample does not count)."""
+    character cut at the end of the sample does not count).
+
+    Args:
+        sample: the file's first bytes.
+    """
     if b"\x00" in sample:
         return True
     try:
@@ -173,7 +148,14 @@ def is_binary(sample: bytes) -> bool:
 
 
 def upload_mode(rules: list[tuple[re.Pattern, bool]], path: str, size: int, sample: bytes) -> str:
-    """``"lfs"`` or ``"regular"`` for a file of ``size`` bytes starting with ``sample``, by the Hub's rules."""
+    """``"lfs"`` or ``"regular"`` for a file of ``size`` bytes starting with ``sample``, by the Hub's rules.
+
+    Args:
+        rules: the repo's ``.gitattributes`` rules (:func:`parse_gitattributes`).
+        path: the file's path in the repo.
+        size: its size in bytes.
+        sample: its first 512 bytes.
+    """
     if size == 0:
         return "regular"  # an empty file is never LFS (the client sends it inline whatever the answer)
     for regex, lfs in reversed(rules):
@@ -190,15 +172,23 @@ def upload_mode(rules: list[tuple[re.Pattern, bool]], path: str, size: int, samp
 
 
 class LfsRoutes:
-    """The LFS half of :class:`~hub_envs.server.app.HubApp`: preupload decisions, the batch API,
-    uploads, verify. Built by ``HubApp``; ``hub`` gives auth, repos, body reading and errors."""
+    """The LFS routes: preupload decisions, the batch API, uploads, verify.
 
-    def __init__(self, hub: HubApp, *, max_lfs_mb: float | None = None, chunk_mb: float | None = None):
-        from hub_envs.server.app import _limit_bytes
+    Args:
+        store: the repos.
+        access: who may write where.
+        max_lfs_mb: largest LFS file in MiB (default 51200; env ``HUB_ENVS_SERVER_MAX_LFS_MB``).
+        chunk_mb: part size of multipart uploads in MiB (default 64; env ``HUB_ENVS_SERVER_LFS_CHUNK_MB``).
 
-        self.hub = hub
-        self.max_object = _limit_bytes(max_lfs_mb, "HUB_ENVS_SERVER_MAX_LFS_MB", DEFAULT_MAX_LFS_MB, "max_lfs_mb")
-        self.chunk_size = _limit_bytes(chunk_mb, _CHUNK_SETTING, DEFAULT_CHUNK_MB, "lfs chunk_mb")
+    Raises:
+        ValueError: a limit is not a positive number.
+    """
+
+    def __init__(self, store: HubStore, access: Access, *, max_lfs_mb: float | None = None, chunk_mb: float | None = None):
+        self.store = store
+        self.access = access
+        self.max_object = limit_bytes(max_lfs_mb, "HUB_ENVS_SERVER_MAX_LFS_MB", DEFAULT_MAX_LFS_MB, "max_lfs_mb")
+        self.chunk_size = limit_bytes(chunk_mb, _CHUNK_SETTING, DEFAULT_CHUNK_MB, "lfs chunk_mb")
         self._secret = os.urandom(32)
         self._rules: OrderedDict[str, list] = OrderedDict()  # .gitattributes sha256 -> rules
         self._rules_guard = threading.Lock()
@@ -207,7 +197,7 @@ class LfsRoutes:
 
     # -- preupload --
 
-    def rules_for(self, repo: Repo, commit: Commit) -> list[tuple[re.Pattern, bool]]:
+    def _rules_for(self, repo: Repo, commit: Commit) -> list[tuple[re.Pattern, bool]]:
         entry = commit.files.get(".gitattributes")
         if entry is None:
             return []
@@ -224,9 +214,19 @@ class LfsRoutes:
         return rules
 
     def preupload_answer(self, repo: Repo, commit: Commit, item: dict) -> dict:
-        """The preupload answer for one ``{path, size, sample}`` of the request (path already validated)."""
-        from hub_envs.server.app import HTTPError
+        """The preupload answer for one ``{path, size, sample}`` of the request (path already validated).
 
+        Args:
+            repo: the repo uploaded to.
+            commit: the revision uploaded to (its ``.gitattributes`` and files).
+            item: one entry of the request's ``files``.
+
+        Returns:
+            ``{path, uploadMode, shouldIgnore, oid}``, as the Hub answers it.
+
+        Raises:
+            HTTPError: 400 for a size or sample that is not valid.
+        """
         path, size, sample_b64 = item["path"], item.get("size", 0), item.get("sample", "")
         if not isinstance(size, int) or isinstance(size, bool) or size < 0:
             raise HTTPError(400, f"Invalid 'size' for {path!r}: expected a number of bytes.")
@@ -236,7 +236,7 @@ class LfsRoutes:
             sample = base64.b64decode(sample_b64, validate=True)
         except (binascii.Error, ValueError):
             raise HTTPError(400, f"Invalid 'sample' for {path!r}: not base64.") from None
-        mode = upload_mode(self.rules_for(repo, commit), path, size, sample)
+        mode = upload_mode(self._rules_for(repo, commit), path, size, sample)
         existing = commit.files.get(path)
         oid = None
         if existing is not None:
@@ -247,35 +247,45 @@ class LfsRoutes:
     # -- routing --
 
     async def route(self, ctx: Ctx, repo_type: str, repo_id: str, rest: list[str]) -> Response:
-        """``/<prefix><repo_id>.git/info/lfs/<rest...>``."""
-        from hub_envs.server.app import HTTPError
+        """``/<prefix><repo_id>.git/info/lfs/<rest...>``.
 
+        Args:
+            ctx: the request.
+            repo_type: ``model``, ``dataset`` or ``space``.
+            repo_id: ``namespace/name``.
+            rest: the path segments after ``info/lfs``.
+
+        Returns:
+            The answer of the batch, verify, upload or multipart route.
+
+        Raises:
+            HTTPError: 404 for another path, 405 for another method, or the route's own.
+        """
         if rest == ["objects", "batch"]:
-            return await self.hub._call(ctx, {"POST": lambda c: self.batch(c, repo_type, repo_id)}, body=True, write=True)
+            return await call(ctx, {"POST": lambda c: self._batch(c, repo_type, repo_id)}, body=True, write=True)
         if rest == ["objects", "verify"]:
-            return await self.hub._call(ctx, {"POST": lambda c: self.verify(c, repo_type, repo_id)}, body=True, write=True)
+            return await call(ctx, {"POST": lambda c: self._verify(c, repo_type, repo_id)}, body=True, write=True)
         if len(rest) == 4 and rest[:2] == ["objects", "upload"]:
-            self._only(ctx, "PUT")
-            return await self.put_basic(ctx, repo_type, repo_id, rest[2], rest[3])
+            only(ctx, "PUT")
+            return await self._put_basic(ctx, repo_type, repo_id, rest[2], rest[3])
         if len(rest) == 7 and rest[:2] == ["objects", "multipart"]:
             upload_id, oid, size, chunk, part = rest[2:]
             if part == "complete":
-                self._only(ctx, "POST")
-                return await self.complete(ctx, repo_type, repo_id, upload_id, oid, size, chunk)
-            self._only(ctx, "PUT")
-            return await self.put_part(ctx, repo_type, repo_id, upload_id, oid, size, chunk, part)
+                only(ctx, "POST")
+                return await self._complete(ctx, repo_type, repo_id, upload_id, oid, size, chunk)
+            only(ctx, "PUT")
+            return await self._put_part(ctx, repo_type, repo_id, upload_id, oid, size, chunk, part)
         raise HTTPError(404, f"Unknown Git LFS route /{'/'.join(ctx.segs)}: this server speaks the LFS batch API (upload).")
 
-    @staticmethod
-    def _only(ctx: Ctx, method: str) -> None:
-        from hub_envs.server.app import HTTPError
-
-        if ctx.method != method:
-            raise HTTPError(405, f"Method {ctx.method} not allowed here (allowed: {method}).", headers={"Allow": method})
-
     def no_xet(self, ctx: Ctx) -> Response:
-        from hub_envs.server.app import HTTPError
+        """The ``/xet-*-token`` routes: 501, saying to set ``HF_HUB_DISABLE_XET=1`` (logged once).
 
+        Args:
+            ctx: the request.
+
+        Raises:
+            HTTPError: always, 501 ``XetNotSupported``.
+        """
         if not self._told_xet:  # hf_xet shows the client only "501 Not Implemented": say it here too, once
             self._told_xet = True
             logger.warning("A client asked for a Xet token (%s). %s", ctx.request.url.path, _NO_XET)
@@ -289,11 +299,9 @@ class LfsRoutes:
     def _signed_url(self, ctx: Ctx, repo: Repo, path: str, *fields: Any) -> str:
         expires = int(time.time()) + _URL_TTL
         sig = self._sign(repo.repo_type, repo.key[1], path, expires, *fields)
-        return f"{self.hub._repo_url(ctx, repo)}.git/info/lfs/objects/{path}?expires={expires}&signature={sig}"
+        return f"{repo_url(ctx.base_url, repo.repo_type, repo.repo_id)}.git/info/lfs/objects/{path}?expires={expires}&signature={sig}"
 
     def _check_signature(self, ctx: Ctx, repo_type: str, repo_id: str, path: str, *fields: Any) -> None:
-        from hub_envs.server.app import HTTPError
-
         expires, sig = ctx.query("expires") or "", ctx.query("signature") or ""
         if not expires.isdigit() or len(expires) > 12:
             raise HTTPError(403, "Invalid upload URL: ask the LFS batch API for a new one.")
@@ -305,11 +313,9 @@ class LfsRoutes:
 
     # -- batch --
 
-    def batch(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
-        from hub_envs.server.app import HTTPError
-
-        repo = self.hub._open(ctx, repo_type, repo_id, write=True)
-        data = self.hub._body_json(ctx)
+    def _batch(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        repo = self.access.open(ctx, repo_type, repo_id, write=True)
+        data = body_json(ctx)
         if data.get("operation", "upload") != "upload":
             raise HTTPError(400, "Only the 'upload' operation is served by this LFS endpoint: download files through /resolve/.")
         if data.get("hash_algo", "sha256") != "sha256":
@@ -323,7 +329,7 @@ class LfsRoutes:
         self._sweep_abandoned()
         transfers = data.get("transfers") or ["basic"]
         multipart = isinstance(transfers, list) and "multipart" in transfers
-        free = shutil.disk_usage(self.hub.store.root).free
+        free = shutil.disk_usage(self.store.root).free
         out, used = [], "basic"
         for obj in objects:
             oid = obj.get("oid") if isinstance(obj, dict) else None
@@ -357,12 +363,12 @@ class LfsRoutes:
                     header[str(n)] = self._signed_url(ctx, repo, f"{base}/{n}")
                 item["actions"] = {
                     "upload": {"href": self._signed_url(ctx, repo, f"{base}/complete"), "header": header},
-                    "verify": {"href": f"{self.hub._repo_url(ctx, repo)}.git/info/lfs/objects/verify"},
+                    "verify": {"href": f"{repo_url(ctx.base_url, repo.repo_type, repo.repo_id)}.git/info/lfs/objects/verify"},
                 }
             else:
                 item["actions"] = {
                     "upload": {"href": self._signed_url(ctx, repo, f"upload/{oid}/{size}")},
-                    "verify": {"href": f"{self.hub._repo_url(ctx, repo)}.git/info/lfs/objects/verify"},
+                    "verify": {"href": f"{repo_url(ctx.base_url, repo.repo_type, repo.repo_id)}.git/info/lfs/objects/verify"},
                 }
             out.append(item)
         return Response(
@@ -376,18 +382,16 @@ class LfsRoutes:
         if now - self._swept < 600:
             return
         self._swept = now
-        for path in (self.hub.store.root / "tmp").glob("lfs-multipart-*"):
+        for path in (self.store.root / "tmp").glob("lfs-multipart-*"):
             try:
                 if now - path.stat().st_mtime > _URL_TTL:
                     shutil.rmtree(path, ignore_errors=True)
             except OSError:
                 continue
 
-    def verify(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
-        from hub_envs.server.app import HTTPError, _json
-
-        repo = self.hub._open(ctx, repo_type, repo_id, write=True)
-        data = self.hub._body_json(ctx)
+    def _verify(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        repo = self.access.open(ctx, repo_type, repo_id, write=True)
+        data = body_json(ctx)
         oid, size = data.get("oid"), data.get("size")
         if not isinstance(oid, str) or not _OID_RE.fullmatch(oid):
             raise HTTPError(400, "Invalid 'oid': expected the sha256 of the file, 64 lowercase hex.")
@@ -396,21 +400,17 @@ class LfsRoutes:
             raise HTTPError(404, f"LFS object {oid} was not uploaded to {repo.repo_id}: upload it again.")
         if size is not None and size != have:
             raise HTTPError(422, f"LFS object {oid} is {have} bytes on the server, not {size}: upload it again.")
-        return _json({})
+        return json_response({})
 
     # -- uploads --
 
     def _upload_target(self, ctx: Ctx, repo_type: str, repo_id: str, oid: str, size: str) -> tuple[Repo, int]:
-        from hub_envs.server.app import HTTPError
-
         if not _OID_RE.fullmatch(oid) or not size.isdigit() or len(size) > 18:
             raise HTTPError(400, "Malformed LFS upload URL: ask the LFS batch API for a new one.")
-        repo = self.hub.store.open(repo_type, repo_id)  # it may have been deleted since the batch call
+        repo = self.store.open(repo_type, repo_id)  # it may have been deleted since the batch call
         return repo, int(size)
 
     def _check_length(self, ctx: Ctx, expected: int, what: str) -> None:
-        from hub_envs.server.app import HTTPError
-
         declared = ctx.request.headers.get("content-length", "").strip()
         if declared.isdigit() and (len(declared) > 18 or int(declared) != expected):
             raise HTTPError(400, f"{what}: Content-Length {declared[:20]} announced, {expected} bytes expected.")
@@ -418,8 +418,6 @@ class LfsRoutes:
     async def _receive(self, ctx: Ctx, fd: int, offset: int, expected: int, what: str) -> str:
         """Stream the request body into ``fd`` at ``offset`` (exactly ``expected`` bytes, else 400);
         return its sha256. Written and hashed in a worker thread, ``_FLUSH`` bytes at a time."""
-        from hub_envs.server.app import HTTPError
-
         hasher = hashlib.sha256()
         received = 0
         buf = bytearray()
@@ -448,20 +446,18 @@ class LfsRoutes:
             raise HTTPError(400, f"{what}: {received} bytes received, {expected} announced (interrupted?). Upload it again.")
         return hasher.hexdigest()
 
-    async def put_basic(self, ctx: Ctx, repo_type: str, repo_id: str, oid: str, size_s: str) -> Response:
-        from hub_envs.server.app import HTTPError
-
+    async def _put_basic(self, ctx: Ctx, repo_type: str, repo_id: str, oid: str, size_s: str) -> Response:
         self._check_signature(ctx, repo_type, repo_id, f"upload/{oid}/{size_s}")
         repo, size = await run_in_threadpool(self._upload_target, ctx, repo_type, repo_id, oid, size_s)
         what = f"LFS upload of {oid} to {repo.repo_id}"
         self._check_length(ctx, size, what)
-        scratch = self.hub.store.scratch_path("lfs-")
+        scratch = self.store.scratch_path("lfs-")
         fd = os.open(scratch, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         adopted = False
         try:
             try:
                 digest = await self._receive(ctx, fd, 0, size, what)
-                if self.hub.store.fsync:
+                if self.store.fsync:
                     await run_in_threadpool(os.fsync, fd)
             finally:
                 os.close(fd)
@@ -480,20 +476,16 @@ class LfsRoutes:
         return Response(b"", status_code=200)
 
     def _multipart(self, ctx: Ctx, repo_type: str, repo_id: str, upload_id: str, oid: str, size_s: str, chunk_s: str):
-        from hub_envs.server.app import HTTPError
-
         if not re.fullmatch(r"[0-9a-f]{24}", upload_id) or not chunk_s.isdigit() or len(chunk_s) > 18:
             raise HTTPError(400, "Malformed LFS upload URL: ask the LFS batch API for a new one.")
         repo, size = self._upload_target(ctx, repo_type, repo_id, oid, size_s)
         chunk = int(chunk_s)
         if chunk < 1:
             raise HTTPError(400, "Malformed LFS upload URL: ask the LFS batch API for a new one.")
-        root = self.hub.store.root / "tmp" / f"lfs-multipart-{upload_id}"
+        root = self.store.root / "tmp" / f"lfs-multipart-{upload_id}"
         return repo, size, chunk, root
 
-    async def put_part(self, ctx, repo_type, repo_id, upload_id, oid, size_s, chunk_s, part_s) -> Response:
-        from hub_envs.server.app import HTTPError
-
+    async def _put_part(self, ctx, repo_type, repo_id, upload_id, oid, size_s, chunk_s, part_s) -> Response:
         base = f"multipart/{upload_id}/{oid}/{size_s}/{chunk_s}"
         self._check_signature(ctx, repo_type, repo_id, f"{base}/{part_s}")
         repo, size, chunk, root = await run_in_threadpool(
@@ -511,7 +503,7 @@ class LfsRoutes:
         fd = os.open(root / "data", os.O_WRONLY | os.O_CREAT, 0o644)
         try:
             digest = await self._receive(ctx, fd, offset, expected, what)
-            if self.hub.store.fsync:
+            if self.store.fsync:
                 await run_in_threadpool(os.fsync, fd)
         finally:
             os.close(fd)
@@ -519,16 +511,14 @@ class LfsRoutes:
         (root / f"part-{n}").write_text(etag)  # this part arrived whole: its ETag, for the completion
         return Response(b"", status_code=200, headers={"ETag": etag})
 
-    async def complete(self, ctx, repo_type, repo_id, upload_id, oid, size_s, chunk_s) -> Response:
-        from hub_envs.server.app import HTTPError, _json
-
+    async def _complete(self, ctx, repo_type, repo_id, upload_id, oid, size_s, chunk_s) -> Response:
         base = f"multipart/{upload_id}/{oid}/{size_s}/{chunk_s}"
         self._check_signature(ctx, repo_type, repo_id, f"{base}/complete")
         repo, size, chunk, root = await run_in_threadpool(
             self._multipart, ctx, repo_type, repo_id, upload_id, oid, size_s, chunk_s
         )
-        ctx.body = await self.hub._read_body(ctx)
-        data = self.hub._body_json(ctx)
+        ctx.body = await read_body(ctx)
+        data = body_json(ctx)
         parts = math.ceil(size / chunk)
         sent = data.get("parts")
         if data.get("oid") != oid or not isinstance(sent, list) or len(sent) != parts:
@@ -564,4 +554,4 @@ class LfsRoutes:
         finally:
             shutil.rmtree(root, ignore_errors=True)
         logger.info("lfs: stored %s (%d bytes) in %s %s via multipart (%d parts)", oid, size, repo.repo_type, repo.repo_id, parts)
-        return _json({})
+        return json_response({})

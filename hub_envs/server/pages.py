@@ -1,31 +1,9 @@
 """The web pages of the loopback Hub: what a person sees who points a browser at ``hub-envs serve``.
 
-Server-rendered HTML (Jinja templates under ``templates/``, one stylesheet and one small script
-under ``static/``; no build step, no framework):
-
-* ``/`` (only when the request accepts ``text/html``: API clients still get the API's 404): every
-  repo, newest commit first, with its card's title line, tags, last commit and rollout GIF; a
-  search box (``?q=``: repo name or tag) and tag links (``?tag=``).
-* ``/{user}/{repo}`` and ``/{user}/{repo}/tree/{rev}[/{folder}]``: the file list (sizes, LFS
-  markers), the card rendered from its Markdown, its YAML metadata as tags and evaluation results,
-  the load line pinned to the commit sha with a copy button, branches, tags, recent commits and
-  the reproduction reports the revision holds (``reproductions/*.json``).
-* ``/{user}/{repo}/blob/{rev}/{path}``: a text file (highlighted with Pygments), an image or video
-  inline, or anything else as a download link.
-* ``/{user}/{repo}/commits/{rev}``: the history, paged.
-
-The same paths under ``/datasets/`` and ``/spaces/`` show those repo types.
-
-Safe by construction:
-
-* Card Markdown is rendered by markdown-it-py with raw HTML off (a ``<script>`` in a card is shown
-  as text) and its link validation (no ``javascript:`` links); every page carries a
-  Content-Security-Policy that allows scripts, styles, images and media from this server only, and no
-  inline script or style at all. ``/resolve/`` answers (files a repo author wrote) get a ``sandbox``
-  policy, so an HTML or SVG file opened from a repo runs nothing either.
-* Paths go through :func:`~hub_envs.server.storage.validate_path`, the API's traversal check: 400.
-* Private repos need the token, as the API does (``Authorization: Bearer``): without it they are
-  left out of ``/`` and their pages answer 401, as the API's routes do.
+Server-rendered HTML (Jinja templates under ``templates/``, static files under ``static/``, no build step):
+the home page, each repo's files, card and reproductions matrix, a file, the history, the dataset viewer
+(``/{user}/{repo}/episodes``) and the pull requests (``/{user}/{repo}/discussions``, for browsers). What each
+page shows and why it is safe: ``docs/server.md``.
 
 Example:
     >>> import tempfile
@@ -48,35 +26,37 @@ from __future__ import annotations
 import json
 import logging
 import mimetypes
-import os
 import posixpath
-import re
-import subprocess
-import sys
+import struct
 import threading
+import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
-from urllib.parse import quote, unquote, urlencode, urlsplit
+from typing import Any
+from urllib.parse import quote, urlencode
 
 import jinja2
-from markdown_it import MarkdownIt
-from markupsafe import escape
-from pygments import highlight as pygments_highlight
 from pygments.formatters import HtmlFormatter
-from pygments.lexers import get_lexer_by_name, get_lexer_for_filename
-from pygments.util import ClassNotFound
 from starlette.responses import Response
 
+from hub_envs.server.access import Access
+from hub_envs.server.cards import CardData, card_fields, card_tags, card_title, eval_results, strip_front_matter
+from hub_envs.server.diffs import changes
+from hub_envs.server.episodes import INFO, PREFIXES, DatasetUnreadable, EpisodeReader, find_dataset
+from hub_envs.server.formats import ENV_MANIFEST
+from hub_envs.server.httputil import PLURAL, URL_PREFIX, Ctx
+from hub_envs.server.rendering import CardNotRendered, CardRenderer, Links, as_text, highlight_file, plain_card
+from hub_envs.server.reproductions import Records, is_record, matrix
 from hub_envs.server.storage import (
     DEFAULT_BRANCH,
     Commit,
     EntryNotFoundError,
+    HubStore,
     InvalidNameError,
     InvalidPathError,
+    PullRequestNotFoundError,
     Repo,
     RepoNotFoundError,
     RevisionNotFoundError,
@@ -85,20 +65,15 @@ from hub_envs.server.storage import (
     validate_path,
 )
 
-if TYPE_CHECKING:  # app imports this module; this module needs app's types for hints only
-    from hub_envs.server.app import Ctx, HubApp
-
 logger = logging.getLogger("hub_envs.server")
 
 HERE = Path(__file__).resolve().parent
 STATIC_PREFIX = "/_hub/static/"  # "_hub" cannot be a namespace: repo ids start with a letter or digit
-_PLURAL = {"models": "model", "datasets": "dataset", "spaces": "space"}
-_URL_PREFIX = {"model": "", "dataset": "datasets/", "space": "spaces/"}
 
-#: Every page: scripts, styles, images and media from this server only; no inline script or style,
-#: no plugins, no frames, forms post back here only.
+#: Every page: scripts, styles, images, media and fetches (the dataset viewer's data) from this server only; no
+#: inline script or style, no plugins, no frames, forms post back here only.
 PAGE_CSP = (
-    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; media-src 'self'; "
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; media-src 'self'; connect-src 'self'; "
     "form-action 'self'; base-uri 'none'; frame-ancestors 'none'"
 )
 #: ``/resolve/`` answers: repo files opened in the browser (an .html or .svg a repo author wrote)
@@ -113,20 +88,15 @@ _PAGE_HEADERS = {
 
 MAX_CARD_BYTES = 512 * 1024  # the card rendered: at most this much Markdown (the rest is cut, and said)
 MAX_TEXT_BYTES = 1024 * 1024  # a text file shown: at most this large
-MAX_HIGHLIGHT_BYTES = 256 * 1024  # highlighted up to this size; plain text above
 RECENT_COMMITS = 8
 COMMITS_PAGE = 50
+EPISODES_PAGE = 100  # episodes listed per page
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".svg", ".ico"}
 _VIDEO_EXT = {".mp4", ".webm", ".ogv"}
 _THUMBNAIL = "media/rollout.gif"  # what push_env renders for the card
 _ROLLOUT_VIDEO = "media/rollout.mp4"  # beside it when the dataset stores video: shown under the card
 _CACHE_SIZE = 1024
 _HIGHLIGHT_CACHE_SIZE = 64  # highlighted files (each at most a few MB of HTML)
-#: A card's Markdown is rendered in a worker process within this many seconds (env
-#: ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``); past it, the page shows the card as plain text, with a note.
-CARD_RENDER_SECONDS = 3.0
-_RENDER_WORKERS = 2  # cards rendered at once; a page waits at most the budget for one of them
-_RENDER_START_SECONDS = 60.0  # a worker's start (its imports) is not part of a card's budget
 
 
 class PageError(Exception):
@@ -142,6 +112,9 @@ class PageError(Exception):
 def wants_html(accept: str | None) -> bool:
     """Whether an ``Accept`` header asks for HTML (browsers send ``text/html,...``).
 
+    Args:
+        accept: the header's value, or None.
+
     >>> wants_html("text/html,application/xhtml+xml,*/*;q=0.8"), wants_html("*/*"), wants_html(None)
     (True, False, False)
     """
@@ -150,6 +123,9 @@ def wants_html(accept: str | None) -> bool:
 
 def format_size(n: int) -> str:
     """A file size for people.
+
+    Args:
+        n: a number of bytes.
 
     >>> format_size(0), format_size(1023), format_size(1536), format_size(5 * 1024**2)
     ('0 B', '1023 B', '1.5 kB', '5.0 MB')
@@ -161,332 +137,6 @@ def format_size(n: int) -> str:
         if n < 1024 or unit == "TB":
             return f"{n:.1f} {unit}"
     raise AssertionError("unreachable")
-
-
-def _highlight_code(code: str, lang: str, _attrs: str) -> str:
-    """markdown-it's fence highlighter: Pygments for a known language, else markdown-it's escaping."""
-    if not lang or len(code) > MAX_HIGHLIGHT_BYTES:
-        return ""
-    try:
-        lexer = get_lexer_by_name(lang.split()[0].lower())
-    except ClassNotFound:
-        return ""
-    # starts with "<pre": markdown-it then uses it as the whole block (no second <pre><code> around it)
-    return f'<pre class="highlight"><code>{pygments_highlight(code, lexer, _FENCE_FORMATTER)}</code></pre>'
-
-
-_FENCE_FORMATTER = HtmlFormatter(nowrap=True)
-_FILE_FORMATTER = HtmlFormatter(cssclass="highlight", wrapcode=True, linenos="table", lineanchors="L", anchorlinenos=True)
-
-
-@lru_cache(maxsize=1)
-def _markdown() -> MarkdownIt:
-    # CommonMark with raw HTML off (a card's <script> or <img onerror> becomes text), plus tables
-    # and strikethrough as on the Hub. Links keep markdown-it's validation (no javascript:/vbscript:/
-    # file: links; data: only for images, which the page's CSP then blocks).
-    return MarkdownIt("commonmark", {"html": False, "highlight": _highlight_code}).enable(["table", "strikethrough"])
-
-
-_ALIGN_RE = re.compile(r"^text-align:(left|right|center)$")
-_SCHEME_RE = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
-
-
-@dataclass
-class _Links:
-    """How a card's relative links and images resolve: into the repo at the pinned commit."""
-
-    base: str  # /{prefix}{repo_id}
-    sha: str
-    folders: set[str]  # the commit's folders: a link to one goes to its tree page
-
-    def target(self, url: str) -> str | None:
-        """The repo path a relative ``url`` names (``./media/a.gif#x`` -> ``media/a.gif``), or None."""
-        if not url or url.startswith(("#", "/", "?")) or _SCHEME_RE.match(url):
-            return None
-        path = unquote(urlsplit(url).path)
-        norm = posixpath.normpath(path)
-        if norm in ("", ".") or norm.startswith(".."):
-            return None
-        try:
-            return validate_path(norm)
-        except InvalidPathError:
-            return None
-
-    def image(self, url: str) -> str:
-        path = self.target(url)
-        if path is None:
-            return url
-        return f"{self.base}/resolve/{self.sha}/{quote(path)}"
-
-    def link(self, url: str) -> str:
-        path = self.target(url)
-        if path is None:
-            return url
-        fragment = urlsplit(url).fragment
-        kind = "tree" if path in self.folders else "blob"
-        return f"{self.base}/{kind}/{self.sha}/{quote(path)}" + (f"#{fragment}" if fragment else "")
-
-
-def render_markdown(text: str, links: _Links | None = None) -> str:
-    """Card Markdown as HTML: raw HTML escaped, relative images served from the repo at the pinned
-    commit, relative links to the file pages, table alignment as classes (the page's CSP allows no
-    inline style).
-
-    >>> render_markdown("Hi <script>alert(1)</script> [x](javascript:alert(1))")
-    '<p>Hi &lt;script&gt;alert(1)&lt;/script&gt; [x](javascript:alert(1))</p>\\n'
-    >>> links = _Links("/alice/env", "a" * 40, folders=set())
-    >>> render_markdown("![roll](media/a.gif)", links)
-    '<p><img src="/alice/env/resolve/aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa/media/a.gif" alt="roll" /></p>\\n'
-    """
-    md = _markdown()
-    tokens = md.parse(text)
-    for token in tokens:
-        style = token.attrGet("style")
-        if style is not None:
-            match = _ALIGN_RE.match(str(style))
-            token.attrs.pop("style", None)
-            if match:
-                token.attrSet("class", f"align-{match.group(1)}")
-        if token.type == "table_open":
-            token.attrSet("class", "card-table")
-        for child in token.children or ():
-            if links is None:
-                continue
-            if child.type == "image":
-                child.attrSet("src", links.image(str(child.attrGet("src") or "")))
-            elif child.type == "link_open":
-                child.attrSet("href", links.link(str(child.attrGet("href") or "")))
-    return md.renderer.render(tokens, md.options, {})
-
-
-# --- rendering cards in worker processes -------------------------------------------------------
-
-
-class CardNotRendered(Exception):
-    """A card could not be rendered: over the time budget (``cacheable``: it would be again), or no renderer."""
-
-    def __init__(self, message: str, cacheable: bool):
-        super().__init__(message)
-        self.cacheable = cacheable
-
-
-class _RenderWorker:
-    """One renderer process (:func:`render_worker`), spoken to over two pipes: a request is a JSON message
-    ``{"text", "base", "sha", "folders"}``, an answer ``{"html"}`` or ``{"error"}`` (length-prefixed bytes of
-    :class:`multiprocessing.connection.Connection`; JSON both ways, so nothing is unpickled)."""
-
-    def __init__(self):
-        from multiprocessing.connection import Connection
-
-        child_reads, parent_writes = os.pipe()
-        parent_reads, child_writes = os.pipe()
-        package_root = str(Path(__file__).resolve().parents[2])  # hub_envs' parent folder: importable in the child
-        env = {**os.environ, "PYTHONSAFEPATH": "1"}  # not the server's working folder on sys.path
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
-        code = f"from hub_envs.server.pages import render_worker; render_worker({child_reads}, {child_writes})"
-        try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", code],
-                stdin=subprocess.DEVNULL,
-                pass_fds=(child_reads, child_writes),
-                env=env,
-                start_new_session=True,  # Ctrl-C on the server's terminal is the server's: it never reaches a renderer
-            )
-        except OSError:
-            os.close(parent_writes)
-            os.close(parent_reads)
-            raise
-        finally:
-            os.close(child_reads)
-            os.close(child_writes)
-        self.send = Connection(parent_writes, readable=False)
-        self.receive = Connection(parent_reads, writable=False)
-        try:
-            if not self.receive.poll(_RENDER_START_SECONDS) or self.receive.recv_bytes() != b"ready":
-                raise OSError(f"the card renderer did not start within {_RENDER_START_SECONDS:g} s")
-        except (EOFError, OSError):
-            self.kill()
-            raise
-
-    def kill(self) -> None:
-        self.process.kill()
-        self.process.wait()
-        self.send.close()
-        self.receive.close()
-
-
-class CardRenderer:
-    """Renders card Markdown in worker processes, each card within a time budget.
-
-    markdown-it is fast on cards people write, but some Markdown within the 512 KiB a page renders takes it
-    seconds to tens of seconds (thousands of nested ``![`` or ``[``). Rendered in the server's own process it
-    would share the GIL and the thread pool with every API request; here a worker process renders it, a page
-    waits at most ``budget`` seconds for a free worker and ``budget`` more for the HTML, and a worker past the
-    budget is killed (a new one starts for the next card). Then :class:`CardNotRendered` says so.
-
-    Args:
-        budget: seconds a card may take to render (default :data:`CARD_RENDER_SECONDS`, or env
-            ``HUB_ENVS_SERVER_CARD_RENDER_SECONDS``).
-        workers: renderer processes at most (started when first needed; each is reused).
-    """
-
-    def __init__(self, budget: float | None = None, workers: int = _RENDER_WORKERS):
-        if budget is None:
-            raw = os.environ.get("HUB_ENVS_SERVER_CARD_RENDER_SECONDS", "").strip()
-            try:
-                budget = float(raw) if raw else CARD_RENDER_SECONDS
-            except ValueError:
-                raise ValueError(f"HUB_ENVS_SERVER_CARD_RENDER_SECONDS={raw!r}: expected a number of seconds.") from None
-        if not 0 < budget < float("inf"):
-            raise ValueError(f"The card render budget must be a positive number of seconds, got {budget}.")
-        self.budget = budget
-        self._slots = threading.BoundedSemaphore(workers)
-        self._idle: list[_RenderWorker] = []
-        self._guard = threading.Lock()
-
-    def render(self, text: str, links: _Links) -> str:
-        """The HTML of card Markdown ``text`` (as :func:`render_markdown` makes it).
-
-        Raises:
-            CardNotRendered: over the budget (``cacheable``), every worker busy past the budget, or no
-                worker could start or answer (both not ``cacheable``: another view may render it).
-        """
-        if not self._slots.acquire(timeout=self.budget):
-            raise CardNotRendered(f"every card renderer stayed busy for {self.budget:g} s", cacheable=False)
-        worker = None
-        try:
-            with self._guard:
-                worker = self._idle.pop() if self._idle else None
-            if worker is None:
-                worker = _RenderWorker()  # its start is not part of the budget
-            request = {"text": text, "base": links.base, "sha": links.sha, "folders": sorted(links.folders)}
-            worker.send.send_bytes(json.dumps(request).encode())
-            if not worker.receive.poll(self.budget):
-                worker.kill()
-                worker = None
-                raise CardNotRendered(f"it takes longer than {self.budget:g} s to render", cacheable=True)
-            answer = json.loads(worker.receive.recv_bytes())
-            if "html" not in answer:
-                raise CardNotRendered(f"the renderer failed: {str(answer.get('error'))[:300]}", cacheable=True)
-            return answer["html"]
-        except (EOFError, OSError, ValueError) as err:  # the worker died, or never started
-            logger.error("Card renderer failed: %s: %s", type(err).__name__, err)
-            if worker is not None:
-                worker.kill()
-                worker = None
-            raise CardNotRendered("the renderer failed (details in the server's log)", cacheable=False) from None
-        finally:
-            if worker is not None:
-                with self._guard:
-                    self._idle.append(worker)
-            self._slots.release()
-
-    def close(self) -> None:
-        """Stop the idle workers (a busy one is stopped by its render)."""
-        with self._guard:
-            idle, self._idle = self._idle, []
-        for worker in idle:
-            worker.kill()
-
-
-def render_worker(read_fd: int, write_fd: int) -> None:
-    """The loop of a renderer process (see :class:`CardRenderer`): until the server closes its pipe, render
-    each request and answer it."""
-    from multiprocessing.connection import Connection
-
-    requests, answers = Connection(read_fd, writable=False), Connection(write_fd, readable=False)
-    render_markdown("warm up")  # imports and builds the parser before the first card's budget starts
-    answers.send_bytes(b"ready")
-    while True:
-        try:
-            request = json.loads(requests.recv_bytes())
-        except (EOFError, OSError):
-            return  # the server is gone (or stopped this worker)
-        try:
-            links = _Links(request["base"], request["sha"], set(request["folders"]))
-            answer = {"html": render_markdown(request["text"], links)}
-        except Exception as err:  # a bug in rendering: the page shows the card as text and the log says why
-            answer = {"error": f"{type(err).__name__}: {str(err)[:300]}"}
-        answers.send_bytes(json.dumps(answer).encode())
-
-
-def plain_card(text: str) -> str:
-    """Card Markdown shown as it is written, escaped: what a page shows when the card cannot be rendered.
-
-    >>> plain_card("# Hi <script>")
-    '<pre class="card-plain"># Hi &lt;script&gt;</pre>'
-    """
-    return f'<pre class="card-plain">{escape(text)}</pre>'
-
-
-# --- card metadata ----------------------------------------------------------------------------
-
-
-def card_title(body: str) -> str | None:
-    """The card's title line: its first ``# heading`` (front matter already cut off).
-
-    >>> card_title("Intro\\n\\n# tiny-env — a hub-envs environment\\n## Load it")
-    'tiny-env — a hub-envs environment'
-    """
-    for line in body.splitlines()[:200]:
-        if line.startswith("# "):
-            return line[2:].strip().strip("#").strip() or None
-    return None
-
-
-def eval_results(card: dict | None) -> list[dict]:
-    """The evaluation results of a card's ``model-index`` metadata, one row per metric.
-
-    >>> eval_results({"model-index": [{"name": "a/b", "results": [{"task": {"type": "rl"},
-    ...     "dataset": {"name": "tiny"}, "metrics": [{"type": "mean_return", "value": -8.2, "name": "mean_return (random policy)"}]}]}]})
-    [{'model': 'a/b', 'task': 'rl', 'dataset': 'tiny', 'metric': 'mean_return (random policy)', 'value': '-8.2', 'verified': False}]
-    """
-    rows: list[dict] = []
-    index = card.get("model-index") if isinstance(card, dict) else None
-    if not isinstance(index, list):
-        return rows
-    for model in index[:20]:
-        if not isinstance(model, dict):
-            continue
-        for result in (model.get("results") or [])[:50] if isinstance(model.get("results"), list) else []:
-            if not isinstance(result, dict):
-                continue
-            task = result.get("task") if isinstance(result.get("task"), dict) else {}
-            dataset = result.get("dataset") if isinstance(result.get("dataset"), dict) else {}
-            metrics = result.get("metrics") if isinstance(result.get("metrics"), list) else []
-            for metric in metrics[:50]:
-                if not isinstance(metric, dict):
-                    continue
-                value = metric.get("value")
-                rows.append(
-                    {
-                        "model": str(model.get("name") or ""),
-                        "task": str(task.get("name") or task.get("type") or ""),
-                        "dataset": str(dataset.get("name") or dataset.get("type") or ""),
-                        "metric": str(metric.get("name") or metric.get("type") or ""),
-                        "value": f"{value:.4g}" if isinstance(value, float) else str(value),
-                        "verified": metric.get("verified") is True,
-                    }
-                )
-    return rows
-
-
-def card_fields(card: dict | None) -> list[tuple[str, str]]:
-    """The card metadata's plain fields (``library_name``, ``license``...) as ``(key, value)`` rows;
-    tags and model-index are shown on their own."""
-    if not isinstance(card, dict):
-        return []
-    out = []
-    for key, value in card.items():
-        if key in ("tags", "model-index") or isinstance(value, (dict, list)) or value is None:
-            continue
-        out.append((str(key), str(value)[:200]))
-    return out[:20]
-
-
-def card_tags(card: dict | None) -> list[str]:
-    tags = card.get("tags") if isinstance(card, dict) else None
-    return [str(t) for t in tags[:50]] if isinstance(tags, list) else []
 
 
 # --- the pages --------------------------------------------------------------------------------
@@ -503,10 +153,18 @@ class _Card:
 
 
 class Pages:
-    """The page routes, bound to a :class:`~hub_envs.server.app.HubApp` (its store and its auth)."""
+    """The page routes.
 
-    def __init__(self, hub: HubApp):
-        self.hub = hub
+    Args:
+        store: the repos.
+        access: who may see what (a private repo's page needs the token, as its API routes do).
+        cards: the README metadata, shared with the API's repo info.
+    """
+
+    def __init__(self, store: HubStore, access: Access, cards: CardData):
+        self.store = store
+        self.access = access
+        self.cards = cards
         self.env = jinja2.Environment(
             loader=jinja2.FileSystemLoader(HERE / "templates"),
             autoescape=True,
@@ -521,45 +179,86 @@ class Pages:
         self._cards: OrderedDict[tuple[str, str], _Card] = OrderedDict()  # (README sha256, commit) -> card
         self._highlights: OrderedDict[tuple[str, str], str] = OrderedDict()  # (blob sha256, file name) -> HTML
         self._guard = threading.Lock()
-        self._static = _static_files()
+        self._assets = _static_files()
         self.renderer = CardRenderer()  # card Markdown: in worker processes, within a time budget
+        self.episodes = EpisodeReader()  # the dataset viewer's reads, cached
+        self.records = Records()  # reproduction attestations, cached
 
     # -- routing --
 
     def match(self, ctx: Ctx) -> Callable[[Ctx], Response] | None:
-        """The handler of a page route, or None if ``ctx`` is not one (then the API routes it)."""
+        """The handler of a page route, or None if ``ctx`` is not one (then the API routes it).
+
+        Args:
+            ctx: the request (GET or HEAD).
+
+        Returns:
+            The page's handler, or None.
+        """
         segs = ctx.segs
+        html = wants_html(ctx.request.headers.get("accept"))
         if segs == [""]:
-            return self.home if wants_html(ctx.request.headers.get("accept")) else None
+            return self._home if html else None
+        if segs == ["favicon.ico"]:
+            return lambda c: self._static("favicon.ico")
         if len(segs) == 3 and segs[0] == "_hub" and segs[1] == "static":
-            return lambda c: self.static(segs[2])
+            return lambda c: self._static(segs[2])
         if not segs or segs[0] == "api":
             return None
         repo_type, rest = "model", segs
-        if rest[0] in _PLURAL:
-            repo_type, rest = _PLURAL[rest[0]], rest[1:]
+        if rest[0] in PLURAL:
+            repo_type, rest = PLURAL[rest[0]], rest[1:]
         if len(rest) < 2 or not rest[0] or not rest[1]:
             return None
         repo_id = f"{rest[0]}/{rest[1]}"
         if len(rest) == 2:
-            return lambda c: self.repo_page(c, repo_type, repo_id, None, "")
+            return lambda c: self._repo_page(c, repo_type, repo_id, None, "")
         action, args = rest[2], rest[3:]
         if action == "tree" and args:
-            return lambda c: self.repo_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
+            return lambda c: self._repo_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
         if action == "blob" and len(args) >= 2:
-            return lambda c: self.blob_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
+            return lambda c: self._blob_page(c, repo_type, repo_id, args[0], "/".join(args[1:]))
         if action == "commits" and len(args) == 1:
-            return lambda c: self.commits_page(c, repo_type, repo_id, args[0])
+            return lambda c: self._commits_page(c, repo_type, repo_id, args[0])
+        if action == "episodes":
+            return self._match_episodes(repo_type, repo_id, args)
+        if action == "discussions" and html and len(args) <= 1:  # API clients keep the API's answer there
+            if not args:
+                return lambda c: self._discussions_page(c, repo_type, repo_id)
+            return lambda c: self._discussion_page(c, repo_type, repo_id, _number(args[0], "pull request"))
+        return None
+
+    def _match_episodes(self, repo_type: str, repo_id: str, args: list[str]) -> Callable[[Ctx], Response] | None:
+        """``episodes``, ``episodes/{i}``, ``episodes/{i}/data.json``, ``episodes/{i}/frames/{key}/{step}.png``."""
+        if not args:
+            return lambda c: self._episodes_page(c, repo_type, repo_id)
+        if len(args) == 1:
+            return lambda c: self._episode_page(c, repo_type, repo_id, _number(args[0], "episode"))
+        if len(args) == 2 and args[1] == "data.json":
+            return lambda c: self._episode_data(c, repo_type, repo_id, _number(args[0], "episode"))
+        if len(args) == 4 and args[1] == "frames" and args[3].endswith(".png"):
+            step = args[3][: -len(".png")]
+            return lambda c: self._episode_frame(
+                c, repo_type, repo_id, _number(args[0], "episode"), args[2], _number(step, "frame")
+            )
         return None
 
     def handle(self, ctx: Ctx, handler: Callable[[Ctx], Response]) -> Response:
-        """Run a page handler; an error becomes an HTML page (its status, what was not found)."""
+        """Run a page handler; an error becomes an HTML page (its status, what was not found).
+
+        Args:
+            ctx: the request.
+            handler: what :meth:`match` returned.
+
+        Returns:
+            The page, or an HTML error page with the error's status.
+        """
         try:
             return handler(ctx)
         except PageError as err:
             return self._error(ctx, err)
         except RepoNotFoundError:
-            status = 401 if (self.hub.token is not None and not ctx.authenticated) else 404
+            status = 401 if (self.access.token is not None and not ctx.authenticated) else 404
             path = "/" + "/".join(ctx.segs)
             hint = (
                 " This server was started with a token: a private repo is shown only to requests that send it "
@@ -576,6 +275,10 @@ class Pages:
             return self._error(ctx, PageError(400, "Invalid path", str(err)))
         except InvalidNameError as err:
             return self._error(ctx, PageError(400, "Invalid name", str(err)))
+        except PullRequestNotFoundError:
+            return self._error(ctx, PageError(404, "Pull request not found", f"No pull request at /{'/'.join(ctx.segs)}."))
+        except DatasetUnreadable as err:
+            return self._error(ctx, PageError(422, "Dataset not shown", f"The viewer cannot show this dataset: {err}"))
         except StoreError:
             logger.exception("Store error on page %s", ctx.request.url.path)
             return self._error(ctx, PageError(500, "Server error", "The page failed on the server (details in its log)."))
@@ -587,8 +290,8 @@ class Pages:
     def _error(self, ctx: Ctx, err: PageError) -> Response:
         return self._render("error.html", status=err.status, title=err.title, message=err.message)
 
-    def static(self, name: str) -> Response:
-        found = self._static.get(name)
+    def _static(self, name: str) -> Response:
+        found = self._assets.get(name)
         if found is None:
             raise PageError(404, "Not found", f"No static file {name!r} on this server.")
         data, media_type = found
@@ -598,7 +301,7 @@ class Pages:
     # -- repos --
 
     def _open(self, ctx: Ctx, repo_type: str, repo_id: str) -> Repo:
-        return self.hub._open(ctx, repo_type, repo_id)  # private repos: the token, as the API
+        return self.access.open(ctx, repo_type, repo_id)  # private repos: the token, as the API
 
     def _card(self, repo: Repo, commit: Commit, base: str) -> _Card | None:
         entry = commit.files.get("README.md")
@@ -613,7 +316,7 @@ class Pages:
             raw = f.read(MAX_CARD_BYTES + 1)
         text = raw[:MAX_CARD_BYTES].decode("utf-8", "replace")
         body = strip_front_matter(text)
-        links = _Links(base, commit.id, folders_of(commit.files))
+        links = Links(base, commit.id, folders_of(commit.files))
         card = _Card(card_title(body), "", truncated=len(raw) > MAX_CARD_BYTES)
         try:
             card.html = self.renderer.render(body, links)
@@ -646,26 +349,26 @@ class Pages:
                 self._cards.popitem(last=False)
         return card.title
 
-    def home(self, ctx: Ctx) -> Response:
+    def _home(self, ctx: Ctx) -> Response:
         query = (ctx.query("q") or "").strip()
         tag = (ctx.query("tag") or "").strip()
         needle = query.lower()
         repos = []
         for repo_type in ("model", "dataset", "space"):
-            for meta in self.hub.store.list_repos(repo_type):
+            for meta in self.store.list_repos(repo_type):
                 if meta.private and not ctx.authenticated:
                     continue
                 try:
-                    repo = self.hub.store.open(repo_type, meta.repo_id)
+                    repo = self.store.open(repo_type, meta.repo_id)
                     head = repo.head()
-                    card = self.hub._card_data(repo, head)
+                    card = self.cards.get(repo, head)
                     tags = card_tags(card)
                     if tag and tag not in tags:
                         continue
                     if needle and needle not in meta.repo_id.lower() and not any(needle in t.lower() for t in tags):
                         continue
                     thumb = _thumbnail(head)
-                    base = "/" + _URL_PREFIX[repo_type] + meta.repo_id
+                    base = "/" + URL_PREFIX[repo_type] + meta.repo_id
                     repos.append(
                         {
                             "id": meta.repo_id,
@@ -691,7 +394,7 @@ class Pages:
         rev = revision or DEFAULT_BRANCH
         commit = repo.resolve(rev)
         refs = repo.refs()
-        base = "/" + _URL_PREFIX[repo_type] + repo.repo_id
+        base = "/" + URL_PREFIX[repo_type] + repo.repo_id
         return {
             "repo": repo,
             "repo_id": repo.repo_id,
@@ -705,9 +408,11 @@ class Pages:
             "private": repo.meta.private,
             "path": path,
             "crumbs": _crumbs(path),
+            "has_dataset": any(p + INFO in commit.files for p in PREFIXES.get(repo_type, ())),
+            "open_prs": sum(1 for pr in refs.pulls.values() if pr.status == "open"),
         }
 
-    def repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
+    def _repo_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str | None, path: str) -> Response:
         path = path.strip("/")
         if path:
             validate_path(path)
@@ -730,15 +435,14 @@ class Pages:
                 entries.append({"name": p[len(prefix) :], "path": p, "folder": False, "size": entry.size, "lfs": entry.lfs})
         entries.sort(key=lambda e: (not e["folder"], e["name"].lower()))
         card = self._card(repo, commit, c["base"]) if not path else None
-        data = self.hub._card_data(repo, commit) if not path else None
+        data = self.cards.get(repo, commit) if not path else None
         recent = []
         for i, old in enumerate(repo.history(commit)):
             if i >= RECENT_COMMITS:
                 break
             recent.append(old)
-        reproductions = sorted(
-            (p, e.size) for p, e in commit.files.items() if p.startswith("reproductions/") and p.endswith(".json")
-        )
+        shown = [e for p, e in commit.files.items() if p.startswith(prefix)]  # the folder's files (all of them at the root)
+        attested = self.records.attested(repo, commit, c["base"]) if not path else []
         return self._render(
             "repo.html",
             **c,
@@ -749,12 +453,14 @@ class Pages:
             results=eval_results(data),
             load_line=load_line(repo.repo_id, repo_type, commit),
             recent=recent,
-            reproductions=reproductions,
+            reproductions=matrix(attested),
+            merge_rights=self._merge_rights(repo),
             rollout_video=_ROLLOUT_VIDEO if not path and _ROLLOUT_VIDEO in commit.files else None,
-            total_size=sum(e.size for e in commit.files.values()),
+            shown_files=len(shown),
+            shown_size=sum(e.size for e in shown),
         )
 
-    def blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
+    def _blob_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str, path: str) -> Response:
         validate_path(path)  # before anything: a traversal attempt is a 400, as in the API
         c = self._context(ctx, repo_type, repo_id, revision, path)
         repo, commit = c["repo"], c["commit"]
@@ -773,7 +479,7 @@ class Pages:
         elif entry.size <= MAX_TEXT_BYTES:
             with repo.open_blob(entry) as f:
                 data = f.read()
-            text = _as_text(data)
+            text = as_text(data)
             if text is not None:
                 kind, code = "text", self._highlighted(entry.sha256, path, text)
         return self._render(
@@ -793,14 +499,14 @@ class Pages:
             if key in self._highlights:
                 self._highlights.move_to_end(key)
                 return self._highlights[key]
-        code = _highlight_file(path, text)
+        code = highlight_file(path, text)
         with self._guard:
             self._highlights[key] = code
             while len(self._highlights) > _HIGHLIGHT_CACHE_SIZE:
                 self._highlights.popitem(last=False)
         return code
 
-    def commits_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
+    def _commits_page(self, ctx: Ctx, repo_type: str, repo_id: str, revision: str) -> Response:
         c = self._context(ctx, repo_type, repo_id, revision)
         try:
             page = max(0, int(ctx.query("p") or 0))
@@ -815,32 +521,177 @@ class Pages:
                 commits.append(old)
         return self._render("commits.html", **c, commits=commits, page=page, more=more, next_query=urlencode({"p": page + 1}))
 
+    # -- the dataset viewer --
+
+    def _dataset(self, ctx: Ctx, repo_type: str, repo_id: str) -> tuple[dict, Any]:
+        """The repo's page context at ``?rev=`` (default main) and the dataset it holds (404 if none)."""
+        c = self._context(ctx, repo_type, repo_id, ctx.query("rev") or None)
+        ds = find_dataset(c["repo"], c["commit"])
+        if ds is None:
+            where = " or ".join(f"{p or 'the root'}" for p in PREFIXES.get(repo_type, ())) or "this kind of repo"
+            raise PageError(
+                404,
+                "No dataset",
+                f"{c['repo_id']} at {c['rev']} holds no LeRobot dataset (no {INFO} in {where}).",
+            )
+        return c, ds
+
+    def _episodes_page(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        c, ds = self._dataset(ctx, repo_type, repo_id)
+        index = self.episodes.index(ds)
+        page = _number(ctx.query("p") or "0", "page", minimum=0)
+        rows = index.episodes[page * EPISODES_PAGE : (page + 1) * EPISODES_PAGE]
+        if page and not rows:
+            raise PageError(404, "No such page", f"Page {page} is past the last episode ({len(index)} episodes).")
+        return self._render(
+            "episodes.html",
+            **c,
+            ds=ds,
+            rows=rows,
+            total=len(index),
+            page=page,
+            pages=(len(index) + EPISODES_PAGE - 1) // EPISODES_PAGE,
+            frames=sum(e.length for e in index.episodes),
+        )
+
+    def _episode(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> tuple[dict, Any, Any, Any]:
+        c, ds = self._dataset(ctx, repo_type, repo_id)
+        index = self.episodes.index(ds)
+        episode = index.get(i)
+        if episode is None:
+            raise PageError(404, "Episode not found", f"No episode {i} in {c['repo_id']} at {c['rev']} ({len(index)} episodes).")
+        return c, ds, index, episode
+
+    def _episode_page(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> Response:
+        c, ds, index, episode = self._episode(ctx, repo_type, repo_id, i)
+        sha = c["commit"].id
+        videos = []
+        for key, (chunk, file, start, stop) in sorted(episode.videos.items()):
+            path = ds.path("video_path", video_key=key, chunk_index=chunk, file_index=file)
+            if ds.file(path) is not None:
+                videos.append(
+                    {"key": key, "url": f"{c['base']}/resolve/{sha}/{quote(ds.prefix + path)}", "from": start, "to": stop}
+                )
+        position = index.episodes.index(episode)
+        neighbours = index.episodes[max(position - 1, 0) : position + 2]
+        return self._render(
+            "episode.html",
+            **c,
+            ds=ds,
+            episode=episode,
+            total=len(index),
+            previous=neighbours[0] if neighbours[0] is not episode else None,
+            next=neighbours[-1] if neighbours[-1] is not episode else None,
+            videos=videos,
+            images=ds.image_keys,
+            series=[(k, ds.names(k)) for k in ds.series_keys],
+            data_url=f"{c['base']}/episodes/{episode.index}/data.json?{urlencode({'rev': sha})}",
+            frames_url=f"{c['base']}/episodes/{episode.index}/frames",
+            extra_scripts=["viewer.js"],
+        )
+
+    def _episode_data(self, ctx: Ctx, repo_type: str, repo_id: str, i: int) -> Response:
+        c, ds, _, episode = self._episode(ctx, repo_type, repo_id, i)
+        data = {"episode": episode.index, "length": episode.length, "fps": ds.fps, **self.episodes.series(ds, episode)}
+        headers = {**_PAGE_HEADERS, **_immutable(ctx, c["commit"].id)}
+        return Response(json.dumps(data, allow_nan=False), media_type="application/json", headers=headers)
+
+    def _episode_frame(self, ctx: Ctx, repo_type: str, repo_id: str, i: int, key: str, step: int) -> Response:
+        c, ds, _, episode = self._episode(ctx, repo_type, repo_id, i)
+        png = self.episodes.frame(ds, episode, key, step)
+        headers = {**_PAGE_HEADERS, **_immutable(ctx, c["commit"].id)}
+        return Response(png, media_type="image/png", headers=headers)
+
+    # -- pull requests --
+
+    def _merge_rights(self, repo: Repo) -> str:
+        """Who may merge the repo's pull requests, in words."""
+        owner = repo.repo_id.split("/")[0]
+        if owner.lower() == self.access.user.lower():
+            return f"the account {self.access.user!r}"
+        return f"the account {owner!r} (the repo's namespace) or the server's own account {self.access.user!r}"
+
+    def _discussions_page(self, ctx: Ctx, repo_type: str, repo_id: str) -> Response:
+        c = self._context(ctx, repo_type, repo_id, None)
+        repo = c["repo"]
+        prs = repo.pull_requests()
+        rows = []
+        for pr in prs:
+            base, head = repo.load_commit(pr.base), repo.load_commit(pr.head)
+            changed = [p for p in set(base.files) | set(head.files) if base.files.get(p) != head.files.get(p)]
+            rows.append({"pr": pr, "files": len(changed), "records": sum(1 for p in changed if is_record(p) and p in head.files)})
+        return self._render("discussions.html", **c, rows=rows)
+
+    def _discussion_page(self, ctx: Ctx, repo_type: str, repo_id: str, num: int) -> Response:
+        c = self._context(ctx, repo_type, repo_id, None)
+        repo = c["repo"]
+        pr = repo.pull_request(num)
+        base, head = repo.load_commit(pr.base), repo.load_commit(pr.head)
+        files = changes(repo, base, head)
+        records = []
+        for f in files:
+            if f.new is not None and is_record(f.path):
+                record = self.records.read(repo, f.path, f.new)
+                records.append({"record": record, "signed": f.path + ".sig" in head.files})
+        kind = "" if repo_type == "model" else f", repo_type={repo_type!r}"
+        return self._render(
+            "discussion.html",
+            **c,
+            pr=pr,
+            head=head,
+            files=files,
+            records=records,
+            merge_call=f"HfApi().merge_pull_request({repo.repo_id!r}, {pr.num}{kind})",
+            merge_rights=self._merge_rights(repo),
+            events=[_event_row(e) for e in pr.events],
+        )
+
 
 # --- helpers ----------------------------------------------------------------------------------
 
 
 def load_line(repo_id: str, repo_type: str, commit: Commit) -> str:
     """The line that loads this repo pinned to this commit: ``load_env`` for an env repo (one with a
-    ``hub_env.json``), else ``snapshot_download``; the same text push_env prints."""
-    if repo_type == "model" and "hub_env.json" in commit.files:
+    ``hub_env.json``), else ``snapshot_download``; the same text push_env prints.
+
+    Args:
+        repo_id: ``namespace/name``.
+        repo_type: ``model``, ``dataset`` or ``space``.
+        commit: the commit to pin.
+    """
+    if repo_type == "model" and ENV_MANIFEST in commit.files:
         return f'load_env("{repo_id}@{commit.id}", trust_remote_code=True)'
     kind = "" if repo_type == "model" else f', repo_type="{repo_type}"'
     return f'snapshot_download("{repo_id}"{kind}, revision="{commit.id}")'
 
 
-_FRONT_RE = re.compile(r"\A---[ \t]*\r?\n.*?^---[ \t]*(?:\r?\n|\Z)", flags=re.S | re.M)
+def _number(text: str, what: str, minimum: int = 0) -> int:
+    """A non-negative number from a path segment or query value; 400 if it is not one."""
+    if not text.isdigit() or len(text) > 9 or int(text) < minimum:
+        raise PageError(400, f"Invalid {what} number", f"Invalid {what} number {text[:20]!r}: expected 0, 1, 2...")
+    return int(text)
 
 
-def strip_front_matter(text: str) -> str:
-    """The README without its YAML metadata block (shown as tags and results, never as raw text).
+def _immutable(ctx: Ctx, sha: str) -> dict:
+    """Cache headers of an answer for a pinned commit (``?rev=<sha>``): it never changes."""
+    return {"Cache-Control": "public, max-age=86400, immutable"} if ctx.query("rev") == sha else {}
 
-    >>> strip_front_matter("---\\ntags: [a]\\n---\\n# Title\\n")
-    '# Title\\n'
-    >>> strip_front_matter("# No metadata\\n")
-    '# No metadata\\n'
-    """
-    match = _FRONT_RE.match(text)
-    return text[match.end() :] if match else text
+
+def _event_row(event: dict) -> dict:
+    """A pull request event as the page lists it: who, when, what."""
+    data = event.get("data") if isinstance(event.get("data"), dict) else {}
+    author = event.get("author", {}).get("name") if isinstance(event.get("author"), dict) else None
+    kind = event.get("type")
+    if kind == "comment":
+        latest = data.get("latest") if isinstance(data.get("latest"), dict) else {}
+        text = str(latest.get("raw") or "")
+    elif kind == "commit":
+        text = f"pushed {str(data.get('oid', ''))[:12]}: {data.get('subject', '')}"
+    elif kind == "status-change":
+        text = f"changed the status to {data.get('status')}"
+    else:
+        text = str(kind)
+    return {"type": kind, "author": author, "date": event.get("createdAt"), "text": text[:20_000]}
 
 
 def _thumbnail(commit: Commit) -> str | None:
@@ -848,38 +699,6 @@ def _thumbnail(commit: Commit) -> str | None:
         return _THUMBNAIL
     gifs = sorted(p for p in commit.files if p.lower().endswith(".gif"))
     return gifs[0] if gifs else None
-
-
-def _read_text(repo: Repo, commit: Commit, path: str, limit: int = 64 * 1024) -> str | None:
-    entry = commit.files.get(path)
-    if entry is None:
-        return None
-    with repo.open_blob(entry) as f:
-        return f.read(limit).decode("utf-8", "replace")
-
-
-def _as_text(data: bytes) -> str | None:
-    """``data`` as text, or None if it looks binary (a NUL byte, or not UTF-8)."""
-    if b"\x00" in data[:8192]:
-        return None
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        return None
-
-
-def _highlight_file(path: str, text: str) -> str:
-    """A file's text as highlighted HTML (Pygments; plain text when no lexer knows the name or the
-    file is large). Pygments escapes the text."""
-    lexer = None
-    if len(text) <= MAX_HIGHLIGHT_BYTES:
-        try:
-            lexer = get_lexer_for_filename(path.rsplit("/", 1)[-1], stripnl=False)
-        except ClassNotFound:
-            lexer = None
-    if lexer is None:
-        lexer = get_lexer_by_name("text", stripnl=False)
-    return pygments_highlight(text, lexer, _FILE_FORMATTER)
 
 
 def _crumbs(path: str) -> list[tuple[str, str]]:
@@ -901,7 +720,44 @@ def _static_files() -> dict[str, tuple[bytes, str]]:
     return {
         "hub.css": (css.encode(), "text/css; charset=utf-8"),
         "hub.js": ((static / "hub.js").read_bytes(), "text/javascript; charset=utf-8"),
+        "viewer.js": ((static / "viewer.js").read_bytes(), "text/javascript; charset=utf-8"),
+        "favicon.svg": (FAVICON_SVG.encode(), "image/svg+xml"),
+        "favicon.ico": (_favicon_ico(), "image/x-icon"),
     }
+
+
+#: The pages' icon: a rounded square in the pages' accent colour with a white "h".
+FAVICON_SVG = (
+    '<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 32 32"><rect width="32" height="32" rx="7" fill="#0b5fcc"/>'
+    '<path d="M10 7v18M10 16c2-3 9-3 10 1v8" stroke="#fff" stroke-width="4" fill="none" stroke-linecap="round"/></svg>'
+)
+
+
+def _favicon_ico(size: int = 32) -> bytes:
+    """``/favicon.ico`` (what a browser asks for on a page without an icon link, e.g. a file opened raw): the
+    accent-coloured square of :data:`FAVICON_SVG`, as an ICO holding one PNG, drawn here (no image library)."""
+    color, white = (0x0B, 0x5F, 0xCC, 255), (255, 255, 255, 255)
+    rows = []
+    for y in range(size):
+        row = bytearray([0])  # PNG filter: none
+        for x in range(size):
+            stem = 9 <= x <= 12 and 6 <= y <= 25
+            leg = 18 <= x <= 21 and 15 <= y <= 25
+            arch = 11 <= x <= 21 and 13 <= y <= 16
+            row += bytes(white if (stem or leg or arch) else color)
+        rows.append(bytes(row))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", size, size, 8, 6, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(b"".join(rows), 9))
+        + chunk(b"IEND", b"")
+    )
+    header = struct.pack("<HHH", 0, 1, 1) + struct.pack("<BBBBHHII", size, size, 0, 0, 1, 32, len(png), 6 + 16)
+    return header + png
 
 
 class ResolveSandbox:

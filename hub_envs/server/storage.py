@@ -1,35 +1,5 @@
-"""The on-disk store behind the loopback Hub server: repos, blobs, commits and refs. No HTTP here.
-
-A store is one folder (``root``) holding every repo the server serves::
-
-    root/
-      FORMAT                                 "hub-envs-store 1"
-      LOCK                                   held (flock) by the one process serving this root
-      tmp/                                   scratch space; emptied when a store opens
-      trash/                                 deleted repos on their way out; emptied when a store opens
-      repos/<type>s/<namespace>/<name>/      one folder per repo (lower-cased: repo ids are case-insensitive)
-        repo.json                            id (original casing), type, private, createdAt, author, sdk
-        refs.json                            {"branches": {name: sha}, "tags": {name: {"target": sha, ...}},
-                                              "pulls": {num: pull request}}
-        commits/<sha[:2]>/<sha>.json         immutable commit objects
-        blobs/<sha256[:2]>/<sha256>          immutable file contents, addressed by their sha256
-
-Identifiers are git's: a file's ``oid`` is its git blob sha1 (what the Hub sends as ``ETag`` and as
-the tree ``oid``), folders have git tree sha1s, and a commit id is the sha1 of a git commit object
-(tree, parent, author, committer, message), so ids are 40-hex like the Hub's.
-
-Durability and concurrency:
-
-* Every file is written to ``tmp/``, fsynced, then moved into place with :func:`os.replace`.
-* A commit writes its blobs, then its commit object, and moves the branch in ``refs.json`` last;
-  a crash at any point leaves the branch at its previous commit (unreferenced blobs are harmless).
-* Read-modify-write of ``refs.json`` (commits, branches, tags, pull requests) holds a per-repo lock;
-  readers never lock, they see the old or the new ``refs.json``.
-* Pull requests (``refs/pr/N``) live in ``refs.json`` beside the branches: opening one, committing to
-  it, merging it (main and the pull request's status move together) and closing it are each one
-  atomic write of ``refs.json``.
-* One server process per root: the locks are in-process (threads), not across processes; a second
-  process opening the same root is refused (an exclusive ``flock`` on ``root/LOCK``).
+"""The on-disk store behind the loopback Hub server: repos, blobs, commits, refs and pull requests, with
+git's identifiers; atomic writes, one process per root. No HTTP here. Its layout: ``docs/server.md#the-store``.
 
 Example:
     >>> import tempfile
@@ -153,24 +123,42 @@ class MergeConflictError(StoreError):
 
 
 def git_blob_oid(data: bytes) -> str:
-    """The git blob sha1 of ``data``: what the Hub uses as ETag and ``oid`` for a regular file."""
+    """The git blob sha1 of ``data``: what the Hub uses as ETag and ``oid`` for a regular file.
+
+    Args:
+        data: the file's content.
+    """
     digest = hashlib.sha1(b"blob %d\0" % len(data))
     digest.update(data)  # not `header + data`: that would copy a large file once more
     return digest.hexdigest()
 
 
 def lfs_pointer(sha256: str, size: int) -> bytes:
-    """The Git LFS pointer file of a blob: what git stores in the tree for a file kept in LFS."""
+    """The Git LFS pointer file of a blob: what git stores in the tree for a file kept in LFS.
+
+    Args:
+        sha256: the content's sha256 (hex).
+        size: the content's size in bytes.
+    """
     return f"version https://git-lfs.github.com/spec/v1\noid sha256:{sha256}\nsize {size}\n".encode()
 
 
 def lfs_entry(sha256: str, size: int) -> FileEntry:
-    """The :class:`FileEntry` of an LFS file: its git ``oid`` is the pointer's blob sha1."""
+    """The :class:`FileEntry` of an LFS file: its git ``oid`` is the pointer's blob sha1.
+
+    Args:
+        sha256: the content's sha256 (hex).
+        size: the content's size in bytes.
+    """
     return FileEntry(oid=git_blob_oid(lfs_pointer(sha256, size)), sha256=sha256, size=size, lfs=True)
 
 
 def format_date(dt: datetime) -> str:
-    """``2024-05-01T12:00:00.123Z``: the only date format huggingface_hub's ``parse_datetime`` expects."""
+    """``2024-05-01T12:00:00.123Z``: the only date format huggingface_hub's ``parse_datetime`` expects.
+
+    Args:
+        dt: an aware datetime (converted to UTC).
+    """
     dt = dt.astimezone(UTC)
     return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 1000:03d}Z"
 
@@ -180,13 +168,34 @@ def now() -> datetime:
 
 
 def validate_repo_type(repo_type: str) -> str:
+    """Check a repo type: ``model``, ``dataset`` or ``space``.
+
+    Args:
+        repo_type: the type.
+
+    Returns:
+        ``repo_type``.
+
+    Raises:
+        InvalidNameError: another type.
+    """
     if repo_type not in REPO_TYPES:
         raise InvalidNameError(f"Invalid repo type {repo_type!r}: expected one of {', '.join(REPO_TYPES)}.")
     return repo_type
 
 
 def validate_repo_id(repo_id: str) -> tuple[str, str]:
-    """Split ``namespace/name`` and check both parts; raise :class:`InvalidNameError` otherwise."""
+    """Split ``namespace/name`` and check both parts.
+
+    Args:
+        repo_id: ``namespace/name``.
+
+    Returns:
+        ``(namespace, name)``.
+
+    Raises:
+        InvalidNameError: malformed, or a reserved namespace; the message says the rules.
+    """
     parts = repo_id.split("/")
     if len(parts) != 2:
         raise InvalidNameError(
@@ -204,12 +213,21 @@ def validate_repo_id(repo_id: str) -> tuple[str, str]:
 
 
 def validate_path(path: str) -> str:
-    """Check a path inside a repo (``a/b.txt``); raise :class:`InvalidPathError` if it could escape.
+    """Check a path inside a repo (``a/b.txt``): it must not be able to escape the repo.
 
     Refused: empty, absolute, backslashes, control characters (C0, DEL and C1: U+0000-U+001F,
     U+007F-U+009F), text that is not valid Unicode (lone surrogates), empty / ``.`` / ``..``
     segments, a ``.git`` segment, segments over 255 bytes (UTF-8; what file systems store), and
     over-long paths.
+
+    Args:
+        path: a path inside a repo.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        InvalidPathError: the path is refused; the message says why.
     """
     if not isinstance(path, str) or not path:
         raise InvalidPathError("Invalid path: empty.")
@@ -240,7 +258,18 @@ def validate_path(path: str) -> str:
 
 
 def validate_ref_name(name: str, kind: str = "branch") -> str:
-    """Check a branch or tag name with git's rules (``git check-ref-format``), simplified."""
+    """Check a branch or tag name with git's rules (``git check-ref-format``), simplified.
+
+    Args:
+        name: the branch or tag name.
+        kind: ``"branch"`` or ``"tag"``, for the message.
+
+    Returns:
+        ``name``.
+
+    Raises:
+        InvalidNameError: not a valid git ref name, or 40 hex digits (it would shadow commit ids).
+    """
     bad = (
         not name
         or len(name) > 255
@@ -313,6 +342,11 @@ class Commit:
 
     @classmethod
     def from_json(cls, data: bytes) -> Commit:
+        """A commit from what :meth:`to_json` wrote.
+
+        Args:
+            data: the commit object's JSON.
+        """
         d = json.loads(data)
         return cls(
             id=d["id"],
@@ -352,6 +386,11 @@ class RepoMeta:
 
     @classmethod
     def from_json(cls, data: bytes) -> RepoMeta:
+        """The metadata from what :meth:`to_json` wrote.
+
+        Args:
+            data: ``repo.json``'s bytes.
+        """
         d = json.loads(data)
         return cls(d["type"], d["id"], bool(d["private"]), d["createdAt"], d["author"], d.get("sdk"))
 
@@ -395,6 +434,11 @@ class PullRequest:
 
     @classmethod
     def from_json_obj(cls, d: dict) -> PullRequest:
+        """A pull request from what :meth:`to_json_obj` wrote.
+
+        Args:
+            d: the pull request's entry in ``refs.json``.
+        """
         return cls(
             int(d["num"]),
             d["title"],
@@ -427,6 +471,11 @@ class Refs:
 
     @classmethod
     def from_json(cls, data: bytes) -> Refs:
+        """The refs from what :meth:`to_json` wrote.
+
+        Args:
+            data: ``refs.json``'s bytes.
+        """
         d = json.loads(data)
         tags = {name: t["target"] for name, t in d.get("tags", {}).items()}
         messages = {name: t["message"] for name, t in d.get("tags", {}).items() if t.get("message")}
@@ -555,11 +604,20 @@ class HubStore:
     # -- helpers --
 
     def scratch_path(self, prefix: str = "") -> Path:
-        """A fresh path under ``tmp/`` (emptied when a store opens: nothing there is ever served)."""
+        """A fresh path under ``tmp/`` (emptied when a store opens: nothing there is ever served).
+
+        Args:
+            prefix: the file name's start (what it is for, in a listing of ``tmp/``).
+        """
         return self.root / "tmp" / f"{prefix}{uuid.uuid4().hex}"
 
     def write_atomic(self, path: Path, data: bytes) -> None:
-        """Write ``data`` to ``path`` so readers see the old or the new content, never a mix."""
+        """Write ``data`` to ``path`` so readers see the old or the new content, never a mix.
+
+        Args:
+            path: the file to (re)place.
+            data: its new content.
+        """
         tmp = self.root / "tmp" / f"{uuid.uuid4().hex}.tmp"
         with open(tmp, "wb") as f:
             f.write(data)
@@ -577,6 +635,11 @@ class HubStore:
         return self.root / "repos" / f"{key[0]}s" / key[1]
 
     def lock(self, key: tuple[str, str]) -> threading.Lock:
+        """The lock of one repo's ``refs.json`` (in-process: one server process per root).
+
+        Args:
+            key: the repo's ``(type, lower-cased id)``.
+        """
         with self._locks_guard:
             return self._locks.setdefault(key, threading.Lock())
 
@@ -585,6 +648,11 @@ class HubStore:
 
         Keyed by the repo type too: a model and a dataset may share an id, and one repo must never
         see another's commits (their file names, or a 500 on blobs it does not hold).
+
+        Args:
+            key: the repo's ``(type, lower-cased id)``.
+            sha: the commit id (40 hex).
+            load: reads the commit when it is not cached (the last 512 are).
         """
         cache_key = (key, sha)
         with self._cache_guard:
@@ -607,7 +675,16 @@ class HubStore:
     # -- repos --
 
     def open(self, repo_type: str, repo_id: str) -> Repo:
-        """The repo ``repo_id`` of type ``repo_type``; :class:`RepoNotFoundError` if it does not exist."""
+        """The repo ``repo_id`` of type ``repo_type``.
+
+        Args:
+            repo_type: ``model``, ``dataset`` or ``space``.
+            repo_id: ``namespace/name`` (any casing).
+
+        Raises:
+            RepoNotFoundError: no such repo.
+            InvalidNameError: a malformed type or id.
+        """
         key = self._key(repo_type, repo_id)
         path = self._repo_dir(key)
         try:
@@ -619,8 +696,19 @@ class HubStore:
     def create_repo(self, repo_type: str, repo_id: str, *, author: str, private: bool = False, sdk: str | None = None) -> Repo:
         """Create a repo with one commit ("initial commit", adding ``.gitattributes``) on ``main``.
 
-        Raises :class:`RepoExistsError` if it exists (under any casing), :class:`InvalidNameError`
-        if the type or id is malformed.
+        Args:
+            repo_type: ``model``, ``dataset`` or ``space``.
+            repo_id: ``namespace/name``; its casing is kept for display.
+            author: the account creating it (the initial commit's author).
+            private: only authenticated callers see it.
+            sdk: a Space's SDK.
+
+        Returns:
+            The new repo.
+
+        Raises:
+            RepoExistsError: it exists, under any casing.
+            InvalidNameError: a malformed type or id.
         """
         key = self._key(repo_type, repo_id)
         final = self._repo_dir(key)
@@ -644,7 +732,15 @@ class HubStore:
         return self.open(repo_type, repo_id)
 
     def delete_repo(self, repo_type: str, repo_id: str) -> None:
-        """Delete a repo and everything in it; :class:`RepoNotFoundError` if it does not exist."""
+        """Delete a repo and everything in it.
+
+        Args:
+            repo_type: ``model``, ``dataset`` or ``space``.
+            repo_id: ``namespace/name``.
+
+        Raises:
+            RepoNotFoundError: no such repo.
+        """
         key = self._key(repo_type, repo_id)
         path = self._repo_dir(key)
         with self._create_lock, self.lock(key):
@@ -656,7 +752,14 @@ class HubStore:
         shutil.rmtree(trash, ignore_errors=True)
 
     def list_repos(self, repo_type: str) -> list[RepoMeta]:
-        """Every repo of ``repo_type``, sorted by id."""
+        """Every repo of ``repo_type``, sorted by id.
+
+        Args:
+            repo_type: ``model``, ``dataset`` or ``space``.
+
+        Returns:
+            Their metadata; an unreadable ``repo.json`` is skipped.
+        """
         base = self.root / "repos" / f"{validate_repo_type(repo_type)}s"
         metas = []
         for meta_path in base.glob("*/*/repo.json"):
@@ -702,6 +805,11 @@ class Repo:
         return self.meta.repo_type
 
     def set_private(self, private: bool) -> None:
+        """Make the repo private or public.
+
+        Args:
+            private: True for private.
+        """
         with self.store.lock(self.key):
             meta = RepoMeta.from_json((self.path / "repo.json").read_bytes())
             meta.private = bool(private)
@@ -714,7 +822,11 @@ class Repo:
         return self.path / "blobs" / sha256[:2] / sha256
 
     def write_blob(self, data: bytes) -> FileEntry:
-        """Store ``data`` (once: blobs are content-addressed) and return its :class:`FileEntry`."""
+        """Store ``data`` (once: blobs are content-addressed) and return its :class:`FileEntry`.
+
+        Args:
+            data: the file's content.
+        """
         sha256 = hashlib.sha256(data).hexdigest()
         path = self._blob_path(sha256)
         if not path.exists():
@@ -726,8 +838,17 @@ class Repo:
         """Store a blob that arrives in pieces (``size`` bytes in all), without holding it whole.
 
         The pieces go to a scratch file, hashed on the way; the file then moves to its address.
-        :class:`InvalidOperationError` if the pieces do not add up to ``size``; exceptions raised
-        by ``chunks`` propagate (nothing is stored then).
+        Exceptions raised by ``chunks`` propagate (nothing is stored then).
+
+        Args:
+            chunks: the content's pieces, in order.
+            size: the content's announced size in bytes.
+
+        Returns:
+            The blob's :class:`FileEntry`.
+
+        Raises:
+            InvalidOperationError: the pieces do not add up to ``size``.
         """
         sha256 = hashlib.sha256()
         sha1 = hashlib.sha1(b"blob %d\0" % size)
@@ -757,11 +878,12 @@ class Repo:
             raise
         return FileEntry(oid=sha1.hexdigest(), sha256=digest, size=size)
 
-    def has_blob(self, sha256: str) -> bool:
-        return bool(re.fullmatch(r"[0-9a-f]{64}", sha256)) and self._blob_path(sha256).is_file()
-
     def blob_size(self, sha256: str) -> int | None:
-        """The size of the blob ``sha256`` in this repo, or None if the repo does not hold it."""
+        """The size of the blob ``sha256`` in this repo, or None if the repo does not hold it.
+
+        Args:
+            sha256: the blob's sha256 (64 lowercase hex; anything else is None).
+        """
         if not re.fullmatch(r"[0-9a-f]{64}", sha256):
             return None
         try:
@@ -771,7 +893,15 @@ class Repo:
 
     def blob_entry(self, sha256: str, *, lfs: bool = False) -> FileEntry:
         """The :class:`FileEntry` of a blob already in the repo, by its sha256 (``lfs``: as an LFS file,
-        whose content is never read here)."""
+        whose content is never read here).
+
+        Args:
+            sha256: the blob's sha256.
+            lfs: the entry of an LFS file.
+
+        Raises:
+            FileNotFoundError: the repo does not hold the blob (check :meth:`blob_size` first).
+        """
         if lfs:
             return lfs_entry(sha256, self._blob_path(sha256).stat().st_size)
         data = self._blob_path(sha256).read_bytes()
@@ -779,7 +909,12 @@ class Repo:
 
     def adopt_blob(self, scratch: Path, sha256: str) -> None:
         """Move a verified scratch file (under the store's ``tmp/``, its sha256 checked by the caller) to
-        its address; if the blob is there already, the scratch file is dropped."""
+        its address; if the blob is there already, the scratch file is dropped.
+
+        Args:
+            scratch: the verified file.
+            sha256: its sha256.
+        """
         path = self._blob_path(sha256)
         if path.exists():
             scratch.unlink(missing_ok=True)
@@ -788,11 +923,12 @@ class Repo:
         os.replace(scratch, path)
 
     def open_blob(self, entry: FileEntry):
-        """A binary file object on the content of ``entry``."""
-        return open(self._blob_path(entry.sha256), "rb")
+        """A binary file object on the content of ``entry``.
 
-    def read_blob(self, entry: FileEntry) -> bytes:
-        return self._blob_path(entry.sha256).read_bytes()
+        Args:
+            entry: a file of one of this repo's commits.
+        """
+        return open(self._blob_path(entry.sha256), "rb")
 
     # -- commits --
 
@@ -800,7 +936,11 @@ class Repo:
         return self.path / "commits" / sha[:2] / f"{sha}.json"
 
     def load_commit(self, sha: str) -> Commit:
-        """The commit ``sha`` (40 hex); :class:`RevisionNotFoundError` if the repo has no such commit."""
+        """The commit ``sha`` (40 hex); :class:`RevisionNotFoundError` if the repo has no such commit.
+
+        Args:
+            sha: the commit id.
+        """
         sha = sha.lower()
         if not _HEX40.match(sha):
             raise RevisionNotFoundError(f"Invalid rev id: {sha}")
@@ -833,7 +973,11 @@ class Repo:
         return Commit(sha, tree, parents, title, message, author, format_date(when), dict(files))
 
     def folder_oids(self, commit: Commit) -> dict[str, str]:
-        """The git tree sha1 of every folder of ``commit`` ("" is the root)."""
+        """The git tree sha1 of every folder of ``commit`` ("" is the root).
+
+        Args:
+            commit: the commit.
+        """
         return _tree_oids(commit.files)
 
     # -- refs --
@@ -845,7 +989,17 @@ class Repo:
         self.store.write_atomic(self.path / "refs.json", refs.to_json())
 
     def resolve(self, revision: str) -> Commit:
-        """The commit a branch, tag (``main``, ``refs/heads/main``, ``v1``, ``refs/tags/v1``) or 40-hex sha names."""
+        """The commit a branch, tag (``main``, ``refs/heads/main``, ``v1``, ``refs/tags/v1``) or 40-hex sha names.
+
+        Args:
+            revision: a branch, tag, ``refs/pr/N`` or commit id.
+
+        Returns:
+            The commit.
+
+        Raises:
+            RevisionNotFoundError: nothing of that name.
+        """
         refs = self.refs()
         name = revision
         if name.startswith("refs/heads/"):
@@ -864,7 +1018,20 @@ class Repo:
         return self.load_commit(sha)
 
     def create_branch(self, branch: str, start: str | None = None) -> Commit:
-        """Create ``branch`` at revision ``start`` (default: ``main``)."""
+        """Create ``branch`` at revision ``start`` (default: ``main``).
+
+        Args:
+            branch: the new branch's name.
+            start: the revision it starts at.
+
+        Returns:
+            The commit it points at.
+
+        Raises:
+            RefExistsError: the branch exists.
+            InvalidNameError: not a valid branch name.
+            RevisionNotFoundError: ``start`` names nothing.
+        """
         validate_ref_name(branch, "branch")
         with self.store.lock(self.key):
             refs = self.refs()
@@ -876,6 +1043,15 @@ class Repo:
             return commit
 
     def delete_branch(self, branch: str) -> None:
+        """Delete a branch (not ``main``).
+
+        Args:
+            branch: its name.
+
+        Raises:
+            InvalidOperationError: ``main``.
+            RevisionNotFoundError: no such branch.
+        """
         if branch == DEFAULT_BRANCH:
             raise InvalidOperationError(f"Cannot delete the default branch {DEFAULT_BRANCH!r}.")
         self._delete_ref(branch, tag=False)
@@ -892,7 +1068,21 @@ class Repo:
             self._write_refs(refs)
 
     def create_tag(self, tag: str, revision: str, message: str | None = None) -> Commit:
-        """Tag the commit ``revision`` names; :class:`RefExistsError` if the tag exists."""
+        """Tag the commit ``revision`` names.
+
+        Args:
+            tag: the tag's name.
+            revision: what it tags.
+            message: the tag's message.
+
+        Returns:
+            The commit tagged.
+
+        Raises:
+            InvalidNameError: not a valid tag name.
+            RefExistsError: the tag exists.
+            RevisionNotFoundError: ``revision`` names nothing.
+        """
         validate_ref_name(tag, "tag")
         with self.store.lock(self.key):
             refs = self.refs()
@@ -906,22 +1096,47 @@ class Repo:
             return commit
 
     def delete_tag(self, tag: str) -> None:
+        """Delete a tag.
+
+        Args:
+            tag: its name.
+
+        Raises:
+            RevisionNotFoundError: no such tag.
+        """
         self._delete_ref(tag, tag=True)
 
     # -- history --
 
     def head(self, branch: str = DEFAULT_BRANCH) -> Commit:
+        """The commit a branch points at.
+
+        Args:
+            branch: the branch (default ``main``).
+        """
         return self.resolve(branch)
 
     def history(self, commit: Commit) -> Iterator[Commit]:
-        """``commit`` and its first-parent ancestors, newest first."""
+        """``commit`` and its first-parent ancestors, newest first.
+
+        Args:
+            commit: where the history starts.
+        """
         current: Commit | None = commit
         while current is not None:
             yield current
             current = self.load_commit(current.parents[0]) if current.parents else None
 
     def last_commits(self, commit: Commit, paths: Sequence[str]) -> dict[str, Commit]:
-        """For each path (file or folder) of ``commit``, the newest commit in its history that changed it."""
+        """For each path (file or folder) of ``commit``, the newest commit in its history that changed it.
+
+        Args:
+            commit: where the history starts.
+            paths: files and folders of ``commit``.
+
+        Returns:
+            path -> commit, for the paths found.
+        """
         remaining = set(paths)
         found: dict[str, Commit] = {}
         for current in self.history(commit):
@@ -948,6 +1163,19 @@ class Repo:
 
         Operations: :class:`AddFile` (its blob already written), :class:`DeleteFile`, :class:`DeleteFolder`. No
         operations make an empty commit, as git (and the Hub's commit endpoint) does.
+
+        Args:
+            branch: the branch, or an open ``refs/pr/N``.
+            change: what to apply.
+
+        Returns:
+            The new commit.
+
+        Raises:
+            ParentMismatchError: ``change.parent`` is not the branch's head.
+            RevisionNotFoundError: no such branch or pull request.
+            InvalidOperationError: a tag, a commit id, a closed pull request, or an operation that cannot apply.
+            EntryNotFoundError: a deletion of something the branch does not hold.
         """
         if not change.title:
             raise InvalidOperationError("The commit title (summary) cannot be empty.")
@@ -1020,6 +1248,17 @@ class Repo:
 
         The commit object is written first, then ``refs.json`` with the new pull request: a crash in
         between leaves no pull request (an unreferenced commit is harmless).
+
+        Args:
+            target: the branch the pull request targets.
+            change: its first commit.
+
+        Returns:
+            ``(commit, pull request)``.
+
+        Raises:
+            RevisionNotFoundError: ``target`` is not a branch, or ``change.parent`` names nothing.
+            InvalidOperationError: an empty title, or an operation that cannot apply.
         """
         if not change.title:
             raise InvalidOperationError("The pull request title (commit summary) cannot be empty.")
@@ -1046,6 +1285,14 @@ class Repo:
         return sorted(self.refs().pulls.values(), key=lambda pr: -pr.num)
 
     def pull_request(self, num: int) -> PullRequest:
+        """Pull request ``num``.
+
+        Args:
+            num: its number.
+
+        Raises:
+            PullRequestNotFoundError: no such pull request.
+        """
         pr = self.refs().pulls.get(int(num))
         if pr is None:
             raise PullRequestNotFoundError(f"Discussion #{num} not found in {self.repo_id}.")
@@ -1057,6 +1304,19 @@ class Repo:
 
         :class:`MergeConflictError` when the branch changed a file the pull request changed too since it started
         (to another content). The branch and the status move together, in one write of ``refs.json``.
+
+        Args:
+            num: the pull request's number.
+            author: the account merging.
+            comment: a comment added before the status change.
+
+        Returns:
+            ``(merge commit, pull request)``.
+
+        Raises:
+            PullRequestNotFoundError: no such pull request.
+            InvalidOperationError: not open, or the merge would clash a file with a folder.
+            MergeConflictError: both sides changed the same files (their list is in ``files``).
         """
         with self.store.lock(self.key):
             refs = self.refs()
@@ -1102,7 +1362,21 @@ class Repo:
             return merge, pr
 
     def set_pull_request_status(self, num: int, status: str, *, author: str, comment: str | None = None) -> PullRequest:
-        """Close (``closed``) or reopen (``open``) a pull request; a merged one stays merged."""
+        """Close (``closed``) or reopen (``open``) a pull request; a merged one stays merged.
+
+        Args:
+            num: the pull request's number.
+            status: ``"open"`` or ``"closed"``.
+            author: the account changing it.
+            comment: a comment added before the status change.
+
+        Returns:
+            The pull request.
+
+        Raises:
+            PullRequestNotFoundError: no such pull request.
+            InvalidOperationError: another status, or a merged pull request.
+        """
         if status not in ("open", "closed"):
             raise InvalidOperationError(f"Invalid status {status!r}: expected 'open' or 'closed'.")
         with self.store.lock(self.key):
@@ -1147,6 +1421,9 @@ def _file_folder_clash(files: Mapping[str, FileEntry]) -> str | None:
 
 def folders_of(files) -> set[str]:
     """Every folder that holds one of ``files`` (paths), at any depth: ``{"a", "a/b"}`` for ``a/b/c.txt``.
+
+    Args:
+        files: paths of files.
 
     >>> sorted(folders_of(["a/b/c.txt", "d.txt"]))
     ['a', 'a/b']
