@@ -292,7 +292,7 @@ def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
             "--eval.batch_size=2",
         ],
     )
-    assert type(ev.env) is loaded.config_class and ev.env.g == 5.0
+    assert isinstance(ev.env, loaded.config_class) and ev.env.g == 5.0
     vec = make_env(ev.env, n_envs=2)["pendulum"][0]
     assert vec.call("_max_episode_steps") == (7, 7) and vec.call("task_description") == ("Pendulum-v1",) * 2
     vec.close()
