@@ -6,7 +6,9 @@
 3. generate the random-action dataset (seeded, in parallel across processes, progress bar);
 4. record the golden-rollout fingerprint and the random-policy benchmark, write the manifest,
    render the card and a GIF;
-5. publish everything as ONE commit (identical content makes no new commit), tag it;
+5. publish everything as ONE commit (identical content makes no new commit), tag it; the dataset also goes to
+   the dataset repo of the same name first, for LeRobot's own tools (``LeRobotDataset(repo_id)``), named by the
+   manifest, its ``v3.0`` tag moved once the env commit is made;
 6. print the commit sha and the pinned load line.
 
 Example:
@@ -934,7 +936,7 @@ def push_env(
                 except HubEnvsError as e:
                     if plan is None or plan.unchanged:
                         raise
-                    raise type(e)(f"{e}\n{_left_behind(manifest)}") from e
+                    raise type(e)(f"{e}\n{_left_behind(manifest)}") from e.__cause__  # the same error, said in full
                 created = True
             tags = _tag(repo_id, sha, manifest, tag, token=token)  # 3. the tags: the env's, then the dataset repo's
             if plan is not None:
