@@ -29,7 +29,7 @@ from typing import Any
 
 from hub_envs import hub_io
 from hub_envs._text import safe_text
-from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta
+from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
 from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
@@ -44,7 +44,7 @@ def code_digest_of(files: dict[str, str]) -> str:
 
 def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:
     """The dataset's ``env_meta`` (``meta/hub_envs.json``; ``meta/info.json`` ``hub_envs.env_meta`` in older ones), checked."""
-    meta = read_hub_envs_meta(dataset_root).get("env_meta")
+    meta = read_hub_envs_meta(dataset_root, read_info(dataset_root)).get("env_meta")  # info.json checked, as LeRobot reads it
     if not isinstance(meta, dict) or not meta.get("env_repo_id") or not meta.get("code_digest"):
         raise ReproductionError(
             f"{dataset_root}/meta has no hub-envs env_meta (env_repo_id, code_digest): the dataset was not "
