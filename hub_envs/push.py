@@ -54,6 +54,7 @@ from hub_envs.errors import (
     EnvCheckError,
     EnvFolderError,
     HubEnvsError,
+    IntegrityError,
     RevisionNotFoundError,
     StatesNotRecordedWarning,
 )
@@ -693,10 +694,14 @@ def _plan_dataset_repo(repo_id: str, folder: Path, *, private: bool, token: str 
             f"(HfApi().update_repo_settings({repo_id!r}, private=True, repo_type='dataset')) or delete it, then push "
             f"again, or push with --dataset_repo=false."
         )
-    local = {rel: folder / rel for rel in list_files(folder)}
-    unchanged = head is not None and set(remote) == set(local)
-    unchanged = unchanged and all(hub_io.local_file_digest(local[p], digest) == digest for p, digest in remote.items())
+    unchanged = head is not None and _holds_exactly(remote, folder)
     return _DatasetRepo(repo_id, head, unchanged, sorted(remote), folder, bool(env_private))
+
+
+def _holds_exactly(remote: dict[str, str], folder: Path) -> bool:
+    """Whether a commit's files (:func:`hub_io.remote_file_digests`, ``.gitattributes`` left out) are ``folder``'s, byte for byte."""
+    local = {rel: folder / rel for rel in list_files(folder)}
+    return set(remote) == set(local) and all(hub_io.local_file_digest(local[p], d) == d for p, d in remote.items())
 
 
 def _with_dataset_repo(manifest: Manifest, repo_id: str, sha: str | None) -> Manifest:
@@ -709,7 +714,7 @@ def _publish_dataset_repo(plan: _DatasetRepo, manifest: Manifest, *, token: str 
     No tag moves here: ``LeRobotDataset(repo_id)`` keeps opening the published dataset until the env commit is made."""
     if plan.unchanged:
         return plan.head  # type: ignore[return-value]
-    return hub_io.publish_folder(
+    sha = hub_io.publish_folder(
         plan.folder,
         plan.repo_id,
         parent_commit=plan.head,
@@ -720,6 +725,15 @@ def _publish_dataset_repo(plan: _DatasetRepo, manifest: Manifest, *, token: str 
         token=token,
         repo_type=hub_io.DATASET_REPO_TYPE,
     )
+    remote = hub_io.remote_file_digests(plan.repo_id, sha, token=token, repo_type=hub_io.DATASET_REPO_TYPE)
+    remote.pop(".gitattributes", None)
+    if not _holds_exactly(remote, plan.folder):  # the manifest is about to name this commit: it must hold these bytes
+        raise IntegrityError(
+            f"The dataset repo {plan.repo_id} at its new commit {sha} does not hold the files push_env sent (the Hub at "
+            f"{hub_io.endpoint()} lists other files or digests). The env repo was not changed, and LeRobot's "
+            f"{LEROBOT_DATASET_TAG} tag still names the published dataset. Check the Hub, then push again."
+        )
+    return sha
 
 
 def _dataset_commit_exists(repo_id: str, sha: str | None, token: str | None) -> bool:
