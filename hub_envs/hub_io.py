@@ -667,10 +667,13 @@ def remote_file_digests(repo_id: str, sha: str, *, token: str | None = None, rep
 
 def local_file_digest(path: Path, like: str) -> str:
     """The digest of a local file in the form ``like`` (a value of :func:`remote_file_digests`) has."""
-    data = Path(path).read_bytes()
-    if like.startswith("sha256:"):
-        return "sha256:" + hashlib.sha256(data).hexdigest()
-    return "git:" + hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+    path = Path(path)
+    lfs = like.startswith("sha256:")
+    digest = _etag_digest("0" * 64 if lfs else "0" * 40, path.stat().st_size)  # sha256, or git's blob sha1
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return ("sha256:" if lfs else "git:") + digest.hexdigest()
 
 
 def read_remote_text(
@@ -810,11 +813,12 @@ def move_tag(
 ) -> None:
     """Make tag ``name`` name commit ``sha``, wherever it pointed before (delete it, then create it: as LeRobot's own
     ``LeRobotDataset.push_to_hub`` moves its ``v3.0`` tag; the Hub has no atomic move)."""
-    if tag_target(repo_id, name, token=token, repo_type=repo_type) in (None, sha):
-        tag(repo_id, sha, name, message=message, token=token, repo_type=repo_type)
+    target = tag_target(repo_id, name, token=token, repo_type=repo_type)
+    if target == sha:
         return
-    with translate_hub_errors(repo_id, name):
-        api(token).delete_tag(repo_id, tag=name, repo_type=repo_type)
+    if target is not None:
+        with translate_hub_errors(repo_id, name):
+            api(token).delete_tag(repo_id, tag=name, repo_type=repo_type)
     tag(repo_id, sha, name, message=message, token=token, repo_type=repo_type)
 
 

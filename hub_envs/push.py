@@ -756,9 +756,9 @@ def _left_behind(manifest: Manifest) -> str:
     )
 
 
-def _tag_dataset_repo(manifest: Manifest, *, token: str | None) -> list[str]:
+def _tag_dataset_repo(manifest: Manifest, *, token: str | None) -> None:
     """Put the content tag (unless an earlier commit holds it) and LeRobot's ``v3.0`` on the dataset repo commit the
-    manifest names; returns the tags now on it."""
+    manifest names."""
     record = manifest.dataset["dataset_repo"]
     repo_id, sha, kind = record["repo_id"], record["revision"], hub_io.DATASET_REPO_TYPE
     name = content_tag(manifest.content_digest)
@@ -766,7 +766,6 @@ def _tag_dataset_repo(manifest: Manifest, *, token: str | None) -> list[str]:
     if hub_io.tag_target(repo_id, name, token=token, repo_type=kind) in (None, sha):
         hub_io.tag(repo_id, sha, name, message=message, token=token, repo_type=kind)
     hub_io.move_tag(repo_id, sha, LEROBOT_DATASET_TAG, message=message, token=token, repo_type=kind)
-    return [name, LEROBOT_DATASET_TAG]
 
 
 def _tag(repo_id: str, sha: str, manifest: Manifest, tag: str | None, *, token: str | None) -> list[str]:
