@@ -423,6 +423,18 @@ def video_backend() -> str:
     return "torchcodec"
 
 
+def lerobot_default_video_backend() -> str:
+    """The backend the installed LeRobot decodes videos with when it is not told one (``LeRobotDataset(repo_id)``,
+    ``lerobot-train`` without ``--dataset.video_backend``, ``lerobot-dataset-viz``): 0.4's ``get_safe_default_codec``,
+    0.5+'s ``get_safe_default_video_backend``. Where it differs from :func:`video_backend`, a LeRobot user must name
+    ``pyav`` (0.4 picks an installed torchcodec that cannot load)."""
+    try:
+        from lerobot.utils.import_utils import get_safe_default_video_backend as default  # lerobot >= 0.5
+    except ImportError:
+        from lerobot.datasets.video_utils import get_safe_default_codec as default  # lerobot 0.4
+    return default()
+
+
 # --- stdlib ------------------------------------------------------------------------------------
 
 

@@ -147,13 +147,16 @@ def render_card(
     content_tag: str,
     license: str | None = None,
     reproductions: list | tuple = (),
+    dataset_repo: bool = False,
 ) -> str:
     """Render README.md for a repo about to be published, from its manifest (``files`` not final yet: the
     card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
     claims none. ``reproductions``: merged attestations (:class:`hub_envs.attestation.AttestationEntry`, valid ones);
-    those of this content (its digest) make the "Reproduced on" table.
+    those of this content (its digest) make the "Reproduced on" table. ``dataset_repo``: the dataset is also published as the
+    dataset repo of the same name (``push_env(dataset_repo=True)``): the card says how LeRobot opens it by repo id,
+    and its metadata links that dataset (``datasets:``).
     """
 
     repo_id = manifest.repo_id
@@ -193,6 +196,7 @@ def render_card(
         model_name=repo_id,
         eval_results=eval_results or None,
         license=license,
+        datasets=[repo_id] if dataset_repo else None,
     )
     doc = env_documentation(env_class)
     seeds = dataset.get("seeds", [])
@@ -220,6 +224,7 @@ def render_card(
         success_text=success_description(doc),
         env_doc=doc,
         dataset=dataset,
+        dataset_repo=dataset_repo,
         seeds_text=seeds_text,
         benchmarks=benchmarks,
         fingerprint_digest=manifest.fingerprint.get("digest", "-"),

@@ -3,7 +3,7 @@
 Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` works too).
 
     hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=16] [--max_lfs_mb=51200]
-    push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false] [--video_gop=2] [--backend=ray]
+    push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false] [--video_gop=2] [--backend=ray] [--dataset_repo=false]
     hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
     hub-envs trust user/pendulum-lerobot@<sha>
     hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true] [--backend=ray]
@@ -65,6 +65,7 @@ class PushArgs:
     force: bool = False  # rebuild even when main already holds this code, config, seeds and versions
     video: bool | None = None  # camera features as MP4 (LeRobot's encoder); default: true when the env has cameras
     video_gop: int | None = None  # the videos' keyframe interval; default 10 (about 1/5 of the PNG size), LeRobot's is 2
+    dataset_repo: bool = True  # also publish the dataset as the dataset repo of the same name (LeRobotDataset(repo_id))
 
 
 @dataclass

@@ -23,6 +23,7 @@ import draccus
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs.errors import ConfigError, EnvCodeError, InvalidRepoFormatError
+from hub_envs.registration import CLI_ONLY_FIELDS
 
 
 def validate_config_class(config_class: Any, *, where: str) -> None:
@@ -94,7 +95,8 @@ def encode_config(cfg: EnvConfig) -> dict[str, Any]:
     load's config (:class:`~hub_envs.isolation.config.ManifestConfig`) is those values already."""
     if not dataclasses.is_dataclass(cfg) and callable(getattr(cfg, "to_dict", None)):
         return json.loads(json.dumps(cfg.to_dict(), sort_keys=True))
-    out = {f.name: draccus.encode(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+    cli_only = getattr(type(cfg), CLI_ONLY_FIELDS, ())  # a per-repo choice's consent flag (registration.consenting_choice)
+    out = {f.name: draccus.encode(getattr(cfg, f.name)) for f in dataclasses.fields(cfg) if f.name not in cli_only}
     out["gym_kwargs"] = draccus.encode(cfg.gym_kwargs)
     # round-trip through JSON so tuples/lists compare equal to what a manifest holds
     return json.loads(json.dumps(out, sort_keys=True))

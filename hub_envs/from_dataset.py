@@ -1,6 +1,6 @@
 """Rebuild exactly the env a dataset came from (robomimic's ``create_env_from_metadata``).
 
-Every dataset push_env writes carries ``env_meta`` in ``meta/info.json`` (under ``hub_envs``): the
+Every dataset push_env writes carries ``env_meta`` in ``meta/hub_envs.json`` (``meta/info.json["hub_envs"]`` before): the
 env repo id, the digest of the env's code, its entry points, ``env_kwargs`` and config values. The
 dataset is part of the commit it describes, so it cannot name that commit's sha; the code digest
 identifies the code instead. :func:`env_from_dataset` finds the commit:
@@ -29,7 +29,7 @@ from typing import Any
 
 from hub_envs import hub_io
 from hub_envs._text import safe_text
-from hub_envs.dataset.reader import dataset_fingerprint, read_info
+from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta, read_info
 from hub_envs.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
 from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
@@ -43,12 +43,11 @@ def code_digest_of(files: dict[str, str]) -> str:
 
 
 def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:
-    """The dataset's ``env_meta`` (``meta/info.json`` ``hub_envs.env_meta``), checked."""
-    info = read_info(dataset_root)
-    meta = (info.get("hub_envs") or {}).get("env_meta")
+    """The dataset's ``env_meta`` (``meta/hub_envs.json``; ``meta/info.json`` ``hub_envs.env_meta`` in older ones), checked."""
+    meta = read_hub_envs_meta(dataset_root, read_info(dataset_root)).get("env_meta")  # info.json checked, as LeRobot reads it
     if not isinstance(meta, dict) or not meta.get("env_repo_id") or not meta.get("code_digest"):
         raise ReproductionError(
-            f"{dataset_root}/meta/info.json has no hub_envs.env_meta (env_repo_id, code_digest): the dataset was not "
+            f"{dataset_root}/meta has no hub-envs env_meta (env_repo_id, code_digest): the dataset was not "
             f"written by push_env, so which env produced it is unknown. Load the env yourself with load_env."
         )
     return meta
@@ -66,7 +65,7 @@ def _env_repo_id(value: Any, dataset_root: Path) -> str:
         repo_id, revision = "", None
     if not repo_id or revision is not None:
         raise ReproductionError(
-            f"{dataset_root}/meta/info.json names the env repo {safe_text(repr(value))}, which is not a Hub repo id "
+            f"{dataset_root}: its env_meta names the env repo {safe_text(repr(value))}, which is not a Hub repo id "
             f"('user/name'). A dataset can only name an env on the Hub; load a local env folder yourself with load_env."
         )
     return repo_id

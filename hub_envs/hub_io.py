@@ -74,6 +74,8 @@ from hub_envs.repo_format import (
 logger = logging.getLogger(__name__)
 
 REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
+#: The type of the repo of the same name push_env also publishes the dataset to (what ``LeRobotDataset(repo_id)`` reads).
+DATASET_REPO_TYPE = "dataset"
 
 
 @dataclass(frozen=True)
@@ -890,22 +892,60 @@ def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> s
     return text
 
 
-def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None) -> str | None:
+def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None, repo_type: str = REPO_TYPE) -> str | None:
     """The commit sha ``branch`` points at, or None if the repo does not exist yet."""
     try:
         with translate_hub_errors(repo_id, branch):
-            return api(token).repo_info(repo_id, revision=branch, repo_type=REPO_TYPE).sha
+            return api(token).repo_info(repo_id, revision=branch, repo_type=repo_type).sha
     except EnvRepoNotFoundError:
         return None
 
 
-def read_remote_text(repo_id: str, path: str, *, revision: str, token: str | None = None) -> str | None:
+def repo_private(repo_id: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> bool | None:
+    """Whether the repo is private; None if it does not exist (or this token cannot see it)."""
+    try:
+        with translate_hub_errors(repo_id, None):
+            return bool(api(token).repo_info(repo_id, repo_type=repo_type).private)
+    except EnvRepoNotFoundError:
+        return None
+
+
+def remote_file_digests(repo_id: str, sha: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> dict[str, str]:
+    """``{path: digest}`` of every file of ``repo_id`` at commit ``sha``, as the Hub lists them (one request per
+    page of the tree): ``"sha256:<hex>"`` for an LFS (or Xet) file, ``"git:<blob sha1>"`` for a regular one. Compare
+    with :func:`local_file_digest` of the same file."""
+    with translate_hub_errors(repo_id, sha):
+        entries = api(token).list_repo_tree(repo_id, revision=sha, recursive=True, repo_type=repo_type)
+        out = {}
+        for entry in entries:
+            lfs = getattr(entry, "lfs", None)
+            if getattr(entry, "blob_id", None) is None:
+                continue  # a folder
+            sha256 = getattr(lfs, "sha256", None) or (lfs.get("sha256") if isinstance(lfs, dict) else None)
+            out[entry.path] = f"sha256:{sha256}" if sha256 else f"git:{entry.blob_id}"
+    return out
+
+
+def local_file_digest(path: Path, like: str) -> str:
+    """The digest of a local file in the form ``like`` (a value of :func:`remote_file_digests`) has."""
+    path = Path(path)
+    lfs = like.startswith("sha256:")
+    digest = _etag_digest("0" * 64 if lfs else "0" * 40, path.stat().st_size)  # sha256, or git's blob sha1
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return ("sha256:" if lfs else "git:") + digest.hexdigest()
+
+
+def read_remote_text(
+    repo_id: str, path: str, *, revision: str, token: str | None = None, repo_type: str = REPO_TYPE
+) -> str | None:
     """The text of one file at ``revision``, or None if it does not exist there."""
     from huggingface_hub import hf_hub_download
 
     try:
         with translate_hub_errors(repo_id, revision):
-            local = hf_hub_download(repo_id, path, revision=revision, repo_type=REPO_TYPE, token=token)
+            local = hf_hub_download(repo_id, path, revision=revision, repo_type=repo_type, token=token)
     except HubError as e:
         if isinstance(e.__cause__, EntryNotFoundError):
             return None
@@ -923,6 +963,7 @@ def publish_folder(
     description: str = "",
     private: bool = False,
     token: str | None = None,
+    repo_type: str = REPO_TYPE,
 ) -> str:
     """Make the repo's content exactly ``folder`` in ONE commit on main; return the new commit sha.
 
@@ -933,7 +974,7 @@ def publish_folder(
     local = sorted(str(p.relative_to(folder).as_posix()) for p in folder.rglob("*") if p.is_file())
     ops: list = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=str(folder / p)) for p in local]
     ops += [CommitOperationDelete(path_in_repo=p) for p in sorted(set(remote_files) - set(local)) if p != ".gitattributes"]
-    return _commit_to_main(repo_id, ops, parent_commit, message, description, private=private, token=token)
+    return _commit_to_main(repo_id, ops, parent_commit, message, description, private=private, token=token, repo_type=repo_type)
 
 
 def update_files(
@@ -953,22 +994,23 @@ def _commit_to_main(
     *,
     private: bool = False,
     token: str | None = None,
+    repo_type: str = REPO_TYPE,
 ) -> str:
     client = api(token)
     with translate_hub_errors(repo_id, "main"), warnings.catch_warnings():
         # the dataset's parquet files belong in this model-type repo (LeRobot's EnvHub reads model repos)
         warnings.filterwarnings("ignore", message=".*commit a data file.*")
-        client.create_repo(repo_id, repo_type=REPO_TYPE, private=private, exist_ok=True)
+        client.create_repo(repo_id, repo_type=repo_type, private=private, exist_ok=True)
         try:
             # huggingface_hub 1.x takes Xet whenever hf_xet is installed; a Hub without Xet (the
             # loopback server, an air-gapped lab) says so in the repo's xetEnabled: go through LFS then
-            with lfs_instead_of_xet(not _xet_enabled(client, repo_id)):
+            with lfs_instead_of_xet(not _xet_enabled(client, repo_id, repo_type)):
                 info = client.create_commit(
                     repo_id,
                     operations=ops,
                     commit_message=message,
                     commit_description=description,
-                    repo_type=REPO_TYPE,
+                    repo_type=repo_type,
                     parent_commit=parent_commit,
                 )
         except HfHubHTTPError as e:
@@ -981,23 +1023,32 @@ def _commit_to_main(
     return info.oid
 
 
-def _xet_enabled(client: HfApi, repo_id: str) -> bool:
+def _xet_enabled(client: HfApi, repo_id: str, repo_type: str = REPO_TYPE) -> bool:
     """Whether the repo takes uploads through Xet (``xetEnabled``, as huggingface_hub 0.3x asks it)."""
-    info = client.repo_info(repo_id, repo_type=REPO_TYPE, expand=["xetEnabled"])  # type: ignore[list-item]
+    info = client.repo_info(repo_id, repo_type=repo_type, expand=["xetEnabled"])  # type: ignore[list-item]
     # 0.x parses it as `xet_enabled`; 1.x keeps the fields it does not know under their JSON names
     return bool(getattr(info, "xet_enabled", None) or getattr(info, "xetEnabled", None))
 
 
-def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, exist_ok: bool = True) -> None:
+def tag(
+    repo_id: str,
+    sha: str,
+    name: str,
+    *,
+    message: str = "",
+    token: str | None = None,
+    exist_ok: bool = True,
+    repo_type: str = REPO_TYPE,
+) -> None:
     client = api(token)
     with translate_hub_errors(repo_id, sha):
         try:
-            client.create_tag(repo_id, tag=name, revision=sha, tag_message=message, repo_type=REPO_TYPE)
+            client.create_tag(repo_id, tag=name, revision=sha, tag_message=message, repo_type=repo_type)
         except HfHubHTTPError as e:
             if getattr(e.response, "status_code", None) != 409:
                 raise
             # the tag exists: fine if it already names this commit
-            refs = client.list_repo_refs(repo_id, repo_type=REPO_TYPE)
+            refs = client.list_repo_refs(repo_id, repo_type=repo_type)
             current = next((t.target_commit for t in refs.tags if t.name == name), None)
             if current != sha and not exist_ok:
                 raise
@@ -1008,30 +1059,32 @@ def tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | No
                 ) from e
 
 
-def move_tag(repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None) -> None:
-    """Point the existing tag ``name`` at ``sha`` (the Hub has no tag update: delete it, then create it again)."""
-    client = api(token)
-    with translate_hub_errors(repo_id, sha):
-        try:
-            client.delete_tag(repo_id, tag=name, repo_type=REPO_TYPE)
-        except HfHubHTTPError as e:
-            if getattr(e.response, "status_code", None) != 404:  # already gone: create it
-                raise
-    tag(repo_id, sha, name, message=message, token=token)
-
-
-def tag_target(repo_id: str, name: str, *, token: str | None = None) -> str | None:
+def tag_target(repo_id: str, name: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> str | None:
     """The commit sha tag ``name`` names, or None if the repo or the tag does not exist."""
     try:
         with translate_hub_errors(repo_id, name):
-            refs = api(token).list_repo_refs(repo_id, repo_type=REPO_TYPE)
+            refs = api(token).list_repo_refs(repo_id, repo_type=repo_type)
     except EnvRepoNotFoundError:
         return None
     return next((t.target_commit for t in refs.tags if t.name == name), None)
 
 
-def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None) -> list[str]:
+def move_tag(
+    repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, repo_type: str = REPO_TYPE
+) -> None:
+    """Make tag ``name`` name commit ``sha``, wherever it pointed before (delete it, then create it: as LeRobot's own
+    ``LeRobotDataset.push_to_hub`` moves its ``v3.0`` tag; the Hub has no atomic move)."""
+    target = tag_target(repo_id, name, token=token, repo_type=repo_type)
+    if target == sha:
+        return
+    if target is not None:
+        with translate_hub_errors(repo_id, name):
+            api(token).delete_tag(repo_id, tag=name, repo_type=repo_type)
+    tag(repo_id, sha, name, message=message, token=token, repo_type=repo_type)
+
+
+def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None, repo_type: str = REPO_TYPE) -> list[str]:
     if sha is None:
         return []
     with translate_hub_errors(repo_id, sha):
-        return api(token).list_repo_files(repo_id, revision=sha, repo_type=REPO_TYPE)
+        return api(token).list_repo_files(repo_id, revision=sha, repo_type=repo_type)

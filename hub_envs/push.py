@@ -6,7 +6,9 @@
 3. generate the random-action dataset (seeded, in parallel across processes, progress bar);
 4. record the golden-rollout fingerprint and the random-policy benchmark, write the manifest,
    render the card and a GIF;
-5. publish everything as ONE commit (identical content makes no new commit), tag it;
+5. publish everything as ONE commit (identical content makes no new commit), tag it; the dataset also goes to
+   the dataset repo of the same name first, for LeRobot's own tools (``LeRobotDataset(repo_id)``), named by the
+   manifest, its ``v3.0`` tag moved once the env commit is made;
 6. print the commit sha and the pinned load line.
 
 Example:
@@ -19,6 +21,7 @@ Example:
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 import sys
 import tempfile
@@ -34,6 +37,7 @@ from hub_envs import hub_io
 from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
+from hub_envs.dataset.layout import CODEBASE_VERSION, HUB_ENVS_META_PATH
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, EnvStatesWriter
 from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop
@@ -45,7 +49,15 @@ from hub_envs.dataset.writer import (
     write_lerobot_dataset,
 )
 from hub_envs.envconfig import encode_config
-from hub_envs.errors import ConfigError, EnvCheckError, EnvFolderError, StatesNotRecordedWarning
+from hub_envs.errors import (
+    ConfigError,
+    EnvCheckError,
+    EnvFolderError,
+    HubEnvsError,
+    IntegrityError,
+    RevisionNotFoundError,
+    StatesNotRecordedWarning,
+)
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
@@ -87,6 +99,8 @@ class PushResult:
     manifest: Manifest
     timings: dict[str, float] = field(default_factory=dict)
     tags: list[str] = field(default_factory=list)
+    #: the dataset repo of the same name and its commit holding the dataset (None: ``dataset_repo=False``)
+    dataset_sha: str | None = None
 
     @property
     def load_line(self) -> str:
@@ -94,10 +108,17 @@ class PushResult:
 
     def summary(self) -> str:
         verb = "Published" if self.created_commit else "Unchanged; already published"
-        return (
+        text = (
             f"{verb} {self.repo_id} at commit {self.sha} (tags: {', '.join(self.tags)}).\n"
             f"Load it pinned:\n  from hub_envs import load_env\n  {self.load_line}"
         )
+        if self.dataset_sha is not None:
+            text += (
+                f"\nIts dataset, for LeRobot's own tools (dataset repo {self.repo_id} at commit {self.dataset_sha}, tags "
+                f'{LEROBOT_DATASET_TAG} and {self.content_tag}):\n  LeRobotDataset("{self.repo_id}")   # lerobot-train '
+                f"--dataset.repo_id={self.repo_id}"
+            )
+        return text
 
 
 #: Seeds of the golden-rollout fingerprint: the first dataset episodes.
@@ -244,6 +265,7 @@ def _published_unchanged(
     attestations: list = (),  # type: ignore[assignment]
     video: bool = False,
     video_gop: int = DEFAULT_VIDEO_GOP,
+    dataset_repo: bool = True,
 ) -> tuple[str, Manifest, bool] | None:
     """``(sha, manifest, card_current)`` of main when it already holds what this push would build, else None.
 
@@ -252,7 +274,9 @@ def _published_unchanged(
     versions (hub-envs' own included, so a new hub-envs regenerates); and main holds exactly the files its
     manifest lists. Generated files (dataset, GIF, card) are not rebuilt to compare them: they follow from
     the above, and a hand edit of them that also rewrote the manifest is for ``hub-envs reproduce`` to find
-    (``force=True`` regenerates anyway). ``card_current``: the card already shows the merged ``attestations``
+    (``force=True`` regenerates anyway). With ``dataset_repo``, the manifest also names a commit of the dataset repo
+    that exists (a manifest from before dataset repos, or a deleted one, rebuilds and publishes it).
+    ``card_current``: the card already shows the merged ``attestations``
     of this content ("Reproduced on"); when one was merged since the last push, only the card is re-rendered
     (:func:`_refresh_card`).
     """
@@ -283,8 +307,11 @@ def _published_unchanged(
         and remote.processors == tuple(local.processors)
         and remote.versions == package_versions(local.requirements)
         and remote.resolved == requirement_closure(local.requirements)
+        and ("dataset_repo" in remote.dataset) == dataset_repo
     )
     if not same:
+        return None
+    if dataset_repo and not _dataset_commit_exists(repo_id, remote.dataset["dataset_repo"].get("revision"), token):
         return None
     remote_files = {p for p in hub_io.list_remote_files(repo_id, head, token=token) if not beyond_manifest(p)}
     if remote_files != set(remote.files):
@@ -308,6 +335,7 @@ def _refresh_card(
             content_tag=content_tag(remote.content_digest),
             license=EnvFolder.read(loaded.local_folder).license,
             reproductions=attestations,
+            dataset_repo="dataset_repo" in remote.dataset,
         ).encode("utf-8")
     finally:
         env.close()
@@ -496,6 +524,7 @@ def build_repo(
     video: bool = False,
     backend: Backend | None = None,
     video_gop: int = DEFAULT_VIDEO_GOP,
+    dataset_repo: bool = False,
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
@@ -503,7 +532,7 @@ def build_repo(
     rollout pass (:func:`_generate_dataset`: dataset, states, returns, fingerprint), the dataset half of the
     feature check, the GIF, the manifest and the card. Returns the manifest it wrote (validated as load_env
     validates it). The episodes run on ``backend`` (default: ``workers`` local processes); the repo content
-    does not depend on where they ran.
+    does not depend on where they ran. ``dataset_repo``: the card says the dataset is also in the dataset repo.
     """
     backend = backend if backend is not None else LocalBackend(workers=workers)
     where = f"{loaded.local_folder} (for {repo_id})"
@@ -551,6 +580,7 @@ def build_repo(
             content_tag=content_tag(manifest.content_digest),
             license=EnvFolder.read(loaded.local_folder).license,
             reproductions=attestations,
+            dataset_repo=dataset_repo,
         )
         (staging / CARD_FILE).write_text(card, encoding="utf-8")
     finally:
@@ -558,6 +588,180 @@ def build_repo(
     manifest = replace(manifest, files=hash_files(staging, list_files(staging, skip=(MANIFEST_FILE,)))).validated(where=where)
     (staging / MANIFEST_FILE).write_text(manifest.to_json(), encoding="utf-8")
     return manifest
+
+
+# --- the dataset repo: the same dataset as a dataset-type repo of the same name, for LeRobot's own tools -------------
+
+#: The tag ``LeRobotDataset(repo_id)`` opens when no revision is given: LeRobot's ``CODEBASE_VERSION``, resolved by its
+#: ``get_safe_version`` among the dataset repo's tags (0.4.4 and 0.6.x alike). Each push moves it, as LeRobot's own
+#: ``LeRobotDataset.push_to_hub`` does, after the env commit: it names the dataset the env repo's main publishes.
+LEROBOT_DATASET_TAG = CODEBASE_VERSION
+
+
+@dataclass(frozen=True)
+class _DatasetRepo:
+    """The dataset repo a push publishes to, as it is before the push (nothing written yet)."""
+
+    repo_id: str
+    head: str | None  # its main (None: no such repo yet)
+    unchanged: bool  # main holds exactly the files of ``folder``, byte for byte
+    remote_files: list[str]  # main's files (deleted by the commit unless ``folder`` has them)
+    folder: Path  # what it will hold: the env repo's dataset/ (the same bytes) and a LeRobot dataset card
+    private: bool  # create it private (the env repo is)
+
+
+def _dataset_card(manifest: Manifest, info: dict[str, Any], license: str | None) -> str:
+    """The dataset repo's README.md: LeRobot's own dataset card (``create_lerobot_dataset_card``: the ``LeRobot`` tag,
+    the ``data/*/*.parquet`` config the Hub's viewer reads, ``info.json`` shown as LeRobot shows it) with what ties it
+    to its env repo. Made of the manifest and ``info`` alone (the content tag, not a commit sha): the same content
+    gives the same card."""
+    from lerobot.datasets.utils import create_lerobot_dataset_card
+
+    repo_id, tag, ds = manifest.repo_id, content_tag(manifest.content_digest), manifest.dataset
+    description = (
+        f"The random-action dataset of the env repo [{repo_id}](/{repo_id}) ({manifest.name} {manifest.version}), "
+        f"published with it by hub-envs' `push_env`: {ds['episodes']} episodes, {ds['frames']} frames at {ds['fps']} fps, "
+        f"each episode's reset seed recorded (`meta/hub_envs.json`). Its files are the env repo's `dataset/` folder, "
+        f"byte for byte: the env's manifest `hub_env.json` lists their sha256 and names this repo's commit "
+        f"(`dataset.dataset_repo`).\n\n"
+        f'- `LeRobotDataset("{repo_id}")`: the latest publication (LeRobot opens the `{LEROBOT_DATASET_TAG}` tag, which '
+        f"each push moves once its env commit is made)\n"
+        f'- `LeRobotDataset("{repo_id}", revision="{tag}")`: exactly this content (the same tag is on both repos)\n'
+        f'- the env that recorded it: `load_env("{repo_id}@{tag}", trust_remote_code=True)` (hub-envs), or '
+        f'`make_env("{repo_id}@{tag}", trust_remote_code=True)` (LeRobot\'s EnvHub)'
+    )
+    card = create_lerobot_dataset_card(
+        tags=["hub-envs", manifest.name],
+        license=license,
+        repo_id=repo_id,
+        dataset_description=description,
+        # what LeRobot's card shows for dataset_info=, given as text: 0.4.4 takes a dict there, 0.5+ a DatasetInfo
+        dataset_structure=f"[meta/info.json](meta/info.json):\n```json\n{json.dumps(info, indent=4)}\n```\n",
+    )
+    return str(card)
+
+
+def _stage_dataset_repo(staging: Path, manifest: Manifest, folder: Path, license: str | None) -> Path:
+    """``folder`` holding what the dataset repo is to hold: ``staging``'s ``dataset/`` files (linked, not copied:
+    the same bytes the manifest hashes) at its root, and the card."""
+    source = staging / DATASET_DIR
+    for rel in list_files(source):
+        dest = folder / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            dest.hardlink_to(source / rel)
+        except OSError:  # a file system without hard links
+            shutil.copy2(source / rel, dest)
+    (folder / CARD_FILE).write_text(_dataset_card(manifest, read_info(source), license), encoding="utf-8")
+    return folder
+
+
+def _published_by_push_env(repo_id: str, sha: str, token: str | None) -> bool:
+    """Whether the dataset repo ``repo_id`` at ``sha`` is the dataset of the env repo of the same name (its
+    ``meta/hub_envs.json`` names it): what push_env may replace, unlike a dataset someone published there by hand."""
+    text = hub_io.read_remote_text(repo_id, HUB_ENVS_META_PATH, revision=sha, token=token, repo_type=hub_io.DATASET_REPO_TYPE)
+    try:
+        meta = json.loads(text) if text is not None else None
+    except ValueError:
+        return False
+    env = meta.get("env_meta") if isinstance(meta, dict) else None
+    return isinstance(env, dict) and env.get("env_repo_id") == repo_id
+
+
+def _plan_dataset_repo(repo_id: str, folder: Path, *, private: bool, token: str | None) -> _DatasetRepo:
+    """Read the dataset repo ``repo_id`` and refuse, before anything is written, what publishing to it would break:
+    a dataset there that push_env did not publish (it would be replaced), or a public one beside a private env."""
+    kind = hub_io.DATASET_REPO_TYPE
+    env_private = hub_io.repo_private(repo_id, token=token)
+    env_private = private if env_private is None else env_private  # an existing env repo keeps its visibility
+    head = hub_io.remote_head(repo_id, token=token, repo_type=kind)
+    remote = hub_io.remote_file_digests(repo_id, head, token=token, repo_type=kind) if head is not None else {}
+    remote.pop(".gitattributes", None)  # the Hub's own
+    if remote and not _published_by_push_env(repo_id, head, token):  # type: ignore[arg-type]
+        raise ConfigError(
+            f"The dataset repo {repo_id} (type dataset) holds a dataset push_env did not publish for the env repo "
+            f"{repo_id}; publishing would replace its files. Nothing was published. Rename or delete that dataset repo, "
+            f"or push with --dataset_repo=false (LeRobot users then open the dataset with --dataset.root)."
+        )
+    if env_private and hub_io.repo_private(repo_id, token=token, repo_type=kind) is False:
+        raise ConfigError(
+            f"The env repo {repo_id} is private but the dataset repo {repo_id} is public: publishing would make the "
+            f"private env's dataset public. Nothing was published. Make it private "
+            f"(HfApi().update_repo_settings({repo_id!r}, private=True, repo_type='dataset')) or delete it, then push "
+            f"again, or push with --dataset_repo=false."
+        )
+    unchanged = head is not None and _holds_exactly(remote, folder)
+    return _DatasetRepo(repo_id, head, unchanged, sorted(remote), folder, bool(env_private))
+
+
+def _holds_exactly(remote: dict[str, str], folder: Path) -> bool:
+    """Whether a commit's files (:func:`hub_io.remote_file_digests`, ``.gitattributes`` left out) are ``folder``'s, byte for byte."""
+    local = {rel: folder / rel for rel in list_files(folder)}
+    return set(remote) == set(local) and all(hub_io.local_file_digest(local[p], d) == d for p, d in remote.items())
+
+
+def _with_dataset_repo(manifest: Manifest, repo_id: str, sha: str | None) -> Manifest:
+    """The manifest naming the dataset repo commit that holds its dataset (None: not committed yet)."""
+    return replace(manifest, dataset={**manifest.dataset, "dataset_repo": {"repo_id": repo_id, "revision": sha}})
+
+
+def _publish_dataset_repo(plan: _DatasetRepo, manifest: Manifest, *, token: str | None) -> str:
+    """Commit ``plan.folder`` to the dataset repo's main in one commit (none when main holds it already); its sha.
+    No tag moves here: ``LeRobotDataset(repo_id)`` keeps opening the published dataset until the env commit is made."""
+    if plan.unchanged:
+        return plan.head  # type: ignore[return-value]
+    sha = hub_io.publish_folder(
+        plan.folder,
+        plan.repo_id,
+        parent_commit=plan.head,
+        remote_files=plan.remote_files,
+        message=f"push_env: the dataset of {plan.repo_id} ({manifest.dataset['episodes']} episodes)",
+        description=f"content digest {manifest.content_digest}",
+        private=plan.private,
+        token=token,
+        repo_type=hub_io.DATASET_REPO_TYPE,
+    )
+    remote = hub_io.remote_file_digests(plan.repo_id, sha, token=token, repo_type=hub_io.DATASET_REPO_TYPE)
+    remote.pop(".gitattributes", None)
+    if not _holds_exactly(remote, plan.folder):  # the manifest is about to name this commit: it must hold these bytes
+        raise IntegrityError(
+            f"The dataset repo {plan.repo_id} at its new commit {sha} does not hold the files push_env sent (the Hub at "
+            f"{hub_io.endpoint()} lists other files or digests). The env repo was not changed, and LeRobot's "
+            f"{LEROBOT_DATASET_TAG} tag still names the published dataset. Check the Hub, then push again."
+        )
+    return sha
+
+
+def _dataset_commit_exists(repo_id: str, sha: str | None, token: str | None) -> bool:
+    """Whether the dataset repo ``repo_id`` has commit ``sha``."""
+    if sha is None:
+        return False
+    try:
+        return hub_io.remote_head(repo_id, branch=sha, token=token, repo_type=hub_io.DATASET_REPO_TYPE) == sha
+    except RevisionNotFoundError:
+        return False
+
+
+def _left_behind(manifest: Manifest) -> str:
+    """What a push whose env commit failed after its dataset repo commit leaves behind, and how to finish it."""
+    record = manifest.dataset["dataset_repo"]
+    return (
+        f"The dataset repo {record['repo_id']} got commit {record['revision']} on main before the env commit failed; its "
+        f"{LEROBOT_DATASET_TAG} tag (what LeRobotDataset({record['repo_id']!r}) opens) still names the dataset the env repo "
+        f"publishes. Push again to finish: the dataset is not committed a second time."
+    )
+
+
+def _tag_dataset_repo(manifest: Manifest, *, token: str | None) -> None:
+    """Put the content tag (unless an earlier commit holds it) and LeRobot's ``v3.0`` on the dataset repo commit the
+    manifest names."""
+    record = manifest.dataset["dataset_repo"]
+    repo_id, sha, kind = record["repo_id"], record["revision"], hub_io.DATASET_REPO_TYPE
+    name = content_tag(manifest.content_digest)
+    message = f"hub-envs content {manifest.content_digest}"
+    if hub_io.tag_target(repo_id, name, token=token, repo_type=kind) in (None, sha):
+        hub_io.tag(repo_id, sha, name, message=message, token=token, repo_type=kind)
+    hub_io.move_tag(repo_id, sha, LEROBOT_DATASET_TAG, message=message, token=token, repo_type=kind)
 
 
 def _tag(
@@ -600,6 +804,7 @@ def push_env(
     ray_address: str | None = None,
     out: str | Path | None = None,
     video_gop: int | None = None,
+    dataset_repo: bool = True,
 ) -> PushResult:
     """Validate ``env_dir``, generate its dataset and card, and publish it to ``repo_id`` in one commit.
 
@@ -626,6 +831,14 @@ def push_env(
     Before anything is built, the Hub is asked who the caller is (:func:`hub_envs.hub_io.check_write_access`): no
     token where one is needed, a refused or read-only token, or an account that cannot write ``repo_id``'s
     namespace raises :class:`~hub_envs.errors.HubAccessError` at once.
+
+    ``dataset_repo`` (default True): also publish the dataset as the dataset-type repo of the same name, so LeRobot's
+    own tools open it by repo id (``LeRobotDataset(repo_id)``, ``lerobot-train --dataset.repo_id``,
+    ``lerobot-dataset-viz``). Its files are the env repo's ``dataset/`` byte for byte; its commit is made first and
+    the env's manifest names it (``dataset.dataset_repo``), then the env commit, then the tags: the content tag on
+    both repos, and on the dataset repo LeRobot's ``v3.0`` (what ``LeRobotDataset(repo_id)`` opens), moved last. A
+    push that fails before its env commit leaves ``v3.0`` on the published dataset; pushing again completes it
+    (an unchanged dataset is not committed again). The dataset repo is private when the env repo is.
     """
     if episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}.")
@@ -658,6 +871,7 @@ def push_env(
                 attestations=attestations,
                 video=video,
                 video_gop=gop,
+                dataset_repo=dataset_repo,
             )
         )
         if unchanged is not None:
@@ -668,6 +882,8 @@ def push_env(
                 say("Reproductions were merged since its card was rendered: committing the card again, nothing else")
                 sha, manifest = _refresh_card(loaded, repo_id, sha, manifest, attestations, token=token)
             tags = _tag(repo_id, sha, manifest, tag, token=token, card_refresh=not card_current)
+            if dataset_repo:
+                _tag_dataset_repo(manifest, token=token)  # puts back a v3.0 moved by hand, or left behind by a failed push
             timings["total"] = time.perf_counter() - t0
             return PushResult(
                 repo_id=repo_id,
@@ -677,6 +893,7 @@ def push_env(
                 manifest=manifest,
                 timings=timings,
                 tags=tags,
+                dataset_sha=manifest.dataset["dataset_repo"]["revision"] if dataset_repo else None,
             )
         with tempfile.TemporaryDirectory(prefix="hub-envs-push-") as tmp, runner:
             staging = Path(tmp) / "repo"
@@ -693,6 +910,7 @@ def push_env(
                 video=video,
                 backend=runner,
                 video_gop=gop,
+                dataset_repo=dataset_repo,
             )
             timings["build"] = time.perf_counter() - t0
             t = time.perf_counter()
@@ -702,35 +920,63 @@ def push_env(
             # what the Hub workflow added (merged attestations: beyond_manifest) stays: the push neither lists nor deletes it
             remote_files = [p for p in hub_io.list_remote_files(repo_id, head, token=token) if not beyond_manifest(p)]
             same_files = set(remote_files) == set(manifest.files)
-            if remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files:
+            plan = None
+            if dataset_repo:  # read and checked before anything is written
+                license = EnvFolder.read(loaded.local_folder).license
+                folder = _stage_dataset_repo(staging, manifest, Path(tmp) / "dataset-repo", license)
+                plan = _plan_dataset_repo(repo_id, folder, private=private, token=token)
+                manifest = _with_dataset_repo(manifest, repo_id, plan.head if plan.unchanged else None)
+
+            def env_unchanged() -> bool:
+                return remote_manifest is not None and remote_manifest.to_json() == manifest.to_json() and same_files
+
+            if not env_unchanged() and tag and hub_io.tag_target(repo_id, tag, token=token) is not None:
+                raise ConfigError(
+                    f"Tag {tag!r} of {repo_id} already names commit {hub_io.tag_target(repo_id, tag, token=token)}; this "
+                    f"push would make a new commit. Choose another --tag (nothing was published)."
+                )
+            if plan is not None:  # 1. the dataset repo's commit, which the env's manifest then names
+                ds_sha = _publish_dataset_repo(plan, manifest, token=token)
+                manifest = _with_dataset_repo(manifest, repo_id, ds_sha).validated(where=f"{loaded.local_folder} (for {repo_id})")
+                (staging / MANIFEST_FILE).write_text(manifest.to_json(), encoding="utf-8")
+            if env_unchanged():
                 sha, created = head, False
-            else:
-                if tag and hub_io.tag_target(repo_id, tag, token=token) is not None:
-                    raise ConfigError(
-                        f"Tag {tag!r} of {repo_id} already names commit {hub_io.tag_target(repo_id, tag, token=token)}; this "
-                        f"push would make a new commit. Choose another --tag (nothing was published)."
-                    )
+            else:  # 2. the env commit
                 message = (
                     commit_message
                     or f"push_env: {manifest.name} {manifest.version} ({manifest.dataset['episodes']} episodes, seed {seed})"
                 )
-                sha = hub_io.publish_folder(
-                    staging,
-                    repo_id,
-                    parent_commit=head,
-                    remote_files=remote_files,
-                    message=message,
-                    description=f"content digest {manifest.content_digest}",
-                    private=private,
-                    token=token,
-                )
+                try:
+                    sha = hub_io.publish_folder(
+                        staging,
+                        repo_id,
+                        parent_commit=head,
+                        remote_files=remote_files,
+                        message=message,
+                        description=f"content digest {manifest.content_digest}",
+                        private=private,
+                        token=token,
+                    )
+                except HubEnvsError as e:
+                    if plan is None or plan.unchanged:
+                        raise
+                    raise type(e)(f"{e}\n{_left_behind(manifest)}") from e.__cause__  # the same error, said in full
                 created = True
-            tags = _tag(repo_id, sha, manifest, tag, token=token)
+            tags = _tag(repo_id, sha, manifest, tag, token=token)  # 3. the tags: the env's, then the dataset repo's
+            if plan is not None:
+                _tag_dataset_repo(manifest, token=token)
             timings["publish"] = time.perf_counter() - t
     finally:
         loaded.unregister()
         forget_env_folder(module_key(loaded.repo_id, loaded.revision))  # push keeps nothing imported
     timings["total"] = time.perf_counter() - t0
     return PushResult(
-        repo_id=repo_id, sha=sha, created_commit=created, content_tag=tags[0], manifest=manifest, timings=timings, tags=tags
+        repo_id=repo_id,
+        sha=sha,
+        created_commit=created,
+        content_tag=tags[0],
+        manifest=manifest,
+        timings=timings,
+        tags=tags,
+        dataset_sha=manifest.dataset["dataset_repo"]["revision"] if dataset_repo else None,
     )

@@ -18,6 +18,7 @@ Example:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -46,6 +47,57 @@ class Registration:
 
 def _choices() -> dict[str, Any]:
     return env_config_choices()
+
+
+#: The consent flag of LeRobot's CLIs for a hub env, ``--env.trust_remote_code=true``: a field of the ``hub`` choice,
+#: and of every per-repo choice (:func:`consenting_choice`), so one spelling works with both.
+CONSENT_FIELD = "trust_remote_code"
+#: Fields a per-repo choice has for the command line only: :func:`hub_envs.envconfig.encode_config` leaves them out.
+CLI_ONLY_FIELDS = "_hub_envs_cli_only"
+_CONSENTING: dict[type, type] = {}
+
+
+def consenting_choice(config_class: type) -> type:
+    """The class a per-repo choice (``--env.type=user/name@<sha12>``) is registered as: ``config_class`` plus a
+    ``trust_remote_code`` field, so LeRobot's parser accepts ``--env.trust_remote_code=true`` there as it does after
+    ``--env.type=hub`` (else draccus refuses it: "The fields trust_remote_code are not valid for ..."). The consent
+    itself is read from the command line before LeRobot parses it (:func:`hub_envs.lerobot.bridge.prepare_argv`):
+    the field holds none, it is False once the config is built, so a saved ``train_config.json`` never carries consent.
+    A class that is not a dataclass, or has that field already, is registered as it is.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass
+    ... class DemoConfig(EnvConfig):
+    ...     @property
+    ...     def gym_kwargs(self): return {}
+    >>> cfg = consenting_choice(DemoConfig)(trust_remote_code=True)
+    >>> isinstance(cfg, DemoConfig), cfg.trust_remote_code
+    (True, False)
+    """
+    if not dataclasses.is_dataclass(config_class) or CONSENT_FIELD in {f.name for f in dataclasses.fields(config_class)}:
+        return config_class
+    if config_class not in _CONSENTING:
+
+        def __post_init__(self) -> None:
+            own = getattr(config_class, "__post_init__", None)
+            if own is not None:
+                own(self)
+            object.__setattr__(self, CONSENT_FIELD, False)  # consent is given on a command line, never held by a config
+
+        _CONSENTING[config_class] = dataclasses.make_dataclass(
+            config_class.__name__,
+            [(CONSENT_FIELD, bool, dataclasses.field(default=False))],
+            bases=(config_class,),
+            namespace={
+                "__post_init__": __post_init__,
+                "__module__": config_class.__module__,
+                "__qualname__": config_class.__qualname__,
+                "__doc__": config_class.__doc__,
+                CLI_ONLY_FIELDS: (CONSENT_FIELD,),
+            },
+        )
+        _CONSENTING[config_class].__module__ = config_class.__module__  # make_dataclass names the caller's module (3.12+)
+    return _CONSENTING[config_class]
 
 
 class Transaction:
@@ -143,7 +195,7 @@ def register(
         )
         _OWNED_GYM[gym_id] = owner
     if register_choice and env_type not in _choices():
-        EnvConfig.register_subclass(env_type)(config_class)
+        EnvConfig.register_subclass(env_type)(consenting_choice(config_class))
         _OWNED_CHOICES[env_type] = owner
     held = Registration(gym_id=gym_id, env_type=env_type, owner=owner)
     _HOLDS[held] = _HOLDS.get(held, 0) + 1

@@ -626,6 +626,19 @@ class Manifest:
             _check_namespaces(repo_id, data["gym_id"], data["env_type"], where=where, what="its own repo_id")
         if "path" in data.get("dataset", {}):
             safe_relpath(data["dataset"]["path"], where=f"{where} dataset.path")
+        record = data.get("dataset", {}).get("dataset_repo", {})  # the dataset repo commit holding the same dataset
+        if not isinstance(record, dict) or (
+            record
+            and not (
+                isinstance(record.get("repo_id"), str)
+                and _REPO_ID_RE.match(record["repo_id"])
+                and is_commit_sha(record.get("revision"))
+            )
+        ):
+            raise ManifestError(
+                f"{where}: dataset.dataset_repo {safe_text(repr(record))[:200]} must name a dataset repo ('user/name') and a "
+                f"commit sha. {_REPUBLISH}"
+            )
         files = data["files"]
         if not isinstance(files, dict) or not files:
             raise ManifestError(f"{where}: field 'files' must map each repo path to its sha256. {_REPUBLISH}")

@@ -238,7 +238,8 @@ def hub_environment(
     ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_DISABLE_XET=1`` (the loopback server takes large files
     through Git LFS), ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
     ``HF_DATASETS_CACHE``, ``HUB_ENVS_HOME`` (a folder beside ``hf_home``) and, for a loopback endpoint, ``NO_PROXY``; patches what
-    ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants``
+    ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants`` (its
+    ``HF_LEROBOT_HOME`` and, on LeRobot 0.5+, ``HF_LEROBOT_HUB_CACHE``, where ``LeRobotDataset(repo_id)`` downloads)
     and ``datasets.config`` computed at import time; resets the client's HTTP sessions and the
     ``HfFileSystem`` instance cache. Everything is restored on exit.
 
@@ -342,6 +343,8 @@ def hub_environment(
                     continue
                 if old_home is not None and getattr(module, "HF_LEROBOT_HOME", None) == old_home:
                     patch(module, "HF_LEROBOT_HOME", lerobot_home)
+                if old_home is not None and getattr(module, "HF_LEROBOT_HUB_CACHE", None) == old_home / "hub":  # 0.5+
+                    patch(module, "HF_LEROBOT_HUB_CACHE", lerobot_home / "hub")
                 if old_calibration is not None and getattr(module, "HF_LEROBOT_CALIBRATION", None) == old_calibration:
                     patch(module, "HF_LEROBOT_CALIBRATION", lerobot_home / "calibration")
             patch(lerobot_constants, "default_cache_path", lerobot_home)

@@ -75,9 +75,9 @@ def test_a_dataset_naming_a_local_folder_never_runs_its_code(hub, tmp_path, mark
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("HOME", str(tmp_path))
     dataset = shutil.copytree(snapshot.path / "dataset", tmp_path / "dataset-copy")
-    info = json.loads((dataset / "meta" / "info.json").read_text())
-    info["hub_envs"]["env_meta"]["env_repo_id"] = named.replace("/ABS", str(tmp_path))
-    (dataset / "meta" / "info.json").write_text(json.dumps(info))
+    meta = json.loads((dataset / "meta" / "hub_envs.json").read_text())
+    meta["env_meta"]["env_repo_id"] = named.replace("/ABS", str(tmp_path))
+    (dataset / "meta" / "hub_envs.json").write_text(json.dumps(meta))
     assert payload.is_dir()
 
     with pytest.raises(errors.ReproductionError, match="not a Hub repo id"):

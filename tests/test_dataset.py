@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
-from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_episode_meta, read_info
+from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_episode_meta, read_hub_envs_meta, read_info
 from hub_envs.dataset.stats import STATS_NOTE
 from hub_envs.dataset.writer import EpisodeFrames, dataset_features_from_config, rollout_to_frames, write_lerobot_dataset
 from hub_envs.errors import ConfigError, DatasetError, EnvCodeError
@@ -271,7 +271,7 @@ def test_lerobot_reads_state_dataset(state_ds, state_rollouts):
     meta = LeRobotDatasetMetadata("test/pendulum", root=root)
     assert meta.total_frames == sum(lengths) and meta.total_episodes == len(SEEDS)
     assert load_info(root).get("total_episodes") == len(SEEDS)
-    assert json.loads((root / "meta" / "info.json").read_text())["hub_envs"]["env"] == {"repo": "me/pendulum", "sha": "abc"}
+    assert json.loads((root / "meta" / "hub_envs.json").read_text())["env"] == {"repo": "me/pendulum", "sha": "abc"}
     assert len(load_episodes(root)) == len(SEEDS)
     assert load_tasks(root).index.tolist() == [TASK]
 
@@ -297,8 +297,8 @@ def test_lerobot_reads_state_dataset(state_ds, state_rollouts):
 def test_seeds_and_frames_readable_without_lerobot(state_ds, state_rollouts):
     root, summary = state_ds
     info = read_info(root)
-    assert info["codebase_version"] == "v3.0" and info["hub_envs"]["seeds"] == SEEDS
-    assert info["hub_envs"]["env"]["sha"] == "abc"
+    assert info["codebase_version"] == "v3.0" and read_hub_envs_meta(root)["seeds"] == SEEDS
+    assert read_hub_envs_meta(root)["env"]["sha"] == "abc"
     assert list(info["features"])[-5:] == ["timestamp", "frame_index", "episode_index", "index", "task_index"]
     meta = read_episode_meta(root)
     assert [m["seed"] for m in meta] == SEEDS and [m["length"] for m in meta] == list(summary.episode_lengths)
@@ -364,8 +364,8 @@ def test_image_dataset_matches_lerobot_own_writer(tmp_path, image_rollouts):
     }
     assert not differing, differing
     info_a, info_b = read_info(ours), read_info(theirs)
-    assert {k for k in info_a if k != "hub_envs"} == set(info_b)  # the same keys (their order changed in LeRobot 0.5)
-    assert info_a["hub_envs"]["stats"] == STATS_NOTE  # where our stats differ from LeRobot's, on purpose, said
+    assert set(info_a) == set(info_b)  # the same keys (their order changed in LeRobot 0.5): none LeRobot does not know
+    assert read_hub_envs_meta(ours)["stats"] == STATS_NOTE  # where our stats differ from LeRobot's, on purpose, said
     assert info_a["features"] == json.loads(json.dumps(info_b["features"]))
     sa, sb = (json.loads((p / "meta/stats.json").read_text()) for p in (ours, theirs))
     assert sa.keys() == sb.keys()

@@ -292,7 +292,7 @@ def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
             "--eval.batch_size=2",
         ],
     )
-    assert type(ev.env) is loaded.config_class and ev.env.g == 5.0
+    assert isinstance(ev.env, loaded.config_class) and ev.env.g == 5.0
     vec = make_env(ev.env, n_envs=2)["pendulum"][0]
     assert vec.call("_max_episode_steps") == (7, 7) and vec.call("task_description") == ("Pendulum-v1",) * 2
     vec.close()
@@ -303,6 +303,27 @@ def test_lerobot_pipeline_configs_parse_the_hub_env_flags(published):
     with pytest.raises(draccus.utils.ParsingError) as info:
         draccus.parse(EvalPipelineConfig, args=[*_hub_args("pendulum", sha), "--env.overrides={gravity: 3}"])
     assert isinstance(info.value.__cause__, errors.ConfigError) and "gravity" in str(info.value.__cause__)
+
+
+def test_one_consent_flag_parses_with_either_env_choice(published):
+    """``--env.trust_remote_code=true`` after ``--env.type=hub`` and after the per-repo choice ``user/name@<sha12>``
+    alike, in lerobot-train's and lerobot-eval's configs (LeRobot's CLIs parse exactly these; before, the per-repo
+    choice refused it: "The fields `trust_remote_code` are not valid for PendulumEnvConfig"). Never saved as true."""
+    from hub_envs.lerobot.bridge import env_provenance
+
+    sha = published["pendulum-pixels"]
+    loaded = load_env(f"alice/pendulum-pixels@{sha}", trust_remote_code=True)  # what the plugin does first
+    try:
+        per_repo = [f"--env.type={loaded.env_type}", "--env.trust_remote_code=true"]
+        for pipeline, extra in ((TrainPipelineConfig, ["--dataset.repo_id=alice/pendulum-pixels"]), (EvalPipelineConfig, [])):
+            for env_flags in (_hub_args("pendulum-pixels", sha), per_repo):
+                cfg = draccus.parse(pipeline, args=[*env_flags, *extra, *TINY_ACT])
+                assert cfg.env.trust_remote_code is False and draccus.encode(cfg)["env"]["trust_remote_code"] is False
+        assert isinstance(cfg.env, loaded.config_class) and cfg.env.type == loaded.env_type
+        assert "trust_remote_code" not in env_provenance(cfg.env)["config"]  # not a value of the env's config
+        assert make_env(cfg.env, n_envs=1)["pendulum"][0].num_envs == 1
+    finally:
+        loaded.unregister()
 
 
 def test_hub_envs_cli_errors_are_one_clear_message(hub_module, published, capsys):

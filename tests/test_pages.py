@@ -336,9 +336,14 @@ def test_in_a_browser_search_open_see_the_gif_copy_the_load_line_and_open_a_file
         page.fill("input[name=q]", "tiny")
         page.press("input[name=q]", "Enter")
         page.wait_for_url(re.compile(r"\?q=tiny$"))
-        assert page.locator(".repo-name").all_inner_texts() == [ENV_REPO]
+        # the env repo, and the dataset repo of the same name push_env publishes its dataset to (for LeRobot's tools)
+        assert page.locator(".repo-name").all_inner_texts() == [ENV_REPO, ENV_REPO]
+        assert sorted(page.locator(".repo-name").evaluate_all("els => els.map(e => e.getAttribute('href'))")) == [
+            f"/datasets/{ENV_REPO}",
+            f"/{ENV_REPO}",
+        ]
 
-        page.click(f"a.repo-name:text('{ENV_REPO}')")
+        page.click(f"a.repo-name[href='/{ENV_REPO}']")
         page.wait_for_url(hub_module.endpoint + f"/{ENV_REPO}")
         gif = page.locator(".card img").first
         gif.wait_for()

@@ -294,17 +294,17 @@ def test_env_from_dataset_rebuilds_the_env_that_recorded_the_data(hub, tmp_path)
     from_repo.unregister()
 
     # what cannot be rebuilt says why
-    info_path = copy / "meta" / "info.json"
+    info_path = copy / "meta" / "hub_envs.json"
     info = json.loads(info_path.read_text())
-    info["hub_envs"]["env_meta"]["code_digest"] = "0" * 64
+    info["env_meta"]["code_digest"] = "0" * 64
     info_path.write_text(json.dumps(info))
     with pytest.raises(errors.ReproductionError, match="No commit of alice/tiny-meta holds the code"):
         env_from_dataset(copy, trust_remote_code=True)
     with pytest.raises(errors.ReproductionError, match="is not the code that recorded"):
         env_from_dataset(copy, trust_remote_code=True, env_revision=v2.sha)
-    del info["hub_envs"]["env_meta"]
+    del info["env_meta"]
     info_path.write_text(json.dumps(info))
-    with pytest.raises(errors.ReproductionError, match="no hub_envs.env_meta"):
+    with pytest.raises(errors.ReproductionError, match="has no hub-envs env_meta"):
         env_from_dataset(copy, trust_remote_code=True)
 
 

@@ -21,7 +21,7 @@ from lerobot.envs.configs import EnvConfig
 
 from hub_envs import errors, load_env, push_env, reproduce, trust
 from hub_envs.importing import module_key
-from hub_envs.registration import snapshot_registries
+from hub_envs.registration import consenting_choice, snapshot_registries
 from hub_envs.testing import hub_environment
 
 
@@ -57,8 +57,9 @@ def test_push_then_load_by_repo_id_from_a_clean_cache(hub, tmp_path):
         assert env.spec.max_episode_steps == loaded.config.episode_length == 30
 
         cfg = draccus.parse(LeRobotStyleConfig, args=[f"--env.type={loaded.env_type}", "--env.episode_length=12", "--seed=3"])
-        assert type(cfg.env) is loaded.config_class and cfg.env.episode_length == 12
-        assert EnvConfig.get_choice_class(loaded.env_type) is loaded.config_class
+        # the repo's config class, with the consent flag of LeRobot's CLIs (--env.trust_remote_code) as a field
+        assert type(cfg.env) is consenting_choice(loaded.config_class) and cfg.env.episode_length == 12
+        assert isinstance(cfg.env, loaded.config_class) and EnvConfig.get_choice_class(loaded.env_type) is type(cfg.env)
         assert cfg.env.type == loaded.env_type
         short = loaded.make(cfg.env)
         assert short.spec.max_episode_steps == 12
@@ -68,8 +69,7 @@ def test_push_then_load_by_repo_id_from_a_clean_cache(hub, tmp_path):
         assert set(dataset.features) >= {"observation.state", "action", "next.reward"}
         first = dataset[0]
         assert tuple(first["observation.state"].shape) == (2,)
-        info_json = json.loads((loaded.dataset_root / "meta" / "info.json").read_text())
-        assert info_json["hub_envs"]["seeds"] == [7, 8, 9, 10]
+        assert json.loads((loaded.dataset_root / "meta" / "hub_envs.json").read_text())["seeds"] == [7, 8, 9, 10]
         assert loaded.manifest.dataset["seeds"] == [7, 8, 9, 10]
         assert loaded.report.features.ok and "matches" in loaded.report.fingerprint
         # the dataset's first observation is what reset(seed=7) gives
@@ -381,7 +381,7 @@ def test_a_failed_reload_leaves_the_earlier_load_working(hub):
         gym.registry[first.gym_id] = spec
     again = load_env(f"alice/tiny-reload@{result.sha}", trust_remote_code=True)
     assert again.env_class is first.env_class
-    assert EnvConfig.get_choice_class(first.env_type) is first.config_class
+    assert EnvConfig.get_choice_class(first.env_type) is consenting_choice(first.config_class)
     assert type(gym.make(first.gym_id).unwrapped) is first.env_class
 
 

@@ -48,3 +48,9 @@ BOOKKEEPING_KEYS = frozenset(DEFAULT_FEATURES) | frozenset(NEXT_FEATURES)
 STATE_FEATURE = "env_state"
 #: Simulator states recorded beside the data (``hub_envs.dataset.states``).
 STATES_PATH = "meta/env_states.parquet"
+#: hub-envs' own metadata (reset seeds, how the stats differ from LeRobot's, ``env_meta``): a file of its own in
+#: ``meta/``, which LeRobot never reads, so LeRobot >= 0.5 does not log "Unknown fields in DatasetInfo" as it does
+#: for the ``info.json["hub_envs"]`` key datasets written before kept it in (still read: :func:`~hub_envs.dataset.reader.read_hub_envs_meta`).
+HUB_ENVS_META_PATH = "meta/hub_envs.json"
+#: Where datasets written before :data:`HUB_ENVS_META_PATH` existed keep the same metadata: a key of ``meta/info.json``.
+LEGACY_INFO_KEY = "hub_envs"

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from hub_envs.dataset.codec import decode_pngs
-from hub_envs.dataset.layout import DATA_PATH, EPISODES_DIR, INFO_PATH, VIDEO_PATH
+from hub_envs.dataset.layout import DATA_PATH, EPISODES_DIR, HUB_ENVS_META_PATH, INFO_PATH, LEGACY_INFO_KEY, VIDEO_PATH
 from hub_envs.errors import DatasetError
 
 # --- files ------------------------------------------------------------------------------------
@@ -97,7 +97,7 @@ def _check_path_template(path: Path, key: str, template: Any) -> None:
 
 
 def read_info(root: str | os.PathLike) -> dict:
-    """``meta/info.json`` as a dict (features, fps, totals, ``hub_envs`` with the seeds).
+    """``meta/info.json`` as a dict (features, fps, totals; hub-envs' own keys are in :func:`read_hub_envs_meta`).
 
     Its ``data_path`` and ``video_path`` templates are checked (named integer fields only, no way out
     of ``root``), so a path built from them names a file of this dataset.
@@ -135,6 +135,35 @@ def read_info(root: str | os.PathLike) -> dict:
                     f"or is '.'/'..'). Do not use this dataset; its publisher must re-publish it."
                 )
     return info
+
+
+def read_hub_envs_meta(root: str | os.PathLike, info: Mapping | None = None) -> dict:
+    """hub-envs' metadata of a dataset it wrote (``seeds``, ``stats``, ``env_meta``...), ``{}`` for any other dataset.
+
+    Read from ``meta/hub_envs.json``; a dataset written before that file existed keeps the same object under
+    ``info.json["hub_envs"]`` (``info``: that dataset's :func:`read_info`, read here when not given).
+
+    Args:
+        root: the dataset folder.
+        info: its ``info.json`` already read (saves reading it again).
+
+    Returns:
+        The metadata as a dict.
+
+    Raises:
+        DatasetError: ``meta/hub_envs.json`` is there but is not a JSON object.
+    """
+    path = Path(root) / HUB_ENVS_META_PATH
+    if path.is_file():
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as exc:
+            raise DatasetError(f"{path} is unreadable or not JSON ({type(exc).__name__}). Regenerate the dataset.") from None
+        if not isinstance(meta, dict):
+            raise DatasetError(f"{path} is not a JSON object. Regenerate the dataset, or re-publish the env with push_env.")
+        return meta
+    legacy = (info if info is not None else read_info(root)).get(LEGACY_INFO_KEY)
+    return dict(legacy) if isinstance(legacy, Mapping) else {}
 
 
 def data_file(root: str | os.PathLike, info: Mapping, chunk_index: Any, file_index: Any) -> Path:

@@ -23,12 +23,13 @@ each episode's span in the episodes metadata (``videos/<key>/from_timestamp``...
 by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at level 6: same pixels,
 ~6x faster. Differences from LeRobot's writer, none visible to its reader:
 
-* Stats are exact (:mod:`hub_envs.dataset.stats`; ``info["hub_envs"]["stats"]`` says how they differ).
+* Stats are exact (:mod:`hub_envs.dataset.stats`; ``meta/hub_envs.json["stats"]`` says how they differ).
   Global stats aggregate the episode stats with LeRobot's formula (1000 episodes at a time).
 * Several episodes share one parquet row group; files roll over by the same size rule, measured on
   the Arrow bytes written rather than the file size on disk.
-* Extra: a ``seed`` column in the episodes metadata and
-  ``info["hub_envs"] = {"seeds": [...], "stats": STATS_NOTE, **extra_info}``.
+* Extra: a ``seed`` column in the episodes metadata and ``meta/hub_envs.json`` =
+  ``{"seeds": [...], "stats": STATS_NOTE, **extra_info}`` (a file LeRobot does not read; ``info.json`` holds
+  exactly the keys LeRobot's own writer puts there, so LeRobot >= 0.5 logs no "Unknown fields").
 * Byte-deterministic: no timestamps or random fingerprints in any file, fixed writer options.
 
 Example:
@@ -71,6 +72,7 @@ from hub_envs.dataset.layout import (
     DEFAULT_FEATURES,
     DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     EPISODES_PATH,
+    HUB_ENVS_META_PATH,
     INFO_PATH,
     NEXT_FEATURES,
     STATS_PATH,
@@ -697,10 +699,10 @@ class _Writer:
             "data_path": DATA_PATH,
             "video_path": VIDEO_PATH if self.video_keys else None,
             "features": self.features,
-            "hub_envs": hub_envs_info,
         }
+        _write_json(self.tmp / INFO_PATH, info)
         try:
-            _write_json(self.tmp / INFO_PATH, info)
+            _write_json(self.tmp / HUB_ENVS_META_PATH, hub_envs_info)
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"extra_info must be JSON-serializable (str, numbers, bools, None, lists, dicts): {exc}") from exc
 
@@ -763,7 +765,7 @@ def write_lerobot_dataset(
         episodes: :class:`EpisodeFrames`, consumed one at a time (memory stays bounded).
         task: the natural-language task of every frame (``meta/tasks.parquet``).
         robot_type: ``info.json["robot_type"]``.
-        extra_info: merged into ``info.json["hub_envs"]`` next to ``"seeds"`` (JSON values only).
+        extra_info: merged into ``meta/hub_envs.json`` next to ``"seeds"`` (JSON values only).
         progress: show a progress bar.
         overwrite: replace an existing folder at ``root`` (only once the new one is complete).
         chunks_size, data_files_size_in_mb, video_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).

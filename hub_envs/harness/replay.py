@@ -40,7 +40,7 @@ import numpy as np
 
 from hub_envs._compat import LEROBOT_VIDEO_GOP, video_gop
 from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
-from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
+from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_hub_envs_meta, read_info
 from hub_envs.dataset.states import read_env_states
 from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors
 from hub_envs.dataset.writer import rollout_to_frames
@@ -289,7 +289,7 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
         if unknown:
             raise ReproductionError(f"{dataset_root}: episodes {unknown} are not in the dataset ({len(metas)} episodes).")
         metas = [m for m in metas if m["episode_index"] in wanted]
-    recorded_seeds = (info.get("hub_envs") or {}).get("seeds") or []
+    recorded_seeds = read_hub_envs_meta(dataset_root, info).get("seeds") or []
     seeds = []
     for m in metas:
         seed = m.get("seed")

@@ -346,15 +346,15 @@ def keep_declared_shapes(dataset):
 
 
 def _written_by_hub_envs(meta) -> bool:
-    """Whether a dataset's ``meta/info.json`` carries hub-envs' key (read from the file: LeRobot >= 0.5's
-    ``DatasetInfo`` drops keys it does not know)."""
-    import json
-    from pathlib import Path
+    """Whether hub-envs wrote a dataset (it has hub-envs' metadata: :func:`hub_envs.dataset.reader.read_hub_envs_meta`,
+    read from the files, which LeRobot does not load)."""
+    from hub_envs.dataset.reader import read_hub_envs_meta
+    from hub_envs.errors import DatasetError
 
     root = getattr(meta, "root", None)
     try:
-        return root is not None and "hub_envs" in json.loads((Path(root) / "meta" / "info.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        return root is not None and bool(read_hub_envs_meta(root))
+    except (OSError, DatasetError):
         return False
 
 

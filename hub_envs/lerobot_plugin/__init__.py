@@ -8,7 +8,7 @@ LeRobot's ``parser.wrap`` imports this package before it parses the other flags.
 registers the ``hub`` env choice, routes ``lerobot_train`` / ``lerobot_eval`` env creation and env
 processors for hub env configs through :mod:`hub_envs.lerobot.env`, and, for a per-repo choice
 (``--env.type=user/name@<sha12>``), loads that repo so the choice exists (trust it with
-``hub-envs trust user/name@<sha>`` or LeRobot's ``--trust_remote_code=true``).
+``hub-envs trust user/name@<sha>``, ``--env.trust_remote_code=true`` as for ``hub``, or lerobot-eval's ``--trust_remote_code=true``).
 ``hub-envs train`` / ``hub-envs eval`` do the same and also write provenance next to the results.
 """
 
