@@ -630,8 +630,7 @@ class Manifest:
         if not isinstance(record, dict) or (
             record
             and not (
-                isinstance(record.get("repo_id"), str)
-                and _REPO_ID_RE.match(record["repo_id"])
+                repo_id_problem(record.get("repo_id")) is None
                 and is_commit_sha(record.get("revision"))
             )
         ):
