@@ -402,7 +402,7 @@ def test_a_repo_id_never_picks_a_same_named_local_folder(hub, tmp_path, monkeypa
     result = _push(TINY, "alice/tiny-shadow")
     copy_env(tmp_path / "alice", name="tiny-shadow", edits={"tiny.py": lambda s: "raise RuntimeError('local code ran')\n" + s})
     monkeypatch.chdir(tmp_path)
-    with pytest.warns(UserWarning, match="'./alice/tiny-shadow' to load the folder"):
+    with pytest.warns(UserWarning, match="'./alice/tiny-shadow' to use the folder"):
         loaded = load_env("alice/tiny-shadow", revision=result.sha, trust_remote_code=True)
     assert loaded.revision == result.sha and not loaded.is_local
     with pytest.raises(errors.EnvCodeError, match="local code ran"):
