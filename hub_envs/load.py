@@ -714,7 +714,8 @@ def load_env(
         fingerprint: what a drifted golden-rollout fingerprint does: ``"error"``, ``"warn"`` or ``"off"``.
         check_steps: random-action steps of the feature check.
         recheck: run the checks even if they already passed for this repo@sha with the same packages
-            and platform (see :mod:`hub_envs.check_cache`; ``HUB_ENVS_RECHECK=1`` does the same).
+            and platform (a venv worker's: those of its venv; see :mod:`hub_envs.check_cache`;
+            ``hub-envs load --recheck=true`` and ``HUB_ENVS_RECHECK=1`` do the same).
         token, cache_dir: passed to huggingface_hub.
         config: for a local folder, config fields to set (``{"obs_type": "pixels_agent_pos"}``; values are
             decoded as LeRobot's ``--env.<field>=<value>`` flags are), the variant ``push_env --config.*``
@@ -771,12 +772,14 @@ def load_env(
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
     try:
         t = time.perf_counter()
-        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=machine.result())
         use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
-        cached_checks = check_cache.lookup(checks_key) if use_cache else None
-        if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
-            check_requirements(manifest.requirements, repo=where)
-        # else: this repo@sha passed every stage before with exactly these installed distributions
+        checks_key, cached_checks = "", None
+        if iso.isolation != "venv":  # a venv worker brings the requirements itself: keyed once its venv is known
+            checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=machine.result())
+            cached_checks = check_cache.lookup(checks_key) if use_cache else None
+            if cached_checks is None:
+                check_requirements(manifest.requirements, repo=where)
+            # else: this repo@sha passed every stage before with exactly these installed distributions
         report.requirements = list(manifest.requirements)
         timings["requirements"] = time.perf_counter() - t
 
@@ -793,6 +796,10 @@ def load_env(
                         repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
                     )
                     iso = env_class.options
+                    if iso.isolation == "venv":  # the checks run with the venv's packages: they are part of the key
+                        worker = {**machine.result(), "worker_venv": check_cache.venv_identity(_VENVS[iso]["path"])}
+                        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=worker)
+                        cached_checks = check_cache.lookup(checks_key) if use_cache else None
                 else:
                     package = import_env_folder(code, key)
                     env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
@@ -1089,8 +1096,10 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
     recorded = loaded.manifest.fingerprint
     if cached is not None:
         loaded.report.features = FeatureReport.from_dict(cached["features"])
+        venv = " in the same worker venv" if loaded.worker_venv is not None else ""
         loaded.report.fingerprint = (
-            f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages; recheck=True re-runs)"
+            f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages{venv}; "
+            f"recheck=True, or hub-envs load --recheck=true, runs the checks again)"
         )
         return
     dataset_features = None
