@@ -57,7 +57,7 @@ from hub_envs.errors import (
 )
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.features import FeatureReport, check_features
-from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
+from hub_envs.harness.provenance import drift_note
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.repo_format import (
     DATASET_DIR,
@@ -1131,14 +1131,9 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
             check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
             return
 
-        def note() -> str:  # reading package versions costs milliseconds: only for the error message
-            return describe_differences(
-                version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements))
-            )
-
         handed_over = True
-        try:
-            verify_fingerprint(lambda: env, recorded, where=where, versions_note=note)
+        try:  # the versions are read only for the error message (milliseconds)
+            verify_fingerprint(lambda: env, recorded, where=where, versions_note=lambda: drift_note(loaded))
             loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
             check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
         except FingerprintMismatchError as e:

@@ -44,10 +44,11 @@ from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_met
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import (
-    describe_differences,
-    package_versions,
+    drift_kinds,
+    drift_note,
+    ranked_differences,
+    recorded_versions,
     run_provenance,
-    version_differences,
     worker_provenance,
 )
 from hub_envs.harness.replay import Replay, ReplayResult
@@ -70,7 +71,7 @@ DEFAULT_OUT = Path("reproduce-out")
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     m = loaded.manifest
     prov: dict[str, Any] = run_provenance(loaded)  # isolation="venv": the versions the worker ran with
-    diffs = version_differences(m.versions, prov["versions_here"])
+    diffs = ranked_differences(m, prov["versions_here"])  # the env's requirements and their dependencies first
     prov |= {
         "code_digest": code_digest_of(m.files),
         "seeds": {
@@ -78,8 +79,9 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
             "fingerprint": list(m.fingerprint.get("seeds", [])),
             "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
         },
-        "versions_published": dict(m.versions),
+        "versions_published": recorded_versions(m),
         "version_differences": {k: list(v) for k, v in diffs.items()},
+        "version_difference_kinds": drift_kinds(diffs, m),
         "worker": worker_provenance(loaded),
     }
     if dataset_root is not None:
@@ -96,9 +98,10 @@ def _fingerprint(loaded: Any) -> dict[str, Any]:
     recorded = loaded.manifest.fingerprint
     if not recorded:
         return {"status": "none recorded", "ok": True}
-    note = describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
     try:
-        verify_fingerprint(loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=note)
+        verify_fingerprint(
+            loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=lambda: drift_note(loaded)
+        )
     except FingerprintMismatchError as e:
         return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
     return {

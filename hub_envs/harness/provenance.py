@@ -22,6 +22,18 @@ from packaging.utils import canonicalize_name
 from hub_envs.requirements import installed_version
 
 CORE_PACKAGES = ("numpy", "gymnasium", "lerobot", "torch", "huggingface_hub", "draccus", "hub-envs")
+#: physics engines (PyPI names): among the packages a rollout depends on, the first suspects when it drifts
+SIMULATORS = frozenset(
+    {"mujoco", "mujoco-mjx", "pybullet", "dm-control", "box2d", "box2d-py", "pymunk", "brax", "sapien", "genesis-world"}
+)
+#: the kinds of a recorded version that differs, most suspect first (:func:`ranked_differences`)
+DRIFT_KINDS = {
+    "requirement": "a requirement of the env",
+    "dependency": "a dependency of its requirements",
+    "simulator": "the simulator",
+    "worker": "what every env runs on",
+    "stack": "this stack",
+}
 
 
 def _version(name: str) -> str:
@@ -41,16 +53,31 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
     return dict(sorted(versions.items()))
 
 
+def recorded_versions(manifest: Any) -> dict[str, str]:
+    """Every package version ``manifest`` records: ``versions`` (python, the core packages, each requirement's
+    package) and then ``resolved`` (format 3: the requirements' whole dependency closure, the simulator a
+    requirement pulls in included), each package once, under ``versions``' spelling where both name it."""
+    out = dict(manifest.versions)
+    named = {canonicalize_name(k) for k in out}
+    out.update({k: v for k, v in dict(getattr(manifest, "resolved", {}) or {}).items() if canonicalize_name(k) not in named})
+    return out
+
+
 def worker_provenance(loaded: Any) -> dict[str, Any] | None:
     """For a venv-isolated load (``loaded.worker_venv``): where the env ran (venv, python, every installed package,
-    notes) and the versions of the packages the manifest records, as the worker has them; else None."""
+    notes) and the versions of the packages the manifest records (:func:`recorded_versions`), as the worker has
+    them (a package of the requirements' closure it does not hold: ``"not installed"``); else None."""
     record = loaded.worker_venv
     if record is None:
         return None
     installed = {
         canonicalize_name(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)
     }
-    versions = {k: installed[canonicalize_name(k)] for k in loaded.manifest.versions if canonicalize_name(k) in installed}
+    versions = {
+        k: installed[canonicalize_name(k)] for k in recorded_versions(loaded.manifest) if canonicalize_name(k) in installed
+    }
+    have = {canonicalize_name(k) for k in versions}
+    versions |= {k: "not installed" for k in loaded.manifest.resolved if k not in have}  # the worker is all there is
     versions["python"] = record.get("python")
     return {
         "venv": record.get("path"),
@@ -62,11 +89,14 @@ def worker_provenance(loaded: Any) -> dict[str, Any] | None:
 
 
 def versions_run_with(loaded: Any) -> dict[str, str]:
-    """The package versions ``loaded``'s code runs with: this process's (:func:`package_versions` of its
-    requirements), or, isolated in a venv, the worker's where it has them (python included)."""
+    """The package versions ``loaded``'s code runs with, for every package its manifest records a version of
+    (:func:`recorded_versions`) and the core ones: this process's, or, isolated in a venv, the worker's where
+    it has them (python included)."""
     here = package_versions(loaded.manifest.requirements)
+    named = {canonicalize_name(k) for k in here}
+    here |= {k: _version(k) for k in getattr(loaded.manifest, "resolved", {}) or {} if canonicalize_name(k) not in named}
     worker = worker_provenance(loaded)
-    return {**here, **worker["versions"]} if worker is not None else here
+    return dict(sorted({**here, **worker["versions"]}.items())) if worker is not None else dict(sorted(here.items()))
 
 
 def run_provenance(loaded: Any) -> dict[str, Any]:
@@ -155,13 +185,71 @@ def version_differences(recorded: dict[str, str], current: dict[str, str]) -> di
     }
 
 
-def describe_differences(diffs: dict[str, tuple[str, str]]) -> str:
-    """The sentence a drift message ends with: which versions differ, or that none does (then the code or machine did)."""
+def drift_kinds(names, manifest: Any) -> dict[str, str]:
+    """What each of ``names`` (packages whose recorded version differs) is to the env of ``manifest``, a key of
+    :data:`DRIFT_KINDS`: one of its ``requirements``; a ``dependency`` of them (in ``resolved``, the requirements'
+    closure the publisher had, less what only numpy and gymnasium pull in here); the ``simulator`` (a physics
+    engine, :data:`SIMULATORS`); numpy, gymnasium and their own dependencies (``worker``: what every env runs
+    on); else the ``stack`` (python, lerobot, torch, ...)."""
+    requirements = set()
+    for text in manifest.requirements:
+        try:
+            requirements.add(canonicalize_name(Requirement(text).name))
+        except InvalidRequirement:
+            continue
+    resolved = {canonicalize_name(k) for k in getattr(manifest, "resolved", {}) or {}}
+    worker_only = set(requirement_closure((), also=("numpy", "gymnasium"))) - set(
+        requirement_closure(manifest.requirements, also=())
+    )
+    out = {}
+    for name in names:
+        c = canonicalize_name(name)
+        if c in requirements:
+            out[name] = "requirement"
+        elif c in ("numpy", "gymnasium") or c in worker_only:
+            out[name] = "worker"
+        elif c in resolved:
+            out[name] = "dependency"
+        elif c in SIMULATORS:
+            out[name] = "simulator"
+        else:
+            out[name] = "stack"
+    return out
+
+
+def ranked_differences(manifest: Any, here: dict[str, str]) -> dict[str, tuple[str, str]]:
+    """``{package: (published, here)}`` for every version ``manifest`` records (:func:`recorded_versions`) that
+    differs from ``here``, the most suspect first: the env's requirements, their dependencies (a simulator first),
+    the simulator, numpy and gymnasium, then the rest of the stack (:func:`drift_kinds`); by name within each."""
+    diffs = version_differences(recorded_versions(manifest), here)
+    kinds = drift_kinds(diffs, manifest)
+    order = list(DRIFT_KINDS)
+    return dict(
+        sorted(diffs.items(), key=lambda kv: (order.index(kinds[kv[0]]), canonicalize_name(kv[0]) not in SIMULATORS, kv[0]))
+    )
+
+
+def describe_differences(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | None = None) -> str:
+    """The sentence a drift message ends with: which versions differ (in ``diffs``' order, each with its kind when
+    ``kinds`` says it), or that none does (then the code or machine did)."""
     if not diffs:
         return (
             "\nNo package version differs from the publisher's, so the env's code or assets, or the machine "
             "(CPU, OS, libraries outside Python), changed."
         )
-    return "\nVersions differ from the publisher's: " + ", ".join(
-        f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items()
+    return "\nVersions differ from the publisher's: " + difference_text(diffs, kinds)
+
+
+def difference_text(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | None = None) -> str:
+    """``"mujoco 3.3.0 (published) vs 3.3.7 (here, a dependency of its requirements), ..."``."""
+    kinds = kinds or {}
+    return ", ".join(
+        f"{k} {a} (published) vs {b} (here{', ' + DRIFT_KINDS[kinds[k]] if k in kinds else ''})" for k, (a, b) in diffs.items()
     )
+
+
+def drift_note(loaded: Any) -> str:
+    """:func:`describe_differences` for ``loaded`` (a :class:`hub_envs.load.LoadedEnv`): the recorded versions that
+    differ from those its code runs with (:func:`versions_run_with`), ranked (:func:`ranked_differences`)."""
+    diffs = ranked_differences(loaded.manifest, versions_run_with(loaded))
+    return describe_differences(diffs, drift_kinds(diffs, loaded.manifest))
