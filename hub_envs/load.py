@@ -23,6 +23,7 @@ import concurrent.futures
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import re
 import threading
@@ -77,6 +78,7 @@ from hub_envs.repo_format import (
 from hub_envs.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
+_log = logging.getLogger(__name__)
 
 
 _REPO_ID_RE = re.compile(r"[\w.-]+/[\w.-]+(@[^/]+)?")
@@ -804,13 +806,15 @@ def load_env(
                     package = import_env_folder(code, key)
                     env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
                     config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
-                replaced = txn.replaced()
+                replaced, by_packages = txn.replaced_by(code)
                 if replaced:
                     raise RegistrationConflictError(
-                        f"{where}: importing its code replaced {', '.join(replaced)}, already registered by another package. "
-                        f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
-                        f"env itself, under names unique to the repo and commit."
+                        f"{where}: its code replaced {', '.join(replaced)}, already registered by another package, with "
+                        f"an entry of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls: "
+                        f"hub-envs registers the env itself, under names unique to the repo and commit."
                     )
+                for distribution, names in by_packages.items():  # what importing that package does in any process
+                    _log.info("%s: importing %s re-registered %s", where, distribution, ", ".join(names))
                 if iso.isolated:
                     config = isolated_config
                 else:
