@@ -44,10 +44,11 @@ from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_met
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import (
+    closure_only,
+    closure_run_with,
     drift_kinds,
     drift_note,
     ranked_differences,
-    recorded_versions,
     run_provenance,
     worker_provenance,
 )
@@ -71,7 +72,8 @@ DEFAULT_OUT = Path("reproduce-out")
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     m = loaded.manifest
     prov: dict[str, Any] = run_provenance(loaded)  # isolation="venv": the versions the worker ran with
-    diffs = ranked_differences(m, prov["versions_here"])  # the env's requirements and their dependencies first
+    closure_here = closure_run_with(loaded)  # the rest of the requirements' closure (the simulator they pull in)
+    diffs = ranked_differences(m, {**closure_here, **prov["versions_here"]})  # the env's requirements and theirs first
     prov |= {
         "code_digest": code_digest_of(m.files),
         "seeds": {
@@ -79,7 +81,9 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
             "fingerprint": list(m.fingerprint.get("seeds", [])),
             "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
         },
-        "versions_published": recorded_versions(m),
+        "versions_published": dict(m.versions),
+        "closure_published": closure_only(m),
+        "closure_here": closure_here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
         "version_difference_kinds": drift_kinds(diffs, m),
         "worker": worker_provenance(loaded),

@@ -55,29 +55,29 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
 
 def recorded_versions(manifest: Any) -> dict[str, str]:
     """Every package version ``manifest`` records: ``versions`` (python, the core packages, each requirement's
-    package) and then ``resolved`` (format 3: the requirements' whole dependency closure, the simulator a
-    requirement pulls in included), each package once, under ``versions``' spelling where both name it."""
-    out = dict(manifest.versions)
-    named = {canonicalize_name(k) for k in out}
-    out.update({k: v for k, v in dict(getattr(manifest, "resolved", {}) or {}).items() if canonicalize_name(k) not in named})
-    return out
+    package), then the rest of ``resolved`` (:func:`closure_only`)."""
+    return {**dict(manifest.versions), **closure_only(manifest)}
+
+
+def closure_only(manifest: Any) -> dict[str, str]:
+    """The versions of ``manifest``'s ``resolved`` (format 3: the requirements' dependency closure, the simulator a
+    requirement pulls in included) that ``versions`` does not record already (under any spelling)."""
+    named = {canonicalize_name(k) for k in manifest.versions}
+    return {k: v for k, v in dict(getattr(manifest, "resolved", {}) or {}).items() if canonicalize_name(k) not in named}
+
+
+def _worker_installed(record: dict[str, Any]) -> dict[str, str]:
+    return {canonicalize_name(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)}
 
 
 def worker_provenance(loaded: Any) -> dict[str, Any] | None:
     """For a venv-isolated load (``loaded.worker_venv``): where the env ran (venv, python, every installed package,
-    notes) and the versions of the packages the manifest records (:func:`recorded_versions`), as the worker has
-    them (a package of the requirements' closure it does not hold: ``"not installed"``); else None."""
+    notes) and the versions of the packages the manifest records, as the worker has them; else None."""
     record = loaded.worker_venv
     if record is None:
         return None
-    installed = {
-        canonicalize_name(k): v for k, v in (line.split("==", 1) for line in record.get("installed", []) if "==" in line)
-    }
-    versions = {
-        k: installed[canonicalize_name(k)] for k in recorded_versions(loaded.manifest) if canonicalize_name(k) in installed
-    }
-    have = {canonicalize_name(k) for k in versions}
-    versions |= {k: "not installed" for k in loaded.manifest.resolved if k not in have}  # the worker is all there is
+    installed = _worker_installed(record)
+    versions = {k: installed[canonicalize_name(k)] for k in loaded.manifest.versions if canonicalize_name(k) in installed}
     versions["python"] = record.get("python")
     return {
         "venv": record.get("path"),
@@ -89,14 +89,22 @@ def worker_provenance(loaded: Any) -> dict[str, Any] | None:
 
 
 def versions_run_with(loaded: Any) -> dict[str, str]:
-    """The package versions ``loaded``'s code runs with, for every package its manifest records a version of
-    (:func:`recorded_versions`) and the core ones: this process's, or, isolated in a venv, the worker's where
-    it has them (python included)."""
+    """The package versions ``loaded``'s code runs with: this process's (:func:`package_versions` of its
+    requirements), or, isolated in a venv, the worker's where it has them (python included)."""
     here = package_versions(loaded.manifest.requirements)
-    named = {canonicalize_name(k) for k in here}
-    here |= {k: _version(k) for k in getattr(loaded.manifest, "resolved", {}) or {} if canonicalize_name(k) not in named}
     worker = worker_provenance(loaded)
-    return dict(sorted({**here, **worker["versions"]}.items())) if worker is not None else dict(sorted(here.items()))
+    return {**here, **worker["versions"]} if worker is not None else here
+
+
+def closure_run_with(loaded: Any) -> dict[str, str]:
+    """For each package of the manifest's dependency closure that ``versions`` does not name (:func:`closure_only`):
+    the version ``loaded``'s code runs with (this process's, or a venv worker's), or ``"not installed"``."""
+    names = closure_only(loaded.manifest)
+    record = loaded.worker_venv
+    if record is None:
+        return {k: _version(k) for k in names}
+    installed = _worker_installed(record)  # a venv worker has only what its venv holds
+    return {k: installed.get(canonicalize_name(k), "not installed") for k in names}
 
 
 def run_provenance(loaded: Any) -> dict[str, Any]:
@@ -250,6 +258,7 @@ def difference_text(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | N
 
 def drift_note(loaded: Any) -> str:
     """:func:`describe_differences` for ``loaded`` (a :class:`hub_envs.load.LoadedEnv`): the recorded versions that
-    differ from those its code runs with (:func:`versions_run_with`), ranked (:func:`ranked_differences`)."""
-    diffs = ranked_differences(loaded.manifest, versions_run_with(loaded))
+    differ from those its code runs with (:func:`versions_run_with`, :func:`closure_run_with`), ranked
+    (:func:`ranked_differences`)."""
+    diffs = ranked_differences(loaded.manifest, {**closure_run_with(loaded), **versions_run_with(loaded)})
     return describe_differences(diffs, drift_kinds(diffs, loaded.manifest))

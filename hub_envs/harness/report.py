@@ -288,8 +288,8 @@ class ReproduceReport(ReportFiles):
             "| package | published with | here | |",
             "|---|---|---|---|",
         ]
-        published = p.get("versions_published", {}) or {}
-        here = p.get("versions_here", {}) or {}
+        published = {**(p.get("versions_published") or {}), **(p.get("closure_published") or {})}
+        here = {**(p.get("versions_here") or {}), **(p.get("closure_here") or {})}
         for name in sorted(set(published) | set(here)):
             a, b = published.get(name, "-"), here.get(name, "-")
             out.append(f"| {name} | {a} | {b} | {'**differs**' if name in self.version_differences else ''} |")
