@@ -798,7 +798,7 @@ def load_env(
                         repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
                     )
                     iso = env_class.options
-                    if iso.isolation == "venv":  # the checks run with the venv's packages: they are part of the key
+                    if iso.isolation == "venv" and check:  # the checks run with the venv's packages: part of the key
                         worker = {**machine.result(), "worker_venv": check_cache.venv_identity(_VENVS[iso]["path"])}
                         checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=worker)
                         cached_checks = check_cache.lookup(checks_key) if use_cache else None

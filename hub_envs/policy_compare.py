@@ -441,11 +441,12 @@ def compare(
             backend=runner,
         )
         results: list[list[PolicyResult]] = []  # per env, per policy
+        arms = iter(_labels([f"{label} on {_env_label(env, loaded)}" if against else label for env in envs for label in labels]))
         with runner:
             for env in envs:
                 results.append([])
-                for label, spec in zip(labels, specs):
-                    arm = f"{label} on {_env_label(env, loaded)}" if against else label
+                for spec in specs:
+                    arm = next(arms)
                     t = time.perf_counter()
                     results[-1].append(_run_policy(env, arm, spec, seeds, **kw))
                     timings[f"policy {arm}"] = time.perf_counter() - t

@@ -85,7 +85,11 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         "closure_published": closure_only(m),
         "closure_here": closure_here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
-        "version_difference_kinds": drift_kinds(diffs, m),
+        # the same, ranked (a list: report.json sorts the keys of objects): the most suspect first
+        "version_drift": [
+            {"package": k, "published": a, "here": b, "kind": kind}
+            for (k, (a, b)), kind in zip(diffs.items(), drift_kinds(diffs, m).values(), strict=True)
+        ],
         "worker": worker_provenance(loaded),
     }
     if dataset_root is not None:

@@ -77,9 +77,11 @@ def test_a_repo_published_on_one_stack_reproduces_exactly_on_the_other(hub, tmp_
     assert {"python", "lerobot", "huggingface_hub"} <= differing
     assert set(prov["version_differences"]) == differing  # every difference is listed, and only those
     # ranked: the env's requirements, their dependencies, the simulator, numpy/gymnasium, then the stack
-    kinds = prov["version_difference_kinds"]
+    drift = prov["version_drift"]
+    assert {d["package"]: [d["published"], d["here"]] for d in drift} == prov["version_differences"]
     order = ["requirement", "dependency", "simulator", "worker", "stack"]
-    ranks = [order.index(kinds[name]) for name in prov["version_differences"]]
+    ranks = [order.index(d["kind"]) for d in drift]
+    kinds = {d["package"]: d["kind"] for d in drift}
     assert ranks == sorted(ranks) and kinds["lerobot"] == kinds["python"] == "stack"
     stack_line = next(line for line in run.stdout.splitlines() if line.strip().startswith("stack:"))
     assert all(f"{name} {published[name]} (published) vs {here[name]} (here" in stack_line for name in differing)

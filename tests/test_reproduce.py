@@ -279,8 +279,8 @@ def _machine(tmp_path: Path, name: str, site: Path, wheels: Path):
 def test_a_differing_dependency_is_blamed_first_and_the_publishers_versions_reproduce(hub, tmp_path):
     """Issue 29: an env published with mujoco 3.3.0 was NOT REPRODUCED with 3.3.7, and the report blamed draccus,
     lerobot, torch... but never mujoco, which only the manifest's ``resolved`` records. Here the simulator behind
-    the env's requirement really differs (physics 1.0 at the publisher, 1.1 here); the stack around it (lerobot,
-    torch) is recorded as another stack's. The report ranks the dependency first and names the command that runs
+    the env's requirement really differs (physics 1.0 at the publisher, 1.1 here); the stack around it (draccus,
+    lerobot, torch) is recorded as another stack's. The report ranks the dependency first and names the command that runs
     it with the publisher's versions, which reproduces (a real venv, built by uv from the recorded versions)."""
     wheels, publisher_site, here_site, env_dir = _sim_env(tmp_path)
     publisher = _machine(tmp_path, "publisher", publisher_site, wheels)
@@ -292,7 +292,7 @@ def test_a_differing_dependency_is_blamed_first_and_the_publishers_versions_repr
         assert (
             manifest["resolved"]["hub-envs-fixture-physics"] == "1.0" and "hub-envs-fixture-physics" not in manifest["versions"]
         )
-        manifest["versions"].update({"lerobot": "0.4.4", "torch": "2.7.1"})
+        manifest["versions"].update({"draccus": "0.9.3", "lerobot": "0.3.3", "torch": "2.7.1"})
         (folder / "hub_env.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
 
     sha = republish(hub.api, "alice/sim", as_another_stack, message="as published on another stack")
@@ -306,11 +306,16 @@ def test_a_differing_dependency_is_blamed_first_and_the_publishers_versions_repr
         "stack: versions differ from the publisher's: hub-envs-fixture-physics 1.0 (published) vs 1.1 (here, a dependency "
         "of its requirements), "
     ), stack
-    assert stack.index("hub-envs-fixture-physics") < stack.index("lerobot 0.4.4") and "torch 2.7.1" in stack
+    assert stack.index("hub-envs-fixture-physics") < stack.index("draccus 0.9.3") < stack.index("lerobot 0.3.3")
     report = json.loads((tmp_path / "first" / "report.json").read_text())
-    differences = report["provenance"]["version_differences"]
-    assert list(differences)[0] == "hub-envs-fixture-physics" and differences["hub-envs-fixture-physics"] == ["1.0", "1.1"]
-    assert report["provenance"]["version_difference_kinds"]["lerobot"] == "stack"
+    drift = report["provenance"]["version_drift"]  # ranked: the dependency first, then the stack
+    assert [(d["package"], d["kind"]) for d in drift] == [
+        ("hub-envs-fixture-physics", "dependency"),
+        ("draccus", "stack"),
+        ("lerobot", "stack"),
+        ("torch", "stack"),
+    ]
+    assert drift[0]["published"] == "1.0" and drift[0]["here"] == "1.1"
     markdown = (tmp_path / "first" / "report.md").read_text()
     assert (
         "## Versions that differ" in markdown
@@ -328,7 +333,7 @@ def test_a_differing_dependency_is_blamed_first_and_the_publishers_versions_repr
     assert again.stdout.startswith(f"REPRODUCED: alice/sim@{sha}") and "with the publisher's versions, run" not in again.stdout
     worker = json.loads((tmp_path / "again" / "report.json").read_text())["provenance"]
     assert "hub-envs-fixture-physics==1.0" in worker["worker"]["installed"]
-    assert list(worker["version_differences"]) == ["lerobot", "torch"]  # what runs the env now is the publisher's
+    assert [d["package"] for d in worker["version_drift"]] == ["draccus", "lerobot", "torch"]  # the env's own: the publisher's
 
 
 def report_dataset(report) -> Path:

@@ -90,12 +90,16 @@ class ReproduceReport(ReportFiles):
 
     @property
     def version_differences(self) -> dict[str, list[str]]:
+        """``{package: [published, here]}`` for every recorded version that differs, the most suspect first."""
+        drift = self.provenance.get("version_drift")
+        if drift is not None:
+            return {d["package"]: [d["published"], d["here"]] for d in drift}
         return dict(self.provenance.get("version_differences") or {})
 
     @property
     def version_kinds(self) -> dict[str, str]:
         """What each differing package is to the env (a key of :data:`hub_envs.harness.provenance.DRIFT_KINDS`)."""
-        return dict(self.provenance.get("version_difference_kinds") or {})
+        return {d["package"]: d["kind"] for d in self.provenance.get("version_drift") or []}
 
     def versions_note(self) -> str:
         """Which recorded versions differ from those the env ran with here, the most suspect first (the env's
