@@ -8,10 +8,14 @@ answer, so a warm ``load_env`` reuses the result instead of stepping the env ~10
 The key covers the commit and its content digest, the check settings, the name and version of
 EVERY installed distribution (the ``*.dist-info`` folders on ``sys.path``: numpy, gymnasium, the
 simulator, ... alike), hub-envs' own checking code, the interpreter and the platform (OS, kernel,
-libc, CPU architecture). Install, upgrade or remove any package and the checks run again. Only passing results are stored; failures always re-run.
+libc, CPU architecture). Install, upgrade or remove any package and the checks run again. An env that runs in
+a venv worker (``isolation="venv"``, with the packages installed here or the publisher's) is checked with the
+packages of that venv, so its key also covers the venv's installed distributions and interpreter
+(:func:`venv_identity`): a verdict from this process, or from another venv, is never reused there. Only passing
+results are stored; failures always re-run.
 An entry that is not exactly what :func:`store` wrote (corrupt, truncated or hand-edited: it carries a
 digest of its own content) or that does not record a pass is ignored, and the checks run again.
-``load_env(..., recheck=True)`` (or ``HUB_ENVS_RECHECK=1``) ignores the cache.
+``load_env(..., recheck=True)`` (``hub-envs load --recheck=true``, or ``HUB_ENVS_RECHECK=1``) ignores the cache.
 
 Example:
     >>> from hub_envs.check_cache import check_key
@@ -88,6 +92,27 @@ def machine_identity() -> dict[str, Any]:
         "python": sys.version,
         "os": [uname.system, uname.release, uname.machine],
         "libc": os.confstr("CS_GNU_LIBC_VERSION") if hasattr(os, "confstr") and "CS_GNU_LIBC_VERSION" in os.confstr_names else "",
+    }
+
+
+def venv_identity(venv: str | os.PathLike) -> dict[str, Any]:
+    """What a venv worker's checks run with, besides this process: the ``*.dist-info`` folders of the venv's
+    site-packages (every package and version it holds, as they are now, not as its build record says) and its
+    interpreter (``pyvenv.cfg``: the Python version it was made with)."""
+    root = Path(venv)
+    found = []
+    for site in sorted(root.glob("lib*/python*/site-packages")):
+        try:
+            found += [f"{site.relative_to(root)}:{n}" for n in os.listdir(site) if n.endswith((".dist-info", ".egg-info"))]
+        except OSError:
+            continue
+    try:
+        cfg = (root / "pyvenv.cfg").read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        cfg = ""
+    return {
+        "distributions": hashlib.sha256("\n".join(sorted(found)).encode()).hexdigest(),
+        "interpreter": hashlib.sha256(cfg.encode()).hexdigest(),
     }
 
 

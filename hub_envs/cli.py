@@ -4,7 +4,7 @@ Flags are draccus-style, as in LeRobot's CLIs: ``--key=value`` (``--key value`` 
 
     hub-envs serve --root=./hub-data --port=8000 [--token=T] [--max_body_mb=2048] [--max_line_mb=16] [--max_lfs_mb=51200]
     push_env --env_dir=envs/pendulum --repo_id=user/pendulum-lerobot [--episodes=10] [--seed=0] [--tag=v1] [--video=false] [--video_gop=2] [--backend=ray] [--dataset_repo=false]
-    hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true]
+    hub-envs load --repo_id=user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process] [--sandbox=true] [--recheck=true]
     hub-envs trust user/pendulum-lerobot@<sha>
     hub-envs reproduce --repo_id=user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true] [--backend=ray]
     hub-envs attestations --repo_id=user/pendulum-lerobot [--verify=true --allowed_signers=FILE]
@@ -74,6 +74,7 @@ class LoadArgs(EnvFlags):
 
     check: bool = True
     fingerprint: str = "error"
+    recheck: bool = False  # run the checks even if they passed before with the same packages (a cached verdict)
     json: bool = False
 
 

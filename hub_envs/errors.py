@@ -200,3 +200,8 @@ class HubEnvsWarning(UserWarning):
 class StatesNotRecordedWarning(HubEnvsWarning):
     """The env has ``get_state()`` but what it returns cannot be recorded, so the dataset has no simulator
     states and a replay cannot restore a step (see :mod:`hub_envs.dataset.states`)."""
+
+
+class RequirementStandInWarning(HubEnvsWarning):
+    """A requirement is not installed under its own name, but another installed distribution provides its import
+    name (``pygame-ce`` for ``pygame``): the preflight takes it as standing in (see :mod:`hub_envs.requirements`)."""

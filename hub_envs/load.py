@@ -23,6 +23,7 @@ import concurrent.futures
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import re
 import threading
@@ -57,7 +58,7 @@ from hub_envs.errors import (
 )
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.features import FeatureReport, check_features
-from hub_envs.harness.provenance import describe_differences, package_versions, version_differences
+from hub_envs.harness.provenance import drift_note
 from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.repo_format import (
     DATASET_DIR,
@@ -77,6 +78,7 @@ from hub_envs.repo_format import (
 from hub_envs.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
+_log = logging.getLogger(__name__)
 
 
 class UnpinnedRevisionWarning(UserWarning):
@@ -722,7 +724,8 @@ def load_env(
         fingerprint: what a drifted golden-rollout fingerprint does: ``"error"``, ``"warn"`` or ``"off"``.
         check_steps: random-action steps of the feature check.
         recheck: run the checks even if they already passed for this repo@sha with the same packages
-            and platform (see :mod:`hub_envs.check_cache`; ``HUB_ENVS_RECHECK=1`` does the same).
+            and platform (a venv worker's: those of its venv; see :mod:`hub_envs.check_cache`;
+            ``hub-envs load --recheck=true`` and ``HUB_ENVS_RECHECK=1`` do the same).
         token, cache_dir: passed to huggingface_hub.
         config: for a local folder, config fields to set (``{"obs_type": "pixels_agent_pos"}``; values are
             decoded as LeRobot's ``--env.<field>=<value>`` flags are), the variant ``push_env --config.*``
@@ -788,12 +791,14 @@ def load_env(
     imported_before = is_imported(key)  # an earlier successful load of this repo@sha keeps its modules
     try:
         t = time.perf_counter()
-        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=machine.result())
         use_cache = check and local_folder is None and not (recheck or check_cache.recheck_forced())
-        cached_checks = check_cache.lookup(checks_key) if use_cache else None
-        if cached_checks is None and iso.isolation != "venv":  # a venv worker brings the requirements itself
-            check_requirements(manifest.requirements, repo=where)
-        # else: this repo@sha passed every stage before with exactly these installed distributions
+        checks_key, cached_checks = "", None
+        if iso.isolation != "venv":  # a venv worker brings the requirements itself: keyed once its venv is known
+            checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=machine.result())
+            cached_checks = check_cache.lookup(checks_key) if use_cache else None
+            if cached_checks is None:
+                check_requirements(manifest.requirements, repo=where)
+            # else: this repo@sha passed every stage before with exactly these installed distributions
         report.requirements = list(manifest.requirements)
         timings["requirements"] = time.perf_counter() - t
 
@@ -810,17 +815,23 @@ def load_env(
                         repo, sha, code, key, manifest, local_folder, iso, overrides=dict(config or {})
                     )
                     iso = env_class.options
+                    if iso.isolation == "venv" and check:  # the checks run with the venv's packages: part of the key
+                        worker = {**machine.result(), "worker_venv": check_cache.venv_identity(_VENVS[iso]["path"])}
+                        checks_key = _checks_key(where, manifest, steps=check_steps, fingerprint=fingerprint, machine=worker)
+                        cached_checks = check_cache.lookup(checks_key) if use_cache else None
                 else:
                     package = import_env_folder(code, key)
                     env_class = resolve_entry_point(package, manifest.env_entry_point, where=f"{where}: env entry point")
                     config_class = resolve_entry_point(package, manifest.config_entry_point, where=f"{where}: config entry point")
-                replaced = txn.replaced()
+                replaced, by_packages = txn.replaced_by(code)
                 if replaced:
                     raise RegistrationConflictError(
-                        f"{where}: importing its code replaced {', '.join(replaced)}, already registered by another package. "
-                        f"Remove the env code's own gym.register / @EnvConfig.register_subclass calls: hub-envs registers the "
-                        f"env itself, under names unique to the repo and commit."
+                        f"{where}: its code replaced {', '.join(replaced)}, already registered by another package, with "
+                        f"an entry of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls: "
+                        f"hub-envs registers the env itself, under names unique to the repo and commit."
                     )
+                for distribution, names in by_packages.items():  # what importing that package does in any process
+                    _log.info("%s: importing %s re-registered %s", where, distribution, ", ".join(names))
                 if iso.isolated:
                     config = isolated_config
                 else:
@@ -1109,8 +1120,10 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
     recorded = loaded.manifest.fingerprint
     if cached is not None:
         loaded.report.features = FeatureReport.from_dict(cached["features"])
+        venv = " in the same worker venv" if loaded.worker_venv is not None else ""
         loaded.report.fingerprint = (
-            f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages; recheck=True re-runs)"
+            f"{cached['fingerprint']} (cached: passed on {cached['checked_at']} with the same packages{venv}; "
+            f"recheck=True, or hub-envs load --recheck=true, runs the checks again)"
         )
         return
     dataset_features = None
@@ -1142,14 +1155,9 @@ def _run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps
             check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
             return
 
-        def note() -> str:  # reading package versions costs milliseconds: only for the error message
-            return describe_differences(
-                version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements))
-            )
-
         handed_over = True
-        try:
-            verify_fingerprint(lambda: env, recorded, where=where, versions_note=note)
+        try:  # the versions are read only for the error message (milliseconds)
+            verify_fingerprint(lambda: env, recorded, where=where, versions_note=lambda: drift_note(loaded))
             loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
             check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
         except FingerprintMismatchError as e:

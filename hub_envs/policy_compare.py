@@ -18,6 +18,10 @@ Output: a terminal summary, ``report.json``, ``report.md`` and ``report.png`` (m
 
     hub-envs compare --repo_id=user/name@<sha> --policies=random,outputs/train/checkpoints/last/pretrained_model
                      [--episodes=20] [--seed=0] [--trust_remote_code=true] [--trust_policy_code=true]
+    hub-envs compare --repo_id=user/name@<old sha> --against=user/name@<new sha> --policies=random [--episodes=20]
+
+With ``--against``, each policy runs the same seeds on two revisions of the env (or two envs with the same
+spaces), and the report pairs each policy with itself across them (new minus old): what the revision changed.
 
 Example:
     >>> from hub_envs.policy_compare import episodes_for_half_width
@@ -27,6 +31,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -143,9 +148,15 @@ class CompareReport(ReportFiles):
     def _needed(self, n: int | None) -> str:
         return f"~{n}" if n is not None else f"no estimate (no variation in {len(self.seeds)} episodes)"
 
+    @property
+    def envs(self) -> str:
+        """The env commit(s) compared: ``user/name@<sha>`` (and ``user/name@<sha>`` of ``against``)."""
+        other = self.provenance.get("against")
+        return f"{self.repo_id}@{self.sha}" + (f" and {other['repo_id']}@{other['sha']}" if other else "")
+
     def summary(self) -> str:
         conf = int(100 * self.settings["confidence"])
-        lines = [f"Compared on {self.repo_id}@{self.sha}: {len(self.seeds)} episodes, seeds {seeds_text(self.seeds)}"]
+        lines = [f"Compared on {self.envs}: {len(self.seeds)} episodes, seeds {seeds_text(self.seeds)}"]
         lines += [f"  {p.summary()}" for p in self.policies]
         lines += [f"  {d.summary()}" for d in self.differences]
         lines.append(f"  ({conf}% bootstrap intervals, {self.settings['resamples']} resamples)")
@@ -172,7 +183,7 @@ class CompareReport(ReportFiles):
         out = [
             f"# Policy comparison on `{self.repo_id}`",
             "",
-            f"Commit `{self.sha}`, {len(self.seeds)} episodes per policy on the same reset seeds ({seeds_text(self.seeds)}), "
+            f"`{self.envs}`, {len(self.seeds)} episodes per policy on the same reset seeds ({seeds_text(self.seeds)}), "
             f"{conf}% bootstrap intervals ({self.settings['resamples']} resamples, seeded).",
             "",
             "| policy | success rate | CI | mean return | CI | episodes for ±5 points |",
@@ -187,7 +198,7 @@ class CompareReport(ReportFiles):
             "",
             "## Paired differences",
             "",
-            "Seed by seed (the same reset seed for both policies), resampling seeds in the bootstrap.",
+            "Seed by seed (the same reset seed on both sides), resampling seeds in the bootstrap.",
             "",
             "| A - B | success rate (points) | CI | mean return | CI | episodes for ±5 points |",
             "|---|---|---|---|---|---|",
@@ -203,6 +214,13 @@ class CompareReport(ReportFiles):
             "## Provenance",
             "",
             f"- env: `{self.repo_id}@{self.sha}` (content digest `{p.get('content_digest')}`)",
+            *(
+                [
+                    f"- against: `{p['against']['repo_id']}@{p['against']['sha']}` (content digest `{p['against']['content_digest']}`)"
+                ]
+                if p.get("against")
+                else []
+            ),
             *[f"- policy {q.label}: `{json.dumps(q.spec, sort_keys=True)}`" for q in self.policies],
             f"- versions: {', '.join(f'{k} {v}' for k, v in sorted(p.get('versions_here', {}).items()))}",
             f"- generated {p.get('generated_at')} with hub-envs {p.get('hub_envs_version')}",
@@ -222,7 +240,11 @@ class CompareReport(ReportFiles):
         import numpy as np
 
         fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
-        labels = [p.label if len(p.label) <= 24 else "…" + p.label[-23:] for p in self.policies]
+
+        def short(label: str) -> str:
+            return label if len(label) <= 24 else "…" + label[-23:]
+
+        labels = [short(p.label) for p in self.policies]
         x = np.arange(len(self.policies))
         for ax, (value, ci, title) in zip(
             axes[:2],
@@ -245,7 +267,7 @@ class CompareReport(ReportFiles):
             ax.axhspan(d.returns.ci[0], d.returns.ci[1], color="tab:orange", alpha=0.3, label="paired 95% CI of the mean")
             ax.axhline(0, color="grey", lw=0.8, ls=":")
             ax.set_xlabel("episode (seed order)")
-            ax.set_title(f"return: {labels[0]} - {labels[1]}", fontsize=9)
+            ax.set_title(f"return: {short(d.a)} - {short(d.b)}", fontsize=9)
             ax.legend(fontsize=7, loc="best")
         fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {len(self.seeds)} paired episodes", fontsize=10)
         return save_figure(fig, path)
@@ -328,10 +350,27 @@ def _paired(a: PolicyResult, b: PolicyResult, *, resamples: int, confidence: flo
     )
 
 
+def _env_label(env: Any, first: Any) -> str:
+    """``@<sha12>`` for a revision of the first env's repo, ``user/name@<sha12>`` for another repo."""
+    return ("" if env.repo_id == first.repo_id else env.repo_id) + f"@{env.revision[:12]}"
+
+
+def _pairs(results: list[list[PolicyResult]]) -> list[tuple[PolicyResult, PolicyResult]]:
+    """What a comparison pairs, seed by seed (``(a, b)``: ``a - b``): with two envs, each policy on the second against
+    itself on the first (what the revision changed); then, in each env, every two policies."""
+    pairs = []
+    if len(results) == 2:
+        pairs += list(zip(results[1], results[0]))
+    for per_env in results:
+        pairs += [(per_env[i], per_env[j]) for i in range(len(per_env)) for j in range(i + 1, len(per_env))]
+    return pairs
+
+
 def compare(
     repo_id: str,
     policies: Sequence[str | os.PathLike],
     *,
+    against: str | None = None,
     episodes: int = 20,
     seed: int = 0,
     revision: str | None = None,
@@ -348,12 +387,20 @@ def compare(
     ray_address: str | None = None,
     **run: Unpack[CodeRun],
 ) -> CompareReport:
-    """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired.
+    """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired;
+    with ``against``, also on those episodes of another revision (or env), and compare each policy across the two.
+
+    The stages: resolve the policies, load the env (and ``against``), run every (env, policy) arm on the same seeds
+    (:func:`_run_policy`), pair them (:func:`_pairs`), report.
 
     Args:
         repo_id: ``user/name@<sha>`` (pin it: the comparison names the commit), or a local folder.
         policies: at least two of ``"random"``, a local LeRobot ``pretrained_model`` folder written as a path
-            (``./x``, ``/abs``, a ``Path``; as for envs, ``user/name`` always means the Hub), a Hub repo id.
+            (``./x``, ``/abs``, a ``Path``; as for envs, ``user/name`` always means the Hub), a Hub repo id (one is
+            enough with ``against``).
+        against: another revision of the env (``user/name@<sha>``, or a local folder; another env with the same
+            spaces works too): each policy also runs its episodes there, and the report pairs them seed by seed
+            (``against`` minus ``repo_id``, e.g. new minus old): how the revision changed what the policy gets.
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`).
@@ -364,8 +411,11 @@ def compare(
     from hub_envs.evaluation import load_for_evaluation
     from hub_envs.harness.provenance import run_provenance
 
-    if len(policies) < 2:
-        raise ConfigError(f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH.")
+    if len(policies) < (1 if against else 2):
+        raise ConfigError(
+            f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH. "
+            f"(One is enough with --against=user/name@<other sha>, to compare two revisions.)"
+        )
     run = code_run(run, "compare")  # before anything starts: a misspelt keyword is named at once
     if episodes < 2:
         raise ConfigError(f"--episodes={episodes}: a confidence interval needs at least 2 episodes (20 or more is sensible).")
@@ -378,9 +428,14 @@ def compare(
     t0 = time.perf_counter()
     specs = [policy_spec(p, token=token) for p in policies]
     labels = _labels([os.fspath(p).strip() for p in policies])
-    with load_for_evaluation(
-        repo_id, revision, trust_remote_code=trust_remote_code, token=token, run=run, where="compare"
-    ) as loaded:
+    with contextlib.ExitStack() as stack:
+        envs = [
+            stack.enter_context(
+                load_for_evaluation(ref, rev, trust_remote_code=trust_remote_code, token=token, run=run, where="compare")
+            )
+            for ref, rev in ([(repo_id, revision), (against, None)] if against else [(repo_id, revision)])
+        ]
+        loaded = envs[0]
         timings = {"load": time.perf_counter() - t0}
         seeds = [seed + i for i in range(episodes)]
         kw = dict(
@@ -392,21 +447,28 @@ def compare(
             progress=progress,
             backend=runner,
         )
-        results = []
+        results: list[list[PolicyResult]] = []  # per env, per policy
+        arms = iter(_labels([f"{label} on {_env_label(env, loaded)}" if against else label for env in envs for label in labels]))
         with runner:
-            for label, spec in zip(labels, specs):
-                t = time.perf_counter()
-                results.append(_run_policy(loaded, label, spec, seeds, **kw))
-                timings[f"policy {label}"] = time.perf_counter() - t
-        diffs = [
-            _paired(results[i], results[j], resamples=resamples, confidence=confidence, seed=seed)
-            for i in range(len(results))
-            for j in range(i + 1, len(results))
-        ]
+            for env in envs:
+                results.append([])
+                for spec in specs:
+                    arm = next(arms)
+                    t = time.perf_counter()
+                    results[-1].append(_run_policy(env, arm, spec, seeds, **kw))
+                    timings[f"policy {arm}"] = time.perf_counter() - t
+        diffs = [_paired(a, b, resamples=resamples, confidence=confidence, seed=seed) for a, b in _pairs(results)]
+        provenance = {**run_provenance(loaded), "episode_length": int(loaded.config.episode_length), "seeds": seeds}
+        if against:
+            other = run_provenance(envs[1])
+            provenance["against"] = {
+                **{k: other[k] for k in ("repo_id", "requested_revision", "sha", "content_digest", "versions_here")},
+                "episode_length": int(envs[1].config.episode_length),
+            }
         report = CompareReport(
-            policies=results,
+            policies=[r for per_env in results for r in per_env],
             differences=diffs,
-            provenance={**run_provenance(loaded), "episode_length": int(loaded.config.episode_length), "seeds": seeds},
+            provenance=provenance,
             settings={
                 "episodes": episodes,
                 "seed": seed,
@@ -431,6 +493,7 @@ class CompareArgs(EnvFlags):
     """Evaluate policies on the same seeds; report rates and returns with CIs and the seed-paired difference."""
 
     policies: str | None = None  # comma-separated: random, a pretrained_model folder, a Hub repo id
+    against: str | None = None  # another revision (user/name@<sha>): each policy on both, paired seed by seed
     episodes: int = 20
     seed: int = 0
     trust_policy_code: bool = False  # consent to load Hub checkpoints (other repos than the env)
@@ -444,7 +507,10 @@ class CompareArgs(EnvFlags):
 
 def compare_cli(args: CompareArgs) -> int:
     if args.repo_id is None or not args.policies:
-        raise ConfigError("hub-envs compare needs --repo_id=user/name@<sha> and --policies=A,B (random, a folder, a repo id).")
+        raise ConfigError(
+            "hub-envs compare needs --repo_id=user/name@<sha> and --policies=A,B (random, a folder, a repo id), or "
+            "--policies=A --against=user/name@<other sha> to compare two revisions."
+        )
     policies = [p for p in args.policies.split(",") if p.strip()]
     report = call_with_flags(compare, args, args.repo_id, policies, workers=args.workers or None)
     if args.json:

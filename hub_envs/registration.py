@@ -3,7 +3,9 @@
 Two registries, one transaction: :func:`registry_transaction` remembers both and, if anything in
 its block raises, puts both back exactly as they were. hub-envs owns the names it registers
 (``_OWNED``), so loading the same ``repo@sha`` twice is a no-op, and a name held by anything else
-is a :class:`RegistrationConflictError`, never an overwrite.
+is a :class:`RegistrationConflictError`, never an overwrite. A name the env's own code takes over while it is
+imported is refused too; one an installed package it imports takes over is that package's doing, as in any
+process that imports it (:meth:`Transaction.replaced_by`).
 
 Example:
     >>> import gymnasium as gym
@@ -19,8 +21,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib.metadata
+import importlib.util
+import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -114,6 +121,50 @@ class Transaction:
         out = [f"gym id {k!r}" for k, v in self.gym_before.items() if gym_now.get(k) is not v]
         out += [f"draccus choice {k!r}" for k, v in self.choices_before.items() if choices_now.get(k) is not v]
         return out
+
+    def replaced_by(self, code: str | os.PathLike) -> tuple[list[str], dict[str, list[str]]]:
+        """:meth:`replaced`, attributed: ``(names the env's own code took over, {installed distribution: names its
+        package took over})``. A new entry belongs to whatever holds what it points at (its entry point, its config
+        class): the env's code (the folder ``code``, or any module hub-envs imported from a repo), or the package
+        of an installed distribution (gymnasium-robotics re-registers gymnasium's MuJoCo ids when it is imported).
+        Anything that cannot be placed (removed, or pointing at no importable module) counts as the env's."""
+        gym_now, choices_now = gym.registry, _choices()
+        own: list[str] = []
+        packages: dict[str, list[str]] = {}
+        news = [(f"gym id {k!r}", gym_now.get(k), v) for k, v in self.gym_before.items()]
+        news += [(f"draccus choice {k!r}", choices_now.get(k), v) for k, v in self.choices_before.items()]
+        for name, now, before in news:
+            if now is before:
+                continue
+            target = getattr(now, "entry_point", now)  # a gym EnvSpec points at its entry point; a choice is a class
+            distribution = _installed_origin(target, Path(code)) if now is not None else None
+            if distribution is None:
+                own.append(name)
+            else:
+                packages.setdefault(distribution, []).append(name)
+        return own, packages
+
+
+def _installed_origin(target: Any, code: Path) -> str | None:
+    """The installed distribution(s) whose package holds ``target`` (a ``"module:attr"`` entry point, a callable or a
+    class), e.g. ``"gymnasium-robotics"``; None for the env's own code (``code``, or a module of a hub-envs repo)
+    and for what cannot be placed."""
+    from hub_envs.importing import ROOT_PACKAGE
+
+    module = target.split(":", 1)[0] if isinstance(target, str) else getattr(target, "__module__", None)
+    if not isinstance(module, str) or not module or module.split(".")[0] == ROOT_PACKAGE:
+        return None
+    file = getattr(sys.modules.get(module), "__file__", None)
+    if file is None:
+        try:  # a string entry point of a module not imported yet (its package is: it registered the id)
+            spec = importlib.util.find_spec(module)
+        except (ImportError, ValueError):
+            return None
+        file = spec.origin if spec is not None else None
+    if not file or Path(file).resolve().is_relative_to(code.resolve()):
+        return None
+    distributions = importlib.metadata.packages_distributions().get(module.split(".")[0])
+    return ", ".join(sorted(set(distributions))) if distributions else None
 
 
 @contextlib.contextmanager

@@ -44,10 +44,12 @@ from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_met
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import (
-    describe_differences,
-    package_versions,
+    closure_only,
+    closure_run_with,
+    drift_kinds,
+    drift_note,
+    ranked_differences,
     run_provenance,
-    version_differences,
     worker_provenance,
 )
 from hub_envs.harness.replay import Replay, ReplayResult
@@ -70,7 +72,8 @@ DEFAULT_OUT = Path("reproduce-out")
 def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     m = loaded.manifest
     prov: dict[str, Any] = run_provenance(loaded)  # isolation="venv": the versions the worker ran with
-    diffs = version_differences(m.versions, prov["versions_here"])
+    closure_here = closure_run_with(loaded)  # the rest of the requirements' closure (the simulator they pull in)
+    diffs = ranked_differences(m, {**closure_here, **prov["versions_here"]})  # the env's requirements and theirs first
     prov |= {
         "code_digest": code_digest_of(m.files),
         "seeds": {
@@ -79,7 +82,14 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
             "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
         },
         "versions_published": dict(m.versions),
+        "closure_published": closure_only(m),
+        "closure_here": closure_here,
         "version_differences": {k: list(v) for k, v in diffs.items()},
+        # the same, ranked (a list: report.json sorts the keys of objects): the most suspect first
+        "version_drift": [
+            {"package": k, "published": a, "here": b, "kind": kind}
+            for (k, (a, b)), kind in zip(diffs.items(), drift_kinds(diffs, m).values(), strict=True)
+        ],
         "worker": worker_provenance(loaded),
     }
     if dataset_root is not None:
@@ -96,9 +106,10 @@ def _fingerprint(loaded: Any) -> dict[str, Any]:
     recorded = loaded.manifest.fingerprint
     if not recorded:
         return {"status": "none recorded", "ok": True}
-    note = describe_differences(version_differences(loaded.manifest.versions, package_versions(loaded.manifest.requirements)))
     try:
-        verify_fingerprint(loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=note)
+        verify_fingerprint(
+            loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=lambda: drift_note(loaded)
+        )
     except FingerprintMismatchError as e:
         return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
     return {

@@ -7,6 +7,7 @@ fixes up the manifest's hashes so integrity passes, the way only a hand-made rep
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import warnings
 from collections.abc import Callable
@@ -65,3 +66,46 @@ def comparable_report(report) -> dict:
     d.pop("settings")
     d.pop("timings")
     return d
+
+
+def build_wheel(out: Path, name: str, version: str, files: dict[str, str], requires: tuple[str, ...] = ()) -> Path:
+    """A real wheel (PEP 427) of a pure-Python distribution ``name`` ``version`` holding ``files`` (path -> text),
+    with ``Requires-Dist`` lines ``requires``: what pip or uv install like any other (no build backend needed)."""
+    import base64
+    import hashlib
+    import zipfile
+
+    dist = re.sub(r"[-_.]+", "_", name)
+    info = f"{dist}-{version}.dist-info"
+    members = dict(files)
+    members[f"{info}/METADATA"] = f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n" + "".join(
+        f"Requires-Dist: {r}\n" for r in requires
+    )
+    members[f"{info}/WHEEL"] = "Wheel-Version: 1.0\nGenerator: hub-envs-tests\nRoot-Is-Purelib: true\nTag: py3-none-any\n"
+    record = []
+    for path, text in members.items():
+        digest = base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=").decode()
+        record.append(f"{path},sha256={digest},{len(text.encode())}")
+    members[f"{info}/RECORD"] = "\n".join([*record, f"{info}/RECORD,,"]) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    wheel = out / f"{dist}-{version}-py3-none-any.whl"
+    with zipfile.ZipFile(wheel, "w") as zf:
+        for path, text in members.items():
+            zf.writestr(path, text)
+    return wheel
+
+
+def install_wheels(wheels: Path, target: Path, *requirements: str) -> Path:
+    """``pip install --target`` of ``requirements`` from the folder of wheels ``wheels`` only (no index): a site
+    folder to put on ``sys.path`` / ``PYTHONPATH``, as a user's own install of those versions."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-index"]
+        + ["--find-links", str(wheels), "--target", str(target), *requirements],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return target

@@ -110,6 +110,19 @@ def test_compare_refuses_bad_input_with_a_clear_error(hub_module, reach, tmp_pat
         compare(f"alice/reach-compare@{reach.sha}", ["random", str(tmp_path)], trust_remote_code=True, write=False)
 
 
+def test_against_runs_one_policy_on_two_commits_and_pairs_it_with_itself(hub_module, reach):
+    """--against (two revisions of one env, the same policy, the same seeds): here a commit against itself, so each
+    seed's paired difference is exactly 0; the revision journey (tests/journeys) compares two that differ."""
+    ref = f"alice/reach-compare@{reach.sha}"
+    report = compare(ref, ["random"], against=ref, episodes=3, trust_remote_code=True, workers=1, write=False, progress=False)
+    arm = f"random on @{reach.sha[:12]}"
+    assert [p.label for p in report.policies] == [arm, f"{arm} (2)"]
+    (paired,) = report.differences
+    assert paired.returns.values == (0.0, 0.0, 0.0) and paired.successes.values == (0.0, 0.0, 0.0)
+    assert report.provenance["against"]["sha"] == reach.sha and report.envs == f"{ref} and {ref}"
+    assert report.policies[0].returns.values == report.policies[1].returns.values != (0.0, 0.0, 0.0)
+
+
 def test_an_isolated_env_compares_to_the_same_numbers(hub_module, reach, act_checkpoint):
     """--isolation=process: the env steps in worker processes, the policies run here; the comparison is the same."""
     kw = dict(episodes=2, trust_remote_code=True, workers=1, write=False, progress=False)

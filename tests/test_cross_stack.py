@@ -70,8 +70,18 @@ def test_a_repo_published_on_one_stack_reproduces_exactly_on_the_other(hub, tmp_
     published, here = prov["versions_published"], prov["versions_here"]
     for name in ("python", "lerobot", "torch", "numpy", "huggingface_hub", "pybullet", "gymnasium"):
         assert name in published and name in here, name
+    # and the rest of the requirements' closure the publisher recorded (resolved), as it is where the env ran
+    assert set(prov["closure_published"]) == set(prov["closure_here"]) and "cloudpickle" in prov["closure_published"]
+    published, here = {**published, **prov["closure_published"]}, {**here, **prov["closure_here"]}
     differing = {k for k in published if published[k] != here.get(k)}
     assert {"python", "lerobot", "huggingface_hub"} <= differing
     assert set(prov["version_differences"]) == differing  # every difference is listed, and only those
+    # ranked: the env's requirements, their dependencies, the simulator, numpy/gymnasium, then the stack
+    drift = prov["version_drift"]
+    assert {d["package"]: [d["published"], d["here"]] for d in drift} == prov["version_differences"]
+    order = ["requirement", "dependency", "simulator", "worker", "stack"]
+    ranks = [order.index(d["kind"]) for d in drift]
+    kinds = {d["package"]: d["kind"] for d in drift}
+    assert ranks == sorted(ranks) and kinds["lerobot"] == kinds["python"] == "stack"
     stack_line = next(line for line in run.stdout.splitlines() if line.strip().startswith("stack:"))
-    assert all(f"{name} {published[name]} (published) vs {here[name]} (here)" in stack_line for name in differing)
+    assert all(f"{name} {published[name]} (published) vs {here[name]} (here" in stack_line for name in differing)

@@ -729,6 +729,38 @@ def test_a_venv_worker_runs_in_the_venv_built_from_the_envs_requirements(publish
     assert builds.count(venv.name) == 1
 
 
+def test_a_check_verdict_is_reused_only_with_the_packages_the_checks_ran_with(published, hub_module):
+    """The checks of one commit, in this process and in venv workers (the packages here, the publisher's): a
+    verdict is reused only where it was reached. A venv worker's numpy is not this process's (issue 29 saw a
+    worker on numpy 2.4.6 answer "cached" from a run on 2.2.6)."""
+    from hub_envs.load import worker_versions
+
+    ref = published["hostile"]
+    fingerprint = {}
+    records = {}
+    for name, kw in (
+        ("here", {}),
+        ("here again", {}),
+        ("venv", {"isolation": "venv"}),
+        ("venv again", {"isolation": "venv"}),
+        ("publisher venv", {"isolation": "venv", "versions": "publisher"}),
+    ):
+        loaded = load_env(ref, trust_remote_code=True, **kw)
+        fingerprint[name] = loaded.report.fingerprint
+        records[name] = worker_versions(loaded)
+        loaded.unregister()
+    assert "cached" not in fingerprint["here"] and "cached" in fingerprint["here again"]
+    assert "cached" not in fingerprint["venv"], "a verdict reached in this process was reused in a venv worker"
+    assert "cached" in fingerprint["venv again"] and "in the same worker venv" in fingerprint["venv again"]
+    # the publisher's venv (this stack's versions, as recorded) and the venv of the newest compatible versions:
+    # a verdict crosses between them only if they hold the very same packages
+    same = sorted(records["publisher venv"]["installed"]) == sorted(records["venv"]["installed"])
+    assert ("cached" in fingerprint["publisher venv"]) is same, (
+        records["publisher venv"]["installed"],
+        records["venv"]["installed"],
+    )
+
+
 def test_sixteen_concurrent_loaders_build_one_venv(hub_module, tmp_path):
     from hub_envs.isolation.venvs import venv_digest, venvs_root
 

@@ -393,6 +393,10 @@ def test_train_then_eval_pendulum_through_lerobot_with_provenance(hub_module, pu
     assert training["dataset"]["fingerprint"] == loaded.manifest.dataset["fingerprint"] and training["dataset"]["is_env_dataset"]
     assert prov["versions"]["lerobot"] == str(_compat.LEROBOT_VERSION) and prov["versions"]["hub-envs"]
     assert info["per_group"]["pendulum"]["n_episodes"] == 2
+    # the commands as another machine runs them: the env by repo id and sha, no path into this machine's snapshot
+    for command in (training["command"], prov["command"]):
+        assert not [a for a in command if str(loaded.path) in a], command
+        assert "--env.repo_id=alice/pendulum-pixels" in command and f"--env.revision={sha}" in command
 
 
 def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, published, tmp_path):
@@ -410,6 +414,10 @@ def test_train_then_eval_reach_with_images_and_its_action_clip(hub_module, publi
     ]
     assert prov["env"]["config"]["features"]["pixels"]["shape"] == [96, 96, 3]
     assert prov["policy"]["training"]["dataset"]["is_env_dataset"]
+    # trained with the per-repo choice (a short sha): the command records the commit in full, no snapshot path
+    command = prov["policy"]["training"]["command"]
+    assert command[:3] == ["hub-envs", "train", f"--env.type={loaded.env_type}"] and command[-1] == f"--env.revision={sha}"
+    assert not [a for a in command if str(loaded.path) in a], command
 
 
 @pytest.mark.parametrize("route", ["--env.discover_packages_path", "the lerobot_env_hub plugin"])

@@ -10,14 +10,18 @@ new code. A *modified dataset* is the same repo with one recorded value changed.
 from __future__ import annotations
 
 import json
+import os
+import shlex
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import TINY, comparable_report, copy_env, republish
+from helpers import TINY, build_wheel, comparable_report, copy_env, install_wheels, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.cli import main as cli_main
@@ -205,6 +209,131 @@ def test_a_perturbed_env_is_caught_by_the_fingerprint_replay_and_benchmark(hub, 
     # a hub-envs error is exit 1 with the message
     assert cli_main(["reproduce", "--repo_id=nobody/nothing", "--trust_remote_code=true", f"--out={tmp_path / 'x'}"]) == 1
     assert "EnvRepoNotFoundError" in capsys.readouterr().err
+
+
+def _sim_env(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
+    """Real distributions and the env that needs them: the env requires ``hub-envs-fixture-sim`` 1.0, which requires
+    ``hub-envs-fixture-physics``, whose force gain is 1.0 in version 1.0 and 1.05 in 1.1 (as mujoco is to metaworld).
+    Returns (the folder of wheels, the publisher's site folder (physics 1.0), this machine's (1.1), the env folder)."""
+    wheels = tmp_path / "wheels"
+    sim = "from hub_envs_fixture_physics import GAIN\n\n\ndef gain():\n    return GAIN\n"
+    build_wheel(
+        wheels, "hub-envs-fixture-sim", "1.0", {"hub_envs_fixture_sim/__init__.py": sim}, ("hub-envs-fixture-physics>=1.0",)
+    )
+    for version, gain in (("1.0", "1.0"), ("1.1", "1.05")):
+        build_wheel(wheels, "hub-envs-fixture-physics", version, {"hub_envs_fixture_physics/__init__.py": f"GAIN = {gain}\n"})
+    sites = [
+        install_wheels(wheels, tmp_path / site, "hub-envs-fixture-sim==1.0", f"hub-envs-fixture-physics=={version}")
+        for site, version in (("publisher-site", "1.0"), ("here-site", "1.1"))
+    ]
+    env = copy_env(
+        tmp_path,
+        name="sim_env",
+        edits={
+            "dynamics.py": lambda t: t.replace(
+                "import numpy as np\n", "import numpy as np\nfrom hub_envs_fixture_sim import gain\n"
+            ).replace("GAIN = 1.0\n", "GAIN = gain()\n"),
+            "pyproject.toml": lambda t: t.replace('"numpy>=1.26"]', '"numpy>=1.26", "hub-envs-fixture-sim>=1.0"]'),
+        },
+    )
+    # a venv worker holds the env's requirements, not lerobot: the config class goes to a module of its own
+    code = (env / "tiny.py").read_text()
+    env_part, config_part = code.split("@dataclass\n", 1)
+    (env / "tiny.py").write_text(
+        env_part.replace("from lerobot.configs.types import FeatureType, PolicyFeature\n", "")
+        .replace("from lerobot.envs.configs import EnvConfig\n", "")
+        .replace("from dataclasses import dataclass, field\n", "")
+    )
+    (env / "config.py").write_text(
+        "from dataclasses import dataclass, field\n\nfrom lerobot.configs.types import FeatureType, PolicyFeature\n"
+        "from lerobot.envs.configs import EnvConfig\n\n\n@dataclass\n" + config_part
+    )
+    project = env / "pyproject.toml"
+    project.write_text(project.read_text().replace('config = "tiny:TinyEnvConfig"', 'config = "config:TinyEnvConfig"'))
+    return wheels, sites[0], sites[1], env
+
+
+def _machine(tmp_path: Path, name: str, site: Path, wheels: Path):
+    """``hub-envs`` on another machine: its own HF_HOME and hub-envs home, ``site`` on its PYTHONPATH, uv finding the
+    fixture distributions in ``wheels`` (as it would find them on an index)."""
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("HF_", "HUGGING_FACE_", "HUB_ENVS_"))}
+        env.update(
+            HF_ENDPOINT=os.environ["HF_ENDPOINT"],
+            HF_HOME=str(tmp_path / f"{name}-home"),
+            HUB_ENVS_HOME=str(tmp_path / f"{name}-hub-envs"),
+            HF_HUB_DISABLE_TELEMETRY="1",
+            HF_HUB_DISABLE_XET="1",
+            HF_HUB_DISABLE_PROGRESS_BARS="1",
+            UV_FIND_LINKS=str(wheels),
+            PYTHONPATH=os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])]),
+        )
+        return subprocess.run(
+            [sys.executable, "-m", "hub_envs.cli", *args], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=900
+        )
+
+    return run
+
+
+def test_a_differing_dependency_is_blamed_first_and_the_publishers_versions_reproduce(hub, tmp_path):
+    """Issue 29: an env published with mujoco 3.3.0 was NOT REPRODUCED with 3.3.7, and the report blamed draccus,
+    lerobot, torch... but never mujoco, which only the manifest's ``resolved`` records. Here the simulator behind
+    the env's requirement really differs (physics 1.0 at the publisher, 1.1 here); the stack around it (draccus,
+    lerobot, torch) is recorded as another stack's. The report ranks the dependency first and names the command that runs
+    it with the publisher's versions, which reproduces (a real venv, built by uv from the recorded versions)."""
+    wheels, publisher_site, here_site, env_dir = _sim_env(tmp_path)
+    publisher = _machine(tmp_path, "publisher", publisher_site, wheels)
+    pushed = publisher("push", f"--env_dir={env_dir}", "--repo_id=alice/sim", "--episodes=2", "--workers=1", "--video=false")
+    assert pushed.returncode == 0, pushed.stdout[-2000:] + pushed.stderr[-2000:]
+
+    def as_another_stack(folder: Path) -> None:
+        manifest = json.loads((folder / "hub_env.json").read_text())
+        assert (
+            manifest["resolved"]["hub-envs-fixture-physics"] == "1.0" and "hub-envs-fixture-physics" not in manifest["versions"]
+        )
+        manifest["versions"].update({"draccus": "0.9.3", "lerobot": "0.3.3", "torch": "2.7.1"})
+        (folder / "hub_env.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+    sha = republish(hub.api, "alice/sim", as_another_stack, message="as published on another stack")
+
+    here = _machine(tmp_path, "here", here_site, wheels)
+    run = here("reproduce", "--repo_id=alice/sim", f"--revision={sha}", "--trust_remote_code=true", "--workers=1", "--out=first")
+    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-3000:]
+    assert run.stdout.startswith(f"NOT REPRODUCED: alice/sim@{sha}") and "next.reward" in run.stdout
+    stack = next(line for line in run.stdout.splitlines() if line.strip().startswith("stack:")).strip()
+    assert stack.startswith(
+        "stack: versions differ from the publisher's: hub-envs-fixture-physics 1.0 (published) vs 1.1 (here, a dependency "
+        "of its requirements), "
+    ), stack
+    assert stack.index("hub-envs-fixture-physics") < stack.index("draccus 0.9.3") < stack.index("lerobot 0.3.3")
+    report = json.loads((tmp_path / "first" / "report.json").read_text())
+    drift = report["provenance"]["version_drift"]  # ranked: the dependency first, then the stack
+    assert [(d["package"], d["kind"]) for d in drift] == [
+        ("hub-envs-fixture-physics", "dependency"),
+        ("draccus", "stack"),
+        ("lerobot", "stack"),
+        ("torch", "stack"),
+    ]
+    assert drift[0]["published"] == "1.0" and drift[0]["here"] == "1.1"
+    markdown = (tmp_path / "first" / "report.md").read_text()
+    assert (
+        "## Versions that differ" in markdown
+        and "| hub-envs-fixture-physics | 1.0 | 1.1 | a dependency of its requirements |" in markdown
+    )
+
+    command = next(line for line in run.stdout.splitlines() if "with the publisher's versions, run:" in line)
+    command = command.split("run: ", 1)[1]
+    assert command == (
+        f"hub-envs reproduce --repo_id=alice/sim --revision={sha} --trust_remote_code=true --isolation=venv --versions=publisher"
+    )
+    args = shlex.split(command)[2:]
+    again = here("reproduce", *args, "--workers=1", "--out=again")
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert again.stdout.startswith(f"REPRODUCED: alice/sim@{sha}") and "with the publisher's versions, run" not in again.stdout
+    worker = json.loads((tmp_path / "again" / "report.json").read_text())["provenance"]
+    assert "hub-envs-fixture-physics==1.0" in worker["worker"]["installed"]
+    assert [d["package"] for d in worker["version_drift"]] == ["draccus", "lerobot", "torch"]  # the env's own: the publisher's
 
 
 def report_dataset(report) -> Path:

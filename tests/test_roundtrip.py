@@ -362,6 +362,21 @@ def test_checks_that_passed_are_reused_for_the_same_sha_and_packages(hub):
     assert "cached" not in other_settings.report.fingerprint and other_settings.report.features.steps == 5
 
 
+def test_hub_envs_load_says_how_to_recheck_and_its_recheck_flag_runs_the_checks(hub, capsys):
+    from hub_envs.cli import main as cli_main
+
+    sha = _push(TINY, "alice/tiny-recheck").sha
+    args = ["load", f"--repo_id=alice/tiny-recheck@{sha}", "--trust_remote_code=true"]
+    assert cli_main(args) == 0
+    assert "cached" not in capsys.readouterr().out
+    assert cli_main(args) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("fingerprint:"))
+    assert "cached: passed on" in line and "hub-envs load --recheck=true" in line  # the flag the message names exists
+    assert cli_main([*args, "--recheck=true"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("fingerprint:"))
+    assert line.split()[1] == "matches" and "cached" not in line
+
+
 def test_a_failed_reload_leaves_the_earlier_load_working(hub):
     import sys
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs.harness.benchmark import BenchmarkResult
+from hub_envs.harness.provenance import DRIFT_KINDS, difference_text
 from hub_envs.harness.replay import ReplayResult
 from hub_envs.harness.report_files import REPORT_JSON, REPORT_MD, REPORT_PNG, ReportFiles, save_figure, seeds_text
 
@@ -89,15 +90,42 @@ class ReproduceReport(ReportFiles):
 
     @property
     def version_differences(self) -> dict[str, list[str]]:
+        """``{package: [published, here]}`` for every recorded version that differs, the most suspect first."""
+        drift = self.provenance.get("version_drift")
+        if drift is not None:
+            return {d["package"]: [d["published"], d["here"]] for d in drift}
         return dict(self.provenance.get("version_differences") or {})
 
+    @property
+    def version_kinds(self) -> dict[str, str]:
+        """What each differing package is to the env (a key of :data:`hub_envs.harness.provenance.DRIFT_KINDS`)."""
+        return {d["package"]: d["kind"] for d in self.provenance.get("version_drift") or []}
+
     def versions_note(self) -> str:
+        """Which recorded versions differ from those the env ran with here, the most suspect first (the env's
+        requirements and their dependencies, the simulator, numpy and gymnasium, then the rest of the stack)."""
         diffs = self.version_differences
         if not diffs:
             return "no package version differs from the publisher's"
-        return "versions differ from the publisher's: " + ", ".join(
-            f"{k} {a} (published) vs {b} (here)" for k, (a, b) in diffs.items()
-        )
+        return "versions differ from the publisher's: " + difference_text(diffs, self.version_kinds)
+
+    def publisher_versions_command(self) -> str | None:
+        """When the reproduction failed while versions the env runs on differ (not only the stack around it, such as
+        lerobot or torch) and it did not already run with the publisher's: the command that runs it again in a venv
+        of the versions the publisher recorded (``--isolation=venv --versions=publisher``), else None."""
+        diffs, kinds = self.version_differences, self.version_kinds
+        env_side = [k for k in diffs if kinds.get(k, "stack") != "stack" or k == "python"]
+        if self.reproduced or not env_side or self.settings.get("versions") == "publisher":
+            return None
+        flags = ["--trust_remote_code=true", "--isolation=venv", "--versions=publisher"]
+        if "sandbox" in str(self.settings.get("isolation", "")):
+            flags.append("--sandbox=true")
+        if self.settings.get("tolerance"):
+            flags.append(f"--tolerance={self.settings['tolerance']:g}")
+        flags += [f"--{part}=false" for part in ("replay", "benchmarks") if self.settings.get(part) is False]
+        if self.settings.get("source") == "folder":
+            return "hub-envs reproduce --repo_id=<the folder> " + " ".join(flags)
+        return f"hub-envs reproduce --repo_id={self.repo_id} --revision={self.sha} " + " ".join(flags)
 
     # -- text --
 
@@ -128,6 +156,9 @@ class ReproduceReport(ReportFiles):
             + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else "")
         )
         lines.append(f"  stack: {self.versions_note()}")
+        command = self.publisher_versions_command()
+        if command:
+            lines.append(f"  with the publisher's versions, run: {command}")
         for note in self.notes:
             lines.append(f"  note: {note}")
         return "\n".join(lines)
@@ -221,6 +252,27 @@ class ReproduceReport(ReportFiles):
             f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""),
             "",
         ]
+        if self.version_differences:
+            out += [
+                "## Versions that differ",
+                "",
+                "The most suspect first: the env's requirements and their dependencies, the simulator, numpy and gymnasium, "
+                "then the rest of the stack.",
+                "",
+                "| package | published with | here | what it is |",
+                "|---|---|---|---|",
+            ]
+            for name, (a, b) in self.version_differences.items():
+                out.append(f"| {name} | {a} | {b} | {DRIFT_KINDS.get(self.version_kinds.get(name, ''), '')} |")
+            out.append("")
+            command = self.publisher_versions_command()
+            if command:
+                out += [
+                    "Run it again with the publisher's versions (a venv of what the manifest records):",
+                    "",
+                    f"    {command}",
+                    "",
+                ]
         if self.notes:
             out += ["## Notes", ""] + [f"- {n}" for n in self.notes] + [""]
         out += [
@@ -240,8 +292,8 @@ class ReproduceReport(ReportFiles):
             "| package | published with | here | |",
             "|---|---|---|---|",
         ]
-        published = p.get("versions_published", {}) or {}
-        here = p.get("versions_here", {}) or {}
+        published = {**(p.get("versions_published") or {}), **(p.get("closure_published") or {})}
+        here = {**(p.get("versions_here") or {}), **(p.get("closure_here") or {})}
         for name in sorted(set(published) | set(here)):
             a, b = published.get(name, "-"), here.get(name, "-")
             out.append(f"| {name} | {a} | {b} | {'**differs**' if name in self.version_differences else ''} |")

@@ -144,6 +144,29 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
     return argv, loaded
 
 
+def portable_argv(argv: list[str], loaded: Any) -> list[str]:
+    """The flags as typed (``argv``, before :func:`prepare_argv`), as another machine can run them again: the env
+    pinned to the commit that ran (``--env.revision=<sha>``, whatever branch or short sha was typed), and no path into
+    this machine's snapshot of it (the ``--dataset.root`` of the env's own dataset, which hub-envs adds again from
+    the repo id and sha). What a provenance file records as ``command``.
+
+    >>> class Loaded: revision, path, is_local = "ab" * 20, Path("/cache/snapshots/ab"), False
+    >>> portable_argv(["--env.type=hub", "--env.repo_id=u/e", "--env.revision=main", "--dataset.root=/cache/snapshots/ab/dataset"], Loaded)
+    ['--env.type=hub', '--env.repo_id=u/e', '--env.revision=abababababababababababababababababababab']
+    """
+    if loaded is None or loaded.is_local:
+        return list(argv)
+    snapshot = Path(loaded.path)
+    out = []
+    for arg in argv:
+        if arg.startswith("--dataset.root=") and Path(arg.split("=", 1)[1]).is_relative_to(snapshot):
+            continue
+        if arg.startswith("--env.revision=") or arg == "--env.revision":
+            continue
+        out.append(arg)
+    return [*out, f"--env.revision={loaded.revision}"]
+
+
 def _has_video(dataset_meta_root) -> bool:
     from hub_envs.dataset.reader import read_info
 
@@ -273,6 +296,7 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
+    """What ``hub-envs train`` records beside the checkpoints; ``argv``: the command's flags (:func:`portable_argv`)."""
     env = env_provenance(cfg.env) if cfg.env is not None else None
     return {
         "hub_envs_provenance": 1,
@@ -335,7 +359,8 @@ def train_cli(argv: list[str]) -> int:
             f"hub-envs train runs LeRobot's training loop, which needs {', '.join(missing)} (LeRobot's 'training' extra). "
             f"Install it: pip install 'lerobot[training]'  (or: pip install 'hub-envs[train]')"
         )
-    argv, _ = prepare_argv(argv, command="train")
+    typed = list(argv)
+    argv, loaded = prepare_argv(argv, command="train")
     from lerobot.configs.train import TrainPipelineConfig
     from lerobot.scripts.lerobot_train import train
     from lerobot.utils.import_utils import register_third_party_plugins
@@ -344,7 +369,7 @@ def train_cli(argv: list[str]) -> int:
 
     def body(cfg):
         train(cfg)  # LeRobot's own training loop (cfg.validate() runs inside)
-        prov = train_provenance(cfg, argv)
+        prov = train_provenance(cfg, portable_argv(typed, loaded))
         _write_json(Path(cfg.output_dir) / PROVENANCE_FILE, prov)
         for model_dir in sorted(Path(cfg.output_dir).glob("checkpoints/*/pretrained_model")):
             if not model_dir.parent.is_symlink():
@@ -358,7 +383,8 @@ def train_cli(argv: list[str]) -> int:
 @_forgets_cli_consent
 def eval_cli(argv: list[str]) -> int:
     """``hub-envs eval <LeRobot's lerobot-eval flags>``."""
-    argv, _ = prepare_argv(argv, command="eval")
+    typed = list(argv)
+    argv, loaded = prepare_argv(argv, command="eval")
     from lerobot.configs.eval import EvalPipelineConfig
     from lerobot.scripts.lerobot_eval import eval_main
     from lerobot.utils.import_utils import register_third_party_plugins
@@ -369,7 +395,7 @@ def eval_cli(argv: list[str]) -> int:
 
     def body(cfg):
         eval_main(cfg)  # LeRobot's own eval loop; writes eval_info.json
-        prov = eval_provenance(cfg, argv)
+        prov = eval_provenance(cfg, portable_argv(typed, loaded))
         out = Path(cfg.output_dir)
         _write_json(out / PROVENANCE_FILE, prov)
         info_path = out / "eval_info.json"
