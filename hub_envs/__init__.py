@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+from hub_envs._version import __version__
 
 _EXPORTS = {
     "load_env": "hub_envs.load",

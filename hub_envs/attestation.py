@@ -31,6 +31,7 @@ import datetime as _dt
 import hashlib
 import json
 import logging
+import platform
 import re
 import shutil
 import subprocess
@@ -40,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hub_envs._stack import CORE_PACKAGES, cpu_model, requirement_closure
 from hub_envs._text import safe_text
 from hub_envs.errors import AttestationError, ConfigError, HostileResponseError, HubError
 from hub_envs.repo_format import REPRODUCTIONS_DIR, is_attestation_file
@@ -80,10 +82,6 @@ def stack_digest(stack: dict[str, Any]) -> str:
 def current_stack(provenance: dict[str, Any], requirements: tuple[str, ...] | list[str]) -> dict[str, Any]:
     """The stack a reproduction ran on: python, platform, CPU model, the packages it depends on (core, simulator,
     the env's requirement closure). ``provenance`` is the report's (its ``versions_here`` honour a venv worker)."""
-    import platform
-
-    from hub_envs.harness.provenance import CORE_PACKAGES, cpu_model, requirement_closure
-
     here = dict(provenance.get("versions_here") or {})
     python = here.pop("python", platform.python_version())
     simulator = {k: v for k, v in here.items() if k not in CORE_PACKAGES}

@@ -35,6 +35,7 @@ import numpy as np
 
 from hub_envs import hub_io
 from hub_envs._compat import LEROBOT_VIDEO_GOP
+from hub_envs._stack import requirement_closure
 from hub_envs.backends import Backend, LocalBackend, make_backend
 from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.layout import CODEBASE_VERSION, HUB_ENVS_META_PATH
@@ -62,7 +63,7 @@ from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import render_size_overrides, write_rollout_media
-from hub_envs.harness.provenance import package_versions, requirement_closure
+from hub_envs.harness.provenance import package_versions
 from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
 from hub_envs.repo_format import (

@@ -50,6 +50,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from hub_envs._text import safe_text
+from hub_envs._version import __version__
 from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
 
 #: The manifest format this hub-envs writes; it reads every format from 1 up to this one.
@@ -527,8 +528,6 @@ def _check_benchmark(entry: dict, where: str) -> None:
 
 def _newer_format_message(data: dict, version: int, where: str) -> str:
     """A manifest from a newer hub-envs: name the version that wrote it, and the upgrade that reads it."""
-    from hub_envs import __version__
-
     versions = data.get("versions")
     writer = versions.get("hub-envs") if isinstance(versions, dict) and isinstance(versions.get("hub-envs"), str) else None
     by = f"hub-envs {safe_text(writer)}" if writer else "a newer hub-envs"
@@ -628,11 +627,7 @@ class Manifest:
             safe_relpath(data["dataset"]["path"], where=f"{where} dataset.path")
         record = data.get("dataset", {}).get("dataset_repo", {})  # the dataset repo commit holding the same dataset
         if not isinstance(record, dict) or (
-            record
-            and not (
-                repo_id_problem(record.get("repo_id")) is None
-                and is_commit_sha(record.get("revision"))
-            )
+            record and not (repo_id_problem(record.get("repo_id")) is None and is_commit_sha(record.get("revision")))
         ):
             raise ManifestError(
                 f"{where}: dataset.dataset_repo {safe_text(repr(record))[:200]} must name a dataset repo ('user/name') and a "

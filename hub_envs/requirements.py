@@ -22,26 +22,8 @@ from dataclasses import dataclass
 from packaging.requirements import InvalidRequirement, Requirement
 from packaging.utils import canonicalize_name
 
+from hub_envs._stack import installed_version
 from hub_envs.errors import ManifestError, MissingRequirementsError, RequirementStandInWarning
-
-
-def installed_version(name: str) -> str | None:
-    """The installed version of distribution ``name``, or None.
-
-    Same answer as ``importlib.metadata.version`` but reads only the header of METADATA instead of
-    parsing the whole file (long descriptions make that ~1 ms per package, on every load_env).
-    """
-    try:
-        dist = md.distribution(name)
-    except md.PackageNotFoundError:
-        return None
-    text = dist.read_text("METADATA") or dist.read_text("PKG-INFO") or ""
-    for line in text.splitlines():
-        if not line:
-            break  # end of the headers
-        if line.startswith("Version:"):
-            return line[len("Version:") :].strip()
-    return dist.version
 
 
 @dataclass(frozen=True)

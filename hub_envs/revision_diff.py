@@ -46,6 +46,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs._flags import CodeFlags, CodeRun, call_with_flags, code_run
+from hub_envs._version import __version__
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
 from hub_envs.repo_format import (
@@ -660,7 +661,6 @@ def diff(
     Raises:
         hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
     """
-    from hub_envs import __version__
     from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
     from hub_envs.harness.provenance import versions_run_with
     from hub_envs.harness.replay import _env_actions

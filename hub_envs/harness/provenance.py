@@ -13,15 +13,14 @@ from __future__ import annotations
 
 import datetime as _dt
 import platform
-from importlib import metadata
 from typing import Any
 
 from packaging.requirements import InvalidRequirement, Requirement
 from packaging.utils import canonicalize_name
 
-from hub_envs.requirements import installed_version
+from hub_envs._stack import CORE_PACKAGES, installed_version, requirement_closure
+from hub_envs._version import __version__
 
-CORE_PACKAGES = ("numpy", "gymnasium", "lerobot", "torch", "huggingface_hub", "draccus", "hub-envs")
 #: physics engines (PyPI names): among the packages a rollout depends on, the first suspects when it drifts
 SIMULATORS = frozenset(
     {"mujoco", "mujoco-mjx", "pybullet", "dm-control", "box2d", "box2d-py", "pymunk", "brax", "sapien", "genesis-world"}
@@ -111,8 +110,6 @@ def run_provenance(loaded: Any) -> dict[str, Any]:
     """What every report of a run on ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) records first: the repo, the
     revision asked for and the sha it resolved to, the content digest, the published dataset fingerprint, the
     package versions the env's code ran with (:func:`versions_run_with`), hub-envs' version and when."""
-    from hub_envs import __version__
-
     m = loaded.manifest
     return {
         "repo_id": loaded.repo_id,
@@ -124,64 +121,6 @@ def run_provenance(loaded: Any) -> dict[str, Any]:
         "hub_envs_version": __version__,
         "generated_at": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
     }
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo`` on Linux, ``sysctl`` on macOS), else ``platform.processor()``."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.lower().startswith(("model name", "hardware", "cpu model")):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    if platform.system() == "Darwin":
-        import subprocess
-
-        try:
-            out = subprocess.run(["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True, timeout=5)
-            if out.returncode == 0 and out.stdout.strip():
-                return out.stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            pass
-    return platform.processor() or platform.machine() or "unknown"
-
-
-def requirement_closure(
-    requirements: tuple[str, ...] | list[str] = (), *, also: tuple[str, ...] = ("numpy", "gymnasium")
-) -> dict[str, str]:
-    """The installed version of every distribution ``requirements`` (and ``also``: what an env worker needs
-    itself) pull in, transitively, with environment markers and extras evaluated as pip would here:
-    ``{canonical name: version}``. What ``versions="publisher"`` pins beyond the requirements themselves.
-    A requirement that is not installed is left out (the preflight reports it)."""
-    pending: list[tuple[Requirement, frozenset[str]]] = []
-    for text in [*requirements, *also]:
-        try:
-            pending.append((Requirement(text), frozenset({""})))
-        except InvalidRequirement:
-            continue
-    closure: dict[str, str] = {}
-    extras_seen: dict[str, set[str]] = {}
-    while pending:
-        req, parent_extras = pending.pop()
-        if req.marker is not None and not any(req.marker.evaluate({"extra": e}) for e in parent_extras):
-            continue
-        name = canonicalize_name(req.name)
-        wanted = set(req.extras) | {""}
-        if name in closure and wanted <= extras_seen[name]:
-            continue
-        try:
-            dist = metadata.distribution(name)
-        except metadata.PackageNotFoundError:
-            continue
-        closure[name] = dist.version
-        extras_seen.setdefault(name, set()).update(wanted)
-        for text in dist.requires or ():
-            try:
-                pending.append((Requirement(text), frozenset(extras_seen[name])))
-            except InvalidRequirement:
-                continue
-    return dict(sorted(closure.items()))
 
 
 def version_differences(recorded: dict[str, str], current: dict[str, str]) -> dict[str, tuple[str, str]]:
