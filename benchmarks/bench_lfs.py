@@ -74,9 +74,10 @@ def cold_load_big_vs_small(tmp: Path, big_mb: int, repeats: int) -> dict:
 
     from huggingface_hub import snapshot_download
 
-    from hub_envs import hub_io, load_env, push_env
-    from hub_envs.importing import forget_env_folder, module_key
-    from hub_envs.repo_format import MANIFEST_FILE
+    from hub_envs import load_env, push_env
+    from hub_envs.envcode.importing import forget_env_folder, module_key
+    from hub_envs.repo import hub_io
+    from hub_envs.repo.format import MANIFEST_FILE
 
     repo_root = Path(__file__).resolve().parent.parent
     with HubServer(tmp / "hub-cold") as server:

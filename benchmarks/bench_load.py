@@ -54,7 +54,7 @@ def _warm_sample(which: str, ref: str, endpoint: str, home: str, check: bool) ->
 
     with hub_environment(endpoint, home):
         if which == "hub_envs":
-            from hub_envs.load import load_env
+            from hub_envs.loading.load import load_env
 
             t = time.perf_counter()
             loaded = load_env(ref, trust_remote_code=True, check=check)
@@ -75,7 +75,7 @@ class FreshProcesses:
         import gymnasium  # noqa: F401  - what both loaders import before any env
         import lerobot.envs.factory  # noqa: F401
 
-        import hub_envs.load  # noqa: F401
+        import hub_envs.loading.load  # noqa: F401
         import hub_envs.testing  # noqa: F401
 
         ctx = multiprocessing.get_context("fork")
@@ -180,9 +180,9 @@ def _bare_import(path: Path, manifest, name: str) -> tuple:
 def cold_load(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> dict:
     from huggingface_hub import snapshot_download
 
-    from hub_envs.importing import forget_env_folder, module_key
-    from hub_envs.load import load_env
-    from hub_envs.repo_format import Manifest
+    from hub_envs.envcode.importing import forget_env_folder, module_key
+    from hub_envs.loading.load import load_env
+    from hub_envs.repo.format import Manifest
     from hub_envs.testing import hub_environment
 
     ours, bare, stages = [], [], []
@@ -225,9 +225,9 @@ def first_files(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> 
 
     from huggingface_hub import HfApi, hf_hub_download
 
-    from hub_envs import hub_io
-    from hub_envs.load import _needed_first
-    from hub_envs.repo_format import HUB_FILES, is_on_demand_file
+    from hub_envs.loading.load import _needed_first
+    from hub_envs.repo import hub_io
+    from hub_envs.repo.format import HUB_FILES, is_on_demand_file
     from hub_envs.testing import hub_environment
 
     with hub_environment(endpoint, tmp / "first-list"):
@@ -299,7 +299,7 @@ def profile_load(ref: str) -> None:
     import cProfile
     import pstats
 
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     prof = cProfile.Profile()
     prof.enable()

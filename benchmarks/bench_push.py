@@ -35,7 +35,7 @@ ENVS = ("pendulum", "hover")
 
 def _build_once(name: str, episodes: int) -> tuple[float, int]:
     from hub_envs import load_env
-    from hub_envs.push import build_repo
+    from hub_envs.publishing.push import build_repo
 
     loaded = load_env(REPO / "envs" / name, check=False)
     cls = loaded.env_class

@@ -51,7 +51,7 @@ def _side_by_side(repo: str, backend, repeats: int, kw: dict) -> tuple[list[floa
 
 def run(repeats: int = 2, verbose: bool = True, niceness: bool = False) -> dict:
     from hub_envs import push_env, reproduce
-    from hub_envs._ray_backend import RayBackend
+    from hub_envs.backends.ray import RayBackend
     from hub_envs.testing import HubServer, hub_environment
 
     out: dict = {"episodes": EPISODES, "episode_length": EPISODE_LENGTH, "load_average_before": os.getloadavg()}

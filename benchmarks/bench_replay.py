@@ -11,7 +11,7 @@ Measured side by side in each repeat (medians over ``repeats``):
 * ``replay``: :func:`hub_envs.harness.replay.replay_dataset` on 1 worker: read the dataset, replay every
   episode through the rollout engine, compare every observation, reward, done/success flag and
   recorded state exactly. steps/s = replayed env steps / wall time.
-* ``reproduce_w1`` / ``reproduce_w2``: the whole :func:`hub_envs.reproduction` (load, fingerprint,
+* ``reproduce_w1`` / ``reproduce_w2``: the whole :func:`hub_envs.operations.reproduce` (load, fingerprint,
   replay, benchmark re-run, reports) on ``hover`` with 1 and 2 worker processes.
 
 Figures: ``replay_vs_raw`` = min over variants of replay / raw (goal >= 0.8);

@@ -204,4 +204,4 @@ class StatesNotRecordedWarning(HubEnvsWarning):
 
 class RequirementStandInWarning(HubEnvsWarning):
     """A requirement is not installed under its own name, but another installed distribution provides its import
-    name (``pygame-ce`` for ``pygame``): the preflight takes it as standing in (see :mod:`hub_envs.requirements`)."""
+    name (``pygame-ce`` for ``pygame``): the preflight takes it as standing in (see :mod:`hub_envs.repo.requirements`)."""

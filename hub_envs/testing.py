@@ -395,11 +395,11 @@ def add_random_data_files(folder: Path, count: int, mib_each: int, *, chunk: str
     ``count`` files of ``mib_each`` MiB of random bytes under ``dataset/data/<chunk>/``, listed in its manifest (the
     files and the content digest updated), as a large camera dataset would be; returns ``{path: sha256}``. For
     tests and benchmarks of the Hub at real sizes (the bytes are not parquet: they are fetched and verified, not
-    decoded). Publish the folder with :func:`hub_envs.hub_io.publish_folder`."""
+    decoded). Publish the folder with :func:`hub_envs.repo.hub_io.publish_folder`."""
     import hashlib
     import json
 
-    from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, content_digest
+    from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, content_digest
 
     manifest = json.loads((folder / MANIFEST_FILE).read_text())
     added = {}

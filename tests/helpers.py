@@ -15,7 +15,7 @@ from pathlib import Path
 
 from huggingface_hub import HfApi, snapshot_download
 
-from hub_envs.repo_format import MANIFEST_FILE, content_digest, hash_files, list_files
+from hub_envs.repo.format import MANIFEST_FILE, content_digest, hash_files, list_files
 
 FIXTURES = Path(__file__).parent / "fixtures"
 TINY = FIXTURES / "tiny_env"

@@ -27,8 +27,8 @@ from lying_endpoint import LyingEndpoint
 from ray.cluster_utils import Cluster
 
 from hub_envs import errors, evaluate, load_env, push_env, reproduce
-from hub_envs._ray_backend import RayBackend
 from hub_envs.backends import LocalBackend, make_backend
+from hub_envs.backends.ray import RayBackend
 from hub_envs.testing import hub_environment
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"

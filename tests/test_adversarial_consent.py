@@ -19,9 +19,9 @@ from lying_endpoint import LyingEndpoint
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, trust
 from hub_envs._compat import HF_HUB_MAJOR
-from hub_envs.hub_io import parse_repo_ref
-from hub_envs.load import UnpinnedRevisionWarning
+from hub_envs.loading.load import UnpinnedRevisionWarning
 from hub_envs.paths import hub_envs_home
+from hub_envs.repo.hub_io import parse_repo_ref
 from hub_envs.testing import hub_environment
 
 PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
@@ -272,9 +272,9 @@ def test_a_cached_snapshot_linking_outside_its_blobs_or_holding_extra_files_is_r
 
 def test_the_trust_function_is_importable_from_the_package():
     import hub_envs
-    import hub_envs.trust_list  # noqa: F401  (importing the module must not shadow the function)
+    import hub_envs.repo.trust_list  # noqa: F401  (importing the module must not shadow the function)
 
-    assert callable(hub_envs.trust) and hub_envs.trust is hub_envs.trust_list.trust
+    assert callable(hub_envs.trust) and hub_envs.trust is hub_envs.repo.trust_list.trust
 
 
 @pytest.mark.parametrize("ref", ["user/name\n", "user/name\x1b[2J", "user/naïve", "./user/name", "/abs/name", "~/x/y"])

@@ -27,7 +27,7 @@ from helpers import TINY, copy_env, republish
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.paths import hub_envs_home
-from hub_envs.repo_format import MANIFEST_FILE, Manifest, check_names_belong_to, content_digest, hash_files, list_files, safe_text
+from hub_envs.repo.format import MANIFEST_FILE, Manifest, check_names_belong_to, content_digest, hash_files, list_files, safe_text
 
 PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
 
@@ -181,7 +181,7 @@ def test_an_extension_module_under_dataset_is_never_imported(hub, tmp_path, mark
 def test_every_folder_of_env_code_imports_its_sources_only(tmp_path, marker, sub):
     """The finder layer on its own (what runs if a .pyc ever got past the manifest): a package folder
     anywhere below the env's code, dataset/ and media/ included, never has its __pycache__ read."""
-    from hub_envs.importing import forget_env_folder, import_env_folder
+    from hub_envs.envcode.importing import forget_env_folder, import_env_folder
 
     folder = copy_env(tmp_path, name="env-with-sub")
     (folder / sub).mkdir(parents=True)
@@ -574,7 +574,7 @@ def test_an_edited_checker_never_reuses_the_cached_verdicts(tmp_path):
     """The check cache's key covers hub-envs' own sources: editing any module of the package (an editable install
     under development, a ``git checkout``) changes it, so verdicts reached by other checking code are not reused;
     an untouched tree keeps its key (the cache works)."""
-    from hub_envs import check_cache
+    from hub_envs.loading import check_cache
 
     tree = tmp_path / "hub_envs"
     shutil.copytree(Path(check_cache.__file__).resolve().parent, tree, ignore=shutil.ignore_patterns("__pycache__"))

@@ -3,10 +3,10 @@
 * A repo id with a trailing newline was accepted, three reports running: the Python API refused it only where it
   went through ``parse_repo_ref``, the commands' flags lost the newline in draccus' YAML reading and went on with
   ``user/name``, and the server stored a repo named ``name\\n``. Every entry that takes a repo id now applies one
-  rule (:func:`hub_envs.repo_format.repo_id_problem`) and refuses with a ConfigError naming the value's ``repr`` and
+  rule (:func:`hub_envs.repo.format.repo_id_problem`) and refuses with a ConfigError naming the value's ``repr`` and
   the rule; each entry is tested here.
 * ``compare --policies=user/name`` took a same-named local folder for the caller's own checkpoint, without consent;
-  policies now follow the envs' rule (:func:`hub_envs.hub_io.local_path`): ``user/name`` always means the Hub.
+  policies now follow the envs' rule (:func:`hub_envs.repo.hub_io.local_path`): ``user/name`` always means the Hub.
 
 Against one real loopback Hub per module, with a published env ``user/name``: on the old code, the ids below that lost
 their newline loaded or listed that very repo.
@@ -25,7 +25,7 @@ from helpers import TINY
 
 from hub_envs import errors, push_env
 from hub_envs.cli import main as cli_main
-from hub_envs.repo_format import REPO_ID_RULE
+from hub_envs.repo.format import REPO_ID_RULE
 
 BAD = "user/name\n"
 SHOWN = repr(BAD)  # what the message shows: 'user/name\n', escaped
@@ -38,7 +38,7 @@ def published(hub_module) -> str:
 
 def _api_entries(sha: str) -> dict:
     import hub_envs
-    from hub_envs import attestation
+    from hub_envs.repo import attestations as attestation
 
     return {
         "load_env": lambda: hub_envs.load_env(BAD, revision=sha, trust_remote_code=True, check=False),
@@ -113,7 +113,7 @@ def test_the_server_refuses_a_repo_name_with_a_trailing_newline(hub_module):
 
 
 def test_a_manifest_repo_id_with_a_trailing_newline_is_refused(tmp_path):
-    from hub_envs.repo_format import MANIFEST_FILE, Manifest
+    from hub_envs.repo.format import MANIFEST_FILE, Manifest
 
     data = json.loads(_published_manifest_text())
     data["repo_id"] = BAD
@@ -126,7 +126,7 @@ def _published_manifest_text() -> str:
     """A valid manifest: the tiny env's, as push_env writes it (read from the module's published repo)."""
     from huggingface_hub import hf_hub_download
 
-    from hub_envs.repo_format import MANIFEST_FILE
+    from hub_envs.repo.format import MANIFEST_FILE
 
     return Path(hf_hub_download("user/name", MANIFEST_FILE)).read_text()
 
@@ -149,7 +149,7 @@ def policy_repo_and_folder(hub_module, tmp_path, monkeypatch) -> str:
 
 
 def test_compare_takes_user_name_from_the_hub_even_when_a_folder_of_that_name_exists(policy_repo_and_folder):
-    from hub_envs.policy_compare import policy_spec
+    from hub_envs.operations.compare import policy_spec
 
     with pytest.warns(UserWarning, match=r"'\./mallory/policy'"):
         spec = policy_spec("mallory/policy")
@@ -158,7 +158,7 @@ def test_compare_takes_user_name_from_the_hub_even_when_a_folder_of_that_name_ex
 
 @pytest.mark.parametrize("written", ["./mallory/policy", "ABS", "mallory/policy/", "PATH"])
 def test_compare_takes_a_folder_written_as_a_path(policy_repo_and_folder, tmp_path, written):
-    from hub_envs.policy_compare import policy_spec
+    from hub_envs.operations.compare import policy_spec
 
     folder = tmp_path / "mallory" / "policy"
     given = {"ABS": str(folder), "PATH": folder}.get(written, written)
@@ -172,7 +172,7 @@ def test_envs_and_policies_share_one_rule_for_local_folders(policy_repo_and_fold
     """The same text means the same thing to load_env and to compare: ``user/name`` the Hub, a path a folder; a bare
     name or a deeper relative path (``outputs/train/.../pretrained_model``, which no repo id looks like) a folder
     when one exists."""
-    from hub_envs.hub_io import local_path
+    from hub_envs.repo.hub_io import local_path
 
     deep = tmp_path / "outputs" / "train" / "pretrained_model"
     deep.mkdir(parents=True)

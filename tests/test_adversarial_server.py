@@ -618,7 +618,7 @@ def test_a_server_can_store_bytecode_like_the_real_hub_to_test_clients(tmp_path)
 
 
 def test_server_and_repo_format_agree_on_the_manifest_name():
-    from hub_envs.repo_format import MANIFEST_FILE
+    from hub_envs.repo.format import MANIFEST_FILE
     from hub_envs.server.formats import ENV_MANIFEST
 
     assert ENV_MANIFEST == MANIFEST_FILE

@@ -19,8 +19,8 @@ from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi, hf
 from huggingface_hub.errors import HfHubHTTPError
 
 from hub_envs import diff, errors, load_env, push_env, reproduce
-from hub_envs.attestation import Attestation, attest, collect_attestations, stack_digest
 from hub_envs.cli import main as cli_main
+from hub_envs.repo.attestations import Attestation, attest, collect_attestations, stack_digest
 from hub_envs.testing import hub_environment
 
 BOB_TOKEN = "hf_bob_attest_token"
@@ -243,7 +243,7 @@ def test_a_merged_attestation_leaves_main_and_every_later_commit_loadable(hub_tw
 def test_files_beyond_the_manifest_are_still_refused_unless_they_are_attestations(hub_two_users, tmp_path):
     """The one rule (repo_format.beyond_manifest) accepts reproductions/<name>.json and .json.sig only: code or any other
     file a merged pull request adds is still refused by a load."""
-    from hub_envs.repo_format import beyond_manifest  # new: imported here so the module still imports on older main
+    from hub_envs.repo.format import beyond_manifest  # new: imported here so the module still imports on older main
 
     repo, api = "alice/att-strict", hub_two_users.api
     push_env(TINY, repo, episodes=2, progress=False)

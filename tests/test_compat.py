@@ -55,7 +55,7 @@ def test_env_config_choices_is_lerobots_live_registry():
 def test_processor_step_names_lists_lerobots_registry_and_ours():
     from lerobot.processor.pipeline import ProcessorStepRegistry
 
-    import hub_envs.processors  # noqa: F401  (registers hub-envs' built-in steps)
+    import hub_envs.loading.processors  # noqa: F401  (registers hub-envs' built-in steps)
 
     names = _compat.processor_step_names()
     assert "hub_envs/clip_action" in names

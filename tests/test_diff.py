@@ -14,7 +14,7 @@ from helpers import TINY, copy_env, republish
 
 from hub_envs import diff, errors, push_env
 from hub_envs.cli import main as cli_main
-from hub_envs.registration import snapshot_registries
+from hub_envs.envcode.registration import snapshot_registries
 
 
 def _push(path, repo_id):

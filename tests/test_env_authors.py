@@ -16,8 +16,8 @@ import pytest
 from helpers import build_wheel, copy_env, install_wheels
 
 from hub_envs import errors, load_env, push_env
-from hub_envs.registration import snapshot_registries
-from hub_envs.requirements import check_requirements, unmet_requirements
+from hub_envs.envcode.registration import snapshot_registries
+from hub_envs.repo.requirements import check_requirements, unmet_requirements
 
 #: gymnasium's own id, which the "robotics" package below registers again with an entry of its own
 TAKEN = "CartPole-v1"

@@ -28,7 +28,7 @@ from lerobot.configs.types import FeatureType
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
 
-from hub_envs.importing import import_env_folder, resolve_entry_point
+from hub_envs.envcode.importing import import_env_folder, resolve_entry_point
 
 ENVS_DIR = Path(__file__).resolve().parents[1] / "envs"
 NAMES = ("pendulum", "hover", "reach")
@@ -246,7 +246,7 @@ def test_same_seed_same_rollout_in_a_new_process():
             "import hashlib, json, sys, tomllib",
             "from pathlib import Path",
             "import numpy as np",
-            "from hub_envs.importing import import_env_folder, resolve_entry_point",
+            "from hub_envs.envcode.importing import import_env_folder, resolve_entry_point",
             f"ENVS_DIR = Path({str(ENVS_DIR)!r})",
             *(inspect.getsource(f) for f in (manifest, load_env_class, actions_for, rollout, digest)),
             "for config_id, (name, kwargs) in json.loads(sys.argv[1]).items():",

@@ -733,7 +733,7 @@ def test_a_check_verdict_is_reused_only_with_the_packages_the_checks_ran_with(pu
     """The checks of one commit, in this process and in venv workers (the packages here, the publisher's): a
     verdict is reused only where it was reached. A venv worker's numpy is not this process's (issue 29 saw a
     worker on numpy 2.4.6 answer "cached" from a run on 2.2.6)."""
-    from hub_envs.load import worker_versions
+    from hub_envs.loading.load import worker_versions
 
     ref = published["hostile"]
     fingerprint = {}
@@ -820,7 +820,7 @@ def test_versions_publisher_pins_the_recorded_versions_and_python(published, hub
         assert seen["numpy"] == "2.3.5" and "/venvs/" in seen["prefix"]
     finally:
         env.close()
-    from hub_envs.load import worker_versions
+    from hub_envs.loading.load import worker_versions
 
     record = worker_versions(compat)
     assert record["python"] == seen["python"]

@@ -18,8 +18,9 @@ import pytest
 import requests
 from helpers import TINY, republish
 
-from hub_envs import errors, hub_io, load_env, push_env
-from hub_envs.repo_format import is_lazy_file
+from hub_envs import errors, load_env, push_env
+from hub_envs.repo import hub_io
+from hub_envs.repo.format import is_lazy_file
 from hub_envs.testing import hub_environment
 
 

@@ -23,9 +23,9 @@ from lerobot.configs.train import TrainPipelineConfig
 
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.cli import main as cli_main
+from hub_envs.envcode.registration import snapshot_registries
 from hub_envs.lerobot.env import HubEnv, install_hooks, make_env, make_env_pre_post_processors
-from hub_envs.load import UnpinnedRevisionWarning
-from hub_envs.registration import snapshot_registries
+from hub_envs.loading.load import UnpinnedRevisionWarning
 from hub_envs.testing import hub_environment
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -608,7 +608,7 @@ def test_a_malformed_processor_declaration_is_a_clear_error(hub_module, tmp_path
 def test_declared_steps_can_be_builtins_or_lerobot_registry_steps():
     from lerobot.envs.utils import preprocess_observation
 
-    from hub_envs.processors import build_pipelines, parse_declarations
+    from hub_envs.loading.processors import build_pipelines, parse_declarations
 
     specs = parse_declarations(
         [

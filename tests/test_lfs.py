@@ -19,7 +19,8 @@ import requests
 from helpers import TINY
 from huggingface_hub import CommitOperationAdd, HfApi, constants, hf_hub_download, snapshot_download
 
-from hub_envs import _compat, hub_io, load_env, push_env
+from hub_envs import _compat, load_env, push_env
+from hub_envs.repo import hub_io
 from hub_envs.testing import HubServer, add_random_data_files, hub_environment
 
 MiB = 1024 * 1024

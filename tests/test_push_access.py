@@ -70,7 +70,7 @@ def test_push_without_a_token_says_so_before_anything_runs(lab_hub, marked_env, 
 
 
 def test_a_refused_token_and_an_account_outside_the_namespace_are_said_early(lab_hub, marked_env, tmp_path):
-    from hub_envs.hub_io import check_write_access  # here, not above: the CLI tests also run against older hub-envs
+    from hub_envs.repo.hub_io import check_write_access  # here, not above: the CLI tests also run against older hub-envs
 
     folder, marker = marked_env
     with hub_environment(lab_hub.endpoint, tmp_path / "wrong", token="hf_not_a_token"):
@@ -124,7 +124,7 @@ def _whoami_as(answer: dict):
     ],
 )
 def test_the_hubs_whoami_rules_decide_before_the_push(lab_hub, tmp_path, role, orgs, repo_id, refused):
-    from hub_envs.hub_io import check_write_access
+    from hub_envs.repo.hub_io import check_write_access
 
     answer = {"type": "user", "name": "carol", "orgs": orgs, "auth": {"type": "access_token", "accessToken": {"role": role}}}
     with LyingEndpoint(lab_hub.endpoint, rewrite_answer=_whoami_as(answer)) as lie:

@@ -32,10 +32,10 @@ from helpers import TINY, copy_env, republish
 from huggingface_hub import snapshot_download
 
 from hub_envs import errors, load_env, push_env
+from hub_envs.envcode.registration import snapshot_registries
 from hub_envs.paths import hub_envs_home
-from hub_envs.registration import snapshot_registries
-from hub_envs.repo_format import FORMAT_VERSION, MANIFEST_FILE, content_digest, hash_files, list_files
-from hub_envs.requirements import installed_version
+from hub_envs.repo.format import FORMAT_VERSION, MANIFEST_FILE, content_digest, hash_files, list_files
+from hub_envs.repo.requirements import installed_version
 from hub_envs.testing import hub_environment
 
 NS = "rel"
@@ -858,8 +858,8 @@ def test_planted_bytecode_never_runs_instead_of_the_verified_source(hub_storing_
 from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from hub_envs.hub_io import parse_repo_ref  # noqa: E402
-from hub_envs.repo_format import EnvFolder, Manifest  # noqa: E402
+from hub_envs.repo.format import EnvFolder, Manifest  # noqa: E402
+from hub_envs.repo.hub_io import parse_repo_ref  # noqa: E402
 
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -26,9 +26,9 @@ from helpers import TINY, build_wheel, comparable_report, copy_env, install_whee
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.cli import main as cli_main
 from hub_envs.dataset.reader import read_episode_frames
+from hub_envs.envcode.registration import snapshot_registries
 from hub_envs.harness.benchmark import bootstrap_ci, reproduce_benchmark
 from hub_envs.harness.replay import replay_dataset
-from hub_envs.registration import snapshot_registries
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"
 

@@ -20,8 +20,8 @@ from helpers import TINY, copy_env, republish
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs import errors, load_env, push_env, reproduce, trust
-from hub_envs.importing import module_key
-from hub_envs.registration import consenting_choice, snapshot_registries
+from hub_envs.envcode.importing import module_key
+from hub_envs.envcode.registration import consenting_choice, snapshot_registries
 from hub_envs.testing import hub_environment
 
 
@@ -487,7 +487,7 @@ def test_an_action_space_hub_envs_cannot_record_is_refused_at_push_by_name(hub, 
 
 def test_env_code_reading_assets_through_resolve_loads_from_the_hub_and_in_lerobot(hub, tmp_path):
     """``Path(__file__).resolve().parent / "assets"`` works in a loaded env as in the author's folder: env code is
-    imported from real files (hub_envs.code_copy), not from the cache's symlinks into blobs/."""
+    imported from real files (hub_envs.envcode.code_copy), not from the cache's symlinks into blobs/."""
     from lerobot.envs.factory import make_env as lerobot_make_env
 
     reads_asset = (

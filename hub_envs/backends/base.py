@@ -8,7 +8,7 @@ workers (an episode is fully determined by its seed, its policy and ``max_steps`
 :mod:`hub_envs.harness.rollout`).
 
 * :class:`LocalBackend`: the rollout engine's process pool on this machine (``workers`` processes).
-* ``RayBackend`` (:mod:`hub_envs._ray_backend`, needs ``pip install 'hub-envs[ray]'``): episodes sharded by
+* ``RayBackend`` (:mod:`hub_envs.backends.ray`, needs ``pip install 'hub-envs[ray]'``): episodes sharded by
   index across Ray actors that each ``load_env`` the repo the way a user does (or unpack the local env
   folder ``push_env`` ships), results consumed in order with a bounded number of shards in flight,
   finished shards checkpointed for a resumed run, Ray's retries when a worker dies.
@@ -79,7 +79,7 @@ class EnvSource:
         content it was given for)."""
         isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
         if loaded.local_folder is not None:
-            from hub_envs.envconfig import encode_config
+            from hub_envs.envcode.envconfig import encode_config
 
             values = encode_config(loaded.config)
             config = {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
@@ -104,7 +104,7 @@ class EnvSource:
     def load(self, scratch: Path | None = None) -> Any:
         """``load_env`` in this (worker) process, with the driver's isolation; checks already ran where the run
         was started. A shipped folder is unpacked into ``scratch`` (the caller removes it; default a new temp folder)."""
-        from hub_envs.load import load_env
+        from hub_envs.loading.load import load_env
 
         if self.folder is None:
             return load_env(
@@ -123,7 +123,7 @@ class EnvSource:
 
 
 def _tar_folder(folder: Path) -> bytes:
-    from hub_envs.repo_format import list_files
+    from hub_envs.repo.format import list_files
 
     buf = io.BytesIO()
     with tarfile.open(fileobj=buf, mode="w") as tar:
@@ -211,7 +211,7 @@ def make_backend(
             raise ConfigError(f"ray_address={ray_address!r} is for --backend=ray; drop it or pass --backend=ray.")
         return LocalBackend(workers=int(workers) if workers else _default_local_workers())
     if backend == "ray":
-        from hub_envs._ray_backend import RayBackend
+        from hub_envs.backends.ray import RayBackend
 
         return RayBackend(address=ray_address, workers=workers, checkpoint_dir=checkpoint_dir)
     raise ConfigError(f"backend={backend!r}: choose 'local' (this machine's processes) or 'ray' (a Ray cluster).")

@@ -184,7 +184,7 @@ def worker_env() -> dict[str, str]:
     huggingface_hub resolved it here) and the :data:`HUB_SETTINGS` set here. A cluster someone else started (``ray
     start`` from a shell without them) would otherwise send its workers to huggingface.co. No secret goes here: a task's
     ``runtime_env`` is part of the cluster's job and task metadata (``ray list tasks --detail``, the dashboard)."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     env = {"HF_ENDPOINT": hub_io.endpoint()}
     env.update({name: os.environ[name] for name in HUB_SETTINGS if os.environ.get(name)})

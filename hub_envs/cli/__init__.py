@@ -26,7 +26,7 @@ from pathlib import Path
 
 import draccus
 
-from hub_envs._flags import EnvFlags, call_with_flags, check_repo_flags
+from hub_envs.cli.flags import EnvFlags, call_with_flags, check_repo_flags
 
 
 @dataclass
@@ -134,7 +134,7 @@ def push_command(argv: list[str]) -> int:
 
 def push(args: PushArgs, *, config: dict | None = None) -> int:
     from hub_envs.errors import ConfigError
-    from hub_envs.push import push_env
+    from hub_envs.publishing.push import push_env
 
     if args.env_dir is None or args.repo_id is None:
         raise ConfigError("push_env needs --env_dir=PATH and --repo_id=user/name.")
@@ -145,7 +145,7 @@ def push(args: PushArgs, *, config: dict | None = None) -> int:
 
 def load(args: LoadArgs) -> int:
     from hub_envs.errors import ConfigError
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     if args.repo_id is None:
         raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
@@ -192,8 +192,8 @@ def _trust_cmd(argv: list[str], *, remove: bool) -> int:
     if any(a in ("-h", "--help") for a in argv):
         print(f"{usage}\n{SUMMARIES['untrust' if remove else 'trust']}")
         return 0
-    from hub_envs import hub_io, trust_list
     from hub_envs.errors import ConfigError
+    from hub_envs.repo import hub_io, trust_list
 
     refs = [a for a in argv if not a.startswith("-")]
     if len(refs) != 1:
@@ -228,11 +228,11 @@ RAW_COMMANDS = {
 #: Commands whose modules import lerobot and torch: imported only when the command runs, never for
 #: ``--help`` or the light commands above (each module has a ``CLI_COMMANDS`` table).
 LAZY_COMMANDS = {
-    "reproduce": "hub_envs.reproduction",
-    "evaluate": "hub_envs.evaluation",
-    "diff": "hub_envs.revision_diff",
-    "attestations": "hub_envs.attestation",
-    "compare": "hub_envs.policy_compare",
+    "reproduce": "hub_envs.operations.reproduce",
+    "evaluate": "hub_envs.operations.evaluate",
+    "diff": "hub_envs.operations.diff",
+    "attestations": "hub_envs.repo.attestations",
+    "compare": "hub_envs.operations.compare",
     "train": "hub_envs.lerobot.bridge",
     "eval": "hub_envs.lerobot.bridge",
 }
@@ -319,7 +319,3 @@ def main(argv: list[str] | None = None) -> int:
 def push_env_main(argv: list[str] | None = None) -> int:
     """The ``push_env`` console script: ``push_env --env_dir=... --repo_id=...``."""
     return run_command("push", list(sys.argv[1:] if argv is None else argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -109,7 +109,7 @@ def check_repo_flags(argv: list[str]) -> None:
 
     draccus reads every flag's value as YAML, which drops a trailing newline or space without a word
     (``--repo_id=$'user/name\\n'`` became ``user/name``) and fails on a control character with a parser
-    traceback; the raw text is checked first, by the rule of :func:`hub_envs.hub_io.parse_repo_ref` when it
+    traceback; the raw text is checked first, by the rule of :func:`hub_envs.repo.hub_io.parse_repo_ref` when it
     has the shape of a repo reference.
 
     >>> check_repo_flags(["--repo_id=user/name@main", "--policies=random, ./ckpt", "--episodes=3"])
@@ -134,7 +134,7 @@ def check_repo_flags(argv: list[str]) -> None:
             if item.isprintable() and item == item.strip():
                 continue
             if "/" in item and "revision" not in name:
-                from hub_envs import hub_io
+                from hub_envs.repo import hub_io
 
                 hub_io.parse_repo_ref(item, what=f"--{name}")
             raise ConfigError(

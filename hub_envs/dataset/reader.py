@@ -56,7 +56,7 @@ _INT_FORMAT_SPEC = re.compile(r"^0?[1-9]?[0-9]?d?$")  # '', 'd', '03d', '06d', '
 def _check_path_template(path: Path, key: str, template: Any) -> None:
     """``info[key]`` must be a format string of LeRobot's named fields only (no attribute or index lookups,
     no conversions, integer format specs) that stays inside the dataset root whatever the field values."""
-    from hub_envs.repo_format import safe_text
+    from hub_envs.repo.format import safe_text
 
     fields = _PATH_TEMPLATE_FIELDS[key]
     fix = (

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from hub_envs.errors import IntegrityError
 from hub_envs.paths import hub_envs_home
-from hub_envs.repo_format import CARD_FILE, DATASET_DIR, MEDIA_DIR, is_code_file, safe_text
+from hub_envs.repo.format import CARD_FILE, DATASET_DIR, MEDIA_DIR, is_code_file, safe_text
 
 __all__ = ["code_copy", "code_files"]
 

@@ -6,7 +6,7 @@ property giving the env constructor's keyword arguments.
 
 Example:
     >>> from lerobot.envs.configs import PushtEnv
-    >>> from hub_envs.envconfig import encode_config
+    >>> from hub_envs.envcode.envconfig import encode_config
     >>> encode_config(PushtEnv())["features"]["agent_pos"] == {"type": "STATE", "shape": [2]}
     True
 """
@@ -22,8 +22,8 @@ from typing import Any
 import draccus
 from lerobot.envs.configs import EnvConfig
 
+from hub_envs.envcode.registration import CLI_ONLY_FIELDS
 from hub_envs.errors import ConfigError, EnvCodeError, InvalidRepoFormatError
-from hub_envs.registration import CLI_ONLY_FIELDS
 
 
 def validate_config_class(config_class: Any, *, where: str) -> None:

@@ -13,7 +13,7 @@ whose ``__path__`` is the folder, named after repo + revision, so
   instead of it), and a snapshot in the Hugging Face cache is never written to.
 
 Example:
-    >>> from hub_envs.importing import import_env_folder, resolve_entry_point
+    >>> from hub_envs.envcode.importing import import_env_folder, resolve_entry_point
     >>> pkg = import_env_folder("envs/pendulum", key="local-pendulum")      # doctest: +SKIP
     >>> EnvCls = resolve_entry_point(pkg, "pendulum_env:PendulumEnv")       # doctest: +SKIP
 """
@@ -29,7 +29,7 @@ import types
 from pathlib import Path
 
 from hub_envs.errors import EnvCodeError, InvalidRepoFormatError, RegistrationConflictError
-from hub_envs.repo_format import ENTRY_POINT_RE, safe_text
+from hub_envs.repo.format import ENTRY_POINT_RE, safe_text
 
 ROOT_PACKAGE = "hub_envs_code"
 

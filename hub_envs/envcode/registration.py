@@ -9,7 +9,7 @@ process that imports it (:meth:`Transaction.replaced_by`).
 
 Example:
     >>> import gymnasium as gym
-    >>> from hub_envs.registration import registry_transaction
+    >>> from hub_envs.envcode.registration import registry_transaction
     >>> before = set(gym.registry)
     >>> with registry_transaction():
     ...     pass
@@ -59,7 +59,7 @@ def _choices() -> dict[str, Any]:
 #: The consent flag of LeRobot's CLIs for a hub env, ``--env.trust_remote_code=true``: a field of the ``hub`` choice,
 #: and of every per-repo choice (:func:`consenting_choice`), so one spelling works with both.
 CONSENT_FIELD = "trust_remote_code"
-#: Fields a per-repo choice has for the command line only: :func:`hub_envs.envconfig.encode_config` leaves them out.
+#: Fields a per-repo choice has for the command line only: :func:`hub_envs.envcode.envconfig.encode_config` leaves them out.
 CLI_ONLY_FIELDS = "_hub_envs_cli_only"
 _CONSENTING: dict[type, type] = {}
 
@@ -149,7 +149,7 @@ def _installed_origin(target: Any, code: Path) -> str | None:
     """The installed distribution(s) whose package holds ``target`` (a ``"module:attr"`` entry point, a callable or a
     class), e.g. ``"gymnasium-robotics"``; None for the env's own code (``code``, or a module of a hub-envs repo)
     and for what cannot be placed."""
-    from hub_envs.importing import ROOT_PACKAGE
+    from hub_envs.envcode.importing import ROOT_PACKAGE
 
     module = target.split(":", 1)[0] if isinstance(target, str) else getattr(target, "__module__", None)
     if not isinstance(module, str) or not module or module.split(".")[0] == ROOT_PACKAGE:

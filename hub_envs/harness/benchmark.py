@@ -171,7 +171,7 @@ def _check_policy_consent(
 ) -> None:
     """A policy checkpoint is a second repo whose loading runs code (LeRobot's processor factory imports the
     classes its JSON names): the same gate as the env's, with its own consent. ``digest``: the downloaded files'
-    (:func:`~hub_envs.trust_list.snapshot_digest`); ``bound_to``: the digest consent was given for elsewhere (a Ray
+    (:func:`~hub_envs.repo.trust_list.snapshot_digest`); ``bound_to``: the digest consent was given for elsewhere (a Ray
     worker gets the driver's), other files are refused whatever ``trust_policy_code`` says."""
     if bound_to is not None and digest != bound_to:
         raise UntrustedCodeError(
@@ -197,8 +197,8 @@ def _checkpoint_policy(
     """A LeRobot pretrained policy at a pinned commit (``"checkpoint": "user/policy@<sha>"``), or in a local
     ``pretrained_model`` folder (``"path": ...``: the caller's own files, loaded without a consent check), as
     the rollout engine's ``(obs, t) -> action``."""
-    from hub_envs import hub_io
-    from hub_envs.repo_format import is_commit_sha
+    from hub_envs.repo import hub_io
+    from hub_envs.repo.format import is_commit_sha
 
     local = spec.get("path")
     ref = spec.get("checkpoint") or spec.get("repo_id")
@@ -226,7 +226,7 @@ def _checkpoint_policy(
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     except ImportError as exc:  # pragma: no cover - lerobot is a dependency
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
-    from hub_envs.trust_list import read_trust_list, snapshot_digest
+    from hub_envs.repo.trust_list import read_trust_list, snapshot_digest
 
     digest = None
     if isinstance(local, str):
@@ -447,7 +447,7 @@ def reproduce_benchmark(
     token: str | None = None,
     trust_policy_code: bool = False,
 ) -> BenchmarkResult:
-    """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.load.LoadedEnv`) and compare its metrics.
+    """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.loading.load.LoadedEnv`) and compare its metrics.
 
     An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
     than raising, so the other parts of a reproduction still report.

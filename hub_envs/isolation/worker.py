@@ -93,7 +93,7 @@ class Server:
     """Holds the envs of one worker (single envs by index, plus at most one vector slice) and serves requests."""
 
     def __init__(self, init: dict[str, Any], conn):
-        from hub_envs.importing import import_env_folder, resolve_entry_point
+        from hub_envs.envcode.importing import import_env_folder, resolve_entry_point
 
         self.where = init["where"]
         self.conn = conn
@@ -195,12 +195,12 @@ class Server:
         """The config's values (:func:`hub_envs.envconfig.encode_config`) with ``overrides`` set before its
         ``__post_init__``, which runs here, not in the parent. Imports the config module, and so lerobot.
         Answers ``{"values": ...}`` or ``{"error": (hub-envs error class name, message)}``."""
+        from hub_envs.envcode.importing import resolve_entry_point
         from hub_envs.errors import HubEnvsError
-        from hub_envs.importing import resolve_entry_point
 
         try:
             try:
-                from hub_envs.envconfig import encode_config, instantiate_config
+                from hub_envs.envcode.envconfig import encode_config, instantiate_config
             except ImportError as e:
                 return {
                     "error": (

@@ -39,10 +39,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from hub_envs import hub_io
 from hub_envs._compat import missing_training_packages
-from hub_envs._flags import check_repo_flags
+from hub_envs.cli.flags import check_repo_flags
 from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
+from hub_envs.repo import hub_io
 
 PROVENANCE_FILE = "hub_envs_provenance.json"
 _PER_REPO_RE = re.compile(r"(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})")  # fullmatch: no trailing newline
@@ -227,14 +227,14 @@ def _json_default(value):
 
 def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
     """What identifies the env a LeRobot config names: repo, sha, digests, config values, processors."""
-    from hub_envs.envconfig import encode_config
+    from hub_envs.envcode.envconfig import encode_config
     from hub_envs.lerobot.env import loaded_for
 
     found = loaded_for(env_cfg_or_hub)
     if found is None:
         return None
     loaded, cfg = found
-    from hub_envs.processors import specs_for
+    from hub_envs.loading.processors import specs_for
 
     m = loaded.manifest
     return {

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 
-import hub_envs.hub_io  # noqa: F401  (its endpoint check is on huggingface_hub's client before LeRobot downloads)
+import hub_envs.repo.hub_io  # noqa: F401  (its endpoint check is on huggingface_hub's client before LeRobot downloads)
 from hub_envs.lerobot.bridge import prepare_argv
 
 prepare_argv(sys.argv[1:], command="plugin")

@@ -18,7 +18,7 @@ digest of its own content) or that does not record a pass is ignored, and the ch
 ``load_env(..., recheck=True)`` (``hub-envs load --recheck=true``, or ``HUB_ENVS_RECHECK=1``) ignores the cache.
 
 Example:
-    >>> from hub_envs.check_cache import check_key
+    >>> from hub_envs.loading.check_cache import check_key
     >>> len(check_key(owner="u/n@" + "0" * 40, content_digest="0" * 64, requirements=(), settings={"steps": 8}))
     64
 """
@@ -35,7 +35,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from hub_envs.paths import hub_envs_home
+from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 
 CACHE_DIR = "checks"
 
@@ -65,7 +65,7 @@ def _checker_source_digest(root: Path | None = None) -> str:
     load cost 5-7 ms of a 20 ms warm load (stat: <1 ms). An edit in place sets the change time (which ``utime``,
     ``tar`` and ``cp -p`` cannot set back), an editor's or installer's atomic replace gives a new inode. Not a
     security boundary: whoever can rewrite hub-envs' sources need not fool its check cache."""
-    root = root or Path(__file__).resolve().parent
+    root = root or PACKAGE_DIR
     h = hashlib.sha256(os.fsencode(root))
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")

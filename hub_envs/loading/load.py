@@ -36,11 +36,12 @@ from typing import Any, Literal
 
 import gymnasium as gym
 
-from hub_envs import check_cache, hub_io, registration, trust_list
 from hub_envs._text import safe_text
-from hub_envs.code_copy import code_copy, code_files
 from hub_envs.dataset.reader import read_info
-from hub_envs.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
+from hub_envs.envcode import registration
+from hub_envs.envcode.code_copy import code_copy, code_files
+from hub_envs.envcode.envconfig import config_differences, encode_config, instantiate_config, validate_config_class
+from hub_envs.envcode.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.errors import (
     ConfigError,
     DatasetError,
@@ -59,8 +60,9 @@ from hub_envs.errors import (
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.features import FeatureReport, check_features
 from hub_envs.harness.provenance import drift_note
-from hub_envs.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
-from hub_envs.repo_format import (
+from hub_envs.loading import check_cache
+from hub_envs.repo import hub_io, trust_list
+from hub_envs.repo.format import (
     DATASET_DIR,
     MANIFEST_FILE,
     MEDIA_DIR,
@@ -75,7 +77,7 @@ from hub_envs.repo_format import (
     is_on_demand_file,
     sha256_file,
 )
-from hub_envs.requirements import check_requirements
+from hub_envs.repo.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
 _log = logging.getLogger(__name__)
@@ -340,9 +342,9 @@ class LoadedEnv:
     def processors(self, cfg=None):
         """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares.
 
-        Empty pipelines when it declares none. See :mod:`hub_envs.processors`.
+        Empty pipelines when it declares none. See :mod:`hub_envs.loading.processors`.
         """
-        from hub_envs.processors import pipelines_for
+        from hub_envs.loading.processors import pipelines_for
 
         return pipelines_for(self, cfg)
 
@@ -471,7 +473,7 @@ def _check_content_digest(expected: str | None, manifest: Manifest, where: str) 
 
 def _needed_first(path: str) -> bool:
     """The files the stages before ``load_env``'s checks read: the manifest, the code and its assets (what
-    :func:`~hub_envs.code_copy.code_copy` copies) and the dataset's ``meta/info.json`` (the feature check). The
+    :func:`~hub_envs.envcode.code_copy.code_copy` copies) and the dataset's ``meta/info.json`` (the feature check). The
     card and the rest of ``meta/`` download meanwhile, and are verified before load_env returns."""
     return path in (MANIFEST_FILE, f"{DATASET_DIR}/meta/info.json") or bool(code_files({path: ""}))
 
@@ -591,7 +593,7 @@ def _checked_config(config_class: type, manifest: Manifest, set_fields: Mapping[
 
 def _check_processors(loaded: LoadedEnv, *, dry: bool, where: str) -> None:
     """The env processors the repo declares: well formed, buildable, and (``dry``) run once on a live observation."""
-    from hub_envs.processors import specs_for, validate_for
+    from hub_envs.loading.processors import specs_for, validate_for
 
     if loaded.isolation is not None and loaded.isolation.isolated:
         own = [sp.name for sp in specs_for(loaded) if ":" in sp.entry_point]
@@ -712,7 +714,7 @@ def load_env(
     """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
 
     The stages, in order: resolve, verify and trust (:func:`_resolve_source`), requirements, import (from
-    :func:`hub_envs.code_copy.code_copy`) and register with the config checked against the manifest
+    :func:`hub_envs.envcode.code_copy.code_copy`) and register with the config checked against the manifest
     (:func:`_checked_config`), then the load checks and the env processors (:func:`_check_processors`).
 
     Args:
@@ -724,7 +726,7 @@ def load_env(
         fingerprint: what a drifted golden-rollout fingerprint does: ``"error"``, ``"warn"`` or ``"off"``.
         check_steps: random-action steps of the feature check.
         recheck: run the checks even if they already passed for this repo@sha with the same packages
-            and platform (a venv worker's: those of its venv; see :mod:`hub_envs.check_cache`;
+            and platform (a venv worker's: those of its venv; see :mod:`hub_envs.loading.check_cache`;
             ``hub-envs load --recheck=true`` and ``HUB_ENVS_RECHECK=1`` do the same).
         token, cache_dir: passed to huggingface_hub.
         config: for a local folder, config fields to set (``{"obs_type": "pixels_agent_pos"}``; values are

@@ -31,7 +31,7 @@ with ``check=True`` runs them once on a live observation and a sampled action.
 LeRobot's eval loop.
 
 Example:
-    >>> from hub_envs.processors import parse_declarations
+    >>> from hub_envs.loading.processors import parse_declarations
     >>> [s.stage for s in parse_declarations([{"name": "clip_action", "stage": "post"}], where="hub_env.json")]
     ['post']
 """
@@ -279,7 +279,7 @@ def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
     if ":" in entry:
         if package is None:
             raise ProcessorError(f"{at}.entry_point {entry!r} names env code, but no env code is loaded.")
-        from hub_envs.importing import resolve_entry_point
+        from hub_envs.envcode.importing import resolve_entry_point
 
         try:
             return resolve_entry_point(sys.modules[package], entry, where=f"{at}.entry_point")
@@ -369,7 +369,7 @@ def _source(loaded) -> str:
 
 def _package(loaded) -> str:
     if getattr(loaded, "isolation", None) is not None:  # the env's code is not imported here (see load_env)
-        from hub_envs.importing import ROOT_PACKAGE
+        from hub_envs.envcode.importing import ROOT_PACKAGE
 
         return f"{ROOT_PACKAGE}.{loaded.env_class.target.key}"
     return ".".join(loaded.env_class.__module__.split(".")[:2])

@@ -24,7 +24,7 @@ With ``--against``, each policy runs the same seeds on two revisions of the env 
 spaces), and the report pairs each policy with itself across them (new minus old): what the revision changed.
 
 Example:
-    >>> from hub_envs.policy_compare import episodes_for_half_width
+    >>> from hub_envs.operations.compare import episodes_for_half_width
     >>> episodes_for_half_width([0.0, 1.0] * 10, half_width=0.05)  # a 50 % success rate: ~400 episodes for ±5 points
     405
 """
@@ -43,7 +43,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
+from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 
@@ -276,10 +276,10 @@ class CompareReport(ReportFiles):
 def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[str, Any]:
     """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha).
 
-    A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.hub_io.local_path`):
+    A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.repo.hub_io.local_path`):
     ``user/name`` always means the Hub, even when a folder of that name exists here (a local checkpoint's code runs
     as the caller's own, without consent); write ``./user/name`` for the folder."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     if isinstance(text, str):
         text = text.strip(" ")  # around the commas of --policies=a, b (a newline or other character is refused below)
@@ -408,8 +408,8 @@ def compare(
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
     """
-    from hub_envs.evaluation import load_for_evaluation
     from hub_envs.harness.provenance import run_provenance
+    from hub_envs.operations.evaluate import load_for_evaluation
 
     if len(policies) < (1 if against else 2):
         raise ConfigError(

@@ -45,11 +45,11 @@ from typing import Any, Unpack
 
 import numpy as np
 
-from hub_envs._flags import CodeFlags, CodeRun, call_with_flags, code_run
 from hub_envs._version import __version__
+from hub_envs.cli.flags import CodeFlags, CodeRun, call_with_flags, code_run
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
-from hub_envs.repo_format import (
+from hub_envs.repo.format import (
     CARD_FILE,
     DATASET_DIR,
     ENV_ENTRY_FILE,
@@ -665,7 +665,7 @@ def diff(
     from hub_envs.harness.provenance import versions_run_with
     from hub_envs.harness.replay import _env_actions
     from hub_envs.harness.rollout import run_episodes
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     for name, v in (("episodes", episodes), ("random_episodes", random_episodes)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:

@@ -32,8 +32,8 @@ from typing import Any, Unpack
 
 import numpy as np
 
-from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.backends import Backend, make_backend
+from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.errors import ConfigError
 
 __all__ = ["EvalResult", "evaluate", "EvaluateArgs", "CLI_COMMANDS"]
@@ -106,7 +106,7 @@ def load_for_evaluation(
     """How an evaluation (:func:`evaluate`, ``hub-envs compare``) loads the env: :func:`hub_envs.load_env` with the
     feature check on and no fingerprint run (the evaluated episodes run the env anyway); ``run``: :class:`CodeRun`
     keywords. Use it in a ``with`` block: the env is unregistered at the end."""
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     return load_env(
         repo_id,

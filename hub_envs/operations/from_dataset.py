@@ -27,12 +27,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from hub_envs import hub_io
 from hub_envs._text import safe_text
 from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta, read_info
-from hub_envs.envconfig import config_differences, encode_config
+from hub_envs.envcode.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
-from hub_envs.repo_format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
+from hub_envs.repo import hub_io
+from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
 
 __all__ = ["env_from_dataset", "code_digest_of", "read_env_meta", "locate_dataset"]
 
@@ -97,7 +97,7 @@ def locate_dataset(
     except EnvRepoNotFoundError:
         is_env_repo = False
     if is_env_repo:
-        from hub_envs.load import ensure_dataset_files
+        from hub_envs.loading.load import ensure_dataset_files
 
         snap = hub_io.resolve_snapshot(repo_id, revision, token=token, lazy=True)
         if snap.from_cache and not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
@@ -166,13 +166,13 @@ def env_from_dataset(
         trust_remote_code, check, fingerprint, token: as for :func:`hub_envs.load_env`.
 
     Returns:
-        A :class:`hub_envs.load.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.
+        A :class:`hub_envs.loading.load.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.
 
     Raises:
         ReproductionError: the dataset names no env, no commit has its code, or the code or config
             of the commit found differs from what the dataset recorded.
     """
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     root, origin = locate_dataset(path_or_repo_id, revision=revision, token=token)
     meta = read_env_meta(root)

@@ -36,11 +36,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs._flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.backends import Backend, make_backend
+from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
-from hub_envs.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
 from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.provenance import (
@@ -55,6 +54,7 @@ from hub_envs.harness.provenance import (
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
 from hub_envs.harness.report_files import default_out_dir
+from hub_envs.operations.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 
 __all__ = [
     "reproduce",
@@ -274,7 +274,7 @@ def reproduce(
     Raises:
         hub_envs.errors.HubEnvsError: the repo cannot be loaded or replayed at all (not: it diverged).
     """
-    from hub_envs.load import load_env
+    from hub_envs.loading.load import load_env
 
     if workers is not None and int(workers) < 0:
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
@@ -397,7 +397,7 @@ def reproduce_cli(args: ReproduceArgs) -> int:
     if args.sign_key is not None and not Path(args.sign_key).expanduser().is_file():
         raise ConfigError(f"--sign_key={args.sign_key}: no such file; pass an OpenSSH private key. Nothing was run.")
     if args.attest:  # the pull request comes last: a Hub that will refuse it says so before anything runs
-        from hub_envs import hub_io
+        from hub_envs.repo import hub_io
 
         hub_io.check_write_access(hub_io.parse_repo_ref(args.repo_id)[0], pull_request=True)
     report = call_with_flags(reproduce, args, args.repo_id, workers=args.workers or None)
@@ -412,7 +412,7 @@ def reproduce_cli(args: ReproduceArgs) -> int:
         file=sys.stderr if args.json else sys.stdout,
     )
     if args.attest:
-        from hub_envs.attestation import attest
+        from hub_envs.repo.attestations import attest
 
         result = attest(report, command=command_line(args, report.sha), sign_key=args.sign_key)
         print(result.summary(), file=sys.stderr if args.json else sys.stdout)

@@ -4,7 +4,7 @@ The YAML header is a :class:`huggingface_hub.ModelCardData`: tags, ``library_nam
 random-policy benchmark as model-index evaluation results, so the Hub shows it as metadata.
 
 Example:
-    >>> from hub_envs.card import template_path
+    >>> from hub_envs.publishing.card import template_path
     >>> template_path().name
     'env_card.md.j2'
 """
@@ -18,13 +18,14 @@ from pathlib import Path
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from hub_envs.errors import InvalidRepoFormatError
-from hub_envs.repo_format import GIF_FILE, MP4_FILE, Manifest
+from hub_envs.paths import PACKAGE_DIR
+from hub_envs.repo.format import GIF_FILE, MP4_FILE, Manifest
 
 TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"]
 
 
 def template_path(name: str = "env_card.md.j2") -> Path:
-    path = Path(__file__).resolve().parent / "templates" / name  # package data: the wheel carries it
+    path = PACKAGE_DIR / "templates" / name  # package data: the wheel carries it
     if not path.is_file():
         raise InvalidRepoFormatError(f"Card template {path} is missing: this hub-envs install is incomplete. Reinstall hub-envs.")
     return path
@@ -95,7 +96,7 @@ def _cell(value) -> str:
 
 
 def reproduced_table(entries) -> str:
-    """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.attestation.AttestationEntry`
+    """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.repo.attestations.AttestationEntry`
     with a valid attestation), oldest first; "" without any.
 
     Every field the attestation's author wrote goes through :func:`_cell`; the rest is validated (dates, hex shas,
@@ -153,7 +154,7 @@ def render_card(
     card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
 
     ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
-    claims none. ``reproductions``: merged attestations (:class:`hub_envs.attestation.AttestationEntry`, valid ones);
+    claims none. ``reproductions``: merged attestations (:class:`hub_envs.repo.attestations.AttestationEntry`, valid ones);
     those of this content (its digest) make the "Reproduced on" table. ``dataset_repo``: the dataset is also published as the
     dataset repo of the same name (``push_env(dataset_repo=True)``): the card says how LeRobot opens it by repo id,
     and its metadata links that dataset (``datasets:``).

@@ -33,11 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs import hub_io
 from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs._stack import requirement_closure
 from hub_envs.backends import Backend, LocalBackend, make_backend
-from hub_envs.card import render_card, reproduced_table
 from hub_envs.dataset.layout import CODEBASE_VERSION, HUB_ENVS_META_PATH
 from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.dataset.states import STATES_PATH, EnvStatesWriter
@@ -49,7 +47,8 @@ from hub_envs.dataset.writer import (
     rollout_to_frames,
     write_lerobot_dataset,
 )
-from hub_envs.envconfig import encode_config
+from hub_envs.envcode.envconfig import encode_config
+from hub_envs.envcode.importing import forget_env_folder, module_key
 from hub_envs.errors import (
     ConfigError,
     EnvCheckError,
@@ -64,9 +63,11 @@ from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episod
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import render_size_overrides, write_rollout_media
 from hub_envs.harness.provenance import package_versions
-from hub_envs.importing import forget_env_folder, module_key
-from hub_envs.load import LoadedEnv, load_env
-from hub_envs.repo_format import (
+from hub_envs.loading.load import LoadedEnv, load_env
+from hub_envs.paths import PACKAGE_DIR
+from hub_envs.publishing.card import render_card, reproduced_table
+from hub_envs.repo import hub_io
+from hub_envs.repo.format import (
     CARD_FILE,
     DATASET_DIR,
     ENV_ENTRY_FILE,
@@ -84,9 +85,9 @@ from hub_envs.repo_format import (
     hash_files,
     list_files,
 )
-from hub_envs.repo_format import code_digest as code_digest_of_files
+from hub_envs.repo.format import code_digest as code_digest_of_files
 
-ENTRY_TEMPLATE = Path(__file__).resolve().parent / "templates" / "env_entry.py"
+ENTRY_TEMPLATE = PACKAGE_DIR / "templates" / "env_entry.py"
 
 
 @dataclass
@@ -220,9 +221,9 @@ def _code_files(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
 
 
 def _merged_attestations(repo_id: str, token: str | None) -> list:
-    """The valid attestations on main (:func:`hub_envs.attestation.merged_attestations`: entries naming the author
+    """The valid attestations on main (:func:`hub_envs.repo.attestations.merged_attestations`: entries naming the author
     of the pull request each came from); invalid ones are skipped."""
-    from hub_envs.attestation import merged_attestations
+    from hub_envs.repo.attestations import merged_attestations
 
     return [e for e in merged_attestations(repo_id, token=token) if e.attestation is not None]
 
@@ -829,7 +830,7 @@ def push_env(
     its finished shards (the same push started again skips them). Nothing is committed until every
     episode is written: an interrupted push leaves no commit and no partial dataset.
 
-    Before anything is built, the Hub is asked who the caller is (:func:`hub_envs.hub_io.check_write_access`): no
+    Before anything is built, the Hub is asked who the caller is (:func:`hub_envs.repo.hub_io.check_write_access`): no
     token where one is needed, a refused or read-only token, or an account that cannot write ``repo_id``'s
     namespace raises :class:`~hub_envs.errors.HubAccessError` at once.
 

@@ -6,7 +6,7 @@ and benchmark summaries with their confidence intervals, the env's commit, conte
 fingerprint, the stack it ran on (python, platform, CPU model, the versions of lerobot/torch/numpy/gymnasium, the
 simulator and the env's whole requirement closure, hub-envs), the command line that reproduces it, and the
 sha256 of the full ``report.json``. It is typed and validated like the manifest
-(:class:`hub_envs.repo_format.Manifest`): a reader refuses a malformed file with an :class:`AttestationError`.
+(:class:`hub_envs.repo.format.Manifest`): a reader refuses a malformed file with an :class:`AttestationError`.
 
 ``--sign_key=PATH`` adds ``<file>.sig``, an OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of the file's
 bytes; :func:`verify_signature` checks it against an ``allowed_signers`` file (``ssh-keygen -Y verify``).
@@ -19,7 +19,7 @@ main) and those of open pull requests; ``push_env`` renders the merged ones for 
 ("Reproduced on").
 
 Example:
-    >>> from hub_envs.attestation import stack_digest
+    >>> from hub_envs.repo.attestations import stack_digest
     >>> stack_digest({"python": "3.13.1", "packages": {"numpy": "2.2.6"}})
     '19efa394d727'
 """
@@ -44,7 +44,7 @@ from typing import Any
 from hub_envs._stack import CORE_PACKAGES, cpu_model, requirement_closure
 from hub_envs._text import safe_text
 from hub_envs.errors import AttestationError, ConfigError, HostileResponseError, HubError
-from hub_envs.repo_format import REPRODUCTIONS_DIR, is_attestation_file
+from hub_envs.repo.format import REPRODUCTIONS_DIR, is_attestation_file
 
 logger = logging.getLogger(__name__)
 
@@ -416,7 +416,7 @@ class AttestResult:
 
 
 def _whoami(token: str | None) -> str | None:
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     try:
         return str(hub_io.api(token).whoami().get("name")) or None
@@ -439,8 +439,8 @@ def attest(
     """
     from huggingface_hub import CommitOperationAdd
 
-    from hub_envs import hub_io
     from hub_envs._compat import lfs_instead_of_xet
+    from hub_envs.repo import hub_io
 
     if report.settings.get("source") == "folder":
         raise ConfigError(
@@ -448,7 +448,7 @@ def attest(
             "Reproduce --repo_id=user/name@<sha> to attest."
         )
     if requirements is None:
-        from hub_envs.repo_format import Manifest
+        from hub_envs.repo.format import Manifest
 
         requirements = Manifest.from_json(hub_io.read_manifest_text(report.repo_id, report.sha, token=token)).requirements
     att = Attestation.from_report(report, requirements=requirements, command=command, attested_by=_whoami(token))
@@ -515,8 +515,8 @@ class AttestationEntry:
 def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | None:
     from huggingface_hub import hf_hub_download
 
-    from hub_envs import hub_io
     from hub_envs.errors import HostileResponseError, HubError
+    from hub_envs.repo import hub_io
 
     try:
         with hub_io.translate_hub_errors(repo_id, revision):
@@ -531,7 +531,7 @@ def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | 
 def _entries_at(
     repo_id: str, revision: str, where: str, pr_num: int | None, token: str | None, skip=None
 ) -> list[AttestationEntry]:
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     files = hub_io.list_remote_files(repo_id, revision, token=token)
     out = []
@@ -560,7 +560,7 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
     """``{path: (author, pull request number)}`` for the files of ``head`` a merged pull request brought as they are:
     the latest merged pull request whose diff touches the path and whose merge commit holds the same blob as ``head``
     (the Hub's discussion data and its paths-info; a later direct edit names nobody)."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     wanted = set(paths)
     if not wanted:
@@ -577,7 +577,7 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
 
 
 def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str], found: dict[str, tuple[str, int]]) -> None:
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     with hub_io.translate_hub_errors(repo_id, head):
         now = {f.path: getattr(f, "blob_id", None) for f in client.get_paths_info(repo_id, sorted(wanted), revision=head)}
@@ -603,7 +603,7 @@ def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str],
 def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:
     """The attestations on main (or at ``revision``): those merged by the repo's owner, each with the author of the
     pull request it came from (:attr:`AttestationEntry.author`)."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     hub_io.check_repo_id(repo_id)
     head = revision or hub_io.remote_head(repo_id, token=token)
@@ -619,7 +619,7 @@ def merged_attestations(repo_id: str, revision: str | None = None, *, token: str
 
 def collect_attestations(repo_id: str, *, token: str | None = None) -> list[AttestationEntry]:
     """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     hub_io.check_repo_id(repo_id)
     merged = merged_attestations(repo_id, token=token)
@@ -716,7 +716,7 @@ class AttestationsArgs:
 
 
 def attestations_cli(args: AttestationsArgs) -> int:
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     if args.repo_id is None:
         raise ConfigError("hub-envs attestations needs --repo_id=user/name.")

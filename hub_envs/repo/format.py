@@ -32,7 +32,7 @@ field at a known version is a hand-edited manifest and is refused too. Older ver
 field gets a default that means what the older format meant.
 
 Example:
-    >>> from hub_envs.repo_format import Manifest, MANIFEST_FILE
+    >>> from hub_envs.repo.format import Manifest, MANIFEST_FILE
     >>> MANIFEST_FILE
     'hub_env.json'
 """
@@ -69,7 +69,7 @@ MP4_FILE = f"{MEDIA_DIR}/rollout.mp4"
 GENERATED = (MANIFEST_FILE, CARD_FILE, ENV_ENTRY_FILE, DATASET_DIR, MEDIA_DIR)
 #: Files the Hub itself may add to a repo; never part of the env.
 HUB_FILES = (".gitattributes",)
-#: Where reproduction attestations (:mod:`hub_envs.attestation`) land once the repo's owner merges their pull request.
+#: Where reproduction attestations (:mod:`hub_envs.repo.attestations`) land once the repo's owner merges their pull request.
 REPRODUCTIONS_DIR = "reproductions"
 #: An attestation (``reproductions/<name>.json``) or its OpenSSH signature (``.json.sig``): one plain file name, data only.
 _ATTESTATION_PATH_RE = re.compile(r"^reproductions/[A-Za-z0-9][A-Za-z0-9._-]{0,200}\.json(\.sig)?$")
@@ -99,7 +99,7 @@ GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
 def is_lazy_file(path: str) -> bool:
     """A file ``load_env`` does not fetch: the dataset's data (``dataset/data/``, ``dataset/videos/``,
     anything under ``dataset/`` but its ``meta/``). It is fetched, and verified against the manifest,
-    when the dataset is opened (:meth:`hub_envs.load.LoadedEnv.fetch_dataset`). Never code: a ``.py``
+    when the dataset is opened (:meth:`hub_envs.loading.load.LoadedEnv.fetch_dataset`). Never code: a ``.py``
     (or anything Python could run) under ``dataset/`` is fetched and verified with the rest of the code.
 
     >>> [is_lazy_file(p) for p in ("dataset/data/chunk-000/file-000.parquet", "dataset/meta/info.json", "env.py")]
@@ -117,7 +117,7 @@ def is_lazy_file(path: str) -> bool:
 
 def is_media_file(path: str) -> bool:
     """The card's media (``media/rollout.gif``, ``media/rollout.mp4``): only the card and the web page show them,
-    so ``load_env`` does not fetch them (:meth:`hub_envs.load.LoadedEnv.media_file` does, verified). Never code.
+    so ``load_env`` does not fetch them (:meth:`hub_envs.loading.load.LoadedEnv.media_file` does, verified). Never code.
 
     >>> is_media_file("media/rollout.mp4"), is_media_file("media/helper.py"), is_media_file("README.md")
     (True, False, False)
@@ -768,7 +768,7 @@ class EnvFolder:
     env_entry_point: str
     config_entry_point: str
     files: tuple[str, ...]
-    #: ``[tool.hub-envs] processors`` (tables; validated by load_env, see hub_envs.processors)
+    #: ``[tool.hub-envs] processors`` (tables; validated by load_env, see hub_envs.loading.processors)
     processors: tuple[dict[str, Any], ...] = ()
     #: ``[project] license`` as the card states it (:func:`card_license`); None when none is declared
     license: str | None = None

@@ -5,7 +5,7 @@ cache, reads ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HUB_OFFLINE`` as the client d
 client's errors into hub-envs' own (:mod:`hub_envs.errors`) with a next step in the message.
 
 Example:
-    >>> from hub_envs.hub_io import parse_repo_ref
+    >>> from hub_envs.repo.hub_io import parse_repo_ref
     >>> parse_repo_ref("user/pendulum-lerobot@v1")
     ('user/pendulum-lerobot', 'v1')
 """
@@ -61,7 +61,7 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
-from hub_envs.repo_format import (
+from hub_envs.repo.format import (
     DATASET_DIR,
     MANIFEST_FILE,
     REPO_ID_RULE,
@@ -116,7 +116,7 @@ class Snapshot:
 
 def check_repo_id(repo_id: object, *, what: str = "Repo id") -> str:
     """``repo_id`` if it is a Hub repo id (``user/name``), else a :class:`~hub_envs.errors.ConfigError` naming the
-    value (its ``repr``: a trailing newline shows) and the rule (:func:`hub_envs.repo_format.repo_id_problem`).
+    value (its ``repr``: a trailing newline shows) and the rule (:func:`hub_envs.repo.format.repo_id_problem`).
 
     Args:
         repo_id: the value given.
@@ -571,8 +571,8 @@ def resolve_snapshot(
     A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
     fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
     ``lazy``: leave the files fetched on demand out (the dataset's data and the card's media:
-    :func:`hub_envs.repo_format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
-    :func:`fetch_files`), and what the manifest does not cover (:func:`hub_envs.repo_format.beyond_manifest`: the
+    :func:`hub_envs.repo.format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
+    :func:`fetch_files`), and what the manifest does not cover (:func:`hub_envs.repo.format.beyond_manifest`: the
     Hub's ``.gitattributes``, merged attestations). ``first``: return once the files it accepts are on disk; the others keep
     downloading in the background (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
     """
@@ -849,7 +849,7 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
 
     huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving
     anywhere else, or a file the manifest does not list (but those the Hub workflow adds after publication:
-    :func:`hub_envs.repo_format.beyond_manifest`), was not put there by a download of this commit: the snapshot
+    :func:`hub_envs.repo.format.beyond_manifest`), was not put there by a download of this commit: the snapshot
     is refused.
     """
     blobs = path.parent.parent / "blobs"

@@ -7,7 +7,7 @@ installs ``pygame-ce``, which provides ``import pygame``, for a requirement ``py
 would write over the other's files.
 
 Example:
-    >>> from hub_envs.requirements import unmet_requirements
+    >>> from hub_envs.repo.requirements import unmet_requirements
     >>> unmet_requirements(["numpy>=1.0"])
     []
 """

@@ -13,7 +13,7 @@ by hub-envs before content binding (sha only) are never honoured silently: ``loa
 Example:
     >>> import os, tempfile
     >>> os.environ["HUB_ENVS_HOME"] = tempfile.mkdtemp()
-    >>> from hub_envs.trust_list import read_trust_list, trust
+    >>> from hub_envs.repo.trust_list import read_trust_list, trust
     >>> trust("user/pendulum", "a" * 40, content_digest="b" * 64)
     >>> read_trust_list().covers("user/pendulum", "a" * 40, "b" * 64)
     True
@@ -38,7 +38,7 @@ from pathlib import Path
 
 from hub_envs.errors import ConfigError
 from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
-from hub_envs.repo_format import is_commit_sha
+from hub_envs.repo.format import is_commit_sha
 
 TRUST_FILE = "trusted.json"
 FORMAT = 2
@@ -148,8 +148,8 @@ def _write(path: Path, entries: list[TrustEntry]) -> None:
 
 def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub)."""
-    from hub_envs import hub_io
-    from hub_envs.repo_format import Manifest
+    from hub_envs.repo import hub_io
+    from hub_envs.repo.format import Manifest
 
     return Manifest.from_json(
         hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
@@ -159,7 +159,7 @@ def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
 def snapshot_digest(path: Path) -> str:
     """The content digest of a downloaded snapshot that has no manifest (a policy checkpoint): sha256 over
     the sha256 of every file it holds, as a manifest's ``content_digest`` is over the files it lists."""
-    from hub_envs.repo_format import content_digest, hash_files
+    from hub_envs.repo.format import content_digest, hash_files
 
     files = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
     return content_digest(hash_files(path, files))
@@ -168,8 +168,8 @@ def snapshot_digest(path: Path) -> str:
 def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of
     the files of the commit (any other repo, e.g. a LeRobot policy a benchmark names)."""
-    from hub_envs import hub_io
     from hub_envs.errors import EnvRepoNotFoundError
+    from hub_envs.repo import hub_io
 
     try:
         return manifest_digest(repo_id, sha, token=token)
@@ -189,7 +189,7 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
     load_env already fetched it, which is what you looked at, else from the Hub); for a repo without a
     manifest (a policy checkpoint), to the digest of the commit's files (:func:`commit_digest`).
     """
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     repo_id, _ = hub_io.parse_repo_ref(repo_id)
     if not is_commit_sha(sha):
@@ -208,7 +208,7 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
 
 def untrust(repo_id: str, sha: str | None = None) -> int:
     """Withdraw consent for one sha (or every sha when ``sha`` is None). Returns how many were removed."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     hub_io.check_repo_id(repo_id)  # a mistyped id would remove nothing and say so as if it were done
     with _locked() as path:
@@ -220,7 +220,7 @@ def untrust(repo_id: str, sha: str | None = None) -> int:
 
 def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
     """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
-    from hub_envs import hub_io
+    from hub_envs.repo import hub_io
 
     hub_io.check_repo_id(repo_id)
     digest = content_digest if content_digest is not None else commit_digest(repo_id, sha)
