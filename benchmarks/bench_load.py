@@ -225,17 +225,17 @@ def first_files(repo: str, sha: str, endpoint: str, tmp: Path, repeats: int) -> 
 
     from huggingface_hub import HfApi, hf_hub_download
 
-    from hub_envs.loading.load import _needed_first
+    from hub_envs.loading.source import needed_first
     from hub_envs.repo import hub_io
     from hub_envs.repo.format import HUB_FILES, is_on_demand_file
     from hub_envs.testing import hub_environment
 
     with hub_environment(endpoint, tmp / "first-list"):
         siblings = HfApi().repo_info(repo, revision=sha).siblings or []
-    names = [  # as hub_io.resolve_snapshot(lazy=True, first=_needed_first) picks them
+    names = [  # as hub_io.resolve_snapshot(lazy=True, first=needed_first) picks them
         s.rfilename
         for s in siblings
-        if not is_on_demand_file(s.rfilename) and s.rfilename not in HUB_FILES and _needed_first(s.rfilename)
+        if not is_on_demand_file(s.rfilename) and s.rfilename not in HUB_FILES and needed_first(s.rfilename)
     ]
 
     def direct(name: str) -> str | None:

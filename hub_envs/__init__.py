@@ -18,8 +18,8 @@ from hub_envs._version import __version__
 
 _EXPORTS = {
     "load_env": "hub_envs.loading.load",
-    "LoadedEnv": "hub_envs.loading.load",
-    "LoadReport": "hub_envs.loading.load",
+    "LoadedEnv": "hub_envs.loading.loaded",
+    "LoadReport": "hub_envs.loading.loaded",
     "push_env": "hub_envs.publishing.push",
     "PushResult": "hub_envs.publishing.push",
     "trust": "hub_envs.repo.trust_list",
@@ -51,7 +51,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.isolation.proxy import IsolatedEnv  # noqa: F401
     from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401
     from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
-    from hub_envs.loading.load import LoadedEnv, LoadReport, load_env  # noqa: F401
+    from hub_envs.loading.load import load_env  # noqa: F401
+    from hub_envs.loading.loaded import LoadedEnv, LoadReport  # noqa: F401
     from hub_envs.operations.compare import CompareReport, compare  # noqa: F401
     from hub_envs.operations.diff import DiffReport, diff  # noqa: F401
     from hub_envs.operations.evaluate import EvalResult, evaluate  # noqa: F401

@@ -197,6 +197,10 @@ class HubEnvsWarning(UserWarning):
     """Base class of every warning hub-envs gives on purpose."""
 
 
+class UnpinnedRevisionWarning(HubEnvsWarning):
+    """load_env was given a branch or tag: the result is pinned to the sha it resolved to, but the call is not."""
+
+
 class StatesNotRecordedWarning(HubEnvsWarning):
     """The env has ``get_state()`` but what it returns cannot be recorded, so the dataset has no simulator
     states and a replay cannot restore a step (see :mod:`hub_envs.dataset.states`)."""

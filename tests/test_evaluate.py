@@ -73,7 +73,7 @@ def test_evaluating_an_env_the_user_has_loaded_leaves_their_load_registered(tiny
     import gymnasium as gym
 
     from hub_envs import load_env
-    from hub_envs.loading.load import loaded_env_for_type
+    from hub_envs.loading.loaded import loaded_env_for_type
 
     mine = load_env(tiny, trust_remote_code=True)
     evaluate(tiny, episodes=1, trust_remote_code=True, workers=1, progress=False)

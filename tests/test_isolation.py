@@ -733,8 +733,6 @@ def test_a_check_verdict_is_reused_only_with_the_packages_the_checks_ran_with(pu
     """The checks of one commit, in this process and in venv workers (the packages here, the publisher's): a
     verdict is reused only where it was reached. A venv worker's numpy is not this process's (issue 29 saw a
     worker on numpy 2.4.6 answer "cached" from a run on 2.2.6)."""
-    from hub_envs.loading.load import worker_versions
-
     ref = published["hostile"]
     fingerprint = {}
     records = {}
@@ -747,7 +745,7 @@ def test_a_check_verdict_is_reused_only_with_the_packages_the_checks_ran_with(pu
     ):
         loaded = load_env(ref, trust_remote_code=True, **kw)
         fingerprint[name] = loaded.report.fingerprint
-        records[name] = worker_versions(loaded)
+        records[name] = loaded.worker_venv
         loaded.unregister()
     assert "cached" not in fingerprint["here"] and "cached" in fingerprint["here again"]
     assert "cached" not in fingerprint["venv"], "a verdict reached in this process was reused in a venv worker"
@@ -820,9 +818,7 @@ def test_versions_publisher_pins_the_recorded_versions_and_python(published, hub
         assert seen["numpy"] == "2.3.5" and "/venvs/" in seen["prefix"]
     finally:
         env.close()
-    from hub_envs.loading.load import worker_versions
-
-    record = worker_versions(compat)
+    record = compat.worker_venv
     assert record["python"] == seen["python"]
     assert "cloudpickle==3.0.0" in record["installed"]  # the closure is held, not only the requirements
     if any("is not installed here" in n for n in record["notes"]):  # no python 3.11 on this machine: said so

@@ -24,8 +24,8 @@ from lerobot.configs.train import TrainPipelineConfig
 from hub_envs import _compat, errors, load_env, push_env
 from hub_envs.cli import main as cli_main
 from hub_envs.envcode.registration import snapshot_registries
+from hub_envs.errors import UnpinnedRevisionWarning
 from hub_envs.lerobot.env import HubEnv, install_hooks, make_env, make_env_pre_post_processors
-from hub_envs.loading.load import UnpinnedRevisionWarning
 from hub_envs.testing import hub_environment
 
 ROOT = Path(__file__).resolve().parent.parent

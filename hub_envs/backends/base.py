@@ -96,7 +96,7 @@ class EnvSource:
             ref=ref,
             identity=f"{ref}#{digest}",  # a commit id alone is what the endpoint says it is: the content is named too
             trust_remote_code=True,
-            token=getattr(loaded, "_token", None),
+            token=getattr(loaded, "token", None),
             isolation=isolation,
             content_digest=digest,
         )

@@ -11,19 +11,6 @@ A light module (no lerobot, no torch): the CLI's ``--help`` imports it.
     >>> flags = EnvFlags(repo_id="user/name", isolation="process")
     >>> call_with_flags(load, flags, flags.repo_id, trust_remote_code=True)
     ('user/name', None, 'process', True)
-
-A command that loads an env passes how its code runs on to :func:`hub_envs.load_env` as ``**run`` (a
-:class:`CodeRun`), so those keywords are written down once, here:
-
-    >>> from typing import Unpack
-    >>> def evaluate(repo_id, *, episodes=10, **run: Unpack[CodeRun]):
-    ...     return repo_id, episodes, code_run(run, "evaluate")
-    >>> call_with_flags(evaluate, EnvFlags(isolation="process", sandbox=True), "user/name")
-    ('user/name', 10, {'isolation': 'process', 'sandbox': True, 'versions': 'current', 'step_timeout': None})
-    >>> evaluate("user/name", isolaton="process")
-    Traceback (most recent call last):
-    ...
-    hub_envs.errors.ConfigError: evaluate() got isolaton=: how an env's code runs is said with isolation, sandbox, versions, step_timeout (see hub_envs.load_env).
 """
 
 from __future__ import annotations
@@ -31,9 +18,10 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, TypedDict, TypeVar
+from typing import Any, TypeVar
 
 from hub_envs.errors import ConfigError
+from hub_envs.loading.isolated import CodeRun
 
 T = TypeVar("T")
 _KEYWORD = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
@@ -48,29 +36,6 @@ class CodeFlags:
     sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
     versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
     step_timeout: float | None = None  # seconds a call into an isolated env may take (sandbox default 60)
-
-
-class CodeRun(TypedDict, total=False):
-    """How an env's code runs: the keywords of :func:`hub_envs.load_env` that ``reproduce``, ``diff``, ``evaluate``
-    and ``compare`` take as ``**run`` and pass on (the same names as :class:`CodeFlags`' fields)."""
-
-    isolation: str
-    sandbox: bool
-    versions: str
-    step_timeout: float | None
-
-
-def code_run(run: dict[str, Any], where: str, *, complete: bool = False) -> CodeRun:
-    """``run`` checked to hold only :class:`CodeRun` keywords (a misspelt one is a :class:`ConfigError`, not a
-    ``TypeError`` deep in ``load_env``); ``complete``: with every keyword, the defaults filled in (a cache key)."""
-    unknown = sorted(set(run) - set(CodeRun.__annotations__))
-    if unknown:
-        raise ConfigError(
-            f"{where}() got {', '.join(k + '=' for k in unknown)}: how an env's code runs is said with "
-            f"{', '.join(CodeRun.__annotations__)} (see hub_envs.load_env)."
-        )
-    defaults = {f.name: f.default for f in fields(CodeFlags) if f.name in CodeRun.__annotations__} if complete else {}
-    return CodeRun(**{**defaults, **run})
 
 
 @dataclass

@@ -447,7 +447,7 @@ def reproduce_benchmark(
     token: str | None = None,
     trust_policy_code: bool = False,
 ) -> BenchmarkResult:
-    """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.loading.load.LoadedEnv`) and compare its metrics.
+    """Re-run one declared benchmark of ``loaded`` (a :class:`hub_envs.loading.loaded.LoadedEnv`) and compare its metrics.
 
     An unsupported policy or metric gives a result with ``error`` set (and ``passed`` False) rather
     than raising, so the other parts of a reproduction still report.

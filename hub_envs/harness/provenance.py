@@ -107,7 +107,7 @@ def closure_run_with(loaded: Any) -> dict[str, str]:
 
 
 def run_provenance(loaded: Any) -> dict[str, Any]:
-    """What every report of a run on ``loaded`` (a :class:`hub_envs.loading.load.LoadedEnv`) records first: the repo, the
+    """What every report of a run on ``loaded`` (a :class:`hub_envs.loading.loaded.LoadedEnv`) records first: the repo, the
     revision asked for and the sha it resolved to, the content digest, the published dataset fingerprint, the
     package versions the env's code ran with (:func:`versions_run_with`), hub-envs' version and when."""
     m = loaded.manifest
@@ -196,7 +196,7 @@ def difference_text(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | N
 
 
 def drift_note(loaded: Any) -> str:
-    """:func:`describe_differences` for ``loaded`` (a :class:`hub_envs.loading.load.LoadedEnv`): the recorded versions that
+    """:func:`describe_differences` for ``loaded`` (a :class:`hub_envs.loading.loaded.LoadedEnv`): the recorded versions that
     differ from those its code runs with (:func:`versions_run_with`, :func:`closure_run_with`), ranked
     (:func:`ranked_differences`)."""
     diffs = ranked_differences(loaded.manifest, {**closure_run_with(loaded), **versions_run_with(loaded)})

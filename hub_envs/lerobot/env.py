@@ -40,11 +40,12 @@ import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs._compat import env_configs_create_envs, train_dataset_hooks
-from hub_envs.cli.flags import CodeRun, code_run
 from hub_envs.envcode.registration import owner_of_choice
 from hub_envs.errors import ConfigError, UntrustedCodeError
 from hub_envs.harness.actions import IntegerActions
-from hub_envs.loading.load import LoadedEnv, load_env, loaded_env_for_type
+from hub_envs.loading.isolated import CodeRun, code_run
+from hub_envs.loading.load import load_env
+from hub_envs.loading.loaded import LoadedEnv, loaded_env_for_type
 
 HUB_CHOICE = "hub"
 
@@ -194,7 +195,7 @@ class HubEnv(EnvConfig):
 
     @property
     def loaded(self) -> LoadedEnv:
-        """The :class:`~hub_envs.loading.load.LoadedEnv` this config names."""
+        """The :class:`~hub_envs.loading.loaded.LoadedEnv` this config names."""
         return self._loaded
 
     @property

@@ -43,9 +43,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
+from hub_envs.cli.flags import EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
+from hub_envs.loading.isolated import CodeRun, code_run
 
 __all__ = ["compare", "CompareReport", "Estimate", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
 

@@ -46,9 +46,10 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs._version import __version__
-from hub_envs.cli.flags import CodeFlags, CodeRun, call_with_flags, code_run
+from hub_envs.cli.flags import CodeFlags, call_with_flags
 from hub_envs.errors import ConfigError, HubEnvsError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
+from hub_envs.loading.isolated import CodeRun, code_run
 from hub_envs.repo.format import (
     CARD_FILE,
     DATASET_DIR,

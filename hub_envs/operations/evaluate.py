@@ -33,8 +33,9 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs.backends import Backend, make_backend
-from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
+from hub_envs.cli.flags import EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError
+from hub_envs.loading.isolated import CodeRun, code_run
 
 __all__ = ["EvalResult", "evaluate", "EvaluateArgs", "CLI_COMMANDS"]
 

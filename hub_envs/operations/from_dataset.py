@@ -31,6 +31,7 @@ from hub_envs._text import safe_text
 from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta, read_info
 from hub_envs.envcode.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
+from hub_envs.loading.dataset_files import ensure_dataset_files
 from hub_envs.repo import hub_io
 from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
 
@@ -97,8 +98,6 @@ def locate_dataset(
     except EnvRepoNotFoundError:
         is_env_repo = False
     if is_env_repo:
-        from hub_envs.loading.load import ensure_dataset_files
-
         snap = hub_io.resolve_snapshot(repo_id, revision, token=token, lazy=True)
         if snap.from_cache and not (snap.path / DATASET_DIR / "meta" / "info.json").is_file():
             # only part of that commit is cached (e.g. its manifest, read while searching history)
@@ -166,7 +165,7 @@ def env_from_dataset(
         trust_remote_code, check, fingerprint, token: as for :func:`hub_envs.load_env`.
 
     Returns:
-        A :class:`hub_envs.loading.load.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.
+        A :class:`hub_envs.loading.loaded.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.
 
     Raises:
         ReproductionError: the dataset names no env, no commit has its code, or the code or config

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Unpack
 
 from hub_envs.backends import Backend, make_backend
-from hub_envs.cli.flags import CodeRun, EnvFlags, call_with_flags, code_run
+from hub_envs.cli.flags import EnvFlags, call_with_flags
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
@@ -54,6 +54,7 @@ from hub_envs.harness.provenance import (
 from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
 from hub_envs.harness.report_files import default_out_dir
+from hub_envs.loading.isolated import CodeRun, code_run
 from hub_envs.operations.from_dataset import code_digest_of, env_from_dataset, read_env_meta
 
 __all__ = [

@@ -63,7 +63,8 @@ from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episod
 from hub_envs.harness.features import check_features
 from hub_envs.harness.media import render_size_overrides, write_rollout_media
 from hub_envs.harness.provenance import package_versions
-from hub_envs.loading.load import LoadedEnv, load_env
+from hub_envs.loading.load import load_env
+from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.paths import PACKAGE_DIR
 from hub_envs.publishing.card import render_card, reproduced_table
 from hub_envs.repo import hub_io

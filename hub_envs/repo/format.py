@@ -99,7 +99,7 @@ GYM_ID_RE = re.compile(r"^(?:[\w:.-]+/)?[\w:.-]+$")
 def is_lazy_file(path: str) -> bool:
     """A file ``load_env`` does not fetch: the dataset's data (``dataset/data/``, ``dataset/videos/``,
     anything under ``dataset/`` but its ``meta/``). It is fetched, and verified against the manifest,
-    when the dataset is opened (:meth:`hub_envs.loading.load.LoadedEnv.fetch_dataset`). Never code: a ``.py``
+    when the dataset is opened (:meth:`hub_envs.loading.loaded.LoadedEnv.fetch_dataset`). Never code: a ``.py``
     (or anything Python could run) under ``dataset/`` is fetched and verified with the rest of the code.
 
     >>> [is_lazy_file(p) for p in ("dataset/data/chunk-000/file-000.parquet", "dataset/meta/info.json", "env.py")]
@@ -117,7 +117,7 @@ def is_lazy_file(path: str) -> bool:
 
 def is_media_file(path: str) -> bool:
     """The card's media (``media/rollout.gif``, ``media/rollout.mp4``): only the card and the web page show them,
-    so ``load_env`` does not fetch them (:meth:`hub_envs.loading.load.LoadedEnv.media_file` does, verified). Never code.
+    so ``load_env`` does not fetch them (:meth:`hub_envs.loading.loaded.LoadedEnv.media_file` does, verified). Never code.
 
     >>> is_media_file("media/rollout.mp4"), is_media_file("media/helper.py"), is_media_file("README.md")
     (True, False, False)

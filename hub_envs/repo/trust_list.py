@@ -42,7 +42,8 @@ from hub_envs.repo.format import is_commit_sha
 
 TRUST_FILE = "trusted.json"
 FORMAT = 2
-_DIGEST = re.compile(r"[0-9a-f]{64}")
+#: a manifest content digest: 64 lowercase hex digits
+DIGEST_RE = re.compile(r"[0-9a-f]{64}")
 
 
 def trust_file() -> Path:
@@ -90,7 +91,7 @@ def _parse(data: object, path: Path) -> list[TrustEntry]:
                 is_commit_sha(sha)
                 and isinstance(entry, dict)
                 and isinstance(entry.get("content_digest"), str)
-                and _DIGEST.fullmatch(entry["content_digest"])
+                and DIGEST_RE.fullmatch(entry["content_digest"])
             ):
                 raise bad
             out.append(TrustEntry(str(repo_id), sha, entry["content_digest"], str(entry.get("trusted_at", ""))))
@@ -198,7 +199,7 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
             f"`hub-envs trust {repo_id}@<40-hex sha>` (load_env prints the sha it resolved)."
         )
     digest = content_digest if content_digest is not None else commit_digest(repo_id, sha, token=token)
-    if not _DIGEST.fullmatch(digest):
+    if not DIGEST_RE.fullmatch(digest):
         raise ConfigError(f"content_digest {digest!r} is not a sha256 hex digest.")
     with _locked() as path:
         entries = [e for e in _load(path) if not (e.repo_id == repo_id and e.sha == sha)]

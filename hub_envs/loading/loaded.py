@@ -1,0 +1,302 @@
+"""The handle ``load_env`` returns: :class:`LoadedEnv` (make envs, the dataset, the media, the processors) and its
+:class:`LoadReport`; the envs loaded in this process, by draccus choice."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from hub_envs._compat import video_backend
+from hub_envs.dataset.reader import check_videos
+from hub_envs.envcode.envconfig import instantiate_config
+from hub_envs.envcode.registration import Registration, unregister
+from hub_envs.errors import ConfigError, InvalidRepoFormatError
+from hub_envs.harness.features import FeatureReport
+from hub_envs.loading.dataset_files import ensure_dataset_files, ensure_media_file
+from hub_envs.loading.isolated import config_in_worker, isolated_vector_env, worker_versions
+from hub_envs.repo.format import DATASET_DIR, Manifest
+
+
+@dataclass
+class LoadReport:
+    """What load_env checked, and how long each stage took (seconds).
+
+    Attributes:
+        integrity: how the files were verified (``"41 files match the manifest"``).
+        trust: what the consent to run the code was (``"trust_remote_code=True"``, ``"trust list (...)"``).
+        requirements: the requirements the preflight checked.
+        features: the three-way feature check (declared / live / dataset), None if not run.
+        fingerprint: what the golden-rollout fingerprint check found.
+        timings: seconds per stage (``fetch_verify``, ``requirements``, ``import_register``, ``checks``, ...).
+    """
+
+    integrity: str = "not checked"
+    trust: str = "not needed"
+    requirements: list[str] = field(default_factory=list)
+    features: FeatureReport | None = None
+    fingerprint: str = "not checked"
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready data (``hub-envs load --json``)."""
+        return {
+            "integrity": self.integrity,
+            "trust": self.trust,
+            "requirements": self.requirements,
+            "features": self.features.to_dict() if self.features else None,
+            "fingerprint": self.fingerprint,
+            "timings": self.timings,
+        }
+
+
+class LoadedEnv:
+    """An env loaded from the Hub (or a local folder): registered, checked, and ready to make.
+
+    Attributes:
+        repo_id: ``user/name`` (``local/<folder>`` for a local folder).
+        revision: the resolved 40-hex commit sha (``local-<digest>`` for a local folder).
+        gym_id: the id registered with gymnasium (``gym.make(loaded.gym_id)``), unique per revision.
+        env_type: the draccus choice name (``--env.type=<env_type>``), unique per revision.
+        config: an instance of the repo's EnvConfig subclass, with its published defaults.
+        manifest: the parsed ``hub_env.json``.
+        path: the local snapshot folder.
+        report: the :class:`LoadReport`.
+        local_folder: the env folder it was loaded from (None: from the Hub).
+        isolation: how the env's code runs (:class:`hub_envs.isolation.IsolationOptions`); None: in this process.
+        token: the Hub token this load downloaded with (None: huggingface_hub's own); a Ray worker downloads with it.
+    """
+
+    def __init__(
+        self,
+        *,
+        repo_id,
+        revision,
+        requested_revision,
+        path,
+        manifest,
+        env_class,
+        config_class,
+        config,
+        registration: Registration,
+        report,
+        local_folder=None,
+        isolation=None,
+        token=None,
+        cache_dir=None,
+    ):
+        self.repo_id: str = repo_id
+        self.revision: str = revision
+        self.requested_revision: str | None = requested_revision
+        self.path: Path = Path(path)
+        self.manifest: Manifest = manifest
+        self.env_class = env_class
+        self.config_class = config_class
+        self.config = config
+        self._registration = registration
+        self.report: LoadReport = report
+        self.local_folder: Path | None = local_folder
+        self.isolation = isolation if isolation is not None and isolation.isolated else None
+        self.token = token
+        self._cache_dir = cache_dir
+        self._dataset_verified = False
+        self._unregistered = False
+        self._earlier: LoadedEnv | None = None  # the load of the same env_type this one replaced in _LOADED (remember)
+
+    @property
+    def worker_venv(self) -> dict[str, Any] | None:
+        """For an ``isolation="venv"`` load: the worker's venv record (``path``, ``python``, ``installed``, ``notes``)."""
+        return worker_versions(self.isolation)
+
+    @property
+    def runs_as(self) -> str:
+        """How the env's code runs, as reports record it: ``none`` (in this process), ``process``, ``venv``,
+        ``process+sandbox``, ``venv+publisher`` (the publisher's package versions), ..."""
+        return "none" if self.isolation is None else self.isolation.label
+
+    # -- names --
+    @property
+    def gym_id(self) -> str:
+        """The id registered with gymnasium (``gym.make(loaded.gym_id)``), unique per revision."""
+        return self._registration.gym_id
+
+    @property
+    def env_type(self) -> str:
+        """The draccus choice name (``--env.type=<env_type>``), unique per revision."""
+        return self._registration.env_type
+
+    @property
+    def is_local(self) -> bool:
+        """Whether it was loaded from a local folder."""
+        return self.local_folder is not None
+
+    @property
+    def dataset_root(self) -> Path | None:
+        """The bundled dataset's folder, its data files fetched and verified (see :meth:`fetch_dataset`);
+        None if the repo has no dataset."""
+        return self.fetch_dataset()
+
+    @property
+    def dataset_meta_root(self) -> Path | None:
+        """The bundled dataset's folder with its ``meta/`` only (what load_env fetches); no download."""
+        root = self.path / DATASET_DIR
+        return root if (root / "meta" / "info.json").is_file() else None
+
+    def fetch_dataset(self) -> Path | None:
+        """Fetch the bundled dataset's data files (``dataset/data/``, videos: load_env fetched its
+        ``meta/`` only), verify each against the manifest's sha256, and return the dataset folder.
+
+        Once per LoadedEnv; files already in the cache are not downloaded again. None if the repo
+        has no dataset. Raises :class:`~hub_envs.errors.DatasetNotCachedError` offline when files
+        are missing, and :class:`~hub_envs.errors.IntegrityError` (the bad files are removed from
+        the cache) when a file differs from the manifest.
+        """
+        root = self.dataset_meta_root
+        if root is None or self._dataset_verified or self.is_local:
+            return root
+        ensure_dataset_files(self.repo_id, self.revision, self.path, self.manifest, token=self.token, cache_dir=self._cache_dir)
+        self._dataset_verified = True
+        return root
+
+    def media_file(self, name: str = "rollout.gif") -> Path:
+        """The card's media file ``media/<name>`` (``rollout.gif``; ``rollout.mp4`` when the dataset stores video),
+        fetched on first use (load_env leaves the media on the Hub: only the card and the web page show them) and
+        checked against the manifest's sha256. Raises :class:`~hub_envs.errors.InvalidRepoFormatError` when the
+        repo has no such file, :class:`~hub_envs.errors.OfflineNotCachedError` offline when it is not cached,
+        and :class:`~hub_envs.errors.IntegrityError` (the file is removed from the cache) when it differs."""
+        return ensure_media_file(
+            self.repo_id,
+            self.revision,
+            self.path,
+            self.manifest,
+            name,
+            local=self.is_local,
+            token=self.token,
+            cache_dir=self._cache_dir,
+        )
+
+    def config_with(self, fields: Mapping[str, Any]) -> Any:
+        """The config with ``fields`` set (values decoded as LeRobot's ``--env.<field>=<value>`` flags are), on
+        top of a published variant's own (``manifest.config_overrides``), before the config's ``__post_init__``.
+
+        In-process: an instance of :attr:`config_class`. Isolated: the repo's config class runs in a worker
+        (the parent never imports the repo's code) and what it computed comes back as a read-only
+        :class:`~hub_envs.isolation.config.ManifestConfig`; the envs made from it follow it the same way.
+        A field the config does not have is a :class:`~hub_envs.errors.ConfigError` naming its fields.
+        """
+        where = str(self.local_folder) if self.is_local else f"{self.repo_id}@{self.revision}"
+        fields = {**self.manifest.config_overrides, **fields}
+        if self.config_class is not None:
+            return instantiate_config(self.config_class, where=where, overrides=fields)
+        return config_in_worker(self.gym_id, self.isolation, self.manifest.config_entry_point, fields, where=where)
+
+    def load_line(self) -> str:
+        """The Python line that loads this env again, pinned (``load_env("user/name@<sha>", trust_remote_code=True)``)."""
+        if self.is_local:
+            return f'load_env("{self.local_folder}")'
+        return f'load_env("{self.repo_id}@{self.revision}", trust_remote_code=True)'
+
+    # -- making envs --
+    def make(self, cfg=None, **kwargs) -> gym.Env:
+        """``gym.make`` this env; ``cfg`` (an instance of :attr:`config_class`) overrides the defaults."""
+        if cfg is not None:
+            kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
+        return gym.make(self.gym_id, **kwargs)
+
+    def make_vec(self, n_envs: int = 1, use_async: bool = False, cfg=None, **kwargs) -> gym.vector.VectorEnv:
+        """A vector env of ``n_envs`` copies (async: one process each, forked so the registration carries over).
+
+        Isolated (``load_env(..., isolation="process")``): an :class:`~hub_envs.isolation.vector.IsolatedVectorEnv`
+        (``use_async`` does not apply: its workers always step side by side)."""
+        if n_envs < 1:
+            raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+        if cfg is not None:
+            kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
+        if self.isolation is not None:
+            return isolated_vector_env(self.gym_id, self.isolation, n_envs, kwargs)
+        fns = [lambda: self.make(**kwargs) for _ in range(n_envs)]
+        if use_async:
+            return gym.vector.AsyncVectorEnv(fns, context="fork")
+        return gym.vector.SyncVectorEnv(fns)
+
+    def open_dataset(self, **kwargs):
+        """The bundled random-action dataset as a ``LeRobotDataset``, read from the snapshot; its data
+        files are fetched and verified first if load_env left them out (see :meth:`fetch_dataset`). Video
+        features decode with the backend that works here (torchcodec if it loads, else pyav:
+        :func:`hub_envs._compat.video_backend`) unless ``video_backend=`` is given. The MP4s of video features
+        are checked to decode (a truncated or damaged file raises :class:`IntegrityError`, not a decode crash
+        inside a DataLoader)."""
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy: lerobot's datasets, torch
+
+        root = self.fetch_dataset()
+        if root is None:
+            raise InvalidRepoFormatError(
+                f"{self.repo_id}@{self.revision} has no dataset/ (a local folder gets one from push_env)."
+            )
+        if check_videos(root):
+            kwargs.setdefault("video_backend", video_backend())
+        return LeRobotDataset(self.repo_id, root=root, **kwargs)
+
+    def processors(self, cfg=None):
+        """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares.
+
+        Empty pipelines when it declares none. See :mod:`hub_envs.loading.processors`.
+        """
+        from hub_envs.loading.processors import pipelines_for  # heavy: torch, lerobot's processors
+
+        return pipelines_for(self, cfg)
+
+    def unregister(self) -> None:
+        """Release this load's gym id and draccus choice (the imported modules stay cached). Another load of the
+        same repo@sha shares them: they go when the last of those is unregistered. A second call does nothing."""
+        if self._unregistered:
+            return
+        self._unregistered = True
+        unregister(self._registration)
+        if _LOADED.get(self.env_type) is self:
+            earlier = self._earlier
+            if earlier is not None and not earlier._unregistered:
+                _LOADED[self.env_type] = earlier  # the user's own load of it is what LeRobot's make_env finds again
+            else:
+                del _LOADED[self.env_type]
+
+    def __enter__(self) -> LoadedEnv:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """``with load_env(...) as loaded:`` unregisters at the end: what a command that loads an env for one run
+        (reproduce, diff, evaluate, compare) wants."""
+        self.unregister()
+
+    def __repr__(self) -> str:
+        return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r})"
+
+
+#: The envs load_env returned in this process, by draccus choice name (for integrations such as the LeRobot bridge).
+_LOADED: dict[str, LoadedEnv] = {}
+
+
+def remember(loaded: LoadedEnv) -> None:
+    """Make ``loaded`` what :func:`loaded_env_for_type` finds for its draccus choice (the load it replaces comes back
+    when ``loaded`` is unregistered).
+
+    Args:
+        loaded: a load that just succeeded.
+    """
+    loaded._earlier = _LOADED.get(loaded.env_type)
+    _LOADED[loaded.env_type] = loaded
+
+
+def loaded_env_for_type(env_type: str) -> LoadedEnv | None:
+    """The load behind a draccus choice, for integrations such as the LeRobot bridge.
+
+    Args:
+        env_type: a draccus choice name (``--env.type``).
+
+    Returns:
+        The :class:`LoadedEnv` whose choice it is, if load_env registered it in this process; else None.
+    """
+    return _LOADED.get(env_type)
