@@ -1,35 +1,11 @@
-"""Where episodes run: this machine's processes (``local``) or a Ray cluster (``ray``).
-
-One concept: an *execution backend* turns ``(env, seeds, max_steps, policy)`` into the episodes' rollouts,
-**in episode order**, whatever runs them. Dataset generation (:func:`hub_envs.push_env`), reproduction
-(:func:`hub_envs.reproduce`) and policy evaluation (:func:`hub_envs.evaluate`) consume that iterator and
-never know which backend produced it; the results are identical on every backend for any number of
-workers (an episode is fully determined by its seed, its policy and ``max_steps``:
-:mod:`hub_envs.harness.rollout`).
-
-* :class:`LocalBackend`: the rollout engine's process pool on this machine (``workers`` processes).
-* ``RayBackend`` (:mod:`hub_envs.backends.ray`, needs ``pip install 'hub-envs[ray]'``): episodes sharded by
-  index across Ray actors that each ``load_env`` the repo the way a user does (or unpack the local env
-  folder ``push_env`` ships), results consumed in order with a bounded number of shards in flight,
-  finished shards checkpointed for a resumed run, Ray's retries when a worker dies.
-
-Backends are context managers: ``with backend:`` keeps a Ray connection (or the local Ray it started)
-for several runs; without it each run connects and disconnects by itself.
-
-Example:
-    >>> from hub_envs.backends import make_backend
-    >>> make_backend("local", workers=2)
-    LocalBackend(workers=2)
-    >>> make_backend("spark")
-    Traceback (most recent call last):
-    ...
-    hub_envs.errors.ConfigError: backend='spark': choose 'local' (this machine's processes) or 'ray' (a Ray cluster).
-"""
+"""What every backend is: a :class:`Backend` turns ``(env, seeds, max_steps, policy)`` into the episodes' rollouts,
+**in episode order**, whatever runs them; an :class:`EnvSource` is how a worker elsewhere gets the env the way a user
+does. The results are identical on every backend for any number of workers (an episode is fully determined by its
+seed, its policy and ``max_steps``: :mod:`hub_envs.harness.rollout`)."""
 
 from __future__ import annotations
 
 import io
-import os
 import tarfile
 import tempfile
 from collections.abc import Iterator, Sequence
@@ -37,16 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hub_envs.errors import ConfigError
-from hub_envs.harness.rollout import EpisodeRollout, iter_episodes
-
-__all__ = ["Backend", "LocalBackend", "EnvSource", "make_backend", "BACKENDS"]
-
-BACKENDS = ("local", "ray")
-
-
-def _default_local_workers() -> int:
-    return max(1, min(2, os.cpu_count() or 1))
+from hub_envs.envcode.envconfig import encode_config
+from hub_envs.harness.rollout import EpisodeRollout
+from hub_envs.loading.load import load_env
+from hub_envs.repo.format import list_files
 
 
 @dataclass(frozen=True)
@@ -79,8 +49,6 @@ class EnvSource:
         content it was given for)."""
         isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
         if loaded.local_folder is not None:
-            from hub_envs.envcode.envconfig import encode_config
-
             values = encode_config(loaded.config)
             config = {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
             return cls(
@@ -104,8 +72,6 @@ class EnvSource:
     def load(self, scratch: Path | None = None) -> Any:
         """``load_env`` in this (worker) process, with the driver's isolation; checks already ran where the run
         was started. A shipped folder is unpacked into ``scratch`` (the caller removes it; default a new temp folder)."""
-        from hub_envs.loading.load import load_env
-
         if self.folder is None:
             return load_env(
                 self.ref,
@@ -123,8 +89,6 @@ class EnvSource:
 
 
 def _tar_folder(folder: Path) -> bytes:
-    from hub_envs.repo.format import list_files
-
     buf = io.BytesIO()
     with tarfile.open(fileobj=buf, mode="w") as tar:
         for rel in list_files(folder):
@@ -133,7 +97,11 @@ def _tar_folder(folder: Path) -> bytes:
 
 
 class Backend:
-    """Runs episodes of a loaded env and yields their rollouts in episode order (see the module docstring)."""
+    """Runs episodes of a loaded env and yields their rollouts in episode order.
+
+    Backends are context managers: ``with backend:`` keeps a Ray connection (or the local Ray it started) for several
+    runs; without it each run connects and disconnects by itself.
+    """
 
     name = "backend"
 
@@ -160,58 +128,3 @@ class Backend:
     def settings(self) -> dict[str, Any]:
         """What a report records about where the episodes ran (the results do not depend on it)."""
         return {"backend": self.name}
-
-
-@dataclass(frozen=True)
-class LocalBackend(Backend):
-    """Episodes in ``workers`` processes of this machine (:func:`hub_envs.harness.rollout.iter_episodes`)."""
-
-    workers: int = 1
-    name = "local"
-
-    def __post_init__(self) -> None:
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
-            raise ConfigError(f"workers={self.workers!r}: pass a positive number of processes.")
-
-    def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts"):
-        return iter_episodes(
-            loaded.make,
-            seeds,
-            max_steps=max_steps,
-            policy=policy,
-            record_states=record_states,
-            workers=self.workers,
-            progress=progress,
-            desc=desc,
-        )
-
-    def settings(self) -> dict[str, Any]:
-        return {"backend": self.name, "workers": self.workers}
-
-
-def make_backend(
-    backend: str | Backend = "local",
-    *,
-    workers: int | None = None,
-    ray_address: str | None = None,
-    checkpoint_dir: str | Path | None = None,
-) -> Backend:
-    """The backend named by ``backend`` (``"local"`` or ``"ray"``), or ``backend`` itself if it is one.
-
-    Args:
-        workers: processes (local; default up to 2) or Ray actors (default: the cluster's CPUs).
-        ray_address: the Ray cluster (``host:port`` or ``ray://host:port``); default ``$RAY_ADDRESS`` if set,
-            else a local Ray started for the run and stopped after it. Ray only.
-        checkpoint_dir: where a Ray run keeps its finished shards; the same run started again skips them.
-    """
-    if isinstance(backend, Backend):
-        return backend
-    if backend == "local":
-        if ray_address is not None:
-            raise ConfigError(f"ray_address={ray_address!r} is for --backend=ray; drop it or pass --backend=ray.")
-        return LocalBackend(workers=int(workers) if workers else _default_local_workers())
-    if backend == "ray":
-        from hub_envs.backends.ray import RayBackend
-
-        return RayBackend(address=ray_address, workers=workers, checkpoint_dir=checkpoint_dir)
-    raise ConfigError(f"backend={backend!r}: choose 'local' (this machine's processes) or 'ray' (a Ray cluster).")

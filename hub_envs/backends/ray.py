@@ -44,6 +44,7 @@ import shutil
 import socket
 import sys
 import tempfile
+import time
 import weakref
 from collections import deque
 from collections.abc import Iterator
@@ -52,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from hub_envs.backends import Backend, EnvSource
+from hub_envs.backends.base import Backend, EnvSource
 from hub_envs.errors import (
     ClusterAuthError,
     ClusterUnreachableError,
@@ -61,7 +62,9 @@ from hub_envs.errors import (
     HubEnvsError,
     MissingRequirementsError,
 )
-from hub_envs.harness.rollout import EpisodeRollout, _check_seeds, _progress, _Runner
+from hub_envs.harness.policy import policy_for
+from hub_envs.harness.rollout import EpisodeRollout, EpisodeRunner, check_seeds, progress_bar
+from hub_envs.repo import hub_io
 
 PIP_LINE = "pip install 'hub-envs[ray]'"
 #: Hub client settings a Ray worker gets from the driver (besides ``HF_ENDPOINT``, always sent), when set here: how
@@ -184,8 +187,6 @@ def worker_env() -> dict[str, str]:
     huggingface_hub resolved it here) and the :data:`HUB_SETTINGS` set here. A cluster someone else started (``ray
     start`` from a shell without them) would otherwise send its workers to huggingface.co. No secret goes here: a task's
     ``runtime_env`` is part of the cluster's job and task metadata (``ray list tasks --detail``, the dashboard)."""
-    from hub_envs.repo import hub_io
-
     env = {"HF_ENDPOINT": hub_io.endpoint()}
     env.update({name: os.environ[name] for name in HUB_SETTINGS if os.environ.get(name)})
     return env
@@ -211,9 +212,7 @@ class _Loaded:
         try:
             self.loaded = source.load(self.scratch)  # with the driver's isolation: then self.env is a proxy
             if isinstance(policy, dict):  # a policy spec: built here, once per worker
-                from hub_envs.harness.benchmark import _policy_for
-
-                self.policy = _policy_for(policy, self.loaded, source.token, True)  # consent was checked on the driver
+                self.policy = policy_for(policy, self.loaded, source.token, True)  # consent was checked on the driver
             self.env = self.loaded.make()
         except HubEnvsError as exc:  # raised for every shard, naming this node
             self.error = type(exc)(f"on Ray node {_node_ip()}: {exc}")
@@ -248,7 +247,7 @@ def run_shard(
     if here.error is not None:
         raise here.error
     env = here.env
-    runner = _Runner(lambda: env, max_steps, actions if actions is not None else here.policy, record_states, len(seeds))
+    runner = EpisodeRunner(lambda: env, max_steps, actions if actions is not None else here.policy, record_states, len(seeds))
     return [runner.run(i, seed, episode=start + i) for i, seed in enumerate(seeds)]
 
 
@@ -296,8 +295,6 @@ class _Status:
         self.refresh()
 
     def refresh(self) -> None:
-        import time
-
         now = time.monotonic()
         if now - self.last < self.every:
             return
@@ -390,8 +387,6 @@ class RayBackend(Backend):
 
     # -- the connection --
     def __enter__(self) -> RayBackend:
-        import time
-
         ray = import_ray()
         if self._depth == 0 and self.address:
             _probe(self.address)  # also when connected already: a wrong address is never silently ignored
@@ -454,7 +449,7 @@ class RayBackend(Backend):
 
     # -- a run --
     def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts") -> RayRun:
-        seeds = _check_seeds(seeds)
+        seeds = check_seeds(seeds)
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
             raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
         stats = {"episodes": len(seeds), "shards": 0, "shards_run": 0, "shards_resumed": 0}
@@ -477,7 +472,7 @@ class RayBackend(Backend):
             ckpt = self._checkpoints(source, seeds, max_steps, policy, record_states, size)
             done = {k for k in range(len(shards)) if ckpt is not None and (ckpt / f"shard-{k:06d}.pkl").is_file()}
             todo = deque(k for k in range(len(shards)) if k not in done)
-            bar = _progress(n, desc, progress)
+            bar = progress_bar(n, desc, progress)
             status = _Status(ray, bar, workers, resumed=len(done)) if progress else None
             pending: dict[int, Any] = {}
             task = ray.remote(num_cpus=1, max_retries=MAX_RESTARTS, runtime_env={"env_vars": worker_env()})(run_shard)

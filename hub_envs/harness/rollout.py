@@ -202,8 +202,9 @@ def _resolve_get_state(env: Any) -> Callable[[], Any] | None:
     return getattr(env, "get_state", None)
 
 
-class _Runner:
-    """Holds one env (created on first use) and runs episodes on it."""
+class EpisodeRunner:
+    """Holds one env (created on first use) and runs episodes on it: what each worker of the engine (and of a Ray
+    backend) runs; ``policy`` as :func:`run_episodes` takes it."""
 
     def __init__(self, make_env: Callable[[], Any], max_steps: int, policy: Any, record_states: bool, n_episodes: int):
         self.make_env = make_env
@@ -410,14 +411,14 @@ def _check_finite(where: str, observations: dict[str, np.ndarray], rewards: np.n
 
 _FORK_STATES: dict[int, tuple] = {}  # token -> runner args, inherited by forked workers
 _TOKENS = itertools.count()
-_WORKER: _Runner | None = None
+_WORKER: EpisodeRunner | None = None
 
 
 def _worker_init(token: int | None, args: tuple | None) -> None:
     global _WORKER
     if args is None:
         args = _FORK_STATES[token]
-    _WORKER = _Runner(*args)
+    _WORKER = EpisodeRunner(*args)
     try:  # close the env when the worker exits (atexit does not run in pool workers)
         from multiprocessing.util import Finalize
 
@@ -431,7 +432,18 @@ def _worker_run(index: int, seed: int) -> EpisodeRollout:
     return _WORKER.run(index, seed)
 
 
-def _check_seeds(seeds: Sequence[int]) -> list[int]:
+def check_seeds(seeds: Sequence[int]) -> list[int]:
+    """The seeds as ints, each checked.
+
+    Args:
+        seeds: reset seeds.
+
+    Returns:
+        The seeds as a list of ints.
+
+    Raises:
+        ConfigError: a seed that is not a non-negative integer.
+    """
     out = []
     for i, s in enumerate(seeds):
         if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
@@ -440,7 +452,14 @@ def _check_seeds(seeds: Sequence[int]) -> list[int]:
     return out
 
 
-def _progress(total: int, desc: str, enabled: bool):
+def progress_bar(total: int, desc: str, enabled: bool):
+    """A progress bar counting episodes (huggingface_hub's tqdm: it respects ``HF_HUB_DISABLE_PROGRESS_BARS``).
+
+    Args:
+        total: the episodes.
+        desc: the bar's label.
+        enabled: False: a silent bar.
+    """
     from huggingface_hub.utils import tqdm  # respects HF_HUB_DISABLE_PROGRESS_BARS, like hub downloads
 
     return tqdm(total=total, desc=desc, unit="ep", disable=not enabled, leave=False)
@@ -462,7 +481,7 @@ def iter_episodes(
     With ``workers > 1`` at most ``2 * workers`` finished episodes wait in memory for the consumer.
     Closing the iterator early stops the workers.
     """
-    seeds = _check_seeds(seeds)  # validate now, not on the first next()
+    seeds = check_seeds(seeds)  # validate now, not on the first next()
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
@@ -472,10 +491,10 @@ def iter_episodes(
 
 
 def _iter(args: tuple, seeds: list[int], workers: int, progress: bool, desc: str) -> Iterator[EpisodeRollout]:
-    bar = _progress(len(seeds), desc, progress)
+    bar = progress_bar(len(seeds), desc, progress)
     try:
         if workers == 1:
-            runner = _Runner(*args)
+            runner = EpisodeRunner(*args)
             try:
                 for i, seed in enumerate(seeds):
                     rollout = runner.run(i, seed)

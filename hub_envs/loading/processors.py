@@ -58,8 +58,8 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from hub_envs._compat import processor_step_names
 from hub_envs.errors import HubEnvsError, ProcessorError
-from hub_envs.harness.benchmark import policy_observation
 from hub_envs.harness.episode import SeededEpisode
+from hub_envs.harness.policy import policy_observation
 
 STAGES = ("pre", "post")
 FIELDS = ("name", "entry_point", "kwargs", "stage")
