@@ -6,7 +6,7 @@
   rule (:func:`hub_envs.repo.format.repo_id_problem`) and refuses with a ConfigError naming the value's ``repr`` and
   the rule; each entry is tested here.
 * ``compare --policies=user/name`` took a same-named local folder for the caller's own checkpoint, without consent;
-  policies now follow the envs' rule (:func:`hub_envs.repo.hub_io.local_path`): ``user/name`` always means the Hub.
+  policies now follow the envs' rule (:func:`hub_envs.repo.refs.local_path`): ``user/name`` always means the Hub.
 
 Against one real loopback Hub per module, with a published env ``user/name``: on the old code, the ids below that lost
 their newline loaded or listed that very repo.
@@ -172,7 +172,7 @@ def test_envs_and_policies_share_one_rule_for_local_folders(policy_repo_and_fold
     """The same text means the same thing to load_env and to compare: ``user/name`` the Hub, a path a folder; a bare
     name or a deeper relative path (``outputs/train/.../pretrained_model``, which no repo id looks like) a folder
     when one exists."""
-    from hub_envs.repo.hub_io import local_path
+    from hub_envs.repo.refs import local_path
 
     deep = tmp_path / "outputs" / "train" / "pretrained_model"
     deep.mkdir(parents=True)

@@ -38,6 +38,7 @@ from hub_envs.repo.format import (
     is_code_file,
     is_on_demand_file,
 )
+from hub_envs.repo.refs import local_path, parse_repo_ref
 
 
 def _local_manifest(folder: EnvFolder) -> Manifest:
@@ -299,7 +300,7 @@ def resolve_source(
     """
     local_folder = None
     # a folder's code runs without consent: 'user/name' names a Hub repo even if a folder of that name exists here
-    path_candidate = hub_io.local_path(repo_id, stacklevel=3)
+    path_candidate = local_path(repo_id, stacklevel=3)
     use_local = path_candidate is not None
     if use_local and not path_candidate.is_dir():
         raise EnvFolderError(
@@ -328,7 +329,7 @@ def resolve_source(
             report.integrity = "local folder (hashed, not verified)"
         report.trust = "local folder"
     else:
-        repo, at_rev = hub_io.parse_repo_ref(repo_id)
+        repo, at_rev = parse_repo_ref(repo_id)
         requested = revision or at_rev
         trusted = trust_list.read_trust_list()  # before any download: nothing a download writes can change it
         snap, manifest = _fetch_and_verify(repo, requested, token=token, cache_dir=cache_dir)

@@ -1,22 +1,6 @@
-"""Reproduction attestations: "this env, at this commit, reproduced (or not) on this stack", published on the
-env's own repo through a Hub pull request, so anyone can attest and the owner merges.
-
-An :class:`Attestation` is one JSON file, ``reproductions/<date>-<commit sha12>-<stack digest>.json``: the verdict, the replay
-and benchmark summaries with their confidence intervals, the env's commit, content digest and dataset
-fingerprint, the stack it ran on (python, platform, CPU model, the versions of lerobot/torch/numpy/gymnasium, the
-simulator and the env's whole requirement closure, hub-envs), the command line that reproduces it, and the
-sha256 of the full ``report.json``. It is typed and validated like the manifest
-(:class:`hub_envs.repo.format.Manifest`): a reader refuses a malformed file with an :class:`AttestationError`.
-
-``--sign_key=PATH`` adds ``<file>.sig``, an OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of the file's
-bytes; :func:`verify_signature` checks it against an ``allowed_signers`` file (``ssh-keygen -Y verify``).
-
-    hub-envs reproduce --repo_id=user/name@<sha> --trust_remote_code=true --attest=true [--sign_key=~/.ssh/id_ed25519]
-    hub-envs attestations --repo_id=user/name [--verify=true --allowed_signers=FILE] [--json=true]
-
-``hub-envs attestations`` prints the matrix env revision x stack -> verdict over the merged attestations (on
-main) and those of open pull requests; ``push_env`` renders the merged ones for the same content in the card
-("Reproduced on").
+"""Reproduction attestations, the record: "this env, at this commit, reproduced (or not) on this stack", one JSON file
+``reproductions/<date>-<commit sha12>-<stack digest>.json`` in the env's repo (typed and validated like the manifest),
+its optional OpenSSH signature, and reading them back (merged, and in open pull requests).
 
 Example:
     >>> from hub_envs.repo.attestations import stack_digest
@@ -35,7 +19,6 @@ import platform
 import re
 import shutil
 import subprocess
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,18 +26,18 @@ from typing import Any
 
 from hub_envs._stack import CORE_PACKAGES, cpu_model, requirement_closure
 from hub_envs._text import safe_text
-from hub_envs.errors import AttestationError, ConfigError, HostileResponseError, HubError
+from hub_envs.errors import AttestationError, HostileResponseError, HubError
+from hub_envs.repo import hub_io
 from hub_envs.repo.format import REPRODUCTIONS_DIR, is_attestation_file
+from hub_envs.repo.refs import check_repo_id
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "Attestation",
     "AttestationEntry",
-    "AttestResult",
     "FORMAT_VERSION",
     "REPRODUCTIONS_DIR",
-    "attest",
     "collect_attestations",
     "merged_attestations",
     "sign_file",
@@ -62,7 +45,6 @@ __all__ = [
     "verify_signature",
     "describe_stack",
     "matrix_text",
-    "CLI_COMMANDS",
 ]
 
 FORMAT_VERSION = 1
@@ -392,85 +374,6 @@ def verify_signature(data: bytes, signature: bytes, allowed_signers: str | Path)
         return False, (out.stderr or out.stdout).decode("utf-8", "replace").strip() or "signature does not match"
 
 
-# --- publishing ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class AttestResult:
-    """What :func:`attest` published: the attestation, its path, the pull request."""
-
-    attestation: Attestation
-    path: str
-    signed: bool
-    pr_url: str
-    pr_num: int
-    commit: str
-
-    def summary(self) -> str:
-        return (
-            f"Attested {self.attestation.verdict} for {self.attestation.repo_id}@{self.attestation.sha[:12]} "
-            f"(stack {self.attestation.stack_digest}{', signed' if self.signed else ''}): pull request #{self.pr_num} "
-            f"adds {self.path}\n  {safe_text(self.pr_url)}\n  The repo's owner merges it: "
-            f"huggingface_hub.HfApi().merge_pull_request({self.attestation.repo_id!r}, {self.pr_num})"
-        )
-
-
-def _whoami(token: str | None) -> str | None:
-    from hub_envs.repo import hub_io
-
-    try:
-        return str(hub_io.api(token).whoami().get("name")) or None
-    except Exception:  # noqa: BLE001 - anonymous: the PR would be refused anyway, with the Hub's message
-        return None
-
-
-def attest(
-    report: Any,
-    *,
-    command: list[str] | tuple[str, ...],
-    sign_key: str | Path | None = None,
-    requirements: tuple[str, ...] | list[str] | None = None,
-    token: str | None = None,
-) -> AttestResult:
-    """Publish the attestation of ``report`` (a :class:`~hub_envs.harness.report.ReproduceReport` of a Hub repo) on
-    the env repo through a pull request (``create_commit(create_pr=True)``): anyone may open one on a public repo.
-
-    ``sign_key``: an OpenSSH private key; the signature goes next to the file (``.json.sig``).
-    """
-    from huggingface_hub import CommitOperationAdd
-
-    from hub_envs._compat import lfs_instead_of_xet
-    from hub_envs.repo import hub_io
-
-    if report.settings.get("source") == "folder":
-        raise ConfigError(
-            f"{report.repo_id} was reproduced from a local folder: an attestation names a Hub repo and commit. "
-            "Reproduce --repo_id=user/name@<sha> to attest."
-        )
-    if requirements is None:
-        from hub_envs.repo.format import Manifest
-
-        requirements = Manifest.from_json(hub_io.read_manifest_text(report.repo_id, report.sha, token=token)).requirements
-    att = Attestation.from_report(report, requirements=requirements, command=command, attested_by=_whoami(token))
-    data = att.to_json().encode("utf-8")
-    ops = [CommitOperationAdd(path_in_repo=att.path, path_or_fileobj=data)]
-    if sign_key is not None:
-        ops.append(CommitOperationAdd(path_in_repo=att.path + SIGNATURE_SUFFIX, path_or_fileobj=sign_file(data, sign_key)))
-    client = hub_io.api(token)
-    with hub_io.translate_hub_errors(report.repo_id, "main"), lfs_instead_of_xet(True):
-        info = client.create_commit(
-            report.repo_id,
-            operations=ops,
-            commit_message=f"Reproduction attestation: {att.verdict} at {att.sha[:12]} (stack {att.stack_digest})",
-            commit_description=f"{att.summary()}\n\nCommand: {' '.join(att.command)}\nReport sha256: {att.report_sha256}",
-            repo_type=hub_io.REPO_TYPE,
-            create_pr=True,
-        )
-    if info.pr_url is None or info.pr_num is None:
-        raise AttestationError(f"{report.repo_id}: the Hub did not open a pull request for {att.path}; nothing to merge.")
-    return AttestResult(att, att.path, sign_key is not None, str(info.pr_url), int(info.pr_num), info.oid)
-
-
 # --- reading them back --------------------------------------------------------------------------
 
 
@@ -516,7 +419,6 @@ def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | 
     from huggingface_hub import hf_hub_download
 
     from hub_envs.errors import HostileResponseError, HubError
-    from hub_envs.repo import hub_io
 
     try:
         with hub_io.translate_hub_errors(repo_id, revision):
@@ -531,8 +433,6 @@ def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | 
 def _entries_at(
     repo_id: str, revision: str, where: str, pr_num: int | None, token: str | None, skip=None
 ) -> list[AttestationEntry]:
-    from hub_envs.repo import hub_io
-
     files = hub_io.list_remote_files(repo_id, revision, token=token)
     out = []
     for path in sorted(files):
@@ -560,8 +460,6 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
     """``{path: (author, pull request number)}`` for the files of ``head`` a merged pull request brought as they are:
     the latest merged pull request whose diff touches the path and whose merge commit holds the same blob as ``head``
     (the Hub's discussion data and its paths-info; a later direct edit names nobody)."""
-    from hub_envs.repo import hub_io
-
     wanted = set(paths)
     if not wanted:
         return {}
@@ -577,8 +475,6 @@ def _merged_authors(repo_id: str, head: str, paths: list[str], token: str | None
 
 
 def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str], found: dict[str, tuple[str, int]]) -> None:
-    from hub_envs.repo import hub_io
-
     with hub_io.translate_hub_errors(repo_id, head):
         now = {f.path: getattr(f, "blob_id", None) for f in client.get_paths_info(repo_id, sorted(wanted), revision=head)}
         merged = [
@@ -603,9 +499,7 @@ def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str],
 def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:
     """The attestations on main (or at ``revision``): those merged by the repo's owner, each with the author of the
     pull request it came from (:attr:`AttestationEntry.author`)."""
-    from hub_envs.repo import hub_io
-
-    hub_io.check_repo_id(repo_id)
+    check_repo_id(repo_id)
     head = revision or hub_io.remote_head(repo_id, token=token)
     if head is None:
         return []
@@ -619,9 +513,7 @@ def merged_attestations(repo_id: str, revision: str | None = None, *, token: str
 
 def collect_attestations(repo_id: str, *, token: str | None = None) -> list[AttestationEntry]:
     """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
-    from hub_envs.repo import hub_io
-
-    hub_io.check_repo_id(repo_id)
+    check_repo_id(repo_id)
     merged = merged_attestations(repo_id, token=token)
     on_main = {e.path: e.data for e in merged}
     out = list(merged)
@@ -700,66 +592,3 @@ def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool,
             line += f"; the file names its author '{safe_text(a.attested_by)}' (self-declared, not checked)"
         lines.append(line)
     return "\n".join(lines)
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class AttestationsArgs:
-    """List a repo's reproduction attestations (merged and in open pull requests) as a matrix."""
-
-    repo_id: str | None = None
-    verify: bool = False  # check each signature with ssh-keygen -Y verify against --allowed_signers
-    allowed_signers: Path | None = None
-    json: bool = False
-
-
-def attestations_cli(args: AttestationsArgs) -> int:
-    from hub_envs.repo import hub_io
-
-    if args.repo_id is None:
-        raise ConfigError("hub-envs attestations needs --repo_id=user/name.")
-    if args.verify and args.allowed_signers is None:
-        raise ConfigError("--verify=true needs --allowed_signers=FILE (ssh-keygen's format: 'principal key-type key').")
-    repo_id, rev = hub_io.parse_repo_ref(args.repo_id)
-    if rev is not None:
-        raise ConfigError(f"hub-envs attestations lists every revision: pass --repo_id={repo_id} without '@{rev}'.")
-    entries = collect_attestations(repo_id)
-    verified: dict[int, tuple[bool, str]] = {}
-    if args.verify:
-        for i, e in enumerate(entries):
-            if e.signature is not None:
-                verified[i] = verify_signature(e.data, e.signature, args.allowed_signers)  # type: ignore[arg-type]
-    if args.json:
-        print(
-            json.dumps(
-                [
-                    {
-                        "path": e.path,
-                        "where": e.where,
-                        "pr_num": e.pr_num,
-                        "author": e.author,  # who opened the pull request it came from, as the Hub says
-                        "merged_from": e.merged_from,
-                        "revision": e.revision,
-                        "error": e.error,
-                        "signed": e.signature is not None,
-                        "signature": (None if i not in verified else {"ok": verified[i][0], "detail": verified[i][1]}),
-                        "attestation": e.attestation.to_dict() if e.attestation is not None else None,
-                    }
-                    for i, e in enumerate(entries)
-                ],
-                indent=2,
-            )
-        )
-    else:
-        print(f"Reproduction attestations of {repo_id}:\n")
-        print(matrix_text(entries, verified if args.verify else None))
-    failed = [i for i, (ok, _) in verified.items() if not ok]
-    if failed:
-        print(f"\n{len(failed)} signature(s) failed verification.", file=sys.stderr)
-        return 1
-    return 0
-
-
-CLI_COMMANDS = {"attestations": (AttestationsArgs, attestations_cli)}

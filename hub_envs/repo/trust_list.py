@@ -38,7 +38,9 @@ from pathlib import Path
 
 from hub_envs.errors import ConfigError
 from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
+from hub_envs.repo import hub_io
 from hub_envs.repo.format import is_commit_sha
+from hub_envs.repo.refs import check_repo_id, parse_repo_ref
 
 TRUST_FILE = "trusted.json"
 FORMAT = 2
@@ -149,7 +151,6 @@ def _write(path: Path, entries: list[TrustEntry]) -> None:
 
 def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub)."""
-    from hub_envs.repo import hub_io
     from hub_envs.repo.format import Manifest
 
     return Manifest.from_json(
@@ -170,7 +171,6 @@ def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of
     the files of the commit (any other repo, e.g. a LeRobot policy a benchmark names)."""
     from hub_envs.errors import EnvRepoNotFoundError
-    from hub_envs.repo import hub_io
 
     try:
         return manifest_digest(repo_id, sha, token=token)
@@ -190,9 +190,8 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
     load_env already fetched it, which is what you looked at, else from the Hub); for a repo without a
     manifest (a policy checkpoint), to the digest of the commit's files (:func:`commit_digest`).
     """
-    from hub_envs.repo import hub_io
 
-    repo_id, _ = hub_io.parse_repo_ref(repo_id)
+    repo_id, _ = parse_repo_ref(repo_id)
     if not is_commit_sha(sha):
         raise ConfigError(
             f"Trust is given to an exact commit, not {sha!r}. Resolve it first, e.g. "
@@ -209,9 +208,8 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
 
 def untrust(repo_id: str, sha: str | None = None) -> int:
     """Withdraw consent for one sha (or every sha when ``sha`` is None). Returns how many were removed."""
-    from hub_envs.repo import hub_io
 
-    hub_io.check_repo_id(repo_id)  # a mistyped id would remove nothing and say so as if it were done
+    check_repo_id(repo_id)  # a mistyped id would remove nothing and say so as if it were done
     with _locked() as path:
         entries = _load(path)
         keep = [e for e in entries if not (e.repo_id == repo_id and (sha is None or e.sha == sha))]
@@ -221,8 +219,7 @@ def untrust(repo_id: str, sha: str | None = None) -> int:
 
 def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
     """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
-    from hub_envs.repo import hub_io
 
-    hub_io.check_repo_id(repo_id)
+    check_repo_id(repo_id)
     digest = content_digest if content_digest is not None else commit_digest(repo_id, sha)
     return read_trust_list().covers(repo_id, sha, digest)
