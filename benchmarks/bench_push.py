@@ -1,6 +1,6 @@
-"""What a push costs before it publishes: ``build_repo`` (checks, dataset, fingerprint, GIF, card) per example env.
+"""What a push costs before it publishes: ``build`` (checks, dataset, fingerprint, GIF, card) per example env.
 
-For ``envs/pendulum`` and ``envs/hover``: seconds of ``build_repo`` for 10 episodes on one worker
+For ``envs/pendulum`` and ``envs/hover``: seconds of ``build`` for 10 episodes on one worker
 (median of ``repeats``), and how many times the env class was constructed during it (every
 ``make()`` in the process: checks, dataset, fingerprint, GIF, card). Publishing is measured by
 ``bench_server``. Figures: ``push_build_s_<env>`` and ``push_env_constructions_<env>``; the issue
@@ -35,7 +35,7 @@ ENVS = ("pendulum", "hover")
 
 def _build_once(name: str, episodes: int) -> tuple[float, int]:
     from hub_envs import load_env
-    from hub_envs.publishing.push import build_repo
+    from hub_envs.publishing.build import build
 
     loaded = load_env(REPO / "envs" / name, check=False)
     cls = loaded.env_class
@@ -52,7 +52,7 @@ def _build_once(name: str, episodes: int) -> tuple[float, int]:
             staging = Path(tmp) / "repo"
             staging.mkdir()
             t = time.perf_counter()
-            build_repo(loaded, staging, repo_id=f"bench/{name}", episodes=episodes, seed=0, workers=1, progress=False)
+            build(loaded, staging, repo_id=f"bench/{name}", episodes=episodes, seed=0, workers=1, progress=False)
             return time.perf_counter() - t, count[0]
     finally:
         cls.__init__ = original

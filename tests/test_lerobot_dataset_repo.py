@@ -22,10 +22,10 @@ from helpers import TINY, copy_env
 from huggingface_hub import HfApi
 
 from hub_envs import errors, load_env, push_env
+from hub_envs.dataset.env_meta import read_env_meta
 from hub_envs.dataset.reader import read_episode_frames, read_hub_envs_meta, read_info
 from hub_envs.dataset.writer import EpisodeFrames, write_lerobot_dataset
-from hub_envs.operations.from_dataset import read_env_meta
-from hub_envs.publishing.push import LEROBOT_DATASET_TAG
+from hub_envs.publishing.dataset_repo import LEROBOT_DATASET_TAG
 from hub_envs.testing import HubServer, hub_environment
 
 DATASET = "dataset"
