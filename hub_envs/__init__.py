@@ -34,7 +34,7 @@ _EXPORTS = {
     "DiffReport": "hub_envs.operations.diff",
     "compare": "hub_envs.operations.compare",
     "CompareReport": "hub_envs.operations.compare",
-    "attest": "hub_envs.repo.attestations",
+    "attest": "hub_envs.operations.attest",
     "Attestation": "hub_envs.repo.attestations",
     "env_from_dataset": "hub_envs.operations.from_dataset",
     "IsolationOptions": "hub_envs.isolation.options",
@@ -53,13 +53,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
     from hub_envs.loading.load import load_env  # noqa: F401
     from hub_envs.loading.loaded import LoadedEnv, LoadReport  # noqa: F401
+    from hub_envs.operations.attest import attest  # noqa: F401
     from hub_envs.operations.compare import CompareReport, compare  # noqa: F401
     from hub_envs.operations.diff import DiffReport, diff  # noqa: F401
     from hub_envs.operations.evaluate import EvalResult, evaluate  # noqa: F401
     from hub_envs.operations.from_dataset import env_from_dataset  # noqa: F401
     from hub_envs.operations.reproduce import reproduce  # noqa: F401
     from hub_envs.publishing.push import PushResult, push_env  # noqa: F401
-    from hub_envs.repo.attestations import Attestation, attest  # noqa: F401
+    from hub_envs.repo.attestations import Attestation  # noqa: F401
     from hub_envs.repo.format import Manifest  # noqa: F401
     from hub_envs.repo.trust_list import is_trusted, trust, untrust  # noqa: F401
 

@@ -24,7 +24,8 @@ from helpers import TINY
 from huggingface_hub import CommitOperationAdd, HfApi, hf_hub_download
 
 from hub_envs import load_env, push_env, reproduce
-from hub_envs.repo.attestations import Attestation, attest, stack_digest
+from hub_envs.operations.attest import attest
+from hub_envs.repo.attestations import Attestation, stack_digest
 from hub_envs.testing import hub_environment
 
 ALICE_TOKEN = "hf_alice_adv_attest"

@@ -20,7 +20,8 @@ from huggingface_hub.errors import HfHubHTTPError
 
 from hub_envs import diff, errors, load_env, push_env, reproduce
 from hub_envs.cli import main as cli_main
-from hub_envs.repo.attestations import Attestation, attest, collect_attestations, stack_digest
+from hub_envs.operations.attest import attest
+from hub_envs.repo.attestations import Attestation, collect_attestations, stack_digest
 from hub_envs.testing import hub_environment
 
 BOB_TOKEN = "hf_bob_attest_token"

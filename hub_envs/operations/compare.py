@@ -36,19 +36,23 @@ import json
 import math
 import os
 import statistics
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
-from hub_envs.cli.flags import EnvFlags, call_with_flags
+from hub_envs.backends import make_backend
 from hub_envs.errors import ConfigError, ReproductionError
+from hub_envs.harness.benchmark import BenchmarkRun, bootstrap_ci
+from hub_envs.harness.provenance import run_provenance
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure, seeds_text
 from hub_envs.loading.isolated import CodeRun, code_run
+from hub_envs.loading.load import load_env
+from hub_envs.repo import hub_io
+from hub_envs.repo.refs import local_path, parse_repo_ref
 
-__all__ = ["compare", "CompareReport", "Estimate", "PolicyResult", "PairedDifference", "episodes_for_half_width", "CLI_COMMANDS"]
+__all__ = ["compare", "CompareReport", "Estimate", "PolicyResult", "PairedDifference", "episodes_for_half_width"]
 
 DEFAULT_OUT = Path("compare-out")
 HALF_WIDTH = 0.05  # ±5 points of a rate
@@ -82,8 +86,6 @@ class Estimate:
 
     @classmethod
     def of(cls, values: Sequence[float], *, resamples: int, confidence: float, seed: int) -> Estimate:
-        from hub_envs.harness.benchmark import bootstrap_ci
-
         v = tuple(float(x) for x in values)
         return cls(v, float(statistics.fmean(v)), bootstrap_ci(v, resamples=resamples, confidence=confidence, seed=seed))
 
@@ -277,16 +279,14 @@ class CompareReport(ReportFiles):
 def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[str, Any]:
     """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha).
 
-    A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.repo.hub_io.local_path`):
+    A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.repo.refs.local_path`):
     ``user/name`` always means the Hub, even when a folder of that name exists here (a local checkpoint's code runs
     as the caller's own, without consent); write ``./user/name`` for the folder."""
-    from hub_envs.repo import hub_io
-
     if isinstance(text, str):
         text = text.strip(" ")  # around the commas of --policies=a, b (a newline or other character is refused below)
         if text.lower() == "random":
             return {"type": "random"}
-    path = hub_io.local_path(text, stacklevel=3)
+    path = local_path(text, stacklevel=3)
     if path is not None:
         if not path.is_dir():
             raise ConfigError(
@@ -294,7 +294,7 @@ def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[st
                 "repo id user/name[@revision]."
             )
         return {"type": "lerobot", "path": str(path.resolve())}
-    repo_id, rev = hub_io.parse_repo_ref(text, what="--policies: policy")
+    repo_id, rev = parse_repo_ref(text, what="--policies: policy")
     with hub_io.translate_hub_errors(repo_id, rev or "main"):
         sha = hub_io.api(token).repo_info(repo_id, revision=rev).sha
     return {"type": "lerobot", "checkpoint": f"{repo_id}@{sha}"}
@@ -311,8 +311,6 @@ def _labels(names: list[str]) -> list[str]:
 
 
 def _run_policy(loaded: Any, label: str, spec: dict, seeds: list[int], **kw: Any) -> PolicyResult:
-    from hub_envs.harness.benchmark import BenchmarkRun
-
     bench = {"name": label, "policy": spec, "seeds": seeds, "metrics": {"mean_return": 0.0, "success_rate": 0.0}}
     run = BenchmarkRun(
         loaded,
@@ -409,9 +407,6 @@ def compare(
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
     """
-    from hub_envs.harness.provenance import run_provenance
-    from hub_envs.operations.evaluate import load_for_evaluation
-
     if len(policies) < (1 if against else 2):
         raise ConfigError(
             f"--policies needs at least two policies, comma-separated (got {policies!r}); e.g. random,PATH. "
@@ -422,8 +417,6 @@ def compare(
         raise ConfigError(f"--episodes={episodes}: a confidence interval needs at least 2 episodes (20 or more is sensible).")
     if not 0 < confidence < 1:
         raise ConfigError(f"confidence={confidence}: pass a level between 0 and 1, e.g. 0.95.")
-    from hub_envs.backends import make_backend
-
     workers = int(workers) if workers else max(1, min(2, os.cpu_count() or 1))
     runner = make_backend(backend, workers=workers, ray_address=ray_address)
     t0 = time.perf_counter()
@@ -431,8 +424,8 @@ def compare(
     labels = _labels([os.fspath(p).strip() for p in policies])
     with contextlib.ExitStack() as stack:
         envs = [
-            stack.enter_context(
-                load_for_evaluation(ref, rev, trust_remote_code=trust_remote_code, token=token, run=run, where="compare")
+            stack.enter_context(  # the feature check on, no fingerprint run: the compared episodes run the env anyway
+                load_env(ref, revision=rev, trust_remote_code=trust_remote_code, fingerprint="off", token=token, **run)
             )
             for ref, rev in ([(repo_id, revision), (against, None)] if against else [(repo_id, revision)])
         ]
@@ -484,46 +477,3 @@ def compare(
         # in the files: load and each policy
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class CompareArgs(EnvFlags):
-    """Evaluate policies on the same seeds; report rates and returns with CIs and the seed-paired difference."""
-
-    policies: str | None = None  # comma-separated: random, a pretrained_model folder, a Hub repo id
-    against: str | None = None  # another revision (user/name@<sha>): each policy on both, paired seed by seed
-    episodes: int = 20
-    seed: int = 0
-    trust_policy_code: bool = False  # consent to load Hub checkpoints (other repos than the env)
-    workers: int = 0  # 0: up to 2 processes
-    resamples: int = 1000
-    out: Path | None = None  # default compare-out/<user>/<name>/
-    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
-    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
-    json: bool = False
-
-
-def compare_cli(args: CompareArgs) -> int:
-    if args.repo_id is None or not args.policies:
-        raise ConfigError(
-            "hub-envs compare needs --repo_id=user/name@<sha> and --policies=A,B (random, a folder, a repo id), or "
-            "--policies=A --against=user/name@<other sha> to compare two revisions."
-        )
-    policies = [p for p in args.policies.split(",") if p.strip()]
-    report = call_with_flags(compare, args, args.repo_id, policies, workers=args.workers or None)
-    if args.json:
-        print(report.to_json(), end="")
-    else:
-        print(report.summary())
-    print(
-        f"Reports: {report.paths.get('markdown')} (people), {report.paths.get('json')} (machines)"
-        + (f", {report.paths['png']} (plot)" if report.paths.get("png") else ""),
-        file=sys.stderr if args.json else sys.stdout,
-    )
-    return 0
-
-
-CLI_COMMANDS = {"compare": (CompareArgs, compare_cli)}

@@ -46,8 +46,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs._version import __version__
-from hub_envs.cli.flags import CodeFlags, call_with_flags
-from hub_envs.errors import ConfigError, HubEnvsError
+from hub_envs.errors import ConfigError
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
 from hub_envs.loading.isolated import CodeRun, code_run
 from hub_envs.repo.format import (
@@ -61,7 +60,7 @@ from hub_envs.repo.format import (
     is_code_file,
 )
 
-__all__ = ["diff", "DiffReport", "SeedDiff", "DiffArgs", "diff_cli", "CLI_COMMANDS", "classify_file", "manifest_changes"]
+__all__ = ["diff", "DiffReport", "SeedDiff", "classify_file", "manifest_changes"]
 
 DEFAULT_OUT = Path("diff-out")
 
@@ -806,45 +805,3 @@ def diff(
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, b.repo_id), write=write)
         return report
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class DiffArgs(CodeFlags):
-    """Compare two revisions of an env repo (or two repos): files, manifest, spaces, behaviour on the same seeds and actions."""
-
-    old: str | None = None  # user/name@A (pin shas)
-    new: str | None = None  # user/name@B, or another repo
-    episodes: int = 2  # replay the old revision's recorded actions of this many dataset episodes on both
-    random_episodes: int = 2  # plus this many seeded random-action episodes
-    benchmarks: bool = True  # re-run the old revision's declared benchmarks on both: paired metric deltas with CIs
-    trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints those benchmarks name (other repos)
-    resamples: int = 1000  # bootstrap resamples of the paired CIs
-    tolerance: float = 0.0  # largest absolute difference still counted as identical (0: exact)
-    workers: int = 1
-    out: Path | None = None  # default diff-out/<user>/<name>/
-    json: bool = False  # print the JSON report to stdout instead of the summary
-
-
-def diff_cli(args: DiffArgs) -> int:
-    """0: identical behaviour; 1: behaviour differs; 2: error (the message says what to do)."""
-    try:
-        if not args.old or not args.new:
-            raise ConfigError("hub-envs diff needs --old=user/name@<sha> and --new=user/name@<sha> (or another repo).")
-        report = call_with_flags(diff, args, args.old, args.new)
-    except HubEnvsError as e:
-        print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
-        return 2
-    print(report.to_json() if args.json else report.summary(), end="\n" if not args.json else "")
-    where = report.paths
-    print(
-        f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
-        + (f", {where['png']} (plot)" if where.get("png") else ""),
-        file=sys.stderr if args.json else sys.stdout,
-    )
-    return report.exit_code
-
-
-CLI_COMMANDS = {"diff": (DiffArgs, diff_cli)}

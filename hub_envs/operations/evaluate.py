@@ -25,7 +25,6 @@ Example:
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Unpack
@@ -33,11 +32,13 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs.backends import Backend, make_backend
-from hub_envs.cli.flags import EnvFlags, call_with_flags
 from hub_envs.errors import ConfigError
+from hub_envs.harness.policy import policy_for, remote_policy_spec
+from hub_envs.harness.provenance import versions_run_with
 from hub_envs.loading.isolated import CodeRun, code_run
+from hub_envs.loading.load import load_env
 
-__all__ = ["EvalResult", "evaluate", "EvaluateArgs", "CLI_COMMANDS"]
+__all__ = ["EvalResult", "evaluate"]
 
 
 @dataclass(frozen=True)
@@ -90,10 +91,8 @@ def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust
     if callable(policy):
         return policy, getattr(policy, "__qualname__", type(policy).__name__)
     if isinstance(policy, str):
-        from hub_envs.harness.benchmark import _policy_for, remote_policy_spec
-
         spec = {"type": "lerobot", "checkpoint": policy}
-        built = _policy_for(spec, loaded, token, trust_policy_code)  # consent and loading errors surface here
+        built = policy_for(spec, loaded, token, trust_policy_code)  # consent and loading errors surface here
         # on a local backend the built policy runs here; a remote worker builds its own from the spec, once
         return (built if backend.name == "local" else remote_policy_spec(spec, built)), policy
     raise ConfigError(
@@ -107,8 +106,6 @@ def load_for_evaluation(
     """How an evaluation (:func:`evaluate`, ``hub-envs compare``) loads the env: :func:`hub_envs.load_env` with the
     feature check on and no fingerprint run (the evaluated episodes run the env anyway); ``run``: :class:`CodeRun`
     keywords. Use it in a ``with`` block: the env is unregistered at the end."""
-    from hub_envs.loading.load import load_env
-
     return load_env(
         repo_id,
         revision=revision,
@@ -154,8 +151,6 @@ def evaluate(
     Raises:
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
     """
-    from hub_envs.harness.provenance import versions_run_with
-
     run = code_run(run, "evaluate")  # before anything starts: a misspelt keyword is named at once
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes={episodes!r}: pass a positive number of episodes.")
@@ -198,33 +193,3 @@ def evaluate(
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "eval.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
     return result
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class EvaluateArgs(EnvFlags):
-    """Evaluate a policy over N seeded episodes of an env repo (locally or on a Ray cluster)."""
-
-    policy: str = "random"  # 'random' or a LeRobot checkpoint user/policy@<sha>
-    trust_policy_code: bool = False  # consent to load the policy checkpoint (another repo than the env)
-    episodes: int = 10
-    seed: int = 0  # episode i resets with seed + i
-    max_steps: int | None = None  # default: the env config's episode_length
-    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
-    workers: int = 0  # 0: up to 2 processes (local), the cluster's CPUs (ray)
-    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
-    out: Path | None = None  # eval.json here; on Ray also the finished shards (a re-run skips them)
-    json: bool = False  # print the result as JSON
-
-
-def evaluate_cli(args: EvaluateArgs) -> int:
-    if args.repo_id is None:
-        raise ConfigError("hub-envs evaluate needs --repo_id=user/name@<sha> (or a local folder).")
-    result = call_with_flags(evaluate, args, args.repo_id, workers=args.workers or None)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else result.summary(), file=sys.stdout)
-    return 0
-
-
-CLI_COMMANDS = {"evaluate": (EvaluateArgs, evaluate_cli)}

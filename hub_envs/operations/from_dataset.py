@@ -28,30 +28,16 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs._text import safe_text
-from hub_envs.dataset.reader import dataset_fingerprint, read_hub_envs_meta, read_info
+from hub_envs.dataset.env_meta import read_env_meta
+from hub_envs.dataset.reader import dataset_fingerprint
 from hub_envs.envcode.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
 from hub_envs.loading.dataset_files import ensure_dataset_files
 from hub_envs.repo import hub_io
 from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
+from hub_envs.repo.refs import parse_repo_ref
 
-__all__ = ["env_from_dataset", "code_digest_of", "read_env_meta", "locate_dataset"]
-
-
-def code_digest_of(files: dict[str, str]) -> str:
-    """The code digest (what ``env_meta.code_digest`` names) of a manifest's file list."""
-    return code_digest(files)
-
-
-def read_env_meta(dataset_root: str | Path) -> dict[str, Any]:
-    """The dataset's ``env_meta`` (``meta/hub_envs.json``; ``meta/info.json`` ``hub_envs.env_meta`` in older ones), checked."""
-    meta = read_hub_envs_meta(dataset_root, read_info(dataset_root)).get("env_meta")  # info.json checked, as LeRobot reads it
-    if not isinstance(meta, dict) or not meta.get("env_repo_id") or not meta.get("code_digest"):
-        raise ReproductionError(
-            f"{dataset_root}/meta has no hub-envs env_meta (env_repo_id, code_digest): the dataset was not "
-            f"written by push_env, so which env produced it is unknown. Load the env yourself with load_env."
-        )
-    return meta
+__all__ = ["env_from_dataset", "locate_dataset"]
 
 
 def _env_repo_id(value: Any, dataset_root: Path) -> str:
@@ -61,7 +47,7 @@ def _env_repo_id(value: Any, dataset_root: Path) -> str:
     which needs no consent: a dataset could run code of its choosing. Only ``user/name`` passes.
     """
     try:
-        repo_id, revision = hub_io.parse_repo_ref(value if isinstance(value, str) else "")
+        repo_id, revision = parse_repo_ref(value if isinstance(value, str) else "")
     except HubEnvsError:
         repo_id, revision = "", None
     if not repo_id or revision is not None:
@@ -89,7 +75,7 @@ def locate_dataset(
             hub_io.snapshot_origin(path.parent) if path.name == DATASET_DIR and (path.parent / MANIFEST_FILE).is_file() else None
         )
         return path, origin
-    repo_id, at_rev = hub_io.parse_repo_ref(str(path_or_repo_id))
+    repo_id, at_rev = parse_repo_ref(str(path_or_repo_id))
     revision = revision or at_rev
     # an env repo (model type) bundles its dataset; otherwise look for a dataset repo of that name
     try:
@@ -128,7 +114,7 @@ def _find_commit(env_repo_id: str, code_digest: str, dataset_root: Path, token: 
             manifest = Manifest.from_json(text) if text is not None else None
         except ManifestError:
             manifest = None
-        if manifest is None or code_digest_of(manifest.files) != code_digest:
+        if manifest is None or code_digest(manifest.files) != code_digest:
             continue
         if first_match is None:
             first_match = commit.commit_id
@@ -187,7 +173,7 @@ def env_from_dataset(
         sha = _find_commit(env_repo, digest, root, token)
     loaded = load_env(f"{env_repo}@{sha}", trust_remote_code=trust_remote_code, check=check, fingerprint=fingerprint, token=token)  # type: ignore[arg-type]
     try:
-        actual = code_digest_of(loaded.manifest.files)
+        actual = code_digest(loaded.manifest.files)
         if actual != digest:
             raise ReproductionError(
                 f"{env_repo}@{loaded.revision} is not the code that recorded {root}: its code digest is {actual[:16]}…, "

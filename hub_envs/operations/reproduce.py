@@ -1,25 +1,6 @@
-"""``hub-envs reproduce``: does a published env still produce its published data and results?
-
-For one env repo at one commit:
-
-1. load it (integrity, trust gate, feature check) and recompute its golden-rollout fingerprint;
-2. **replay** its dataset (:mod:`hub_envs.harness.replay`): every episode reset with its recorded seed, the
-   recorded actions applied, observations (images too), rewards, done/success flags and recorded
-   simulator states compared step by step, exactly or within ``tolerance``; a divergence is named by
-   episode, step and feature, and localized with ``reset_to``;
-3. re-run each declared **benchmark** (:mod:`hub_envs.harness.benchmark`): published vs reproduced per
-   metric, with a seeded bootstrap confidence interval and pass/fail against the declared tolerance;
-4. record **provenance**: the sha, digests, dataset fingerprint, seeds, and the package versions here
-   beside those the repo was published with;
-5. write ``report.json``, ``report.md`` and ``report.png`` (:mod:`hub_envs.harness.report`) to ``out``
-   (default ``reproduce-out/<user>/<name>/``).
-
-Episodes run in parallel across ``workers`` processes; the report does not depend on their number.
-
-    hub-envs reproduce --repo_id=user/name [--revision=<sha>] [--trust_remote_code=true] [--workers=2] [--backend=ray]
-                       [--tolerance=0] [--out=DIR] [--isolation=process] [--sandbox=true]
-
-exits 0 when everything reproduces, 1 when anything diverged or failed (or on any hub-envs error).
+"""``reproduce``: does a published env still produce its published data and results? Its dataset replayed step by
+step (:mod:`hub_envs.harness.replay`), its benchmarks re-run (:mod:`hub_envs.harness.benchmark`), its fingerprint
+recomputed, with the provenance of both sides, in ``report.json``, ``report.md`` and ``report.png``.
 
 Example:
     >>> from hub_envs import reproduce                                                    # doctest: +SKIP
@@ -30,14 +11,12 @@ Example:
 
 from __future__ import annotations
 
-import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Unpack
 
 from hub_envs.backends import Backend, make_backend
-from hub_envs.cli.flags import EnvFlags, call_with_flags
+from hub_envs.dataset.env_meta import read_env_meta
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_meta
 from hub_envs.errors import ConfigError, FingerprintMismatchError, ReproductionError
 from hub_envs.harness.benchmark import BenchmarkResult, BenchmarkRun
@@ -55,17 +34,10 @@ from hub_envs.harness.replay import Replay, ReplayResult
 from hub_envs.harness.report import ReproduceReport
 from hub_envs.harness.report_files import default_out_dir
 from hub_envs.loading.isolated import CodeRun, code_run
-from hub_envs.operations.from_dataset import code_digest_of, env_from_dataset, read_env_meta
+from hub_envs.loading.load import load_env
+from hub_envs.repo.format import code_digest
 
-__all__ = [
-    "reproduce",
-    "env_from_dataset",
-    "ReproduceReport",
-    "ReproduceArgs",
-    "reproduce_cli",
-    "CLI_COMMANDS",
-    "default_out_dir",
-]
+__all__ = ["reproduce", "ReproduceReport"]
 
 DEFAULT_OUT = Path("reproduce-out")
 
@@ -76,7 +48,7 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     closure_here = closure_run_with(loaded)  # the rest of the requirements' closure (the simulator they pull in)
     diffs = ranked_differences(m, {**closure_here, **prov["versions_here"]})  # the env's requirements and theirs first
     prov |= {
-        "code_digest": code_digest_of(m.files),
+        "code_digest": code_digest(m.files),
         "seeds": {
             "dataset": list(m.dataset.get("seeds", [])),
             "fingerprint": list(m.fingerprint.get("seeds", [])),
@@ -275,8 +247,6 @@ def reproduce(
     Raises:
         hub_envs.errors.HubEnvsError: the repo cannot be loaded or replayed at all (not: it diverged).
     """
-    from hub_envs.loading.load import load_env
-
     if workers is not None and int(workers) < 0:
         raise ConfigError(f"workers={workers}: pass a positive number of processes (or 0 for the default).")
     runner = make_backend(
@@ -348,76 +318,3 @@ def reproduce(
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class ReproduceArgs(EnvFlags):
-    """Replay a repo's dataset and re-run its benchmarks; write JSON, Markdown and a plot."""
-
-    trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints the benchmarks name (other repos)
-    workers: int = 0  # 0: up to 2 processes (local), the cluster's CPUs (ray)
-    backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
-    ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
-    tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
-    out: Path | None = None  # default reproduce-out/<user>/<name>/
-    replay: bool = True
-    benchmarks: bool = True
-    resamples: int = 1000
-    json: bool = False  # also print the JSON report to stdout
-    attest: bool = False  # publish the outcome as reproductions/<date>-<sha12>-<stack>.json through a pull request on the repo
-    sign_key: Path | None = None  # with --attest: sign it with this OpenSSH private key (ssh-keygen -Y sign)
-
-
-def command_line(args: ReproduceArgs, sha: str) -> list[str]:
-    """The ``hub-envs reproduce`` command that re-runs this reproduction: the flags that differ from their defaults,
-    the revision pinned to the commit that was reproduced (``--attest``/``--sign_key``/``--json``/``--out`` left out).
-
-    >>> command_line(ReproduceArgs(repo_id="u/e", trust_remote_code=True, attest=True), "ab" * 20)[2:]
-    ['--repo_id=u/e', '--revision=abababababababababababababababababababab', '--trust_remote_code=true']
-    """
-    import dataclasses
-
-    out = ["hub-envs", "reproduce", f"--repo_id={args.repo_id.split('@')[0] if args.repo_id else ''}", f"--revision={sha}"]
-    for f in dataclasses.fields(args):
-        if f.name in ("repo_id", "revision", "attest", "sign_key", "json", "out"):
-            continue
-        value = getattr(args, f.name)
-        if value != f.default:
-            out.append(f"--{f.name}={str(value).lower() if isinstance(value, bool) else value}")
-    return out
-
-
-def reproduce_cli(args: ReproduceArgs) -> int:
-    if args.repo_id is None:
-        raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")
-    if args.sign_key is not None and not args.attest:
-        raise ConfigError("--sign_key signs an attestation: add --attest=true (or drop --sign_key).")
-    if args.sign_key is not None and not Path(args.sign_key).expanduser().is_file():
-        raise ConfigError(f"--sign_key={args.sign_key}: no such file; pass an OpenSSH private key. Nothing was run.")
-    if args.attest:  # the pull request comes last: a Hub that will refuse it says so before anything runs
-        from hub_envs.repo import hub_io
-
-        hub_io.check_write_access(hub_io.parse_repo_ref(args.repo_id)[0], pull_request=True)
-    report = call_with_flags(reproduce, args, args.repo_id, workers=args.workers or None)
-    if args.json:
-        print(report.to_json(), end="")
-    else:
-        print(report.summary())
-    where = report.paths
-    print(
-        f"Reports: {where.get('markdown')} (people), {where.get('json')} (machines)"
-        + (f", {where['png']} (plot)" if where.get("png") else ""),
-        file=sys.stderr if args.json else sys.stdout,
-    )
-    if args.attest:
-        from hub_envs.repo.attestations import attest
-
-        result = attest(report, command=command_line(args, report.sha), sign_key=args.sign_key)
-        print(result.summary(), file=sys.stderr if args.json else sys.stdout)
-    return 0 if report.reproduced else 1
-
-
-CLI_COMMANDS = {"reproduce": (ReproduceArgs, reproduce_cli)}
