@@ -19,7 +19,12 @@ import sys
 import time
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from hub_envs.loading.load import load_env
+from hub_envs.paths import PACKAGE_DIR
+from hub_envs.publishing.push import push_env
+from hub_envs.testing import HubServer, hub_environment
+
+REPO_ROOT = PACKAGE_DIR.parent
 DEFAULT_ENVS = ["pendulum", "hover", "reach"]
 
 
@@ -41,13 +46,9 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(args.out)
     args.out.mkdir(parents=True)
 
-    from hub_envs.testing import HubServer, hub_environment
-
     t0 = time.perf_counter()
     with HubServer(args.out / "hub-data") as server:
         print(f"Loopback Hub running at {server.endpoint} (store: {server.root})")
-        from hub_envs import load_env, push_env
-
         published = []
         with hub_environment(server.endpoint, args.out / "publisher_home"):
             for env_dir in env_dirs:

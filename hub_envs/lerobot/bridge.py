@@ -40,9 +40,9 @@ from pathlib import Path
 from typing import Any
 
 from hub_envs._compat import missing_training_packages
-from hub_envs.cli.flags import check_repo_flags
 from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
 from hub_envs.repo import hub_io
+from hub_envs.repo.refs import check_repo_flags, check_repo_id
 
 PROVENANCE_FILE = "hub_envs_provenance.json"
 _PER_REPO_RE = re.compile(r"(?P<repo>[^@\s]+/[^@\s]+)@(?P<prefix>[0-9a-f]{7,40})")  # fullmatch: no trailing newline
@@ -117,7 +117,7 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
         )
     elif env_type and _PER_REPO_RE.fullmatch(env_type):
         m = _PER_REPO_RE.fullmatch(env_type)
-        repo_id = flag(argv, "env.repo_id") or hub_io.check_repo_id(m["repo"], what="--env.type: repo id")
+        repo_id = flag(argv, "env.repo_id") or check_repo_id(m["repo"], what="--env.type: repo id")
         revision = flag(argv, "env.revision")
         if revision is None:
             revision = _resolve_short_sha(repo_id, m["prefix"])
@@ -351,8 +351,19 @@ def _forgets_cli_consent(command: Callable[[list[str]], int]) -> Callable[[list[
 
 
 @_forgets_cli_consent
-def train_cli(argv: list[str]) -> int:
-    """``hub-envs train <LeRobot's lerobot-train flags>``."""
+def run_train(argv: list[str]) -> int:
+    """``hub-envs train``: LeRobot's ``lerobot-train`` with ``argv``, a hub env's repo prepared first, provenance
+    written beside the checkpoints.
+
+    Args:
+        argv: lerobot-train's flags (``--env.type=hub --env.repo_id=...``).
+
+    Returns:
+        0 (LeRobot's own errors propagate; hub-envs' are :class:`~hub_envs.errors.HubEnvsError` s).
+
+    Raises:
+        MissingRequirementsError: LeRobot's training extra is not installed.
+    """
     missing = missing_training_packages()
     if missing:
         raise MissingRequirementsError(
@@ -381,8 +392,16 @@ def train_cli(argv: list[str]) -> int:
 
 
 @_forgets_cli_consent
-def eval_cli(argv: list[str]) -> int:
-    """``hub-envs eval <LeRobot's lerobot-eval flags>``."""
+def run_eval(argv: list[str]) -> int:
+    """``hub-envs eval``: LeRobot's ``lerobot-eval`` with ``argv``, a hub env's repo prepared first, provenance written
+    into its ``eval_info.json``.
+
+    Args:
+        argv: lerobot-eval's flags (``--env.type=hub --env.repo_id=...``).
+
+    Returns:
+        0 (LeRobot's own errors propagate; hub-envs' are :class:`~hub_envs.errors.HubEnvsError` s).
+    """
     typed = list(argv)
     argv, loaded = prepare_argv(argv, command="eval")
     from lerobot.configs.eval import EvalPipelineConfig
@@ -407,7 +426,3 @@ def eval_cli(argv: list[str]) -> int:
 
     _run_wrapped(EvalPipelineConfig, body, argv, "hub-envs eval")
     return 0
-
-
-#: Picked up by hub_envs.cli: plain callables take the raw argv (LeRobot parses the flags itself).
-CLI_COMMANDS: dict[str, Callable[[list[str]], int]] = {"train": train_cli, "eval": eval_cli}

@@ -1,0 +1,75 @@
+"""``hub-envs load``: load an env repo, run its checks, and print what was loaded (the three-way table)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from hub_envs.cli.flags import EnvFlags
+from hub_envs.errors import ConfigError
+
+
+@dataclass
+class Config(EnvFlags):
+    """Load an env repo, run its checks, and print what was loaded (the three-way table)."""
+
+    check: bool = True
+    fingerprint: str = "error"
+    recheck: bool = False  # run the checks even if they passed before with the same packages (a cached verdict)
+    json: bool = False
+
+
+def main(config: Config) -> int:
+    """Load ``config.repo_id`` and print what was loaded (``--json=true``: as JSON)."""
+    from hub_envs.loading.load import load_env  # heavy: gymnasium, lerobot (after the flags are parsed)
+
+    if config.repo_id is None:
+        raise ConfigError("hub-envs load needs --repo_id=user/name[@revision] (or a local folder).")
+    loaded = load_env(
+        config.repo_id,
+        revision=config.revision,
+        trust_remote_code=config.trust_remote_code,
+        check=config.check,
+        fingerprint=config.fingerprint,
+        recheck=config.recheck,
+        isolation=config.isolation,
+        sandbox=config.sandbox,
+        versions=config.versions,
+        step_timeout=config.step_timeout,
+    )
+    if config.json:
+        print(
+            json.dumps(
+                {
+                    "repo_id": loaded.repo_id,
+                    "revision": loaded.revision,
+                    "gym_id": loaded.gym_id,
+                    "env_type": loaded.env_type,
+                    "path": str(loaded.path),
+                    "isolation": _isolation_text(loaded),
+                    "report": loaded.report.to_dict(),
+                },
+                indent=2,
+            )
+        )
+        return 0
+    print(f"Loaded {loaded.repo_id} at {loaded.revision}")
+    print(f"  gym id:      {loaded.gym_id}")
+    print(f"  --env.type:  {loaded.env_type}")
+    print(f"  snapshot:    {loaded.path}")
+    print(f"  runs:        {_isolation_text(loaded)}")
+    print(f"  integrity:   {loaded.report.integrity}")
+    print(f"  trust:       {loaded.report.trust}")
+    print(f"  fingerprint: {loaded.report.fingerprint}")
+    if loaded.report.features is not None:
+        print("  three-way feature check (declared / live / dataset):")
+        print("    " + loaded.report.features.table().replace("\n", "\n    "))
+    return 0
+
+
+def _isolation_text(loaded: Any) -> str:
+    iso = loaded.isolation
+    if iso is None:
+        return "in this process"
+    return "in a sandboxed worker process" if iso.sandbox else "in a worker process"

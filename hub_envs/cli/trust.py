@@ -1,0 +1,32 @@
+"""``hub-envs trust user/name@<sha>``: trust one commit of a repo, with exactly its content (remembered)."""
+
+from __future__ import annotations
+
+from hub_envs.errors import ConfigError
+from hub_envs.repo import trust_list
+from hub_envs.repo.format import is_commit_sha
+from hub_envs.repo.refs import parse_repo_ref
+
+USAGE = "usage: hub-envs trust user/name@<40-hex sha>"
+
+
+def main(argv: list[str]) -> int:
+    """Trust the one ``user/name@<sha>`` in ``argv``: load_env then runs that commit's code without asking."""
+    if any(a in ("-h", "--help") for a in argv):
+        print(f"{USAGE}\ntrust one commit of a repo: hub-envs trust user/name@<sha>")
+        return 0
+    refs = [a for a in argv if not a.startswith("-")]
+    if len(refs) != 1:
+        raise ConfigError(USAGE)
+    repo_id, sha = parse_repo_ref(refs[0])
+    if sha is None or not is_commit_sha(sha):
+        raise ConfigError(
+            f"Trust is given to an exact commit: hub-envs trust {repo_id}@<40-hex sha> (load_env and the card print the sha)."
+        )
+    digest = trust_list.commit_digest(repo_id, sha)
+    trust_list.trust(repo_id, sha, content_digest=digest)
+    print(
+        f"Trusted {repo_id}@{sha} (content {digest[:16]}…): hub-envs will run its code at this commit, "
+        f"with exactly this content, without asking."
+    )
+    return 0
