@@ -214,7 +214,7 @@ def _as_dataset_layout(replay: np.ndarray, data: np.ndarray, image: bool) -> np.
     return replay
 
 
-def _step_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
+def step_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
     """Per-frame max |replay - data| as float64 (booleans: 0 or 1; NaN vs NaN counts as equal).
 
     Equality is tested first (cheap, no conversion); magnitudes are computed only for frames that differ.
@@ -348,7 +348,7 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
     )
 
 
-def _env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
+def env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
     """Recorded actions in the layout and dtype of the env's action space (:func:`hub_envs.harness.actions.to_env_actions`)."""
     shape = tuple(getattr(space, "shape", None) or ())
     if actions.shape[1:] != shape and int(np.prod(actions.shape[1:])) != int(np.prod(shape)):
@@ -397,7 +397,7 @@ def _compare_episode(
             whole(key, f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}", "the feature's shape changed")
             continue
         video = key in plan.video_keys
-        errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
+        errors = frame_errors(rep[:n], dat[:n]) if video else step_errors(rep[:n], dat[:n])
         if video and len(rep) == len(dat):
             result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps, plan.video_gops.get(key))
         curves[key] = errors
@@ -503,9 +503,9 @@ def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, 
                     err = float(frame_errors(rep, data[key][t + 1 : t + 2])[0])
                     errs[key] = err if err > VIDEO_TOLERANCE.max_mean_abs_error else 0.0
                 else:
-                    errs[key] = float(_step_errors(rep, data[key][t + 1 : t + 2])[0])
+                    errs[key] = float(step_errors(rep, data[key][t + 1 : t + 2])[0])
             if get_state is not None:
-                errs[STATE_FEATURE] = float(_step_errors(np.asarray(get_state())[None], states[t + 1 : t + 2])[0])
+                errs[STATE_FEATURE] = float(step_errors(np.asarray(get_state())[None], states[t + 1 : t + 2])[0])
             if "next.done" in data:
                 errs["next.done"] = float(bool(terminated) != bool(data["next.done"].reshape(-1)[t]))
         key = max(errs, key=errs.get) if errs else ""
@@ -640,7 +640,7 @@ class Replay:
         try:
             space = self.probe.action_space
             self.actions = [
-                _env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)
+                env_actions(a, space, f"{root} episode {m['episode_index']}") for a, m in zip(plan.actions, plan.metas)
             ]
             self.can_restore = _reset_to(self.probe) is not None
             self.record_states = plan.states is not None and getattr(self.probe.unwrapped, "get_state", None) is not None

@@ -46,9 +46,17 @@ from typing import Any, Unpack
 import numpy as np
 
 from hub_envs._version import __version__
+from hub_envs.dataset.reader import read_episode_frames, read_episode_meta
 from hub_envs.errors import ConfigError
+from hub_envs.harness.benchmark import METRICS, BenchmarkRun, bootstrap_ci
+from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
+from hub_envs.harness.provenance import versions_run_with
+from hub_envs.harness.replay import env_actions, step_errors
+from hub_envs.harness.report import jsonable
 from hub_envs.harness.report_files import ReportFiles, default_out_dir, save_figure
+from hub_envs.harness.rollout import run_episodes
 from hub_envs.loading.isolated import CodeRun, code_run
+from hub_envs.loading.load import load_env
 from hub_envs.repo.format import (
     CARD_FILE,
     DATASET_DIR,
@@ -193,8 +201,6 @@ def _space_changes(old_env: Any, new_env: Any) -> list[dict[str, Any]]:
 
 
 def _compare(a: Any, b: Any, seed: int, source: str, names: dict[str, str], tolerance: float) -> SeedDiff:
-    from hub_envs.harness.replay import _step_errors
-
     n = min(a.length, b.length)
     out = SeedDiff(
         seed=seed,
@@ -218,7 +224,7 @@ def _compare(a: Any, b: Any, seed: int, source: str, names: dict[str, str], tole
     for name, rank, x, y in pairs:
         if y is None or x.shape[1:] != y.shape[1:]:
             continue  # a space change, reported as such
-        err = _step_errors(y[:n], x[:n])
+        err = step_errors(y[:n], x[:n])
         bad = np.flatnonzero(err > tolerance)
         if not len(bad):
             continue
@@ -239,8 +245,6 @@ def _compare(a: Any, b: Any, seed: int, source: str, names: dict[str, str], tole
 
 def _recorded_actions(loaded: Any, episodes: int) -> list[tuple[int, int, np.ndarray]]:
     """(episode index, seed, actions) of the first ``episodes`` episodes of the revision's dataset."""
-    from hub_envs.dataset.reader import read_episode_frames, read_episode_meta
-
     if episodes <= 0 or loaded.dataset_root is None:
         return []
     out = []
@@ -326,9 +330,7 @@ class DiffReport(ReportFiles):
         }
 
     def to_json(self) -> str:
-        from hub_envs.harness.report import _jsonable
-
-        return json.dumps(_jsonable(self.to_dict()), indent=2, sort_keys=True) + "\n"
+        return json.dumps(jsonable(self.to_dict()), indent=2, sort_keys=True) + "\n"
 
     def _files_lines(self) -> list[str]:
         lines = []
@@ -509,8 +511,6 @@ def _fingerprints(old: Any, new: Any, live_old: dict | None, live_new: dict | No
 
 
 def _paired_delta(x: list[float], y: list[float], resamples: int) -> dict[str, Any]:
-    from hub_envs.harness.benchmark import bootstrap_ci
-
     d = np.asarray(y, dtype=np.float64) - np.asarray(x, dtype=np.float64)
     lo, hi = bootstrap_ci(d, resamples=resamples, seed=0)
     return {
@@ -566,8 +566,6 @@ def _benchmark_deltas(
     An episode differs when a per-episode value differs by more than ``tolerance`` per step: a return, a sum of
     up to ``max_steps`` rewards each within ``tolerance`` of the other, by more than ``tolerance * max_steps``;
     a success (0 or 1) when it flips (any ``tolerance`` below 1)."""
-    from hub_envs.harness.benchmark import METRICS, BenchmarkRun
-
     declared_new = {str(b.get("name")) for b in new.manifest.benchmarks}
     out = []
     for bench in old.manifest.benchmarks:
@@ -661,12 +659,6 @@ def diff(
     Raises:
         hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
     """
-    from hub_envs.harness.checks import FINGERPRINT_STEPS, golden_fingerprint
-    from hub_envs.harness.provenance import versions_run_with
-    from hub_envs.harness.replay import _env_actions
-    from hub_envs.harness.rollout import run_episodes
-    from hub_envs.loading.load import load_env
-
     for name, v in (("episodes", episodes), ("random_episodes", random_episodes)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ConfigError(f"{name}={v!r}: pass a number of episodes >= 0.")
@@ -683,64 +675,16 @@ def diff(
         )
         timings["load"] = time.perf_counter() - t
         t = time.perf_counter()
-        files = file_changes(a.manifest, b.manifest)
-        fields = manifest_changes(a.manifest, b.manifest)
+        files, fields = file_changes(a.manifest, b.manifest), manifest_changes(a.manifest, b.manifest)  # 1. static
         timings["static"] = time.perf_counter() - t
         t = time.perf_counter()
-        notes: list[str] = []
-        env_a, env_b = a.make(), b.make()
-        try:
-            spaces = _space_changes(env_a, env_b)
-            action_space = env_a.action_space
-        finally:
-            env_a.close()
-            env_b.close()
-        action_change = [s for s in spaces if s["space"] == "action_space"]
-        seeds_out: list[SeedDiff] = []
-        live_a = live_b = None
-        if action_change:
-            notes.append("the action space changed: the same actions cannot drive both revisions, so no episodes were compared")
-        else:
-            recorded = _recorded_actions(a, episodes)
-            if episodes and not recorded:
-                notes.append(f"{a.repo_id}@{a.revision[:12]} has no dataset with seeds: no recorded actions to replay")
-            # random-action seeds other than the replayed episodes' (push_env records seeded random actions: the same seed
-            # would repeat a recorded episode)
-            used = {s for _, s, _ in recorded}
-            random_seeds = [s for s in range(len(used) + random_episodes + 1) if s not in used][:random_episodes]
-            seeds = [s for _, s, _ in recorded] + random_seeds
-            policy = [_env_actions(acts, action_space, f"{a.repo_id}@{a.revision[:12]}") for _, _, acts in recorded]
-            policy += [None] * len(random_seeds)
-            max_steps = max(int(a.config.episode_length), int(b.config.episode_length))
-            runs = []
-            for side in (a, b):
-                runs.append(
-                    run_episodes(
-                        side.make,
-                        seeds,
-                        max_steps=max_steps,
-                        policy=policy if recorded else None,
-                        workers=workers,
-                        progress=progress,
-                        desc=f"{side.repo_id}@{side.revision[:12]}",
-                    )
-                    if seeds
-                    else []
-                )
-            names = dict(a.config.features_map)
-            sources = [f"recorded actions of episode {i}" for i, _, _ in recorded] + ["random actions"] * len(random_seeds)
-            for ra, rb, src in zip(runs[0], runs[1], sources, strict=True):
-                seeds_out.append(_compare(ra, rb, ra.seed, src, names, tolerance))
-            # the golden fingerprint of both, recomputed here on the old manifest's seeds and steps (a few short episodes)
-            fp = a.manifest.fingerprint
-            if fp and fp.get("seeds"):
-                fp_seeds, steps = [int(s) for s in fp["seeds"]], int(fp.get("steps", FINGERPRINT_STEPS))
-                live_a = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)
-                live_b = golden_fingerprint(b.make, seeds=fp_seeds, steps=steps)
-        timings["behaviour"] = time.perf_counter() - t
+        behaviour = _behaviour(
+            a, b, episodes=episodes, random_episodes=random_episodes, tolerance=tolerance, workers=workers, progress=progress
+        )
+        timings["behaviour"] = time.perf_counter() - t  # 2. behavioural
         t = time.perf_counter()
         bench_out: list[dict[str, Any]] = []
-        if benchmarks and not action_change:
+        if benchmarks and not behaviour.action_changed:  # 3. the benchmarks
             bench_out = _benchmark_deltas(
                 a,
                 b,
@@ -753,36 +697,22 @@ def diff(
             )
             timings["benchmarks"] = time.perf_counter() - t
         elif benchmarks and a.manifest.benchmarks:
-            notes.append("the action space changed: the benchmarks were not re-run")
+            behaviour.notes.append("the action space changed: the benchmarks were not re-run")
         for bm in bench_out:
             if bm.get("error"):
-                notes.append(f"benchmark {bm['name']} was not re-run: {bm['error']}")
-        deltas: dict[str, Any] = {}
-        if seeds_out:
-            deltas["return"] = _paired_delta([s.return_old for s in seeds_out], [s.return_new for s in seeds_out], resamples)
-            deltas["success"] = _paired_delta(
-                [float(s.success_old) for s in seeds_out], [float(s.success_new) for s in seeds_out], resamples
-            )
-        few = sorted({d["n"] for d in deltas.values()} | {len(bm["seeds"]) for bm in bench_out if bm.get("metrics")})
-        if few and few[0] < FEW_EPISODES:
-            notes.append(
-                f"a paired interval over {few[0]} episodes is little more than the range of the differences, not a calibrated "
-                f"95% interval: use {FEW_EPISODES} or more (--episodes/--random_episodes; push_env --episodes for the benchmark)"
-            )
-        obs_change = [s for s in spaces if s["space"] == "observation_space"]
-        if obs_change and seeds_out:
-            notes.append("the observation space changed: the observations whose shape changed were not compared step by step")
-        report = DiffReport(
+                behaviour.notes.append(f"benchmark {bm['name']} was not re-run: {bm['error']}")
+        deltas = _seed_deltas(behaviour.seeds, resamples)
+        report = DiffReport(  # 4. the report
             old=_ref(a),
             new=_ref(b),
             files=files,
             manifest=fields,
-            spaces=spaces,
-            seeds=seeds_out,
-            fingerprint=_fingerprints(a, b, live_a, live_b),
+            spaces=behaviour.spaces,
+            seeds=behaviour.seeds,
+            fingerprint=_fingerprints(a, b, behaviour.live_old, behaviour.live_new),
             deltas=deltas,
             benchmarks=bench_out,
-            notes=notes,
+            notes=behaviour.notes + _closing_notes(deltas, bench_out, behaviour),
             settings={
                 "episodes": episodes,
                 "random_episodes": random_episodes,
@@ -805,3 +735,95 @@ def diff(
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, b.repo_id), write=write)
         return report
+
+
+@dataclass
+class _Behaviour:
+    """What running both revisions found: their space changes, each seed's comparison, the golden fingerprints
+    recomputed on both (None: not run), and what the report notes."""
+
+    spaces: list[dict[str, Any]]
+    action_changed: bool
+    seeds: list[SeedDiff] = field(default_factory=list)
+    live_old: dict | None = None
+    live_new: dict | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _behaviour(
+    a: Any, b: Any, *, episodes: int, random_episodes: int, tolerance: float, workers: int, progress: bool
+) -> _Behaviour:
+    """Both revisions' spaces compared, then the same episodes on both (the old revision's recorded actions, then seeded
+    random actions), and the golden fingerprint recomputed on both."""
+    env_a, env_b = a.make(), b.make()
+    try:
+        spaces = _space_changes(env_a, env_b)
+        action_space = env_a.action_space
+    finally:
+        env_a.close()
+        env_b.close()
+    found = _Behaviour(spaces=spaces, action_changed=any(s["space"] == "action_space" for s in spaces))
+    if found.action_changed:
+        found.notes.append("the action space changed: the same actions cannot drive both revisions, so no episodes were compared")
+        return found
+    recorded = _recorded_actions(a, episodes)
+    if episodes and not recorded:
+        found.notes.append(f"{a.repo_id}@{a.revision[:12]} has no dataset with seeds: no recorded actions to replay")
+    # random-action seeds other than the replayed episodes' (push_env records seeded random actions: the same seed
+    # would repeat a recorded episode)
+    used = {s for _, s, _ in recorded}
+    random_seeds = [s for s in range(len(used) + random_episodes + 1) if s not in used][:random_episodes]
+    seeds = [s for _, s, _ in recorded] + random_seeds
+    policy = [env_actions(acts, action_space, f"{a.repo_id}@{a.revision[:12]}") for _, _, acts in recorded]
+    policy += [None] * len(random_seeds)
+    max_steps = max(int(a.config.episode_length), int(b.config.episode_length))
+    runs = [
+        run_episodes(
+            side.make,
+            seeds,
+            max_steps=max_steps,
+            policy=policy if recorded else None,
+            workers=workers,
+            progress=progress,
+            desc=f"{side.repo_id}@{side.revision[:12]}",
+        )
+        if seeds
+        else []
+        for side in (a, b)
+    ]
+    names = dict(a.config.features_map)
+    sources = [f"recorded actions of episode {i}" for i, _, _ in recorded] + ["random actions"] * len(random_seeds)
+    found.seeds = [
+        _compare(ra, rb, ra.seed, src, names, tolerance) for ra, rb, src in zip(runs[0], runs[1], sources, strict=True)
+    ]
+    # the golden fingerprint of both, recomputed here on the old manifest's seeds and steps (a few short episodes)
+    fp = a.manifest.fingerprint
+    if fp and fp.get("seeds"):
+        fp_seeds, steps = [int(s) for s in fp["seeds"]], int(fp.get("steps", FINGERPRINT_STEPS))
+        found.live_old = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)
+        found.live_new = golden_fingerprint(b.make, seeds=fp_seeds, steps=steps)
+    return found
+
+
+def _seed_deltas(seeds: list[SeedDiff], resamples: int) -> dict[str, Any]:
+    """The paired per-seed return and success deltas (new - old) with their bootstrap intervals."""
+    if not seeds:
+        return {}
+    return {
+        "return": _paired_delta([s.return_old for s in seeds], [s.return_new for s in seeds], resamples),
+        "success": _paired_delta([float(s.success_old) for s in seeds], [float(s.success_new) for s in seeds], resamples),
+    }
+
+
+def _closing_notes(deltas: dict[str, Any], bench_out: list[dict[str, Any]], behaviour: _Behaviour) -> list[str]:
+    """What the report says last: intervals over too few episodes to be calibrated, observations not compared."""
+    notes = []
+    few = sorted({d["n"] for d in deltas.values()} | {len(bm["seeds"]) for bm in bench_out if bm.get("metrics")})
+    if few and few[0] < FEW_EPISODES:
+        notes.append(
+            f"a paired interval over {few[0]} episodes is little more than the range of the differences, not a calibrated "
+            f"95% interval: use {FEW_EPISODES} or more (--episodes/--random_episodes; push_env --episodes for the benchmark)"
+        )
+    if any(s["space"] == "observation_space" for s in behaviour.spaces) and behaviour.seeds:
+        notes.append("the observation space changed: the observations whose shape changed were not compared step by step")
+    return notes
