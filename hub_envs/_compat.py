@@ -16,18 +16,22 @@ Example:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import sys
 from collections.abc import Mapping
+from importlib.metadata import PackageNotFoundError, version
+from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
+import huggingface_hub
+from huggingface_hub import constants, utils
+from huggingface_hub.utils import _http, get_session
 from packaging.version import Version
 
 
 def _version(dist: str) -> Version | None:
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return Version(version(dist))
     except PackageNotFoundError:
@@ -57,11 +61,11 @@ def _network_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseE
     reads as *broke off*; a connection reset mid-body is a ``ReadError`` and reads as *cannot reach*.
     """
     if HF_HUB_MAJOR >= 1:
-        import httpx
+        import httpx  # heavy: httpx
 
         network = (httpx.NetworkError, httpx.TimeoutException, httpx.ProxyError)
         return network, (httpx.TransportError, httpx.DecodingError, httpx.StreamError)
-    import requests
+    import requests  # heavy: requests
 
     return (requests.ConnectionError, requests.Timeout), (requests.RequestException,)
 
@@ -102,8 +106,6 @@ def upload_uses_xet_unconditionally() -> bool:
 def lfs_instead_of_xet(enabled: bool = True):
     """Inside the block, huggingface_hub uploads large files through Git LFS, not Xet (both versions
     read ``constants.HF_HUB_DISABLE_XET`` at each upload). Process-wide while it lasts."""
-    from huggingface_hub import constants
-
     if not enabled or constants.HF_HUB_DISABLE_XET:
         yield
         return
@@ -116,8 +118,6 @@ def lfs_instead_of_xet(enabled: bool = True):
 
 def reset_http_sessions() -> None:
     """Drop the client's cached HTTP sessions (0.x ``reset_sessions``, 1.x ``close_session``)."""
-    from huggingface_hub import utils
-
     reset = getattr(utils, "close_session", None) or utils.reset_sessions
     reset()
 
@@ -129,8 +129,6 @@ def stream_file(url: str, headers: Mapping[str, str], timeout: float):
     are those of the first answer (the Hub's own, with ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it
     redirects a large file to a CDN), ``final_headers`` those of the answer that carries the body. A
     redirect to another host drops the ``Authorization`` header (both libraries do)."""
-    from huggingface_hub.utils import get_session
-
     session = get_session()
     if HF_HUB_MAJOR >= 1:
         with session.stream("GET", url, headers=dict(headers), follow_redirects=True, timeout=timeout) as response:
@@ -158,9 +156,6 @@ def install_response_hook(hook) -> bool:
     Idempotent per hook; returns True when it installed it now. Reads the current factory from a private
     name (``_GLOBAL_BACKEND_FACTORY`` / ``_GLOBAL_CLIENT_FACTORY``): huggingface_hub has no getter.
     """
-    import huggingface_hub
-    from huggingface_hub.utils import _http
-
     name = "_GLOBAL_CLIENT_FACTORY" if HF_HUB_MAJOR >= 1 else "_GLOBAL_BACKEND_FACTORY"
     previous = getattr(_http, name)
     if hook in getattr(previous, "_hub_envs_hooks", ()):
@@ -208,7 +203,7 @@ def env_config_choices() -> dict[str, Any]:
     0.11; hub-envs mutates it to unregister what it registered (draccus has no public unregister),
     so this checks it really is the live registry and not a copy.
     """
-    from lerobot.envs.configs import EnvConfig
+    from lerobot.envs.configs import EnvConfig  # heavy: lerobot (torch)
 
     choices = EnvConfig.get_known_choices()
     if choices is not getattr(EnvConfig, "_choice_registry", None):  # pragma: no cover - upstream change
@@ -221,7 +216,7 @@ def env_config_choices() -> dict[str, Any]:
 
 def processor_step_names() -> list[str]:
     """Names in LeRobot's ``ProcessorStepRegistry`` (public ``list()`` on every supported version)."""
-    from lerobot.processor.pipeline import ProcessorStepRegistry
+    from lerobot.processor.pipeline import ProcessorStepRegistry  # heavy: lerobot (torch)
 
     return ProcessorStepRegistry.list()
 
@@ -229,9 +224,9 @@ def processor_step_names() -> list[str]:
 def hf_transform_to_torch():
     """LeRobot's dataset transform to torch tensors (``datasets.utils`` in 0.4, ``datasets.io_utils`` from 0.5)."""
     try:
-        from lerobot.datasets.io_utils import hf_transform_to_torch as fn
+        from lerobot.datasets.io_utils import hf_transform_to_torch as fn  # heavy: lerobot (torch)
     except ImportError:
-        from lerobot.datasets.utils import hf_transform_to_torch as fn
+        from lerobot.datasets.utils import hf_transform_to_torch as fn  # heavy: lerobot (torch)
     return fn
 
 
@@ -240,9 +235,9 @@ def lerobot_dataset_io():
     ``load_tasks``): ``lerobot.datasets.utils`` in 0.4, ``lerobot.datasets.io_utils`` from 0.5 (where
     ``load_info`` returns a ``DatasetInfo`` that drops keys LeRobot does not know, such as ``hub_envs``)."""
     try:
-        from lerobot.datasets import io_utils as module
+        from lerobot.datasets import io_utils as module  # heavy: lerobot (torch)
     except ImportError:
-        from lerobot.datasets import utils as module
+        from lerobot.datasets import utils as module  # heavy: lerobot (torch)
     return module
 
 
@@ -254,16 +249,16 @@ def lerobot_dataset_layout() -> dict[str, Any]:
     lives in ``lerobot_dataset`` up to 0.4 and ``dataset_metadata`` from 0.5; ``DEFAULT_FEATURES`` in
     ``datasets.utils`` up to 0.4 and ``utils.constants`` from 0.5.
     """
-    from lerobot.datasets import utils
+    from lerobot.datasets import utils  # heavy: lerobot (torch)
 
     try:
-        from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
+        from lerobot.datasets.dataset_metadata import CODEBASE_VERSION  # heavy: lerobot (torch)
     except ImportError:
-        from lerobot.datasets.lerobot_dataset import CODEBASE_VERSION
+        from lerobot.datasets.lerobot_dataset import CODEBASE_VERSION  # heavy: lerobot (torch)
     try:
-        from lerobot.utils.constants import DEFAULT_FEATURES
+        from lerobot.utils.constants import DEFAULT_FEATURES  # heavy: lerobot (torch)
     except ImportError:
-        from lerobot.datasets.utils import DEFAULT_FEATURES
+        from lerobot.datasets.utils import DEFAULT_FEATURES  # heavy: lerobot (torch)
     return {
         "CODEBASE_VERSION": CODEBASE_VERSION,
         "DEFAULT_CHUNK_SIZE": utils.DEFAULT_CHUNK_SIZE,
@@ -302,7 +297,7 @@ def train_dataset_hooks() -> tuple[str, ...]:
     0.4 calls ``make_dataset(cfg)``; from 0.5 it calls ``make_train_eval_datasets(cfg)``, which returns
     ``(train, eval_or_None)``.
     """
-    from lerobot.scripts import lerobot_train
+    from lerobot.scripts import lerobot_train  # heavy: lerobot (torch)
 
     return tuple(name for name in ("make_dataset", "make_train_eval_datasets") if hasattr(lerobot_train, name))
 
@@ -310,16 +305,12 @@ def train_dataset_hooks() -> tuple[str, ...]:
 def missing_training_packages() -> list[str]:
     """Packages LeRobot's training loop needs that are not installed: from 0.5 they are its ``training``
     extra (``accelerate`` is required at start; 0.4 has it in its core dependencies)."""
-    from importlib.util import find_spec
-
     return [name for name in ("accelerate",) if find_spec(name) is None]
 
 
 def train_eval_freq_flag() -> str:
     """``lerobot-train``'s flag for how often to evaluate in the env: ``eval_freq`` in 0.4, ``env_eval_freq`` from 0.5."""
-    import dataclasses
-
-    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.configs.train import TrainPipelineConfig  # heavy: lerobot (torch)
 
     names = {f.name for f in dataclasses.fields(TrainPipelineConfig)}
     return "env_eval_freq" if "env_eval_freq" in names else "eval_freq"
@@ -328,7 +319,7 @@ def train_eval_freq_flag() -> str:
 def env_configs_create_envs() -> bool:
     """LeRobot >= 0.5 builds envs with ``EnvConfig.create_envs()`` and env processors with
     ``EnvConfig.get_env_processors()`` (0.4 has neither: its factory branches on the config type)."""
-    from lerobot.envs.configs import EnvConfig
+    from lerobot.envs.configs import EnvConfig  # heavy: lerobot (torch)
 
     return hasattr(EnvConfig, "create_envs") and hasattr(EnvConfig, "get_env_processors")
 
@@ -338,7 +329,7 @@ def lerobot_video_utils():
     (``encode_video_frames``: a folder of ``frame-000000.png`` files -> one MP4 with pyav; default libsvtav1,
     yuv420p, GOP 2, CRF 30 in both), ``concatenate_video_files`` (remux, no re-encode) and
     ``get_video_duration_in_s``, all with the same signatures in the calls hub-envs makes."""
-    from lerobot.datasets import video_utils
+    from lerobot.datasets import video_utils  # heavy: lerobot (torch)
 
     return video_utils
 
@@ -350,10 +341,8 @@ LEROBOT_VIDEO_GOP = 2
 
 def _rgb_encoder(gop: int):
     """LeRobot >= 0.5's RGB encoder settings with GOP ``gop`` (None on 0.4, whose encoder takes ``g=`` itself)."""
-    import dataclasses
-
     try:
-        from lerobot.configs.video import rgb_encoder_defaults
+        from lerobot.configs.video import rgb_encoder_defaults  # heavy: lerobot (torch)
     except ImportError:
         return None
     return dataclasses.replace(rgb_encoder_defaults(), g=int(gop))
@@ -412,12 +401,10 @@ def video_backend() -> str:
     even when its FFmpeg libraries are missing and it cannot load (then every video read fails); 0.6's
     ``get_safe_default_video_backend`` tries to import it and falls back to pyav. This is 0.6's rule, on both.
     """
-    from importlib.util import find_spec
-
     if find_spec("torchcodec") is None:
         return "pyav"
     try:
-        import torchcodec.decoders  # noqa: F401
+        import torchcodec.decoders  # noqa: F401  (heavy: torchcodec and its FFmpeg; only asked here)
     except Exception:  # noqa: BLE001 - ImportError, OSError, RuntimeError: the FFmpeg libraries are missing
         return "pyav"
     return "torchcodec"
@@ -429,9 +416,9 @@ def lerobot_default_video_backend() -> str:
     0.5+'s ``get_safe_default_video_backend``. Where it differs from :func:`video_backend`, a LeRobot user must name
     ``pyav`` (0.4 picks an installed torchcodec that cannot load)."""
     try:
-        from lerobot.utils.import_utils import get_safe_default_video_backend as default  # lerobot >= 0.5
+        from lerobot.utils.import_utils import get_safe_default_video_backend as default  # heavy: lerobot (torch); lerobot >= 0.5
     except ImportError:
-        from lerobot.datasets.video_utils import get_safe_default_codec as default  # lerobot 0.4
+        from lerobot.datasets.video_utils import get_safe_default_codec as default  # heavy: lerobot (torch); lerobot 0.4
     return default()
 
 

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import hashlib
+import json
 import os
 import re
 import signal
@@ -38,6 +40,12 @@ import urllib.request
 import weakref
 from collections.abc import Iterator
 from pathlib import Path
+
+import huggingface_hub
+from huggingface_hub import constants
+
+from hub_envs._compat import reset_http_sessions
+from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, content_digest
 
 __all__ = ["HubServer", "HubServerError", "hub_environment"]
 
@@ -293,9 +301,6 @@ def hub_environment(
             else:
                 os.environ[k] = v
 
-        import huggingface_hub
-        from huggingface_hub import constants
-
         url_template = endpoint + "/{repo_id}/resolve/{revision}/{filename}"
         values = {
             "ENDPOINT": endpoint,
@@ -376,16 +381,12 @@ def hub_environment(
             else:
                 os.environ[k] = old  # type: ignore[assignment]
         with contextlib.suppress(Exception):
-            import huggingface_hub
-
             _reset_client_state(huggingface_hub)
 
 
 def _reset_client_state(huggingface_hub) -> None:
     """Drop what the client cached about the previous endpoint: HTTP sessions (their offline
     adapter is chosen at creation) and ``HfFileSystem`` instances (fsspec caches them by arguments)."""
-    from hub_envs._compat import reset_http_sessions
-
     reset_http_sessions()
     huggingface_hub.HfFileSystem.clear_instance_cache()
 
@@ -396,11 +397,6 @@ def add_random_data_files(folder: Path, count: int, mib_each: int, *, chunk: str
     files and the content digest updated), as a large camera dataset would be; returns ``{path: sha256}``. For
     tests and benchmarks of the Hub at real sizes (the bytes are not parquet: they are fetched and verified, not
     decoded). Publish the folder with :func:`hub_envs.repo.hub_io.publish_folder`."""
-    import hashlib
-    import json
-
-    from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, content_digest
-
     manifest = json.loads((folder / MANIFEST_FILE).read_text())
     added = {}
     for i in range(count):

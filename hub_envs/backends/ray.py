@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.util
 import json
 import os
 import pickle
@@ -52,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from huggingface_hub import get_token
 
 from hub_envs.backends.base import Backend, EnvSource
 from hub_envs.errors import (
@@ -88,8 +90,6 @@ def _ray_missing() -> MissingRequirementsError:
 def check_ray_installed() -> None:
     """Raise :class:`MissingRequirementsError` (with the pip line) unless Ray can be imported here; cheap (no import),
     so a run asked for on Ray fails before any work rather than after its env was loaded and checked."""
-    import importlib.util
-
     try:
         found = importlib.util.find_spec("ray") is not None
     except (ImportError, ValueError):
@@ -101,7 +101,7 @@ def check_ray_installed() -> None:
 def import_ray():
     """``ray``, or a :class:`MissingRequirementsError` with the pip line."""
     try:
-        import ray
+        import ray  # heavy: ray
     except ModuleNotFoundError as exc:
         if exc.name != "ray":
             raise
@@ -147,8 +147,8 @@ def _check_auth(address: str) -> None:
     if "://" in address or address in ("auto", "local"):
         return  # Ray Client (ray://) authenticates in its own protocol; auto: Ray's own discovery and rules
     try:  # Ray's token authentication (in Ray 2.60); a Ray without it has nothing to check
-        from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
-        from ray.exceptions import AuthenticationError, RpcError
+        from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode  # heavy: ray
+        from ray.exceptions import AuthenticationError, RpcError  # heavy: ray
     except ImportError:
         return
     token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
@@ -253,7 +253,7 @@ def run_shard(
 
 def _node_ip() -> str:
     try:
-        import ray
+        import ray  # heavy: ray
 
         return ray.util.get_node_ip_address()
     except Exception:  # noqa: BLE001
@@ -271,7 +271,7 @@ def _policy_parts(policy: Any, n: int) -> tuple[Any, list | None]:
 
 
 def _digest(obj: Any) -> str:
-    from ray import cloudpickle
+    from ray import cloudpickle  # heavy: ray
 
     return hashlib.sha256(cloudpickle.dumps(obj)).hexdigest()
 
@@ -381,7 +381,6 @@ class RayBackend(Backend):
             return None
         if token:
             return token
-        from huggingface_hub import get_token
 
         return get_token()
 
@@ -433,7 +432,7 @@ class RayBackend(Backend):
                         first = first or e
         self._depth -= 1
         if self._depth == 0 and self._started:
-            import ray
+            import ray  # heavy: ray
 
             ray.shutdown()
             self._started = False

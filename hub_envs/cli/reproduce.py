@@ -35,7 +35,7 @@ class Config(EnvFlags):
 def main(config: Config) -> int:
     """Reproduce ``config.repo_id``, print the summary (or the JSON) and, with ``--attest``, publish the attestation."""
     from hub_envs.operations.attest import attest  # heavy: the operations import lerobot, torch
-    from hub_envs.operations.reproduce import reproduce
+    from hub_envs.operations.reproduce import reproduce  # heavy: lerobot, torch
 
     if config.repo_id is None:
         raise ConfigError("hub-envs reproduce needs --repo_id=user/name (optionally --revision=<sha>).")

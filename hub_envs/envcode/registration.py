@@ -34,6 +34,7 @@ import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
 from hub_envs._compat import env_config_choices
+from hub_envs.envcode.importing import ROOT_PACKAGE
 from hub_envs.errors import RegistrationConflictError
 
 #: name -> owner key ("repo@sha") for every gym id and draccus choice hub-envs registered.
@@ -149,8 +150,6 @@ def _installed_origin(target: Any, code: Path) -> str | None:
     """The installed distribution(s) whose package holds ``target`` (a ``"module:attr"`` entry point, a callable or a
     class), e.g. ``"gymnasium-robotics"``; None for the env's own code (``code``, or a module of a hub-envs repo)
     and for what cannot be placed."""
-    from hub_envs.envcode.importing import ROOT_PACKAGE
-
     module = target.split(":", 1)[0] if isinstance(target, str) else getattr(target, "__module__", None)
     if not isinstance(module, str) or not module or module.split(".")[0] == ROOT_PACKAGE:
         return None

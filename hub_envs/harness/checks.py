@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from gymnasium.utils.env_checker import check_env
 
 from hub_envs.errors import DeterminismError, EnvCheckError, EnvCodeError, FingerprintMismatchError
 from hub_envs.harness.rollout import EpisodeRollout, run_episodes
@@ -34,8 +35,6 @@ FINGERPRINT_STEPS = 32
 
 def run_env_checker(env, *, where: str) -> list[str]:
     """Run gymnasium's ``check_env`` on the unwrapped env; return its warnings, raise on failure."""
-    from gymnasium.utils.env_checker import check_env
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:

@@ -22,6 +22,7 @@ Example:
 
 from __future__ import annotations
 
+import traceback
 from typing import Any
 
 from hub_envs.errors import EnvCodeError
@@ -30,8 +31,6 @@ __all__ = ["SeededEpisode", "exception_text"]
 
 
 def _raised_at(exc: BaseException) -> str:
-    import traceback
-
     frames = traceback.extract_tb(exc.__traceback__)
     if not frames:
         return ""

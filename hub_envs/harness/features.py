@@ -174,7 +174,7 @@ def _live_observation(
     name: str, ftype: Any, declared: tuple[int, ...], observations: list[Any], obs_space: Any
 ) -> tuple[str, list[str]]:
     """One observation feature across the live steps: its description and what is wrong with it."""
-    from lerobot.configs.types import FeatureType
+    from lerobot.configs.types import FeatureType  # heavy: lerobot (torch)
 
     try:
         values = [np.asarray(_lookup(o, name)) for o in observations]
@@ -212,7 +212,7 @@ def _in_dataset(
     key: str, ftype: Any, declared: tuple[int, ...], dataset_features: dict[str, Any] | None, action_space: Any
 ) -> tuple[str, list[str]]:
     """One feature as the dataset's info.json declares it: its description and what is wrong with it."""
-    from lerobot.configs.types import FeatureType
+    from lerobot.configs.types import FeatureType  # heavy: lerobot (torch)
 
     if dataset_features is None:
         return "-", []
@@ -288,7 +288,7 @@ def check_features(
     One row per declared feature (:func:`_live_action` or :func:`_live_observation`, then :func:`_in_dataset`),
     rows for what is not declared (:func:`_undeclared`), and the success flag (:func:`_success_row`).
     """
-    from lerobot.configs.types import FeatureType
+    from lerobot.configs.types import FeatureType  # heavy: lerobot (torch)
 
     observations, actions, infos = _rollout(env, steps, seed, where)
     features_map = dict(getattr(cfg, "features_map", {}) or {})

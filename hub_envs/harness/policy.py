@@ -84,9 +84,9 @@ def _checkpoint_policy(
                 f'exact weights. Declare it as "{repo_id}@<40-hex sha>".'
             )
     try:  # heavy: torch, lerobot's policies
-        import torch
-        from lerobot.configs.policies import PreTrainedConfig
-        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+        import torch  # heavy: torch
+        from lerobot.configs.policies import PreTrainedConfig  # heavy: lerobot (torch)
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors  # heavy: lerobot (torch)
     except ImportError as exc:  # pragma: no cover - lerobot is a dependency
         raise ReproductionError(f"benchmark policy {ref!r} needs lerobot and torch: {exc}") from exc
 

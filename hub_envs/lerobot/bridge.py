@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import functools
 import json
 import re
 import sys
@@ -39,8 +40,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from hub_envs._compat import missing_training_packages
+from hub_envs._compat import missing_training_packages, video_backend
+from hub_envs.dataset.reader import dataset_fingerprint, read_info
 from hub_envs.errors import ConfigError, HubEnvsError, MissingRequirementsError
+from hub_envs.harness.provenance import package_versions
 from hub_envs.repo import hub_io
 from hub_envs.repo.refs import check_repo_flags, check_repo_id
 
@@ -88,7 +91,7 @@ def _resolve_short_sha(repo_id: str, prefix: str) -> str:
 
 def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
     """Register hub-envs' choices, pre-load the env the flags name, and return (argv for LeRobot, LoadedEnv or None)."""
-    from hub_envs.lerobot.env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent
+    from hub_envs.lerobot.env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent  # heavy: lerobot
 
     install_hooks()
     argv = list(argv)
@@ -138,7 +141,6 @@ def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
             argv.append(f"--dataset.root={loaded.dataset_root}")
         if flag(argv, "dataset.video_backend") is None and _has_video(loaded.dataset_meta_root):
             # LeRobot 0.4 defaults to torchcodec whenever it is installed, even when it cannot load
-            from hub_envs._compat import video_backend
 
             argv.append(f"--dataset.video_backend={video_backend()}")
     return argv, loaded
@@ -168,8 +170,6 @@ def portable_argv(argv: list[str], loaded: Any) -> list[str]:
 
 
 def _has_video(dataset_meta_root) -> bool:
-    from hub_envs.dataset.reader import read_info
-
     if dataset_meta_root is None:
         return False
     features = read_info(dataset_meta_root)["features"]
@@ -199,7 +199,7 @@ def _hub_envs_cause(error: BaseException) -> HubEnvsError | None:
 
 def _run_wrapped(config_class: type, body: Callable[[Any], Any], argv: list[str], prog: str):
     """Parse ``argv`` with LeRobot's own ``parser.wrap`` into ``config_class`` and call ``body(cfg)``."""
-    from lerobot.configs import parser
+    from lerobot.configs import parser  # heavy: lerobot (torch)
 
     def entry(cfg):
         return body(cfg)
@@ -227,14 +227,14 @@ def _json_default(value):
 
 def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
     """What identifies the env a LeRobot config names: repo, sha, digests, config values, processors."""
-    from hub_envs.envcode.envconfig import encode_config
-    from hub_envs.lerobot.env import loaded_for
+    from hub_envs.envcode.envconfig import encode_config  # heavy: lerobot (its EnvConfig)
+    from hub_envs.lerobot.env import loaded_for  # heavy: lerobot (its EnvConfig)
 
     found = loaded_for(env_cfg_or_hub)
     if found is None:
         return None
     loaded, cfg = found
-    from hub_envs.loading.processors import specs_for
+    from hub_envs.loading.processors import specs_for  # heavy: torch, lerobot's processors
 
     m = loaded.manifest
     return {
@@ -255,8 +255,6 @@ def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
 
 
 def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: str | None, env: dict | None) -> dict[str, Any]:
-    from hub_envs.dataset.reader import dataset_fingerprint
-
     out: dict[str, Any] = {"repo_id": repo_id, "root": str(root) if root else None, "revision": revision, "fingerprint": None}
     if root and (Path(root) / "meta" / "info.json").is_file():
         out["fingerprint"] = dataset_fingerprint(root)
@@ -266,8 +264,6 @@ def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: s
 
 
 def _versions() -> dict[str, str]:
-    from hub_envs.harness.provenance import package_versions
-
     return package_versions()
 
 
@@ -336,11 +332,10 @@ def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
 
 def _forgets_cli_consent(command: Callable[[list[str]], int]) -> Callable[[list[str]], int]:
     """The command line's consent lasts for that command only (``hub-envs train`` may run inside a Python process)."""
-    import functools
 
     @functools.wraps(command)
     def run(argv: list[str]) -> int:
-        from hub_envs.lerobot.env import set_cli_consent
+        from hub_envs.lerobot.env import set_cli_consent  # heavy: lerobot (its EnvConfig)
 
         try:
             return command(argv)
@@ -372,9 +367,9 @@ def run_train(argv: list[str]) -> int:
         )
     typed = list(argv)
     argv, loaded = prepare_argv(argv, command="train")
-    from lerobot.configs.train import TrainPipelineConfig
-    from lerobot.scripts.lerobot_train import train
-    from lerobot.utils.import_utils import register_third_party_plugins
+    from lerobot.configs.train import TrainPipelineConfig  # heavy: lerobot (torch)
+    from lerobot.scripts.lerobot_train import train  # heavy: lerobot (torch)
+    from lerobot.utils.import_utils import register_third_party_plugins  # heavy: lerobot (torch)
 
     register_third_party_plugins()
 
@@ -404,10 +399,10 @@ def run_eval(argv: list[str]) -> int:
     """
     typed = list(argv)
     argv, loaded = prepare_argv(argv, command="eval")
-    from lerobot.configs.eval import EvalPipelineConfig
-    from lerobot.scripts.lerobot_eval import eval_main
-    from lerobot.utils.import_utils import register_third_party_plugins
-    from lerobot.utils.utils import init_logging
+    from lerobot.configs.eval import EvalPipelineConfig  # heavy: lerobot (torch)
+    from lerobot.scripts.lerobot_eval import eval_main  # heavy: lerobot (torch)
+    from lerobot.utils.import_utils import register_third_party_plugins  # heavy: lerobot (torch)
+    from lerobot.utils.utils import init_logging  # heavy: lerobot (torch)
 
     init_logging()
     register_third_party_plugins()

@@ -39,9 +39,10 @@ import draccus
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
-from hub_envs._compat import env_configs_create_envs, train_dataset_hooks
+from hub_envs._compat import env_configs_create_envs, hf_transform_to_torch, train_dataset_hooks
+from hub_envs.dataset.reader import read_hub_envs_meta
 from hub_envs.envcode.registration import owner_of_choice
-from hub_envs.errors import ConfigError, UntrustedCodeError
+from hub_envs.errors import ConfigError, DatasetError, UntrustedCodeError
 from hub_envs.harness.actions import IntegerActions
 from hub_envs.loading.isolated import CodeRun, code_run
 from hub_envs.loading.load import load_env
@@ -283,7 +284,7 @@ def make_env(
     """
     found = loaded_for(cfg)
     if found is None:
-        from lerobot.envs import factory
+        from lerobot.envs import factory  # heavy: lerobot (torch)
 
         return factory.make_env(
             cfg, n_envs=n_envs, use_async_envs=use_async_envs, hub_cache_dir=hub_cache_dir, trust_remote_code=trust_remote_code
@@ -294,8 +295,8 @@ def make_env(
 
 def make_env_pre_post_processors(env_cfg, policy_cfg):
     """LeRobot's ``make_env_pre_post_processors``, plus the processors a hub env repo declares."""
-    from lerobot.envs import factory
-    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.envs import factory  # heavy: lerobot (torch)
+    from lerobot.processor import PolicyProcessorPipeline  # heavy: lerobot (torch)
 
     pre, post = factory.make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
     found = loaded_for(env_cfg)
@@ -317,10 +318,8 @@ def keep_declared_shapes(dataset):
     breaks ACT and diffusion training with a broadcasting error. This adds the last dimension back,
     in the dataset's own torch transform.
     """
-    import torch
-    from lerobot.utils.constants import ACTION, OBS_PREFIX
-
-    from hub_envs._compat import hf_transform_to_torch
+    import torch  # heavy: torch
+    from lerobot.utils.constants import ACTION, OBS_PREFIX  # heavy: lerobot (torch)
 
     to_torch_base = hf_transform_to_torch()
 
@@ -349,9 +348,6 @@ def keep_declared_shapes(dataset):
 def _written_by_hub_envs(meta) -> bool:
     """Whether hub-envs wrote a dataset (it has hub-envs' metadata: :func:`hub_envs.dataset.reader.read_hub_envs_meta`,
     read from the files, which LeRobot does not load)."""
-    from hub_envs.dataset.reader import read_hub_envs_meta
-    from hub_envs.errors import DatasetError
-
     root = getattr(meta, "root", None)
     try:
         return root is not None and bool(read_hub_envs_meta(root))
@@ -370,14 +366,14 @@ def _fix_shapes(cfg, dataset):
 
 def make_dataset(cfg):
     """LeRobot's ``make_dataset``; for a hub env run or a hub-envs dataset, with :func:`keep_declared_shapes`."""
-    from lerobot.datasets import factory
+    from lerobot.datasets import factory  # heavy: lerobot (torch)
 
     return _fix_shapes(cfg, factory.make_dataset(cfg))
 
 
 def make_train_eval_datasets(cfg, *args, **kwargs):
     """LeRobot >= 0.5's ``make_train_eval_datasets``, each dataset with :func:`keep_declared_shapes`."""
-    from lerobot.datasets import factory
+    from lerobot.datasets import factory  # heavy: lerobot (torch)
 
     train, evaluation = factory.make_train_eval_datasets(cfg, *args, **kwargs)
     return _fix_shapes(cfg, train), _fix_shapes(cfg, evaluation)
@@ -390,7 +386,7 @@ def install_hooks() -> None:
     """Route ``lerobot_train`` / ``lerobot_eval`` env creation through :func:`make_env` and
     :func:`make_env_pre_post_processors`, and ``lerobot_train``'s dataset through :func:`make_dataset`
     (idempotent; other env configs and datasets still get LeRobot's own behaviour)."""
-    from lerobot.scripts import lerobot_eval, lerobot_train
+    from lerobot.scripts import lerobot_eval, lerobot_train  # heavy: lerobot (torch)
 
     for module in (lerobot_eval, lerobot_train):
         module.make_env = make_env

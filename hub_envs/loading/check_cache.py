@@ -35,6 +35,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from hub_envs.harness.features import FeatureReport
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 
 CACHE_DIR = "checks"
@@ -155,7 +156,6 @@ def _valid(entry: Any, key: str) -> bool:
         return False
     if entry["fingerprint"].startswith("DRIFTED"):
         return False
-    from hub_envs.harness.features import FeatureReport
 
     features = entry.get("features")
     if not isinstance(features, dict) or not isinstance(features.get("rows"), list):

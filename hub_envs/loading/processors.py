@@ -57,6 +57,7 @@ from lerobot.processor.pipeline import (
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from hub_envs._compat import processor_step_names
+from hub_envs.envcode.importing import ROOT_PACKAGE, resolve_entry_point
 from hub_envs.errors import HubEnvsError, ProcessorError
 from hub_envs.harness.episode import SeededEpisode
 from hub_envs.harness.policy import policy_observation
@@ -279,7 +280,6 @@ def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
     if ":" in entry:
         if package is None:
             raise ProcessorError(f"{at}.entry_point {entry!r} names env code, but no env code is loaded.")
-        from hub_envs.envcode.importing import resolve_entry_point
 
         try:
             return resolve_entry_point(sys.modules[package], entry, where=f"{at}.entry_point")
@@ -369,8 +369,6 @@ def _source(loaded) -> str:
 
 def _package(loaded) -> str:
     if getattr(loaded, "isolation", None) is not None:  # the env's code is not imported here (see load_env)
-        from hub_envs.envcode.importing import ROOT_PACKAGE
-
         return f"{ROOT_PACKAGE}.{loaded.env_class.target.key}"
     return ".".join(loaded.env_class.__module__.split(".")[:2])
 

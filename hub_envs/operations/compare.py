@@ -42,6 +42,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
+import numpy as np
+
 from hub_envs.backends import make_backend
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.benchmark import BenchmarkRun, bootstrap_ci
@@ -235,12 +237,11 @@ class CompareReport(ReportFiles):
 
     def plot(self, path: str | Path) -> Path | None:
         try:
-            import matplotlib
+            import matplotlib  # heavy: matplotlib
         except ModuleNotFoundError:
             return None
         matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-        import numpy as np
+        import matplotlib.pyplot as plt  # heavy: matplotlib
 
         fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
 

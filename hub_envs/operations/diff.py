@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
+import gymnasium as gym
 import numpy as np
 
 from hub_envs._version import __version__
@@ -183,8 +184,6 @@ def _short(value: Any, limit: int = 80) -> str:
 
 
 def _space_info(space: Any) -> dict[str, Any]:
-    import gymnasium as gym
-
     if isinstance(space, gym.spaces.Dict):
         return {k: _space_info(v) for k, v in space.spaces.items()}
     return {"type": type(space).__name__, "shape": list(space.shape or ()), "dtype": str(space.dtype)}
@@ -464,10 +463,10 @@ class DiffReport(ReportFiles):
         if not shown:  # nothing to plot: no matplotlib import either
             return None
         try:
-            import matplotlib
+            import matplotlib  # heavy: matplotlib
 
             matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
+            import matplotlib.pyplot as plt  # heavy: matplotlib
         except ImportError:
             return None
         fig, axes = plt.subplots(len(shown), 1, figsize=(7, 2.4 * len(shown)), squeeze=False)

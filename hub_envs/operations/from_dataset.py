@@ -27,12 +27,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from huggingface_hub import snapshot_download
+
 from hub_envs._text import safe_text
 from hub_envs.dataset.env_meta import read_env_meta
 from hub_envs.dataset.reader import dataset_fingerprint
 from hub_envs.envcode.envconfig import config_differences, encode_config
 from hub_envs.errors import EnvRepoNotFoundError, HubEnvsError, ManifestError, ReproductionError
 from hub_envs.loading.dataset_files import ensure_dataset_files
+from hub_envs.loading.load import load_env
 from hub_envs.repo import hub_io
 from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, Manifest, code_digest, is_commit_sha
 from hub_envs.repo.refs import parse_repo_ref
@@ -94,7 +97,6 @@ def locate_dataset(
         manifest = Manifest.read(snap.path, where=f"{repo_id}@{snap.sha}: hub_env.json")
         ensure_dataset_files(repo_id, snap.sha, snap.path, manifest, token=token)
         return snap.path / DATASET_DIR, (repo_id, snap.sha)
-    from huggingface_hub import snapshot_download
 
     with hub_io.translate_hub_errors(repo_id, revision):
         local = snapshot_download(repo_id, repo_type="dataset", revision=revision, token=token)
@@ -157,8 +159,6 @@ def env_from_dataset(
         ReproductionError: the dataset names no env, no commit has its code, or the code or config
             of the commit found differs from what the dataset recorded.
     """
-    from hub_envs.loading.load import load_env
-
     root, origin = locate_dataset(path_or_repo_id, revision=revision, token=token)
     meta = read_env_meta(root)
     env_repo = _env_repo_id(meta["env_repo_id"], root)

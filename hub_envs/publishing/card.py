@@ -15,6 +15,8 @@ import inspect
 import re
 from pathlib import Path
 
+import numpy as np
+from gymnasium import spaces
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from hub_envs.errors import InvalidRepoFormatError
@@ -61,9 +63,6 @@ def success_description(doc: str) -> str:
 
 def describe_space(space) -> str:
     """A compact one-line description of a gymnasium space (Box bounds summarized, not listed)."""
-    import numpy as np
-    from gymnasium import spaces
-
     if isinstance(space, spaces.Dict):
         return "Dict(" + ", ".join(f"{k}: {describe_space(v)}" for k, v in space.spaces.items()) + ")"
     if isinstance(space, spaces.Box):

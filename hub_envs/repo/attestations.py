@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from huggingface_hub import hf_hub_download
+
 from hub_envs._stack import CORE_PACKAGES, cpu_model, requirement_closure
 from hub_envs._text import safe_text
 from hub_envs.errors import AttestationError, HostileResponseError, HubError
@@ -416,10 +418,6 @@ class AttestationEntry:
 
 
 def _read(repo_id: str, path: str, revision: str, token: str | None) -> bytes | None:
-    from huggingface_hub import hf_hub_download
-
-    from hub_envs.errors import HostileResponseError, HubError
-
     try:
         with hub_io.translate_hub_errors(repo_id, revision):
             local = hf_hub_download(repo_id, path, revision=revision, repo_type=hub_io.REPO_TYPE, token=token)

@@ -44,10 +44,16 @@ import json
 import os
 import re
 import tomllib
+import types
+import typing
 from collections.abc import Collection
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path, PurePosixPath
 from typing import Any
+
+from huggingface_hub.errors import HFValidationError
+from huggingface_hub.utils import validate_repo_id
+from packaging.requirements import InvalidRequirement, Requirement
 
 from hub_envs._text import safe_text
 from hub_envs._version import __version__
@@ -374,8 +380,6 @@ def repo_id_problem(value: object) -> str | None:
         return f"it needs a namespace: 'user/{value}'"
     if value.count("/") != 1:
         return "it has more than one '/'"
-    from huggingface_hub.errors import HFValidationError
-    from huggingface_hub.utils import validate_repo_id
 
     try:
         validate_repo_id(value)
@@ -453,9 +457,6 @@ def _check_fingerprint_and_seeds(data: dict, where: str) -> None:
 
 def _json_kind(annotation: Any) -> tuple[type, ...]:
     """The JSON value types a manifest field of this (resolved) annotation may hold."""
-    import types
-    import typing
-
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
         return tuple(k for arg in typing.get_args(annotation) for k in _json_kind(arg))
@@ -467,8 +468,6 @@ def _json_kind(annotation: Any) -> tuple[type, ...]:
 
 def _check_field_types(cls: type, data: dict, where: str) -> None:
     """Unknown, missing and mistyped fields, driven by the dataclass's own fields and annotations."""
-    import typing
-
     hints = typing.get_type_hints(cls)
     version = data["format_version"]
     known = {f.name: f for f in fields(cls) if f.metadata.get("since", 1) <= version}
@@ -816,7 +815,6 @@ class EnvFolder:
         deps = project.get("dependencies", [])
         if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
             raise EnvFolderError(f"{project_path}: [project] dependencies must be a list of requirement strings.")
-        from packaging.requirements import InvalidRequirement, Requirement
 
         for dep in deps:
             try:

@@ -29,9 +29,11 @@ from huggingface_hub import (
     CommitOperationDelete,
     HfApi,
     constants,
+    get_token,
     hf_hub_download,
     hf_hub_url,
     snapshot_download,
+    try_to_load_from_cache,
 )
 from huggingface_hub.errors import (
     EntryNotFoundError,
@@ -41,6 +43,7 @@ from huggingface_hub.errors import (
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
+from huggingface_hub.file_download import repo_folder_name
 from huggingface_hub.utils import build_hf_headers
 from huggingface_hub.utils import tqdm as hf_tqdm
 
@@ -314,8 +317,6 @@ def check_write_access(repo_id: str, *, token: str | None = None, pull_request: 
             fine-grained token's scopes are left to the Hub to judge at publish time.
         HubError: the Hub cannot be reached, or HF_HUB_OFFLINE is set.
     """
-    from huggingface_hub import get_token
-
     where = f"{repo_id} at {constants.ENDPOINT}"
     namespace = repo_id.split("/")[0]
     if offline():
@@ -364,8 +365,6 @@ def cache_snapshots_dir(repo_id: str, cache_dir: str | Path | None = None) -> Pa
     The one place hub-envs names a cache path: everything else asks ``snapshot_download`` /
     ``try_to_load_from_cache`` or goes through here.
     """
-    from huggingface_hub.file_download import repo_folder_name
-
     cache = Path(cache_dir or constants.HF_HUB_CACHE)
     return cache / repo_folder_name(repo_id=repo_id, repo_type=REPO_TYPE) / "snapshots"
 
@@ -786,8 +785,6 @@ def drop_snapshot(path: Path) -> None:
 
 def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """The text of ``hub_env.json`` at commit ``sha``: from the cache when it is there, else from the Hub."""
-    from huggingface_hub import try_to_load_from_cache
-
     cached = try_to_load_from_cache(repo_id, MANIFEST_FILE, revision=sha, repo_type=REPO_TYPE)
     if isinstance(cached, str) and Path(cached).is_file():
         return Path(cached).read_text(encoding="utf-8")
@@ -846,8 +843,6 @@ def read_remote_text(
     repo_id: str, path: str, *, revision: str, token: str | None = None, repo_type: str = REPO_TYPE
 ) -> str | None:
     """The text of one file at ``revision``, or None if it does not exist there."""
-    from huggingface_hub import hf_hub_download
-
     try:
         with translate_hub_errors(repo_id, revision):
             local = hf_hub_download(repo_id, path, revision=revision, repo_type=repo_type, token=token)

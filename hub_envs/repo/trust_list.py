@@ -36,10 +36,12 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from hub_envs.errors import ConfigError
+from huggingface_hub import snapshot_download
+
+from hub_envs.errors import ConfigError, EnvRepoNotFoundError
 from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
 from hub_envs.repo import hub_io
-from hub_envs.repo.format import is_commit_sha
+from hub_envs.repo.format import Manifest, content_digest, hash_files, is_commit_sha
 from hub_envs.repo.refs import check_repo_id, parse_repo_ref
 
 TRUST_FILE = "trusted.json"
@@ -151,8 +153,6 @@ def _write(path: Path, entries: list[TrustEntry]) -> None:
 
 def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub)."""
-    from hub_envs.repo.format import Manifest
-
     return Manifest.from_json(
         hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
     ).content_digest
@@ -161,8 +161,6 @@ def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
 def snapshot_digest(path: Path) -> str:
     """The content digest of a downloaded snapshot that has no manifest (a policy checkpoint): sha256 over
     the sha256 of every file it holds, as a manifest's ``content_digest`` is over the files it lists."""
-    from hub_envs.repo.format import content_digest, hash_files
-
     files = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
     return content_digest(hash_files(path, files))
 
@@ -170,14 +168,11 @@ def snapshot_digest(path: Path) -> str:
 def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of
     the files of the commit (any other repo, e.g. a LeRobot policy a benchmark names)."""
-    from hub_envs.errors import EnvRepoNotFoundError
-
     try:
         return manifest_digest(repo_id, sha, token=token)
     except EnvRepoNotFoundError as e:
         if "has no hub_env.json" not in str(e):
             raise
-    from huggingface_hub import snapshot_download
 
     with hub_io.translate_hub_errors(repo_id, sha):
         return snapshot_digest(Path(snapshot_download(repo_id, revision=sha, token=token)))
