@@ -29,8 +29,9 @@ class Command:
     """One ``hub-envs`` command: its module (``hub_envs.cli.<module>``) and the line ``hub-envs --help`` shows.
 
     The module is imported when the command runs, never for ``hub-envs --help`` (a command's library may import
-    lerobot and torch). It has either a ``Config`` dataclass (its flags, parsed by draccus) and ``main(config)``, or
-    ``main(argv)`` when it parses its arguments itself.
+    lerobot and torch). It has a ``Config`` dataclass (its flags, parsed by draccus) and ``main(config)``; or, with
+    ``ARGV = True``, ``main(argv)``: it parses its arguments itself (``push``'s ``--config.<field>`` variants,
+    ``train``/``eval``: LeRobot's parser).
     """
 
     module: str
@@ -103,10 +104,9 @@ def run_command(name: str, argv: list[str]) -> int:
     try:
         check_repo_flags(argv)  # before draccus, which drops a trailing newline of a flag's value
         command = importlib.import_module(f"hub_envs.cli.{COMMANDS[name].module}")
-        config_class = getattr(command, "Config", None)
-        if config_class is None:  # parses argv itself (hub-envs train/eval hand it to LeRobot's parser)
+        if getattr(command, "ARGV", False):  # parses its arguments itself
             return int(command.main(argv) or 0)
-        return int(command.main(draccus.parse(config_class=config_class, args=argv)) or 0)
+        return int(command.main(draccus.parse(config_class=command.Config, args=argv)) or 0)
     except HubEnvsError as e:
         print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

@@ -3,6 +3,8 @@ provenance written into its ``eval_info.json``. LeRobot parses the flags."""
 
 from __future__ import annotations
 
+ARGV = True  # main(argv): LeRobot's parser reads the flags
+
 
 def main(argv: list[str]) -> int:
     """Run LeRobot's ``lerobot-eval`` with ``argv``."""

@@ -9,6 +9,8 @@ import draccus
 
 from hub_envs.errors import ConfigError
 
+ARGV = True  # main(argv): the --config.<field> flags are split off before draccus parses the rest
+
 
 @dataclass
 class Config:

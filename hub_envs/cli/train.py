@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+ARGV = True  # main(argv): LeRobot's parser reads the flags
+
 
 def main(argv: list[str]) -> int:
     """Run LeRobot's ``lerobot-train`` with ``argv``."""

@@ -7,6 +7,8 @@ from hub_envs.repo import trust_list
 from hub_envs.repo.format import is_commit_sha
 from hub_envs.repo.refs import parse_repo_ref
 
+ARGV = True  # main(argv): one positional argument
+
 USAGE = "usage: hub-envs trust user/name@<40-hex sha>"
 
 

@@ -6,6 +6,8 @@ from hub_envs.errors import ConfigError
 from hub_envs.repo import trust_list
 from hub_envs.repo.refs import parse_repo_ref
 
+ARGV = True  # main(argv): one positional argument
+
 USAGE = "usage: hub-envs untrust user/name@<40-hex sha>"
 
 

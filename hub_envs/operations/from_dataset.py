@@ -103,8 +103,8 @@ def locate_dataset(
     return Path(local), None
 
 
-def _find_commit(env_repo_id: str, code_digest: str, dataset_root: Path, token: str | None) -> str:
-    """The newest commit of ``env_repo_id`` whose code has ``code_digest`` (the exact dataset preferred)."""
+def _find_commit(env_repo_id: str, digest: str, dataset_root: Path, token: str | None) -> str:
+    """The newest commit of ``env_repo_id`` whose code has the code digest ``digest`` (the exact dataset preferred)."""
     client = hub_io.api(token)
     with hub_io.translate_hub_errors(env_repo_id, None):
         commits = client.list_repo_commits(env_repo_id, repo_type=hub_io.REPO_TYPE)
@@ -116,7 +116,7 @@ def _find_commit(env_repo_id: str, code_digest: str, dataset_root: Path, token: 
             manifest = Manifest.from_json(text) if text is not None else None
         except ManifestError:
             manifest = None
-        if manifest is None or code_digest(manifest.files) != code_digest:
+        if manifest is None or code_digest(manifest.files) != digest:
             continue
         if first_match is None:
             first_match = commit.commit_id
@@ -126,7 +126,7 @@ def _find_commit(env_repo_id: str, code_digest: str, dataset_root: Path, token: 
             return commit.commit_id
     if first_match is None:
         raise ReproductionError(
-            f"No commit of {env_repo_id} holds the code that recorded {dataset_root} (code digest {code_digest[:16]}…): "
+            f"No commit of {env_repo_id} holds the code that recorded {dataset_root} (code digest {digest[:16]}…): "
             f"its history was rewritten or the code was never published there. If you know the commit, pass "
             f"env_revision='<sha>'."
         )

@@ -51,10 +51,6 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from huggingface_hub.errors import HFValidationError
-from huggingface_hub.utils import validate_repo_id
-from packaging.requirements import InvalidRequirement, Requirement
-
 from hub_envs._text import safe_text
 from hub_envs._version import __version__
 from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
@@ -380,6 +376,9 @@ def repo_id_problem(value: object) -> str | None:
         return f"it needs a namespace: 'user/{value}'"
     if value.count("/") != 1:
         return "it has more than one '/'"
+    # lazy: an isolated env's worker imports this module (through envcode.importing) in a venv without huggingface_hub
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id
 
     try:
         validate_repo_id(value)
@@ -815,6 +814,8 @@ class EnvFolder:
         deps = project.get("dependencies", [])
         if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
             raise EnvFolderError(f"{project_path}: [project] dependencies must be a list of requirement strings.")
+        # lazy: an isolated env's worker imports this module in a venv that may not hold packaging
+        from packaging.requirements import InvalidRequirement, Requirement
 
         for dep in deps:
             try:
