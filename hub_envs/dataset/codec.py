@@ -13,6 +13,7 @@ to PIL.
 
 from __future__ import annotations
 
+import io
 import struct
 import zlib
 
@@ -75,9 +76,7 @@ def decode_png(data: bytes) -> np.ndarray:
         else:
             img = None
     if img is None:
-        import io
-
-        import PIL.Image
+        import PIL.Image  # heavy: pillow
 
         with PIL.Image.open(io.BytesIO(data)) as pil:
             img = np.asarray(pil)

@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._text import safe_text
 from hub_envs.dataset.codec import decode_pngs
 from hub_envs.dataset.layout import DATA_PATH, EPISODES_DIR, HUB_ENVS_META_PATH, INFO_PATH, LEGACY_INFO_KEY, VIDEO_PATH
-from hub_envs.errors import DatasetError
+from hub_envs.dataset.video import decode_episode
+from hub_envs.errors import DatasetError, IntegrityError
 
 # --- files ------------------------------------------------------------------------------------
 
@@ -56,8 +58,6 @@ _INT_FORMAT_SPEC = re.compile(r"^0?[1-9]?[0-9]?d?$")  # '', 'd', '03d', '06d', '
 def _check_path_template(path: Path, key: str, template: Any) -> None:
     """``info[key]`` must be a format string of LeRobot's named fields only (no attribute or index lookups,
     no conversions, integer format specs) that stays inside the dataset root whatever the field values."""
-    from hub_envs.repo.format import safe_text
-
     fields = _PATH_TEMPLATE_FIELDS[key]
     fix = (
         f"Do not use this dataset; its publisher must re-publish it with push_env (which writes {key} = {DATA_PATH!r})."
@@ -218,9 +218,6 @@ def read_episode_video(root: str | os.PathLike, info: Mapping, key: str, meta: M
     """The decoded frames (uint8 ``(T, H, W, 3)``) of video feature ``key`` for the episode ``meta``.
 
     Raises :class:`hub_envs.errors.IntegrityError` for a missing, truncated or undecodable file."""
-    from hub_envs.dataset.video import decode_episode
-    from hub_envs.errors import IntegrityError
-
     path = video_file(root, info, key, meta)
     where = f"episode {meta['episode_index']}, {key}"
     if not path.is_file():
@@ -267,7 +264,7 @@ def read_episode_meta(root: str | os.PathLike) -> list[dict]:
     dataset_to_index, meta/episodes/chunk_index, meta/episodes/file_index and ``seed`` (``None``
     for datasets not written by hub-envs).
     """
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # heavy: pyarrow
 
     meta_dir = Path(root) / EPISODES_DIR
     paths = sorted(meta_dir.glob("*/*.parquet"))
@@ -289,7 +286,7 @@ def read_episode_meta(root: str | os.PathLike) -> list[dict]:
 
 def _numeric_column(col: Any, ft: Mapping, n: int) -> np.ndarray:
     """A numeric data column (scalar, ``Sequence`` or ``ArrayND``) -> ``(n, *shape)`` array of the feature's dtype."""
-    import pyarrow.compute as pc
+    import pyarrow.compute as pc  # heavy: pyarrow
 
     shape = tuple(ft["shape"])
     flat = col.storage if hasattr(col, "storage") else col  # datasets' ArrayND extension type
@@ -310,7 +307,7 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
     Reads only that episode's data file with pyarrow (row-group pruning on ``episode_index``);
     LeRobot's default columns are included. ``keys`` restricts the columns returned.
     """
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # heavy: pyarrow
 
     root = Path(root)
     info = read_info(root)
@@ -350,7 +347,7 @@ class DatasetFrames:
     """
 
     def __init__(self, root: str | os.PathLike, info: Mapping, metas: list[dict], keys: list[str]):
-        import pyarrow.parquet as pq
+        import pyarrow.parquet as pq  # heavy: pyarrow
 
         root = Path(root)
         features = info["features"]

@@ -151,8 +151,8 @@ class EnvStatesWriter:
 
     def add(self, episode_index: int, states: Any) -> None:
         """Append one episode's ``(T, *state_shape)`` states (before each action)."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
+        import pyarrow as pa  # heavy: pyarrow
+        import pyarrow.parquet as pq  # heavy: pyarrow
 
         if self.reason is not None:
             return
@@ -239,7 +239,7 @@ def write_env_states(root: str | os.PathLike, states: Mapping[int, np.ndarray | 
 
 def read_env_states(root: str | os.PathLike) -> dict[int, np.ndarray] | None:
     """``{episode_index: (T, *state_shape) array}`` in the recorded dtype, or None if none were recorded."""
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # heavy: pyarrow
 
     path = Path(root) / STATES_PATH
     if not path.is_file():

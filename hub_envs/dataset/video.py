@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hub_envs._compat import MAX_VIDEO_GOP, encode_video_frames, lerobot_video_utils
 from hub_envs.dataset.codec import encode_png
 from hub_envs.errors import ConfigError, DatasetError, IntegrityError
 
@@ -101,8 +102,6 @@ def check_video_gop(gop: object, *, name: str = "video_gop") -> int:
     >>> check_video_gop(10), check_video_gop(2)
     (10, 2)
     """
-    from hub_envs._compat import MAX_VIDEO_GOP
-
     if isinstance(gop, bool) or not isinstance(gop, (int, np.integer)) or not 0 < gop <= MAX_VIDEO_GOP:
         raise ConfigError(
             f"{name}={gop!r}: pass a keyframe interval in frames, 1 to {MAX_VIDEO_GOP} "
@@ -164,8 +163,6 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int, gop: int = DEFAULT_V
     The frames go through PNG files in a scratch folder beside ``out`` (the encoder's input, as in LeRobot's
     ``save_episode``; removed after). Returns ``(out, duration in seconds as LeRobot probes it, size in bytes)``.
     """
-    from hub_envs._compat import encode_video_frames, lerobot_video_utils
-
     video_utils = lerobot_video_utils()
     gop = check_video_gop(gop)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
@@ -191,8 +188,6 @@ def encode_episode(frames: np.ndarray, out: Path, fps: int, gop: int = DEFAULT_V
 def join_videos(parts: list[Path], out: Path) -> None:
     """``out`` = the episode videos ``parts`` one after another (LeRobot's ``concatenate_video_files``, a remux;
     a single part is moved, as LeRobot does for a file's first episode). The parts are removed."""
-    from hub_envs._compat import lerobot_video_utils
-
     out.parent.mkdir(parents=True, exist_ok=True)
     if len(parts) == 1:
         os.replace(parts[0], out)
@@ -212,7 +207,7 @@ def decode_episode(path: Path, *, from_timestamp: float, length: int, fps: int, 
     frame). A file that cannot be opened or decoded, or that holds fewer frames than the metadata says
     (truncated), raises :class:`IntegrityError` naming the file.
     """
-    import av
+    import av  # heavy: pyav
 
     fix = (
         "The video file is truncated or corrupt: delete it and fetch the dataset again (LoadedEnv.fetch_dataset() "

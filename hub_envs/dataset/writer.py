@@ -61,8 +61,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from huggingface_hub.utils import tqdm
 
-from hub_envs._compat import tasks_index_name
+from hub_envs._compat import lerobot_video_info, tasks_index_name
 from hub_envs.dataset.codec import PNG_CHANNELS, encode_png
 from hub_envs.dataset.layout import (
     CODEBASE_VERSION,
@@ -81,6 +82,7 @@ from hub_envs.dataset.layout import (
 )
 from hub_envs.dataset.reader import dataset_fingerprint
 from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats
+from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop, encode_episode, join_videos
 from hub_envs.errors import ConfigError, DatasetError, HubEnvsError
 
 _NUMERIC_DTYPES = {
@@ -286,7 +288,7 @@ def _normalize_features(features: Mapping[str, Mapping]) -> dict[str, dict]:
 
 def _hf_features(features: dict[str, dict]):
     """lerobot.datasets.utils.get_hf_features_from_features."""
-    import datasets
+    import datasets  # heavy: datasets (pyarrow, pandas)
 
     hf = {}
     for key, ft in features.items():
@@ -309,7 +311,7 @@ def _hf_features(features: dict[str, dict]):
 
 def _nested_list_array(flat: np.ndarray, shape: tuple[int, ...], n_rows: int, storage_type):
     """Storage for datasets' ArrayND extension: nested variable-size lists of ``flat`` values."""
-    import pyarrow as pa
+    import pyarrow as pa  # heavy: pyarrow
 
     arr = pa.array(flat.reshape(-1))
     sizes = [n_rows] + list(shape)
@@ -347,9 +349,7 @@ class _Writer:
         video_file_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
         video_gop: int | None = None,
     ):
-        import pyarrow as pa
-
-        from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
+        import pyarrow as pa  # heavy: pyarrow
 
         self.tmp = tmp
         self.features = features
@@ -488,8 +488,6 @@ class _Writer:
     def encode(self, ep: _Episode) -> _Episode:
         """PNG-encode images, video-encode video features (one MP4 per episode and key, joined into the
         dataset's files by :meth:`write`) and compute episode stats (thread-safe, no shared state)."""
-        from hub_envs.dataset.video import encode_episode
-
         for key in self.image_keys:
             ep.pngs[key] = encode_png(ep.columns[key])
         for key in self.video_keys:
@@ -585,8 +583,6 @@ class _Writer:
         }
 
     def _close_video_file(self, key: str) -> None:
-        from hub_envs.dataset.video import join_videos
-
         if self.video_parts[key]:
             chunk, file = self.video_pos[key]
             join_videos(self.video_parts[key], self.tmp / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file))
@@ -603,7 +599,7 @@ class _Writer:
     def _flush_data(self) -> None:
         if not self.buffer:
             return
-        import pyarrow.parquet as pq
+        import pyarrow.parquet as pq  # heavy: pyarrow
 
         table = self.pa.concat_tables(self.buffer)
         if self.data_writer is None:
@@ -629,7 +625,7 @@ class _Writer:
     def _flush_meta(self) -> None:
         if not self.meta_rows:
             return
-        import pyarrow.parquet as pq
+        import pyarrow.parquet as pq  # heavy: pyarrow
 
         pa = self.pa
         names = list(self.meta_rows[0])
@@ -658,9 +654,7 @@ class _Writer:
         self.meta_rows = []
 
     def finish(self, *, robot_type: str | None, extra_info: Mapping | None) -> None:
-        import pandas as pd
-
-        from hub_envs._compat import lerobot_video_info
+        import pandas as pd  # heavy: pandas
 
         self._close_data_file()
         for key in self.video_keys:
@@ -728,8 +722,6 @@ def _write_json(path: Path, data: Any) -> None:
 
 
 def _progress(total: int | None, desc: str, enabled: bool):
-    from huggingface_hub.utils import tqdm
-
     return tqdm(total=total, desc=desc, unit="ep", disable=not enabled, leave=False)
 
 
@@ -788,8 +780,6 @@ def write_lerobot_dataset(
     if chunks_size < 1 or data_files_size_in_mb <= 0 or video_files_size_in_mb <= 0:
         raise ConfigError("chunks_size, data_files_size_in_mb and video_files_size_in_mb must be positive.")
     if video_gop is not None:
-        from hub_envs.dataset.video import check_video_gop
-
         video_gop = check_video_gop(video_gop)
     feats = _normalize_features(features)
     if root.exists() and not overwrite:

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs.dataset.video import encode_episode
 from hub_envs.errors import EnvCodeError
 from hub_envs.harness.episode import SeededEpisode
 
@@ -116,7 +117,7 @@ def write_rollout_media(
 ) -> list[Path]:
     """Render random-action rollouts of ``seeds`` to a looping GIF at the env's real speed (deterministic bytes for
     the same frames) and, with ``mp4_path``, to an MP4 of the same frames (LeRobot's video encoder)."""
-    import imageio.v3 as iio
+    import imageio.v3 as iio  # heavy: imageio
 
     fps = max(int(fps), 1)
     every = media_step(fps)
@@ -126,8 +127,6 @@ def write_rollout_media(
     iio.imwrite(gif_path, frames, extension=".gif", duration=int(round(1000 * every / fps)), loop=0)
     written = [gif_path]
     if mp4_path is not None:
-        from hub_envs.dataset.video import encode_episode
-
         h, w = (frames.shape[1] // 2) * 2, (frames.shape[2] // 2) * 2  # yuv420p needs even sizes
         encode_episode(np.ascontiguousarray(frames[:, :h, :w]), Path(mp4_path), fps // every)
         written.append(Path(mp4_path))

@@ -29,6 +29,7 @@ Example:
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -42,11 +43,11 @@ from hub_envs._compat import LEROBOT_VIDEO_GOP, video_gop
 from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
 from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_hub_envs_meta, read_info
 from hub_envs.dataset.states import read_env_states
-from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors
+from hub_envs.dataset.video import VIDEO_TOLERANCE, decode_episode, encode_episode, frame_errors
 from hub_envs.dataset.writer import rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
 from hub_envs.harness.actions import to_env_actions
-from hub_envs.harness.rollout import iter_episodes, run_episodes
+from hub_envs.harness.rollout import flatten_observation, iter_episodes, run_episodes
 
 __all__ = ["Divergence", "EpisodeReplay", "ReplayResult", "Replay", "replay_dataset", "STATE_FEATURE"]
 
@@ -443,10 +444,6 @@ def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int, gop: i
 
     The encoder is deterministic, so with the same encoder build identical frames give identical video: a
     bit-exact check on top of the tolerance (a different libsvtav1 build may give False with equal frames)."""
-    import tempfile
-
-    from hub_envs.dataset.video import decode_episode, encode_episode
-
     if replay.dtype != np.uint8 or replay.ndim != 4 or replay.shape[-1] != 3:
         return False
     with tempfile.TemporaryDirectory(prefix="hub-envs-reencode-") as tmp:
@@ -540,8 +537,6 @@ def _localize_with_states(plan: _Plan, pos: int, env: Any, actions: np.ndarray, 
 
 
 def _flatten(obs: Any) -> dict[str, Any]:
-    from hub_envs.harness.rollout import flatten_observation
-
     return flatten_observation(obs)
 
 

@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hub_envs.harness.benchmark import BenchmarkResult
 from hub_envs.harness.provenance import DRIFT_KINDS, difference_text
 from hub_envs.harness.replay import ReplayResult
@@ -310,13 +312,12 @@ class ReproduceReport(ReportFiles):
         None (and no file) without matplotlib: it is the ``plots`` extra (``pip install 'hub-envs[plots]'``).
         """
         try:
-            import matplotlib
+            import matplotlib  # heavy: matplotlib
         except ModuleNotFoundError:
             return None
 
         matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-        import numpy as np
+        import matplotlib.pyplot as plt  # heavy: matplotlib
 
         panels = []
         for b in self.benchmarks:

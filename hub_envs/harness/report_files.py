@@ -88,7 +88,7 @@ def seeds_text(seeds: list) -> str:
 
 def save_figure(fig, path: str | Path, *, dpi: int = 100) -> Path:
     """Save a matplotlib figure as a report's PNG (laid out tight) and close it; its path."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: matplotlib
 
     fig.tight_layout()
     path = Path(path)

@@ -52,9 +52,11 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from multiprocessing.util import Finalize
 from typing import Any
 
 import numpy as np
+from huggingface_hub.utils import tqdm  # respects HF_HUB_DISABLE_PROGRESS_BARS, like hub downloads
 
 from hub_envs._compat import live_children, terminate_new_children
 from hub_envs.errors import ConfigError, EnvCodeError
@@ -420,8 +422,6 @@ def _worker_init(token: int | None, args: tuple | None) -> None:
         args = _FORK_STATES[token]
     _WORKER = EpisodeRunner(*args)
     try:  # close the env when the worker exits (atexit does not run in pool workers)
-        from multiprocessing.util import Finalize
-
         Finalize(_WORKER, _WORKER.close, exitpriority=10)
     except Exception:  # noqa: BLE001
         pass
@@ -460,8 +460,6 @@ def progress_bar(total: int, desc: str, enabled: bool):
         desc: the bar's label.
         enabled: False: a silent bar.
     """
-    from huggingface_hub.utils import tqdm  # respects HF_HUB_DISABLE_PROGRESS_BARS, like hub downloads
-
     return tqdm(total=total, desc=desc, unit="ep", disable=not enabled, leave=False)
 
 
