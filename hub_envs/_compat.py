@@ -19,7 +19,7 @@ import contextlib
 import dataclasses
 import multiprocessing
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib.metadata import PackageNotFoundError, version
 from importlib.util import find_spec
 from pathlib import Path
@@ -88,18 +88,6 @@ def file_get_retries_server_errors() -> bool:
     (``http_backoff``: 408, 429, 5xx and network errors, up to 5 more times).
     """
     return HF_HUB_MAJOR < 1
-
-
-def upload_uses_xet_unconditionally() -> bool:
-    """Whether the client uploads LFS-mode files through Xet without asking the repo (when ``hf_xet`` is installed).
-
-    0.x: no. ``create_commit`` (and ``upload_large_folder``) ask ``repo_info(expand="xetEnabled")``
-    and take the Git LFS batch API when the repo says ``xetEnabled: false``, as the hub-envs server does.
-    1.x: yes. ``_upload_files`` takes Xet whenever ``is_xet_available()`` (hf_xet installed and
-    ``constants.HF_HUB_DISABLE_XET`` false), whatever the server offers; against a Hub without Xet,
-    ``HF_HUB_DISABLE_XET=1`` is the only way to the LFS path.
-    """
-    return HF_HUB_MAJOR >= 1
 
 
 @contextlib.contextmanager
@@ -302,6 +290,31 @@ def train_dataset_hooks() -> tuple[str, ...]:
     return tuple(name for name in ("make_dataset", "make_train_eval_datasets") if hasattr(lerobot_train, name))
 
 
+def route_lerobot_scripts(
+    make_env: Callable[..., Any],
+    make_env_pre_post_processors: Callable[..., Any],
+    dataset_hooks: Mapping[str, Callable[..., Any]],
+) -> None:
+    """Make ``lerobot_train`` and ``lerobot_eval`` build envs and env processors with these functions, and
+    ``lerobot_train`` its dataset with ``dataset_hooks[name]`` for each builder it calls (:func:`train_dataset_hooks`).
+
+    LeRobot's scripts hold these as module globals (``from lerobot.envs.factory import make_env``), so a plugin routes
+    them only by replacing those globals; the same names in 0.4 and 0.6. Idempotent.
+
+    Args:
+        make_env: replaces ``make_env`` in both scripts.
+        make_env_pre_post_processors: replaces ``make_env_pre_post_processors`` in both scripts.
+        dataset_hooks: ``{"make_dataset": ..., "make_train_eval_datasets": ...}``.
+    """
+    from lerobot.scripts import lerobot_eval, lerobot_train  # heavy: lerobot (torch)
+
+    for module in (lerobot_eval, lerobot_train):
+        module.make_env = make_env
+        module.make_env_pre_post_processors = make_env_pre_post_processors
+    for name in train_dataset_hooks():
+        setattr(lerobot_train, name, dataset_hooks[name])
+
+
 def missing_training_packages() -> list[str]:
     """Packages LeRobot's training loop needs that are not installed: from 0.5 they are its ``training``
     extra (``accelerate`` is required at start; 0.4 has it in its core dependencies)."""
@@ -420,6 +433,102 @@ def lerobot_default_video_backend() -> str:
     except ImportError:
         from lerobot.datasets.video_utils import get_safe_default_codec as default  # heavy: lerobot (torch); lerobot 0.4
     return default()
+
+
+# --- tests: the clients pointed at a loopback Hub ------------------------------------------------
+
+
+def point_clients_at(
+    endpoint: str,
+    home: Path,
+    *,
+    offline: bool,
+    lerobot_home: Path,
+    datasets_cache: Path,
+    patch: Callable[[Any, str, Any], None],
+) -> None:
+    """Point the clients already imported (huggingface_hub, lerobot, datasets) at ``endpoint`` and at folders under
+    ``home``: the module constants they computed once at import, those other modules copied by value (``from
+    .constants import X``), and the endpoint the module-level ``HfApi`` froze. For tests and the demo
+    (:func:`hub_envs.testing.hub_environment`, which sets the environment variables first and undoes every patch).
+
+    Args:
+        endpoint: the Hub's URL.
+        home: the ``HF_HOME`` (its ``hub/``, ``assets/``, ``xet/``, ``token`` inside).
+        offline: the clients' offline mode.
+        lerobot_home: LeRobot's ``HF_LEROBOT_HOME``.
+        datasets_cache: the ``datasets`` cache.
+        patch: ``patch(module, name, value)`` sets one attribute (and remembers the old value to restore).
+    """
+    xet_cache, token_path = str(home / "xet"), str(home / "token")
+    hub_cache, assets_cache = str(home / "hub"), str(home / "assets")
+    url_template = endpoint + "/{repo_id}/resolve/{revision}/{filename}"
+    values = {
+        "ENDPOINT": endpoint,
+        "HUGGINGFACE_CO_URL_TEMPLATE": url_template,
+        "HF_HOME": str(home),
+        "hf_cache_home": str(home),
+        "default_cache_path": hub_cache,
+        "default_assets_cache_path": assets_cache,
+        "HUGGINGFACE_HUB_CACHE": hub_cache,
+        "HUGGINGFACE_ASSETS_CACHE": assets_cache,
+        "HF_HUB_CACHE": hub_cache,
+        "HF_ASSETS_CACHE": assets_cache,
+        "default_xet_cache_path": xet_cache,
+        "HF_XET_CACHE": xet_cache,
+        "HF_TOKEN_PATH": token_path,
+        "HF_STORED_TOKENS_PATH": str(home / "stored_tokens"),
+        "HF_HUB_OFFLINE": bool(offline),
+        "HF_HUB_DISABLE_TELEMETRY": True,
+        "HF_HUB_DISABLE_XET": True,
+    }
+    for name, value in values.items():
+        patch(constants, name, value)
+    # Modules that copied constants by value at import (`from .constants import X`).
+    for module_name, names in (
+        ("huggingface_hub.file_download", ("HUGGINGFACE_CO_URL_TEMPLATE", "HUGGINGFACE_HUB_CACHE")),
+        ("huggingface_hub.hf_api", ("ENDPOINT",)),
+        ("huggingface_hub.utils._cache_manager", ("HF_HUB_CACHE",)),
+        ("huggingface_hub.utils._cache_assets", ("HF_ASSETS_CACHE",)),
+    ):
+        module = sys.modules.get(module_name)
+        for name in names:
+            patch(module, name, values[name])
+    # The module-level HfApi behind `huggingface_hub.upload_file` & co. froze its endpoint.
+    hf_api = sys.modules.get("huggingface_hub.hf_api")
+    if hf_api is not None and hasattr(hf_api, "api"):
+        patch(hf_api.api, "endpoint", endpoint)
+
+    lerobot_constants = sys.modules.get("lerobot.utils.constants")
+    if lerobot_constants is not None:
+        old_home = getattr(lerobot_constants, "HF_LEROBOT_HOME", None)
+        old_calibration = getattr(lerobot_constants, "HF_LEROBOT_CALIBRATION", None)
+        for name, module in list(sys.modules.items()):
+            if not (name == "lerobot" or name.startswith("lerobot.")) or module is None:
+                continue
+            if old_home is not None and getattr(module, "HF_LEROBOT_HOME", None) == old_home:
+                patch(module, "HF_LEROBOT_HOME", lerobot_home)
+            if old_home is not None and getattr(module, "HF_LEROBOT_HUB_CACHE", None) == old_home / "hub":  # 0.5+
+                patch(module, "HF_LEROBOT_HUB_CACHE", lerobot_home / "hub")
+            if old_calibration is not None and getattr(module, "HF_LEROBOT_CALIBRATION", None) == old_calibration:
+                patch(module, "HF_LEROBOT_CALIBRATION", lerobot_home / "calibration")
+        patch(lerobot_constants, "default_cache_path", lerobot_home)
+
+    datasets_config = sys.modules.get("datasets.config")
+    if datasets_config is not None:
+        ds_cache = datasets_cache
+        for name, value in {
+            "HF_ENDPOINT": endpoint,
+            "HUB_DATASETS_URL": endpoint + "/datasets/{repo_id}/resolve/{revision}/{path}",
+            "HF_CACHE_HOME": str(home),
+            "HF_DATASETS_CACHE": ds_cache,
+            "HF_MODULES_CACHE": home / "modules",
+            "DOWNLOADED_DATASETS_PATH": ds_cache / "downloads",
+            "EXTRACTED_DATASETS_PATH": ds_cache / "downloads" / "extracted",
+            "HF_HUB_OFFLINE": bool(offline),
+            "HF_DATASETS_OFFLINE": bool(offline),
+        }.items():
+            patch(datasets_config, name, value)
 
 
 # --- stdlib ------------------------------------------------------------------------------------

@@ -40,11 +40,11 @@ import urllib.request
 import weakref
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import huggingface_hub
-from huggingface_hub import constants
 
-from hub_envs._compat import reset_http_sessions
+from hub_envs._compat import point_clients_at, reset_http_sessions
 from hub_envs.repo.format import DATASET_DIR, MANIFEST_FILE, content_digest
 
 __all__ = ["HubServer", "HubServerError", "hub_environment"]
@@ -257,7 +257,7 @@ def hub_environment(
     home = Path(hf_home).resolve()
     home.mkdir(parents=True, exist_ok=True)
     hub_cache, assets_cache = str(home / "hub"), str(home / "assets")
-    xet_cache, token_path = str(home / "xet"), str(home / "token")
+    xet_cache = str(home / "xet")
     env = {
         "HF_ENDPOINT": endpoint,
         "HF_HOME": str(home),
@@ -289,7 +289,7 @@ def hub_environment(
     saved_env = {k: os.environ.get(k, _UNSET) for k in env}
     patches: list[tuple[object, str, object]] = []  # (module, attribute, old value)
 
-    def patch(module, name: str, value) -> None:
+    def patch(module: Any, name: str, value: Any) -> None:
         if module is not None and hasattr(module, name):
             patches.append((module, name, getattr(module, name)))
             setattr(module, name, value)
@@ -301,75 +301,14 @@ def hub_environment(
             else:
                 os.environ[k] = v
 
-        url_template = endpoint + "/{repo_id}/resolve/{revision}/{filename}"
-        values = {
-            "ENDPOINT": endpoint,
-            "HUGGINGFACE_CO_URL_TEMPLATE": url_template,
-            "HF_HOME": str(home),
-            "hf_cache_home": str(home),
-            "default_cache_path": hub_cache,
-            "default_assets_cache_path": assets_cache,
-            "HUGGINGFACE_HUB_CACHE": hub_cache,
-            "HUGGINGFACE_ASSETS_CACHE": assets_cache,
-            "HF_HUB_CACHE": hub_cache,
-            "HF_ASSETS_CACHE": assets_cache,
-            "default_xet_cache_path": xet_cache,
-            "HF_XET_CACHE": xet_cache,
-            "HF_TOKEN_PATH": token_path,
-            "HF_STORED_TOKENS_PATH": str(home / "stored_tokens"),
-            "HF_HUB_OFFLINE": bool(offline),
-            "HF_HUB_DISABLE_TELEMETRY": True,
-            "HF_HUB_DISABLE_XET": True,
-        }
-        for name, value in values.items():
-            patch(constants, name, value)
-        # Modules that copied constants by value at import (`from .constants import X`).
-        for module_name, names in (
-            ("huggingface_hub.file_download", ("HUGGINGFACE_CO_URL_TEMPLATE", "HUGGINGFACE_HUB_CACHE")),
-            ("huggingface_hub.hf_api", ("ENDPOINT",)),
-            ("huggingface_hub.utils._cache_manager", ("HF_HUB_CACHE",)),
-            ("huggingface_hub.utils._cache_assets", ("HF_ASSETS_CACHE",)),
-        ):
-            module = sys.modules.get(module_name)
-            for name in names:
-                patch(module, name, values[name])
-        # The module-level HfApi behind `huggingface_hub.upload_file` & co. froze its endpoint.
-        hf_api = sys.modules.get("huggingface_hub.hf_api")
-        if hf_api is not None and hasattr(hf_api, "api"):
-            patch(hf_api.api, "endpoint", endpoint)
-
-        lerobot_home = Path(env["HF_LEROBOT_HOME"])
-        lerobot_constants = sys.modules.get("lerobot.utils.constants")
-        if lerobot_constants is not None:
-            old_home = getattr(lerobot_constants, "HF_LEROBOT_HOME", None)
-            old_calibration = getattr(lerobot_constants, "HF_LEROBOT_CALIBRATION", None)
-            for name, module in list(sys.modules.items()):
-                if not (name == "lerobot" or name.startswith("lerobot.")) or module is None:
-                    continue
-                if old_home is not None and getattr(module, "HF_LEROBOT_HOME", None) == old_home:
-                    patch(module, "HF_LEROBOT_HOME", lerobot_home)
-                if old_home is not None and getattr(module, "HF_LEROBOT_HUB_CACHE", None) == old_home / "hub":  # 0.5+
-                    patch(module, "HF_LEROBOT_HUB_CACHE", lerobot_home / "hub")
-                if old_calibration is not None and getattr(module, "HF_LEROBOT_CALIBRATION", None) == old_calibration:
-                    patch(module, "HF_LEROBOT_CALIBRATION", lerobot_home / "calibration")
-            patch(lerobot_constants, "default_cache_path", lerobot_home)
-
-        datasets_config = sys.modules.get("datasets.config")
-        if datasets_config is not None:
-            ds_cache = Path(env["HF_DATASETS_CACHE"])
-            for name, value in {
-                "HF_ENDPOINT": endpoint,
-                "HUB_DATASETS_URL": endpoint + "/datasets/{repo_id}/resolve/{revision}/{path}",
-                "HF_CACHE_HOME": str(home),
-                "HF_DATASETS_CACHE": ds_cache,
-                "HF_MODULES_CACHE": home / "modules",
-                "DOWNLOADED_DATASETS_PATH": ds_cache / "downloads",
-                "EXTRACTED_DATASETS_PATH": ds_cache / "downloads" / "extracted",
-                "HF_HUB_OFFLINE": bool(offline),
-                "HF_DATASETS_OFFLINE": bool(offline),
-            }.items():
-                patch(datasets_config, name, value)
-
+        point_clients_at(
+            endpoint,
+            home,
+            offline=offline,
+            lerobot_home=Path(env["HF_LEROBOT_HOME"]),
+            datasets_cache=Path(env["HF_DATASETS_CACHE"]),
+            patch=patch,
+        )
         _reset_client_state(huggingface_hub)
         yield
     finally:

@@ -131,8 +131,3 @@ def write_rollout_media(
         encode_episode(np.ascontiguousarray(frames[:, :h, :w]), Path(mp4_path), fps // every)
         written.append(Path(mp4_path))
     return written
-
-
-def write_rollout_gif(make_env: Callable[[], Any], path: str | Path, *, seeds: list[int], fps: int, max_steps: int = 90) -> Path:
-    """The GIF of :func:`write_rollout_media` alone."""
-    return write_rollout_media(make_env, path, seeds=seeds, fps=fps, max_steps=max_steps)[0]

@@ -39,7 +39,7 @@ import draccus
 import gymnasium as gym
 from lerobot.envs.configs import EnvConfig
 
-from hub_envs._compat import env_configs_create_envs, hf_transform_to_torch, train_dataset_hooks
+from hub_envs._compat import env_configs_create_envs, hf_transform_to_torch, route_lerobot_scripts
 from hub_envs.dataset.reader import read_hub_envs_meta
 from hub_envs.envcode.registration import owner_of_choice
 from hub_envs.errors import ConfigError, DatasetError, UntrustedCodeError
@@ -386,13 +386,7 @@ def install_hooks() -> None:
     """Route ``lerobot_train`` / ``lerobot_eval`` env creation through :func:`make_env` and
     :func:`make_env_pre_post_processors`, and ``lerobot_train``'s dataset through :func:`make_dataset`
     (idempotent; other env configs and datasets still get LeRobot's own behaviour)."""
-    from lerobot.scripts import lerobot_eval, lerobot_train  # heavy: lerobot (torch)
-
-    for module in (lerobot_eval, lerobot_train):
-        module.make_env = make_env
-        module.make_env_pre_post_processors = make_env_pre_post_processors
-    for name in train_dataset_hooks():
-        setattr(lerobot_train, name, _DATASET_HOOKS[name])
+    route_lerobot_scripts(make_env, make_env_pre_post_processors, _DATASET_HOOKS)
 
 
 __all__ = [
