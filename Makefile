@@ -44,10 +44,12 @@ $(VENV_COMPAT)/.install-stamp: pyproject.toml $(COMPAT) scripts/make-venv
 
 SOURCES := hub_envs tests benchmarks envs plugins
 
-# ruff: lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and the formatter's verdict.
+# ruff: lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and the formatter's verdict; import-linter: the
+# architecture's layers, independences and no import circle (the contracts in pyproject.toml), on this checkout.
 lint: install
 	$(VENV)/bin/ruff check $(SOURCES)
 	$(VENV)/bin/ruff format --check $(SOURCES)
+	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
 
 # The whole suite in both venvs (one leg when .venv fell back to the compat stack); says which leg failed.
 ifeq ($(FALLBACK),)
