@@ -21,7 +21,7 @@ from hub_envs import env_from_dataset, errors, load_env, push_env, trust
 from hub_envs._compat import HF_HUB_MAJOR
 from hub_envs.errors import UnpinnedRevisionWarning
 from hub_envs.paths import hub_envs_home
-from hub_envs.repo.hub_io import parse_repo_ref
+from hub_envs.repo.refs import parse_repo_ref
 from hub_envs.testing import hub_environment
 
 PAYLOAD = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"

@@ -859,7 +859,7 @@ from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from hub_envs.repo.format import EnvFolder, Manifest  # noqa: E402
-from hub_envs.repo.hub_io import parse_repo_ref  # noqa: E402
+from hub_envs.repo.refs import parse_repo_ref  # noqa: E402
 
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
