@@ -1,9 +1,5 @@
-"""Every version-dependent reach into huggingface_hub, lerobot, draccus, gymnasium and the stdlib.
-
-hub-envs supports a range of stacks (tested at both ends: Python 3.11 + lerobot 0.4.4 +
-huggingface_hub 0.35 + draccus 0.10, and Python >= 3.12 + lerobot 0.6 + huggingface_hub 1.x +
-draccus 0.11). Whatever differs between them, and every use of an upstream name that is not public,
-lives here and nowhere else; ``tests/test_compat.py`` fails loudly when upstream moves one of them.
+"""Every version-dependent reach into huggingface_hub, lerobot, draccus, gymnasium and the stdlib, and every use of an
+upstream name that is not public (``tests/test_compat.py`` fails when upstream moves one).
 
 Example:
     >>> from hub_envs import _compat

@@ -1,13 +1,5 @@
-"""``make demo``: the whole job on the embedded loopback Hub.
-
-Starts ``hub-envs serve`` on a free loopback port, publishes each example env under ``envs/`` with
-push_env, loads each back by repo id pinned to the pushed sha (as a user on another machine would,
-from a fresh cache), prints its three-way feature check and where its card and GIF are, and stops
-the server. Everything lands in ``demo-out/`` (git-ignored) so you can look at it afterwards.
-It prints the address of the Hub's web page (``/``: the envs, their cards, GIFs and files); with
-``--serve`` (``make demo SERVE=1``) the server stays up for it until Ctrl-C.
-
-    python -m hub_envs.demo [--episodes=N] [--out=demo-out] [--serve] [envs/pendulum ...]
+"""``make demo``: the whole job on the embedded loopback Hub (serve, push each example env, load it back pinned);
+``python -m hub_envs.demo [--episodes=N] [--out=demo-out] [--serve] [envs/pendulum ...]``.
 """
 
 from __future__ import annotations

@@ -1,11 +1,5 @@
-"""Test helpers: a loopback Hub server in a subprocess, and a client environment pointed at it.
-
-:class:`HubServer` runs ``python -m hub_envs.cli serve`` on a free loopback port and waits until
-it answers; :func:`hub_environment` points ``huggingface_hub`` (and LeRobot's and datasets'
-caches, if imported) at an endpoint and an ``HF_HOME`` for the duration of a ``with`` block,
-patching the values those libraries computed at import time, and restores everything after.
-A user normally just exports ``HF_ENDPOINT``; these helpers let one process talk to several
-servers and caches in turn, as tests do.
+"""Test helpers: a loopback Hub server in a subprocess (:class:`HubServer`), and the clients pointed at it
+(:func:`hub_environment`).
 
 Example:
     >>> import tempfile

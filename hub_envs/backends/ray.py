@@ -1,36 +1,5 @@
-"""The Ray backend: episodes sharded by index across Ray actors, consumed in order on the driver.
-
-How a run goes (:meth:`RayBackend.episodes`):
-
-1. connect: ``ray_address`` (or ``$RAY_ADDRESS``) is probed first, so an unreachable cluster is one
-   :class:`~hub_envs.errors.ClusterUnreachableError` naming it, and a cluster that uses Ray's token
-   authentication without this process having its token one :class:`~hub_envs.errors.ClusterAuthError` saying what
-   to set (:func:`_check_auth`; both also when the backend is made, :meth:`RayBackend.preflight`, so a command
-   fails before any work); with neither, a local Ray is started for the run (dashboard off) and stopped after
-   it. ``import ray`` happens here (and in that preflight), nowhere else.
-2. shards run as Ray tasks (one CPU each; Ray retries a task whose worker process died). A worker gets
-   the env the way a user does: ``load_env("user/name@<sha>")`` in the worker (the Hub distributes the
-   code, integrity is verified there), or, for ``push_env`` of a local folder, the folder's files shipped
-   through Ray's object store. Ray reuses a worker process for the tasks of a job, and each worker keeps
-   the run's env (and policy) in a small cache: they are built once per worker, not per shard or episode.
-   The worker loads it with the driver's isolation settings (:class:`~hub_envs.backends.EnvSource`): with
-   ``isolation="process"`` (or ``"venv"``, ``sandbox=True``) the env's code runs in a worker process of the Ray
-   worker, never in the Ray worker itself. The worker's load is bound to the content the driver's consent covers
-   (the manifest's content digest; a policy checkpoint's too): other files under the same commit are refused there.
-   A cluster started by someone else knows nothing of the driver's Hub: the run's tasks carry the driver's Hub
-   client settings (:func:`worker_env`, as Ray ``runtime_env`` environment variables) and the token travels with
-   the env's source in the object store (:meth:`RayBackend.worker_token`); folders (``HF_HOME``, ``HUB_ENVS_HOME``)
-   stay each node's own.
-3. episodes are cut into shards of consecutive indices (their seeds and, for a replay, their recorded
-   actions go with them); shard ``k`` goes to actor ``k mod workers``; at most ``2 x workers`` shards are
-   in flight, and the driver consumes them **in shard order**, so what it writes (a dataset, a report)
-   is written incrementally and is byte-identical to the local backend's.
-4. ``checkpoint_dir``: each finished shard is saved (atomically) under a key of everything that
-   determines it (env content, seeds, steps, policy, shard size); the same run started again loads
-   those shards instead of running them.
-5. a shard whose worker process dies is retried by Ray (``max_retries``); the result is the same because a shard is a pure function of its inputs.
-   Ctrl-C (or closing the iterator) cancels the shards in flight: nothing is left running. The progress
-   bar counts episodes and the workers alive (CPUs on the cluster's live nodes, :func:`alive_slots`).
+"""The Ray backend: episodes sharded by index across Ray tasks, each worker loading the env the way a user does, the
+shards consumed in order on the driver (the results byte-identical to the local backend's).
 """
 
 from __future__ import annotations

@@ -1,13 +1,5 @@
-"""A real-file copy of a Hub snapshot's code and assets, per repo@sha, that env code is imported from.
-
-A Hugging Face cache snapshot holds symlinks into ``blobs/``, so the common idiom
-``Path(__file__).resolve().parent / "assets"`` (which works in the author's folder, where push_env checks
-the env) lands in ``blobs/`` and finds nothing. load_env therefore imports a published env from
-``$HUB_ENVS_HOME/code/<models--user--name>/<sha>/``: every file the manifest lists but the dataset, the
-media and the card, copied as real files and checked against the manifest's sha256 as they are copied,
-made complete in a temp folder and renamed into place (concurrent loaders make it once; a half-made copy
-is never used). An existing copy is re-checked on every load (a few milliseconds): the folder is the
-user's to write, and what is imported must still be what the manifest lists.
+"""The real-file copy of a snapshot's code and assets, per repo@sha, that a published env is imported from (a cache
+snapshot holds symlinks, where ``Path(__file__).resolve()`` would land in ``blobs/``).
 
 Example:
     >>> import tempfile, hashlib

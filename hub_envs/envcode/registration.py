@@ -1,11 +1,5 @@
-"""Register a loaded env with gymnasium and its config with draccus, all or nothing.
-
-Two registries, one transaction: :func:`registry_transaction` remembers both and, if anything in
-its block raises, puts both back exactly as they were. hub-envs owns the names it registers
-(``_OWNED``), so loading the same ``repo@sha`` twice is a no-op, and a name held by anything else
-is a :class:`RegistrationConflictError`, never an overwrite. A name the env's own code takes over while it is
-imported is refused too; one an installed package it imports takes over is that package's doing, as in any
-process that imports it (:meth:`Transaction.replaced_by`).
+"""Register a loaded env with gymnasium and its config with draccus, all or nothing (:func:`registry_transaction`), under
+names hub-envs owns.
 
 Example:
     >>> import gymnasium as gym

@@ -1,13 +1,5 @@
-"""Checks that need the env's code to run: gymnasium's env checker, determinism, golden fingerprint.
-
-The three-way feature check lives in :mod:`hub_envs.harness.features`; these are the others push_env runs
-before publishing and load_env re-runs after downloading.
-
-* :func:`run_env_checker` — gymnasium's ``check_env`` (spaces, reset/step API, seeding, render).
-* :func:`check_determinism` — per seed, two fresh envs, same actions, a whole episode: bit-identical rollouts.
-* :func:`golden_fingerprint` — a sha256 of the first K steps of seeded random-action rollouts
-  (observations, rewards, terminations), recorded at push and recomputed at load to catch drift
-  across gymnasium / numpy / simulator upgrades.
+"""The checks that run the env's code: gymnasium's env checker, determinism (two fresh envs, the same actions), and the
+golden-rollout fingerprint (recorded at push, recomputed at load).
 
 Example:
     >>> from hub_envs.harness.checks import golden_fingerprint                          # doctest: +SKIP

@@ -1,12 +1,4 @@
-"""One seeded episode of an env, stepped by hand: the convention every rollout in hub-envs follows.
-
-``SeededEpisode(env, seed)`` resets ``env`` with ``seed=seed`` and seeds ``env.action_space`` with the
-same seed, so its random actions (:meth:`SeededEpisode.sample`) are reproducible from the seed alone;
-:meth:`SeededEpisode.step` steps the env, turns an exception raised by the env's code into an
-:class:`~hub_envs.errors.EnvCodeError` that says where (episode, seed, step), and tracks whether the
-episode ended. The episode engine (:mod:`hub_envs.harness.rollout`), the feature check
-(:mod:`hub_envs.harness.features`) and the card's GIF (:mod:`hub_envs.harness.media`) all step envs
-through it, so "episode ``i`` with seed ``s``" means the same thing everywhere.
+"""One seeded episode stepped by hand (:class:`SeededEpisode`): the convention every rollout in hub-envs follows.
 
 Example:
     >>> import gymnasium as gym

@@ -1,16 +1,5 @@
-"""The three-way feature check: declared config features vs live rollouts vs the dataset.
-
-For every feature the EnvConfig declares (``features``, keyed by env-side names such as
-``agent_pos`` or ``pixels/top``, mapped to LeRobot keys by ``features_map``) it compares
-
-* the declared type and shape,
-* what a few seeded random-action steps of the live env produce (and that it lies in the
-  observation space, finite), and
-* what the bundled dataset's ``meta/info.json`` records for the mapped key,
-
-and also flags live observation keys and dataset keys nobody declared, and an
-``info["is_success"]`` that is missing or not a bool. Every disagreement is collected, so the
-error shows the whole table rather than the first problem.
+"""The three-way feature check: the features the EnvConfig declares vs what the live env produces vs what the dataset
+records, every disagreement collected in one table.
 
 Example:
     >>> from hub_envs.harness.features import check_features                     # doctest: +SKIP

@@ -1,14 +1,5 @@
-"""The reproduction report: one object, written as JSON (machines), Markdown (people) and a PNG plot.
-
-:class:`ReproduceReport` gathers what ``hub-envs reproduce`` found: the replay
-(:class:`hub_envs.harness.replay.ReplayResult`), each benchmark (:class:`hub_envs.harness.benchmark.BenchmarkResult`),
-the golden-rollout fingerprint check, and provenance: the repo sha, the dataset fingerprint, the
-seeds, and the package versions here beside those the repo was published with. A version that
-differs is printed next to every divergence, since it is the first suspect.
-
-:meth:`ReproduceReport.write` puts ``report.json``, ``report.md`` and ``report.png`` in a folder.
-The plot (matplotlib, Agg backend) shows per-episode returns published vs reproduced for each
-benchmark and, when the replay diverged, the divergence over steps of the first diverged episode.
+"""The reproduction report (:class:`ReproduceReport`): the replay, the benchmarks, the fingerprint and the provenance,
+written as ``report.json``, ``report.md`` and ``report.png``.
 
 Example:
     >>> from hub_envs.harness.report import ReproduceReport

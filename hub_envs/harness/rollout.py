@@ -1,33 +1,5 @@
-"""Run seeded episodes of an env and record everything that happened: the episode engine.
-
-One concept: an *episode* is fully determined by ``(make_env, seed, policy, max_steps)``. Episode
-``i`` resets with ``seed=seeds[i]``, seeds ``env.action_space`` with the same seed, and steps until
-the env says ``terminated`` or ``truncated`` or ``max_steps`` steps were taken. The default policy
-samples ``env.action_space`` (so it is seeded too); a policy may also be a callable
-``(obs, step_index) -> action`` or recorded actions to replay. Because nothing else goes in, the
-rollouts are identical whatever the number of worker processes. Dataset generation
-(:mod:`hub_envs.dataset.writer`) and replay/reproduction share this engine.
-
-What is recorded at step ``t`` (arrays of length ``T`` = episode length):
-
-* ``observations[key][t]``: the observation *before* action ``t`` (the reset observation at t=0).
-  Nested dict observations are flattened with ``/`` (``{"pixels": {"top": ...}}`` → ``"pixels/top"``),
-  the convention of LeRobot's ``EnvConfig.features``; a non-dict observation is stored under
-  ``"observation"``. The observation after the last action is not recorded (LeRobot's convention).
-* ``actions[t]``, ``rewards[t]``, ``terminated[t]``, ``truncated[t]`` and ``is_success[t]``
-  (``info["is_success"]``) from ``env.step(actions[t])``. When the episode is cut by ``max_steps``
-  and the env did not end it, ``truncated[-1]`` is set (a time-limit truncation).
-* ``states[t]``: ``env.get_state()`` before action ``t``, when ``record_states=True`` and the env
-  (or a wrapper) has ``get_state``; otherwise ``None``.
-
-Workers: ``workers > 1`` runs episodes in a process pool, one env per worker process reused across
-episodes (each episode resets with its seed). On Linux the pool forks, so ``make_env`` and
-``policy`` are inherited by the workers and **need not be picklable** (lambdas and closures work);
-elsewhere (spawn) they must be picklable. Results come back in episode order. A policy callable
-must not keep state across episodes, or the results depend on which worker ran which episode.
-
-Errors: an env that raises in ``make_env``, ``reset`` or ``step``, or returns a NaN/inf observation
-or reward, raises :class:`hub_envs.errors.EnvCodeError` naming the episode, seed, step and key.
+"""The episode engine: seeded episodes of an env (each fully determined by its seed, its policy and ``max_steps``), run in
+worker processes and recorded step by step; the results do not depend on the number of workers.
 
 Example:
     >>> import gymnasium as gym

@@ -1,31 +1,5 @@
-"""``hub-envs train`` and ``hub-envs eval``: LeRobot's own training and evaluation, with a hub env chosen by flag.
-
-LeRobot 0.4 auto-imports only plugins named ``lerobot_robot_*`` / ``camera_*`` / ``teleoperator_*`` /
-``policy_*`` (0.5 adds ``lerobot_env_*``, see ``plugins/lerobot_env_hub``), so an ``--env.type`` choice
-from another package must be registered before LeRobot's draccus parsing runs. These commands do exactly
-that, then hand the same flags to LeRobot:
-
-1. import :mod:`hub_envs.lerobot.env`, which registers the generic ``hub`` choice, and
-   :func:`~hub_envs.lerobot.env.install_hooks` (env creation and env processors for hub env configs);
-2. for ``--env.type=hub``, load the repo named by ``--env.repo_id`` / ``--env.revision`` now, so a
-   wrong id or an untrusted commit is one clear error before LeRobot starts; for a per-repo choice
-   (``--env.type=user/name@<sha12>``, what load_env registers), load that repo (from the choice name,
-   or ``--env.repo_id`` / ``--env.revision``) so the choice exists when LeRobot parses;
-3. ``train`` with no ``--dataset.repo_id`` trains on the env repo's bundled dataset (and a
-   ``--dataset.repo_id`` equal to the env repo gets ``--dataset.root`` pointing at that dataset);
-4. run ``lerobot.scripts.lerobot_train.train`` / ``lerobot.scripts.lerobot_eval.eval_main`` through
-   LeRobot's own ``lerobot.configs.parser.wrap`` with those flags;
-5. write ``hub_envs_provenance.json`` (env repo id + sha, config, processors, dataset fingerprints,
-   package versions) next to the results, and add it to ``eval_info.json`` under ``"provenance"``.
-
-    hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> \\
-        --env.trust_remote_code=true --policy.type=act --policy.push_to_hub=false --steps=1000 ...
-    hub-envs eval --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> \\
-        --env.trust_remote_code=true --policy.path=outputs/train/.../pretrained_model --eval.n_episodes=10
-
-LeRobot's own CLIs work too, through LeRobot's plugin flag:
-``lerobot-eval --env.discover_packages_path=hub_envs.lerobot_plugin --env.type=hub ...``
-(see :mod:`hub_envs.lerobot_plugin`); only the provenance file is specific to ``hub-envs eval``.
+"""``hub-envs train`` and ``hub-envs eval``: LeRobot's own training and evaluation with a hub env chosen by flag, the
+repo loaded before LeRobot parses, provenance written beside the results.
 """
 
 from __future__ import annotations

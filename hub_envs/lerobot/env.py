@@ -1,22 +1,5 @@
-"""Hub envs as LeRobot env configs: the generic ``--env.type=hub`` choice and LeRobot-ready vector envs.
-
-``HubEnv`` is an ``EnvConfig`` choice registered as ``"hub"`` when this module is imported. Its
-fields name a repo (``repo_id``, ``revision``, ``trust_remote_code``) and optionally override the
-repo config's own fields (``overrides``, plus ``task`` / ``fps`` / ``episode_length``). Building it
-(that is, draccus parsing ``--env.type=hub --env.repo_id=...``) runs :func:`hub_envs.load_env`,
-so a wrong repo id, an untrusted commit or a failing check stops a run before it starts, and fills
-the LeRobot fields from the repo's config: ``task``, ``fps``, ``episode_length``, ``features``,
-``features_map``. ``revision`` becomes the resolved commit sha, so a saved ``train_config.json``
-names exactly the code it ran. ``gym_id`` / ``gym_kwargs`` point at the env load_env registered
-with gymnasium, so LeRobot's own unmodified ``lerobot.envs.factory.make_env(cfg)`` builds it.
-
-:func:`make_env` and :func:`make_env_pre_post_processors` have LeRobot's signatures: for a hub env
-config (``hub`` or the per-repo choice load_env registers) they build vector envs the way LeRobot's
-eval loop expects (``AutoresetMode.SAME_STEP`` so ``info["final_info"]["is_success"]`` is there,
-the config's ``episode_length`` as time limit, the config's ``task`` exposed as
-``task``/``task_description`` for ``add_envs_task``) and add the repo's env processors; for any
-other config they call LeRobot's own. :func:`install_hooks` puts them in place of LeRobot's in the
-``lerobot_train`` and ``lerobot_eval`` scripts (``hub-envs train`` / ``hub-envs eval`` do that).
+"""Hub envs as LeRobot env configs: the generic ``--env.type=hub`` choice (:class:`HubEnv`), LeRobot-ready vector envs and
+env processors (:func:`make_env`, :func:`make_env_pre_post_processors`), and the hooks that put them in LeRobot's scripts.
 
 Example:
     >>> import draccus

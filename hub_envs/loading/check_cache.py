@@ -1,21 +1,5 @@
-"""Remember load checks that passed, keyed by everything their outcome depends on.
-
-The three-way feature check and the golden-rollout fingerprint are pure functions of the env's
-code and data (fixed by the verified commit), the packages that run them, and the machine. Once
-they pass for a repo@sha in one environment, running them again there can only give the same
-answer, so a warm ``load_env`` reuses the result instead of stepping the env ~100 times.
-
-The key covers the commit and its content digest, the check settings, the name and version of
-EVERY installed distribution (the ``*.dist-info`` folders on ``sys.path``: numpy, gymnasium, the
-simulator, ... alike), hub-envs' own checking code, the interpreter and the platform (OS, kernel,
-libc, CPU architecture). Install, upgrade or remove any package and the checks run again. An env that runs in
-a venv worker (``isolation="venv"``, with the packages installed here or the publisher's) is checked with the
-packages of that venv, so its key also covers the venv's installed distributions and interpreter
-(:func:`venv_identity`): a verdict from this process, or from another venv, is never reused there. Only passing
-results are stored; failures always re-run.
-An entry that is not exactly what :func:`store` wrote (corrupt, truncated or hand-edited: it carries a
-digest of its own content) or that does not record a pass is ignored, and the checks run again.
-``load_env(..., recheck=True)`` (``hub-envs load --recheck=true``, or ``HUB_ENVS_RECHECK=1``) ignores the cache.
+"""The check cache: the load checks that passed, remembered under a key of everything their outcome depends on (the
+commit's content, the check settings, every installed distribution, hub-envs' own code, the interpreter, the platform).
 
 Example:
     >>> from hub_envs.loading.check_cache import check_key
@@ -62,8 +46,8 @@ def _installed_distributions() -> list[str]:
 def _checker_source_digest(root: Path | None = None) -> str:
     """All of hub-envs' own code (every ``.py`` file of the package, by path, size, inode, modification and change
     time), so an edited (editable-installed) checker never reuses old verdicts. Derived from the tree, not a
-    hand-kept list of the modules that check. The files' stat, not their bytes: reading 1 MB of sources on every
-    load cost 5-7 ms of a 20 ms warm load (stat: <1 ms). An edit in place sets the change time (which ``utime``,
+    hand-kept list of the modules that check. The files' stat, not their bytes: reading all the sources on every
+    load would cost a warm load a good part of its time, a stat almost nothing. An edit in place sets the change time (which ``utime``,
     ``tar`` and ``cp -p`` cannot set back), an editor's or installer's atomic replace gives a new inode. Not a
     security boundary: whoever can rewrite hub-envs' sources need not fool its check cache."""
     root = root or PACKAGE_DIR
@@ -85,7 +69,11 @@ def _checker_source_digest(root: Path | None = None) -> str:
 def machine_identity() -> dict[str, Any]:
     """What, besides the code, its data and its declared requirements, can change a check's outcome: every
     installed package version, hub-envs' own checking code, the interpreter, the OS, libc and CPU architecture.
-    ~2-3 ms (a listdir per ``sys.path`` entry, a stat of hub-envs' sources): load_env computes it while it downloads."""
+    A listdir per ``sys.path`` entry and a stat of hub-envs' sources: load_env computes it while it downloads.
+
+    Returns:
+        JSON-ready data, part of every check key (:func:`check_key`).
+    """
     uname = platform.uname()
     return {
         "distributions": hashlib.sha256("\n".join(_installed_distributions()).encode()).hexdigest(),

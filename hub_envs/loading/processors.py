@@ -1,34 +1,5 @@
-"""Env processors: steps an env repo ships to run between the env and the policy in LeRobot's eval loop.
-
-LeRobot's eval loop (``lerobot.scripts.lerobot_eval.rollout``) runs, every step::
-
-    env obs -> preprocess_observation -> add_envs_task -> env_preprocessor -> policy preprocessor
-            -> policy -> policy postprocessor -> env_postprocessor -> env.step(action)
-
-An env repo can fill ``env_preprocessor`` (stage ``"pre"``: observation batches, tensors keyed like
-``observation.state``) and ``env_postprocessor`` (stage ``"post"``: the action tensor, ``(batch, action_dim)``)
-with LeRobot ``ProcessorStep`` s. The author declares them in the env folder's ``pyproject.toml``::
-
-    [[tool.hub-envs.processors]]
-    name = "clip"                 # a label, unique in the repo
-    entry_point = "clip_action"   # see below; defaults to `name`
-    stage = "post"                # "pre" or "post"
-    kwargs = {}                   # keyword arguments of the step (JSON values)
-
-``entry_point`` is one of
-
-* a hub-envs built-in: ``clip_action`` (clamp actions to the env's action space, or to ``low``/``high``),
-  ``flatten_state`` (concatenate observation keys, nested dicts included, into ``observation.state``);
-* a name in LeRobot's ``ProcessorStepRegistry`` (e.g. ``image_crop_resize_processor`` with
-  ``kwargs = {resize_size = [64, 64]}``);
-* ``"module:Class"`` in the env's own code (a ``ProcessorStep`` subclass; it runs under the same trust
-  decision as the env).
-
-push_env copies the list into the manifest (``processors``); load_env validates it (a malformed
-declaration is a :class:`~hub_envs.errors.ProcessorError` naming the field), builds every step, and
-with ``check=True`` runs them once on a live observation and a sampled action.
-``LoadedEnv.processors()`` returns fresh ``(pre, post)`` pipelines; ``hub-envs eval`` hands them to
-LeRobot's eval loop.
+"""Env processors: the LeRobot ``ProcessorStep`` s an env repo declares (``[[tool.hub-envs.processors]]``) to run between
+the env and the policy in LeRobot's eval loop: parsed, built and dry-run.
 
 Example:
     >>> from hub_envs.loading.processors import parse_declarations

@@ -1,27 +1,5 @@
-"""``hub-envs compare``: evaluate policies on the same seeds of one env commit and say, with a confidence interval,
-how they differ.
-
-Each policy (``random``; a LeRobot checkpoint: a local ``pretrained_model`` folder, or a Hub repo id, resolved to
-its commit) runs the same episodes (the same reset seeds, the env's episode length) through the benchmark
-harness (:class:`hub_envs.harness.benchmark.BenchmarkRun`: the rollout engine, LeRobot's own observation
-conversion, the checkpoint's pre/post-processors). Reported:
-
-* per policy: success rate and mean return, each with a seeded bootstrap confidence interval;
-* per pair: the paired difference (A - B, seed by seed) of both, with a **seed-paired bootstrap** interval (the
-  seeds are resampled, each keeping both policies' episodes), which is far tighter than two independent intervals
-  when the seeds explain much of the variance;
-* how many episodes would give a ±5-point half-width on a success rate (or on the paired difference), from the
-  observed per-episode variance (normal approximation).
-
-Output: a terminal summary, ``report.json``, ``report.md`` and ``report.png`` (matplotlib, the ``plots`` extra) in
-``--out`` (default ``compare-out/<user>/<name>/``).
-
-    hub-envs compare --repo_id=user/name@<sha> --policies=random,outputs/train/checkpoints/last/pretrained_model
-                     [--episodes=20] [--seed=0] [--trust_remote_code=true] [--trust_policy_code=true]
-    hub-envs compare --repo_id=user/name@<old sha> --against=user/name@<new sha> --policies=random [--episodes=20]
-
-With ``--against``, each policy runs the same seeds on two revisions of the env (or two envs with the same
-spaces), and the report pairs each policy with itself across them (new minus old): what the revision changed.
+"""``compare``: policies evaluated on the same seeds of one env commit (or of two revisions, ``against``), their success
+rates and returns with bootstrap intervals, and their seed-paired differences.
 
 Example:
     >>> from hub_envs.operations.compare import episodes_for_half_width

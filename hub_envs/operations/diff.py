@@ -1,29 +1,5 @@
-"""``hub-envs diff``: what changed between two revisions of an env repo (or two env repos), and does it behave differently?
-
-1. **Static** (the two manifests alone, no code run): files added, removed and changed, grouped as
-   ``code`` (``.py``, ``pyproject.toml``), ``assets`` (everything else the publisher wrote), ``dataset``
-   and ``generated`` (card, media, ``env.py``, manifest); manifest fields that changed (config values,
-   dataset features and shapes, fps, requirements, recorded versions, ...), each as ``old -> new``.
-2. **Behavioural**: both revisions loaded side by side in this process (each ``repo@sha`` has its own gym
-   id), their observation and action spaces compared (a change is reported as a *space change*), then the
-   same episodes run on both: the old revision's recorded dataset actions for its first ``episodes``
-   episodes (with their recorded seeds) plus ``random_episodes`` seeded random-action episodes on other seeds.
-   Per seed: the first divergent step, feature and element with both
-   values, and the per-step error curves. The golden fingerprints are compared (recorded, and recomputed on both),
-   and the paired per-seed return / success deltas get a seed-paired bootstrap CI.
-3. **Benchmarks**: each benchmark the old revision declares (``hub_env.json`` ``benchmarks``: its policy,
-   seeds and metrics; push_env records a random-policy one over the dataset's seeds) re-run on both
-   revisions, and per metric the old and new values with the **seed-paired** difference (new − old, episode by
-   episode) and its bootstrap CI, which resamples episodes, so one env-level change shows as a tight interval
-   even when the episodes' spread is wide.
-4. ``report.json``, ``report.md`` and (with matplotlib) ``report.png`` in ``out``.
-
-Exit code of ``hub-envs diff``: 0 when behaviour is identical (only docs, data or generated files differ),
-1 when it differs, 2 on error.
-
-    hub-envs diff --old=user/name@A --new=user/name@B [--episodes=2] [--random_episodes=2]
-                  [--trust_remote_code=true] [--tolerance=0] [--benchmarks=true] [--out=DIR] [--json=true]
-                  [--isolation=process|venv] [--sandbox=true] [--versions=publisher]
+"""``diff``: what changed between two revisions of an env repo (or two env repos), and does it behave differently? The
+files and manifest fields, the spaces, the same episodes on both, the benchmarks' seed-paired deltas.
 
 Example:
     >>> from hub_envs import diff                                                     # doctest: +SKIP

@@ -1,20 +1,5 @@
-"""Evaluate a policy over N seeded episodes of a Hub env, on this machine or on a Ray cluster.
-
-One concept: an *evaluation* is ``episodes`` episodes with reset seeds ``seed, seed + 1, ...`` of the env at
-an exact commit, each run by the policy for at most ``max_steps`` steps (default: the config's
-``episode_length``); its result is the per-episode return and success, and their mean. An episode is a pure
-function of its seed and the policy (:mod:`hub_envs.harness.rollout`), so the metrics are identical on every
-backend (:mod:`hub_envs.backends`) for any number of workers.
-
-Policies: ``None`` / ``"random"`` (the action space sampled, seeded by each episode's seed), a LeRobot
-checkpoint ``"user/policy@<40-hex sha>"`` (loaded once per worker; consent as in ``hub-envs reproduce``:
-``trust_policy_code`` or ``hub-envs trust``), or a Python callable ``(obs, step_index) -> action`` that keeps
-no state across episodes (on Ray it is pickled to each worker once, so it must be importable there).
-
-    hub-envs evaluate --repo_id=user/hover@<sha> --trust_remote_code=true --episodes=500 --backend=ray
-
-This is not LeRobot's ``lerobot-eval`` (``hub-envs eval``), which steps a batch of envs in one process with
-its own seeding: the same seeds give other episodes there.
+"""``evaluate``: a policy over N seeded episodes of an env commit, on this machine or on a Ray cluster (the metrics do
+not depend on where the episodes ran).
 
 Example:
     >>> from hub_envs import evaluate                                                  # doctest: +SKIP

@@ -1,20 +1,5 @@
-"""Rebuild exactly the env a dataset came from (robomimic's ``create_env_from_metadata``).
-
-Every dataset push_env writes carries ``env_meta`` in ``meta/hub_envs.json`` (``meta/info.json["hub_envs"]`` before): the
-env repo id, the digest of the env's code, its entry points, ``env_kwargs`` and config values. The
-dataset is part of the commit it describes, so it cannot name that commit's sha; the code digest
-identifies the code instead. :func:`env_from_dataset` finds the commit:
-
-* the bundled dataset of an env repo snapshot (``<snapshot>/dataset``, or the env repo id itself):
-  the snapshot's own commit;
-* a recorded ``env_sha`` in ``env_meta`` (a dataset re-exported after publishing), or an explicit
-  ``env_revision``;
-* otherwise (a dataset repo id, or a standalone copy of the folder): the env repo's history is
-  walked, newest first, for a commit whose code has that digest, preferring the one whose bundled
-  dataset has this very fingerprint.
-
-It then loads that commit with :func:`hub_envs.load_env` (integrity, trust gate and checks as
-always) and verifies that its code digest and config are the ones recorded.
+"""``env_from_dataset``: load exactly the env a dataset came from (robomimic's ``create_env_from_metadata``): the env repo
+and the code digest its ``env_meta`` names, the commit found, the code and config checked.
 
 Example:
     >>> from hub_envs import env_from_dataset                                          # doctest: +SKIP

@@ -1,35 +1,5 @@
-"""The env repo format: which files an env repo holds, the manifest, and file hashing.
-
-An env is published as ONE model-type Hub repo (model type, so LeRobot's own EnvHub loader finds it):
-
-=====================  ===========================================================  ====================
-file                   what it holds                                                who writes it
-=====================  ===========================================================  ====================
-``pyproject.toml``     name, version, ``dependencies``; ``[tool.hub-envs]`` with    you (the env author)
-                       ``env = "module:EnvClass"``, ``config = "module:Config"``
-``*.py``, assets       the gymnasium env and its LeRobot ``EnvConfig`` subclass;    you
-                       files import each other relatively (``from .x import y``)
-``env.py``             LeRobot EnvHub entry point ``make_env(n_envs, use_async_      push_env
-                       envs, cfg)``; fetches the rest of its snapshot if needed
-``hub_env.json``       the manifest: format version, entry points, gym id, draccus  push_env
-                       choice name, requirements, config values, sha256 of every
-                       file, dataset fingerprint, seeds, golden-rollout
-                       fingerprint, benchmark results, package versions
-``dataset/``           the random-action dataset in LeRobot v3 format (meta/,       push_env
-                       data/), each episode's reset seed recorded
-``media/rollout.gif``  a few random-action rollouts, rendered                      push_env
-``media/rollout.mp4``  the same rollouts as video (when the dataset stores video)  push_env
-``README.md``          the env card, rendered from ``templates/env_card.md.j2``           push_env
-=====================  ===========================================================  ====================
-
-A *local env folder* (what an author writes) is the first two rows only.
-
-**Format versions.** ``hub_env.json`` is :class:`Manifest`; its fields and their types are the schema (validation
-is driven by the dataclass). A field is only ever added with a new ``format_version``. A reader accepts the
-versions up to its own and refuses a newer one with the hub-envs version that wrote it and the pip line
-that reads it (ignoring a field it does not know, e.g. a new integrity check, would be unsafe); an unknown
-field at a known version is a hand-edited manifest and is refused too. Older versions keep loading: a new
-field gets a default that means what the older format meant.
+"""The env repo format: the files an env repo holds, its manifest (``hub_env.json``, :class:`Manifest`), a local env
+folder (:class:`EnvFolder`), and file hashing.
 
 Example:
     >>> from hub_envs.repo.format import Manifest, MANIFEST_FILE

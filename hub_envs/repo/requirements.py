@@ -1,10 +1,5 @@
-"""Requirements preflight: are the packages an env repo declares installed, at compatible versions?
-
-Nothing is ever installed automatically; the error lists what is missing and the pip command. A requirement
-whose distribution is not installed, but whose import name another installed distribution provides (highway-env
-installs ``pygame-ce``, which provides ``import pygame``, for a requirement ``pygame``), is a stand-in: said in a
-:class:`~hub_envs.errors.RequirementStandInWarning`, not refused, since installing the named distribution too
-would write over the other's files.
+"""The requirements preflight: are the packages an env repo declares installed, at compatible versions? Nothing is installed
+for you.
 
 Example:
     >>> from hub_envs.repo.requirements import unmet_requirements

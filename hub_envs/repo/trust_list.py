@@ -1,14 +1,5 @@
-"""Trust on first use: the local list of commits whose code the user agreed to run.
-
-Consent names one repo, one commit sha AND the content digest of that commit's manifest (the sha256
-over every file it lists). A commit sha alone is what the endpoint says it is: a hostile or rewritten
-endpoint could serve other, consistently re-hashed files under a trusted sha. With the digest bound
-in, consent covers exactly the bytes that were looked at, and nothing else runs without a new prompt.
-
-The list is ``trusted.json`` in :func:`hub_envs.paths.hub_envs_home` (outside the Hugging Face cache),
-written atomically under a file lock, so two ``hub-envs trust`` at once lose no entry. Entries written
-by hub-envs before content binding (sha only) are never honoured silently: ``load_env`` says so and
-``hub-envs trust`` records them again with their digest.
+"""Trust on first use: the local list of the commits, each bound to its content digest, whose code the user agreed to
+run (``hub-envs trust user/name@<sha>``).
 
 Example:
     >>> import os, tempfile
