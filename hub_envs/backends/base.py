@@ -45,8 +45,15 @@ class EnvSource:
 
     @classmethod
     def from_loaded(cls, loaded: Any) -> EnvSource:
-        """The source of an env this process loaded (consent given here carries over to the workers, bound to the
-        content it was given for)."""
+        """The source of an env this process loaded: consent given here carries over to the workers, bound to the content it
+        was given for.
+
+        Args:
+            loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+        Returns:
+            A Hub repo's ``user/name@<sha>`` with its content digest, or a local folder's files as a tar archive.
+        """
         isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
         if loaded.local_folder is not None:
             values = encode_config(loaded.config)
@@ -70,8 +77,18 @@ class EnvSource:
         )
 
     def load(self, scratch: Path | None = None) -> Any:
-        """``load_env`` in this (worker) process, with the driver's isolation; checks already ran where the run
-        was started. A shipped folder is unpacked into ``scratch`` (the caller removes it; default a new temp folder)."""
+        """``load_env`` in this (worker) process, with the driver's isolation; the checks already ran where the run was started.
+
+        Args:
+            scratch: where a shipped folder is unpacked (the caller removes it; default: a new temp folder).
+
+        Returns:
+            The :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+        Raises:
+            UntrustedCodeError: the commit holds other content than the driver's consent covers.
+            hub_envs.errors.HubEnvsError: as :func:`hub_envs.load_env`.
+        """
         if self.folder is None:
             return load_env(
                 self.ref,
@@ -122,7 +139,23 @@ class Backend:
         progress: bool = True,
         desc: str = "rollouts",
     ) -> Iterator[EpisodeRollout]:
-        """Rollouts of ``loaded``'s env, one per seed, in seed order (``policy`` as in :func:`~hub_envs.harness.rollout.run_episodes`)."""
+        """Rollouts of ``loaded``'s env, one per seed, in seed order.
+
+        Args:
+            loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+            seeds: one reset seed per episode.
+            max_steps: at most this many steps per episode.
+            policy: as :func:`~hub_envs.harness.rollout.run_episodes` takes it (None: the seeded random policy).
+            record_states: record ``env.get_state()`` before each action.
+            progress: show a progress bar.
+            desc: the bar's label.
+
+        Returns:
+            An iterator of :class:`~hub_envs.harness.rollout.EpisodeRollout`, in episode order.
+
+        Raises:
+            EnvCodeError: an episode raised.
+        """
         raise NotImplementedError
 
     def settings(self) -> dict[str, Any]:

@@ -28,6 +28,7 @@ class LocalBackend(Backend):
             raise ConfigError(f"workers={self.workers!r}: pass a positive number of processes.")
 
     def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts"):
+        """As :meth:`Backend.episodes`, in this machine's worker processes (:func:`~hub_envs.harness.rollout.iter_episodes`)."""
         return iter_episodes(
             loaded.make,
             seeds,
@@ -40,4 +41,5 @@ class LocalBackend(Backend):
         )
 
     def settings(self) -> dict[str, Any]:
+        """``{"backend": "local", "workers": n}``."""
         return {"backend": self.name, "workers": self.workers}

@@ -207,7 +207,24 @@ class _Loaded:
 def run_shard(
     key: tuple[str, ...], source: EnvSource, policy: Any, max_steps: int, record_states: bool, start: int, seeds: list, actions
 ) -> list[EpisodeRollout]:
-    """Episodes ``start, start + 1, ...`` (one per seed) on this worker's env for the run ``key``."""
+    """Run one shard on a Ray worker: episodes ``start, start + 1, ...`` (one per seed) on this worker's env for the run ``key``
+    (the env, and a policy spec's policy, built once per worker).
+
+    Args:
+        key: the run's key (source identity, isolation, policy digest).
+        source: how this worker gets the env.
+        policy: the policy (a spec is built here once), or None.
+        max_steps, record_states: as :meth:`~hub_envs.backends.base.Backend.episodes`.
+        start: the shard's first episode index.
+        seeds: the shard's reset seeds.
+        actions: recorded actions to replay, or None.
+
+    Returns:
+        The shard's rollouts, in order.
+
+    Raises:
+        HubEnvsError: the env could not be loaded on this node (the message names it).
+    """
     here = _LOADED.get(key)
     if here is None:
         while len(_LOADED) >= _KEEP:
@@ -246,10 +263,15 @@ def _digest(obj: Any) -> str:
 
 
 def alive_slots(ray: Any) -> tuple[int, int]:
-    """(CPUs on the cluster's live nodes, live nodes), from the cluster's node table (one GCS request).
+    """What the cluster can run at once, from its node table (one GCS request). A shard takes one CPU; the count drops when
+    a node dies (a worker process killed on a live node is restarted by Ray and does not count).
 
-    A shard takes one CPU, so this is how many shards can run at once; it drops when a node dies (a worker
-    process killed on a live node is restarted by Ray and does not count)."""
+    Args:
+        ray: the ``ray`` module, connected.
+
+    Returns:
+        ``(CPUs on the live nodes, live nodes)``.
+    """
     nodes = [node for node in ray.nodes() if node.get("Alive")]
     return int(sum(node.get("Resources", {}).get("CPU", 0) for node in nodes)), len(nodes)
 
@@ -292,6 +314,7 @@ class RayRun:
         return next(self._it)
 
     def close(self) -> None:
+        """Cancel the shards in flight: nothing is left running."""
         self._it.close()
 
 
@@ -341,11 +364,18 @@ class RayBackend(Backend):
         _check_auth(self.address)
 
     def worker_token(self, token: str | None) -> str | None:
-        """The Hub token the workers download with: ``token`` (the load's own), else the one huggingface_hub finds
-        here (``HF_TOKEN``, ``$HF_HOME/token``); None when :attr:`send_token` is off (the workers use their node's).
+        """The Hub token the workers download with.
 
-        It travels inside the env's source through Ray's object store (memory of the nodes that run the job, and
-        their spill folder on disk when the store is full), never in the job's or the tasks' metadata."""
+        It travels inside the env's source through Ray's object store (memory of the nodes that run the job, and their spill
+        folder on disk when the store is full), never in the job's or the tasks' metadata.
+
+        Args:
+            token: the load's own token.
+
+        Returns:
+            ``token``, else the one huggingface_hub finds here (``HF_TOKEN``, ``$HF_HOME/token``); None when
+            :attr:`send_token` is off (the workers use their node's).
+        """
         if not self.send_token:
             return None
         if token:
@@ -409,6 +439,7 @@ class RayBackend(Backend):
             raise first
 
     def settings(self) -> dict[str, Any]:
+        """``{"backend": "ray", "workers": n, "address": ...}``: where a report says the episodes ran."""
         return {"backend": self.name, "workers": self.workers, "address": self.address}
 
     def _n_workers(self, ray: Any, n_episodes: int) -> int:
@@ -417,6 +448,12 @@ class RayBackend(Backend):
 
     # -- a run --
     def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts") -> RayRun:
+        """As :meth:`~hub_envs.backends.base.Backend.episodes`, sharded across the cluster, consumed in shard order.
+
+        Raises:
+            ClusterUnreachableError, ClusterAuthError: the cluster cannot be used.
+            MissingRequirementsError: Ray is not installed.
+        """
         seeds = check_seeds(seeds)
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
             raise ConfigError(f"max_steps={max_steps!r}: pass a positive integer.")

@@ -83,7 +83,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def push_env_main(argv: list[str] | None = None) -> int:
-    """The ``push_env`` console script: ``push_env --env_dir=... --repo_id=...`` (``hub-envs push``)."""
+    """The ``push_env`` console script (``hub-envs push``): ``push_env --env_dir=... --repo_id=...``.
+
+    Args:
+        argv: the arguments (default: ``sys.argv[1:]``).
+
+    Returns:
+        The exit code (see :func:`main`).
+    """
     return run_command("push", list(sys.argv[1:] if argv is None else argv))
 
 

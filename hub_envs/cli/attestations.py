@@ -24,7 +24,17 @@ class Config:
 
 
 def main(config: Config) -> int:
-    """List the attestations of ``config.repo_id`` (with ``--verify``: each signature checked)."""
+    """List the attestations of ``config.repo_id`` (with ``--verify``: each signature checked against ``--allowed_signers``).
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0; 1 when a signature fails verification.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     if config.repo_id is None:
         raise ConfigError("hub-envs attestations needs --repo_id=user/name.")
     if config.verify and config.allowed_signers is None:

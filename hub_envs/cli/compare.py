@@ -29,7 +29,17 @@ class Config(EnvFlags):
 
 
 def main(config: Config) -> int:
-    """Compare ``config.policies`` on ``config.repo_id`` (and ``config.against``) and print the summary."""
+    """Compare ``config.policies`` on ``config.repo_id`` (and ``config.against``), print the summary and where the reports are.
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     from hub_envs.operations.compare import compare  # heavy: lerobot, torch (after the flags are parsed)
 
     if config.repo_id is None or not config.policies:

@@ -29,7 +29,17 @@ class Config(CodeFlags):
 
 
 def main(config: Config) -> int:
-    """Diff ``config.old`` and ``config.new`` and print the summary (``--json=true``: the JSON report)."""
+    """Diff ``config.old`` and ``config.new``, print the summary (``--json=true``: the JSON report) and where the reports are.
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0: identical behaviour; 1: behaviour differs; 2: a hub-envs error (printed).
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     try:
         from hub_envs.operations.diff import diff  # heavy: gymnasium, lerobot (after the flags are parsed)
 

@@ -28,7 +28,17 @@ class Config(EnvFlags):
 
 
 def main(config: Config) -> int:
-    """Evaluate ``config.policy`` on ``config.repo_id`` and print the result (``--json=true``: as JSON)."""
+    """Evaluate ``config.policy`` on ``config.repo_id`` and print the result (``--json=true``: as JSON).
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     from hub_envs.operations.evaluate import evaluate  # heavy: lerobot, torch (after the flags are parsed)
 
     if config.repo_id is None:

@@ -21,7 +21,17 @@ class Config(EnvFlags):
 
 
 def main(config: Config) -> int:
-    """Load ``config.repo_id`` and print what was loaded (``--json=true``: as JSON)."""
+    """Load ``config.repo_id`` and print what was loaded (``--json=true``: as JSON).
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     from hub_envs.loading.load import load_env  # heavy: gymnasium, lerobot (after the flags are parsed)
 
     if config.repo_id is None:

@@ -35,7 +35,17 @@ class Config:
 
 
 def main(argv: list[str]) -> int:
-    """:class:`Config`'s flags, plus ``--config.<field>=<value>`` for a variant (a field of the env's EnvConfig)."""
+    """Publish an env folder: :class:`Config`'s flags, plus ``--config.<field>=<value>`` for a variant (a field of the env's EnvConfig).
+
+    Args:
+        argv: the command's arguments.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     variant, rest = config_flags(argv)
     if any(a in ("-h", "--help") for a in rest):
         print("Config variants: --config.<field>=<value> sets a field of the env's EnvConfig before publishing.\n")
@@ -43,7 +53,19 @@ def main(argv: list[str]) -> int:
 
 
 def push(config: Config, variant: dict) -> int:
-    """Publish ``config.env_dir`` (with the ``variant``'s config fields) to ``config.repo_id``."""
+    """Publish ``config.env_dir`` (with the ``variant``'s config fields) to ``config.repo_id`` and print the result.
+
+    Args:
+        config: the command's flags.
+        variant: ``{field: value}`` from the ``--config.<field>=<value>`` flags.
+
+    Returns:
+        0.
+
+    Raises:
+        ConfigError: ``--env_dir`` or ``--repo_id`` missing.
+        HubEnvsError: what push_env raised.
+    """
     from hub_envs.publishing.push import push_env  # heavy: lerobot, torch (after the flags are parsed)
 
     if config.env_dir is None or config.repo_id is None:

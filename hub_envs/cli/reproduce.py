@@ -33,7 +33,17 @@ class Config(EnvFlags):
 
 
 def main(config: Config) -> int:
-    """Reproduce ``config.repo_id``, print the summary (or the JSON) and, with ``--attest``, publish the attestation."""
+    """Reproduce ``config.repo_id``, print the summary (or the JSON) and, with ``--attest``, publish the attestation.
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0 when everything reproduced, 1 when anything diverged or failed.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     from hub_envs.operations.attest import attest  # heavy: the operations import lerobot, torch
     from hub_envs.operations.reproduce import reproduce  # heavy: lerobot, torch
 

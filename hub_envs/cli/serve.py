@@ -26,7 +26,17 @@ class Config:
 
 
 def main(config: Config) -> int:
-    """Serve until interrupted."""
+    """Serve the loopback Hub until interrupted.
+
+    Args:
+        config: the command's flags.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     try:
         from hub_envs.server import run  # heavy: starlette, uvicorn (the server extra, maybe not installed)
     except ModuleNotFoundError as exc:

@@ -7,7 +7,17 @@ ARGV = True  # main(argv): LeRobot's parser reads the flags
 
 
 def main(argv: list[str]) -> int:
-    """Run LeRobot's ``lerobot-train`` with ``argv``."""
+    """Run LeRobot's ``lerobot-train`` with ``argv`` (a hub env chosen by ``--env.type=hub --env.repo_id=...``).
+
+    Args:
+        argv: the command's arguments.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     from hub_envs.lerobot.bridge import run_train  # heavy: lerobot, torch (LeRobot parses the flags)
 
     return run_train(argv)

@@ -13,7 +13,17 @@ USAGE = "usage: hub-envs trust user/name@<40-hex sha>"
 
 
 def main(argv: list[str]) -> int:
-    """Trust the one ``user/name@<sha>`` in ``argv``: load_env then runs that commit's code without asking."""
+    """Trust the one ``user/name@<sha>`` in ``argv``: load_env then runs that commit's code, with exactly its content, without asking.
+
+    Args:
+        argv: the command's arguments.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     if any(a in ("-h", "--help") for a in argv):
         print(f"{USAGE}\ntrust one commit of a repo: hub-envs trust user/name@<sha>")
         return 0

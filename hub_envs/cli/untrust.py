@@ -12,7 +12,17 @@ USAGE = "usage: hub-envs untrust user/name@<40-hex sha>"
 
 
 def main(argv: list[str]) -> int:
-    """Remove the trust entries of the one ``user/name[@<sha>]`` in ``argv``."""
+    """Remove the trust entries of the one ``user/name[@<sha>]`` in ``argv``.
+
+    Args:
+        argv: the command's arguments.
+
+    Returns:
+        The exit code: 0.
+
+    Raises:
+        HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
+    """
     if any(a in ("-h", "--help") for a in argv):
         print(f"{USAGE}\nforget the trust entries of a repo: hub-envs untrust user/name[@<sha>]")
         return 0

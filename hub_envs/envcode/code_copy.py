@@ -28,8 +28,15 @@ __all__ = ["code_copy", "code_files"]
 
 
 def code_files(files: dict[str, str]) -> dict[str, str]:
-    """The manifest's files an env's code may read: all but the card and the dataset's and media's data
-    (code a hand-made repo placed under ``dataset/`` is code: copied, and imported from its source only)."""
+    """The manifest's files an env's code may read: all but the card and the dataset's and media's data (code a hand-made
+    repo placed under ``dataset/`` is code: copied, and imported from its source only).
+
+    Args:
+        files: the manifest's ``{path: sha256}``.
+
+    Returns:
+        The subset, ``{path: sha256}``.
+    """
     generated = (f"{DATASET_DIR}/", f"{MEDIA_DIR}/")
     return {p: h for p, h in files.items() if p != CARD_FILE and (is_code_file(p) or not p.startswith(generated))}
 
@@ -53,10 +60,21 @@ def _sha256(path: Path) -> str:
 
 
 def code_copy(snapshot: Path, files: dict[str, str], repo_id: str, sha: str, *, home: Path | None = None) -> Path:
-    """The folder of real files holding ``snapshot``'s code and assets (``files``: the manifest's ``files``).
+    """The folder of real files holding a snapshot's code and assets: made on first use, checked on every use.
 
-    Made on first use, checked on every use; raises :class:`~hub_envs.errors.IntegrityError` when a snapshot
-    file does not have the manifest's sha256 (the snapshot was verified before, so that means it changed since).
+    Args:
+        snapshot: the verified snapshot folder.
+        files: the manifest's ``files``.
+        repo_id: the repo (the folder's name).
+        sha: the commit (the subfolder's name).
+        home: hub-envs' state folder (None: :func:`hub_envs.paths.hub_envs_home`).
+
+    Returns:
+        ``<home>/code/models--<user>--<name>/<sha>``.
+
+    Raises:
+        IntegrityError: a snapshot file does not have the manifest's sha256 (the snapshot was verified before, so it
+            changed since).
     """
     wanted = code_files(files)
     root = (home or hub_envs_home()) / "code" / ("models--" + repo_id.replace("/", "--"))

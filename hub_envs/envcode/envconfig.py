@@ -27,6 +27,16 @@ from hub_envs.errors import ConfigError, EnvCodeError, InvalidRepoFormatError
 
 
 def validate_config_class(config_class: Any, *, where: str) -> None:
+    """Refuse a config entry point that is not a ``@dataclass`` subclass of LeRobot's ``EnvConfig`` with an
+    ``episode_length`` field and a ``gym_kwargs`` property.
+
+    Args:
+        config_class: what the entry point named.
+        where: names the repo in messages.
+
+    Raises:
+        InvalidRepoFormatError: saying what the class lacks.
+    """
     if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
         raise InvalidRepoFormatError(
             f"{where}: the config entry point is {config_class!r}, not a subclass of lerobot.envs.configs.EnvConfig. "
@@ -91,8 +101,15 @@ def instantiate_config(config_class: type, *, where: str, overrides: Mapping[str
 
 
 def encode_config(cfg: EnvConfig) -> dict[str, Any]:
-    """The config's field values as JSON-ready data (draccus encoding), plus its ``gym_kwargs``. An isolated
-    load's config (:class:`~hub_envs.isolation.config.ManifestConfig`) is those values already."""
+    """The config's field values as JSON-ready data (draccus encoding), plus its ``gym_kwargs``.
+
+    Args:
+        cfg: an EnvConfig instance, or an isolated load's :class:`~hub_envs.isolation.config.ManifestConfig` (those values
+            already).
+
+    Returns:
+        ``{field: value, ..., "gym_kwargs": {...}}``, round-tripped through JSON so it compares equal to a manifest's.
+    """
     if not dataclasses.is_dataclass(cfg) and callable(getattr(cfg, "to_dict", None)):
         return json.loads(json.dumps(cfg.to_dict(), sort_keys=True))
     cli_only = getattr(type(cfg), CLI_ONLY_FIELDS, ())  # a per-repo choice's consent flag (registration.consenting_choice)
@@ -103,6 +120,7 @@ def encode_config(cfg: EnvConfig) -> dict[str, Any]:
 
 
 def config_differences(recorded: dict[str, Any], actual: dict[str, Any]) -> list[str]:
+    """One line per field whose recorded and actual values differ (``field: manifest X vs code Y``)."""
     keys = sorted(set(recorded) | set(actual))
     return [
         f"{k}: manifest {recorded.get(k, '<absent>')!r} vs code {actual.get(k, '<absent>')!r}"

@@ -93,9 +93,18 @@ def _root_package() -> types.ModuleType:
 
 
 def import_env_folder(folder: str | Path, key: str) -> types.ModuleType:
-    """Make ``folder`` importable as the package ``hub_envs_code.<key>`` and return that package.
+    """Make ``folder`` importable as the package ``hub_envs_code.<key>``. Idempotent: the same key returns the package
+    already imported.
 
-    Idempotent: the same key returns the package already imported.
+    Args:
+        folder: the env's code folder.
+        key: names the package (:func:`module_key` of repo and revision).
+
+    Returns:
+        The package (its modules import from the ``.py`` sources only).
+
+    Raises:
+        InvalidRepoFormatError: the folder does not exist.
     """
     folder = Path(folder).resolve()
     if not folder.is_dir():
@@ -116,12 +125,23 @@ def import_env_folder(folder: str | Path, key: str) -> types.ModuleType:
 
 
 def is_imported(key: str) -> bool:
-    """True if :func:`import_env_folder` already made the package for ``key`` in this process."""
+    """Whether :func:`import_env_folder` already made the package for ``key`` in this process.
+
+    Args:
+        key: the package's key.
+
+    Returns:
+        True when it is in ``sys.modules``.
+    """
     return f"{ROOT_PACKAGE}.{module_key(key)}" in sys.modules
 
 
 def forget_env_folder(key: str) -> None:
-    """Remove a package imported by :func:`import_env_folder` and all its submodules from ``sys.modules``."""
+    """Remove a package imported by :func:`import_env_folder`, and all its submodules, from ``sys.modules``.
+
+    Args:
+        key: the package's key.
+    """
     name = f"{ROOT_PACKAGE}.{module_key(key)}"
     for mod in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
         del sys.modules[mod]
@@ -136,7 +156,18 @@ def forget_env_folder(key: str) -> None:
 
 
 def parse_entry_point(entry_point: str, *, where: str = "the manifest") -> tuple[str, str]:
-    """Split ``"module:Attr"`` into its parts, or raise a precise error."""
+    """Split ``"module:Attr"`` into its parts.
+
+    Args:
+        entry_point: the entry point.
+        where: names its source in messages.
+
+    Returns:
+        ``(module, attr)``.
+
+    Raises:
+        InvalidRepoFormatError: not of the form ``module:Attribute``.
+    """
     m = ENTRY_POINT_RE.match(entry_point or "")
     if not m:
         raise InvalidRepoFormatError(
@@ -147,7 +178,20 @@ def parse_entry_point(entry_point: str, *, where: str = "the manifest") -> tuple
 
 
 def resolve_entry_point(package: types.ModuleType, entry_point: str, *, where: str = "the manifest"):
-    """Import ``module`` relative to ``package`` and return ``attr`` (``"module:Attr"``)."""
+    """Import ``module`` relative to ``package`` and return its ``attr``.
+
+    Args:
+        package: the env's package (:func:`import_env_folder`).
+        entry_point: ``"module:Attr"``.
+        where: names its source in messages.
+
+    Returns:
+        The attribute (a class, a function...).
+
+    Raises:
+        InvalidRepoFormatError: no such module or attribute.
+        EnvCodeError: importing the module raised.
+    """
     module_name, attr = parse_entry_point(entry_point, where=where)
     full = f"{package.__name__}.{module_name}"
     try:

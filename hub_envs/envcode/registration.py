@@ -118,11 +118,18 @@ class Transaction:
         return out
 
     def replaced_by(self, code: str | os.PathLike) -> tuple[list[str], dict[str, list[str]]]:
-        """:meth:`replaced`, attributed: ``(names the env's own code took over, {installed distribution: names its
-        package took over})``. A new entry belongs to whatever holds what it points at (its entry point, its config
-        class): the env's code (the folder ``code``, or any module hub-envs imported from a repo), or the package
-        of an installed distribution (gymnasium-robotics re-registers gymnasium's MuJoCo ids when it is imported).
-        Anything that cannot be placed (removed, or pointing at no importable module) counts as the env's."""
+        """What replaced an entry during the transaction, and whose doing it was. A new entry belongs to whatever holds what
+        it points at (its entry point, its config class): the env's code (the folder ``code``, or any module hub-envs
+        imported from a repo), or the package of an installed distribution (gymnasium-robotics re-registers gymnasium's
+        MuJoCo ids when it is imported). Anything that cannot be placed (removed, or pointing at no importable module)
+        counts as the env's.
+
+        Args:
+            code: the folder the env's code was imported from.
+
+        Returns:
+            ``(names the env's own code took over, {installed distribution: names its package took over})``.
+        """
         gym_now, choices_now = gym.registry, _choices()
         own: list[str] = []
         packages: dict[str, list[str]] = {}
@@ -199,8 +206,26 @@ def register(
     disable_env_checker: bool = True,
     register_choice: bool = True,
 ) -> Registration:
-    """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice; idempotent per owner (each call
-    is one more hold on the same :class:`Registration`, released by :func:`unregister`)."""
+    """Register ``gym_id`` with gymnasium and ``env_type`` as an EnvConfig choice, idempotent per owner: each call is one more
+    hold on the same :class:`Registration`, released by :func:`unregister`.
+
+    Args:
+        gym_id: the gym id.
+        env_type: the draccus choice name.
+        owner: who registers it (``user/name@<sha>``, with an isolated load's mode).
+        entry_point: the env class (or an isolated load's factory of proxies).
+        config_class: the EnvConfig subclass (None: no choice of its own).
+        max_episode_steps: the time limit.
+        kwargs: the env's keyword arguments (``gym_kwargs``).
+        disable_env_checker: gymnasium's env checker off (hub-envs runs its own checks).
+        register_choice: also register the draccus choice.
+
+    Returns:
+        The :class:`Registration`.
+
+    Raises:
+        RegistrationConflictError: a name held by anything else (never overwritten).
+    """
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) == owner and gym.registry[gym_id].entry_point is not entry_point:
         _OWNED_GYM.pop(gym_id)  # replaced behind our back: it is no longer ours
     if gym_id in gym.registry and _OWNED_GYM.get(gym_id) != owner:
@@ -247,7 +272,11 @@ def register(
 
 
 def unregister(registration: Registration) -> None:
-    """Release one hold on what :func:`register` added; the last one removes it (only if hub-envs still owns it)."""
+    """Release one hold on what :func:`register` added; the last one removes it (only if hub-envs still owns it).
+
+    Args:
+        registration: what :func:`register` returned.
+    """
     holds = _HOLDS.pop(registration, 0) - 1
     if holds > 0:  # another load of the same repo@sha still uses it
         _HOLDS[registration] = holds
@@ -261,4 +290,5 @@ def unregister(registration: Registration) -> None:
 
 
 def owner_of_choice(env_type: str) -> str | None:
+    """Who registered the draccus choice ``env_type`` through hub-envs (None: not hub-envs)."""
     return _OWNED_CHOICES.get(env_type)

@@ -26,6 +26,7 @@ CACHE_DIR = "checks"
 
 
 def recheck_forced() -> bool:
+    """Whether ``HUB_ENVS_RECHECK`` (``1``, ``true``, ``yes``) asks every load to run its checks again."""
     return os.environ.get("HUB_ENVS_RECHECK", "").lower() in {"1", "true", "yes"}
 
 
@@ -85,9 +86,15 @@ def machine_identity() -> dict[str, Any]:
 
 
 def venv_identity(venv: str | os.PathLike) -> dict[str, Any]:
-    """What a venv worker's checks run with, besides this process: the ``*.dist-info`` folders of the venv's
-    site-packages (every package and version it holds, as they are now, not as its build record says) and its
-    interpreter (``pyvenv.cfg``: the Python version it was made with)."""
+    """What a venv worker's checks run with, besides this process.
+
+    Args:
+        venv: the worker's venv folder.
+
+    Returns:
+        Digests of the ``*.dist-info`` folders of the venv's site-packages (every package and version it holds, as they
+        are now, not as its build record says) and of its ``pyvenv.cfg`` (the Python it was made with).
+    """
     root = Path(venv)
     found = []
     for site in sorted(root.glob("lib*/python*/site-packages")):
@@ -106,14 +113,33 @@ def venv_identity(venv: str | os.PathLike) -> dict[str, Any]:
 
 
 def environment_identity(requirements: tuple[str, ...] | list[str] = (), machine: dict[str, Any] | None = None) -> dict[str, Any]:
-    """:func:`machine_identity` (computed now unless given) and the env's declared ``requirements``."""
+    """The environment part of a check key.
+
+    Args:
+        requirements: the env's declared requirements.
+        machine: a :func:`machine_identity` computed during this load (None: computed now).
+
+    Returns:
+        :func:`machine_identity` with ``requirements``.
+    """
     return {**(machine if machine is not None else machine_identity()), "requirements": list(requirements)}
 
 
 def check_key(
     *, owner: str, content_digest: str, requirements, settings: dict[str, Any], machine: dict[str, Any] | None = None
 ) -> str:
-    """The key of a check's result; ``machine``: a :func:`machine_identity` computed during this load (else now)."""
+    """The key a check's result is stored under.
+
+    Args:
+        owner: ``user/name@<sha>``.
+        content_digest: the manifest's content digest.
+        requirements: the env's declared requirements.
+        settings: the check settings (steps, seed, fingerprint policy, recorded fingerprint).
+        machine: a :func:`machine_identity` computed during this load (None: computed now).
+
+    Returns:
+        64 hex digits.
+    """
     payload = {
         "owner": owner,
         "content_digest": content_digest,
@@ -163,11 +189,17 @@ def _valid(entry: Any, key: str) -> bool:
 
 
 def lookup(key: str) -> dict[str, Any] | None:
-    """The stored result for ``key``, or None.
+    """The stored result for ``key``.
 
-    Missing, unreadable, corrupt or hand-edited entries are misses (the checks run again and the entry
-    is rewritten): an entry counts only if it has exactly the shape :func:`store` writes, its own
-    digest matches its content, and it records a passing feature report.
+    Missing, unreadable, corrupt or hand-edited entries are misses (the checks run again and the entry is rewritten): an
+    entry counts only if it has exactly the shape :func:`store` writes, its own digest matches its content, and it
+    records a passing feature report.
+
+    Args:
+        key: a :func:`check_key`.
+
+    Returns:
+        The result :func:`store` recorded, or None.
     """
     try:
         data = json.loads(_path(key).read_text(encoding="utf-8"))
@@ -180,7 +212,12 @@ def lookup(key: str) -> dict[str, Any] | None:
 
 
 def store(key: str, result: dict[str, Any]) -> None:
-    """Atomically record a passing result (best effort: a read-only home only costs speed)."""
+    """Atomically record a passing result (best effort: a read-only home only costs speed).
+
+    Args:
+        key: a :func:`check_key`.
+        result: the feature report (``to_dict``) and the fingerprint line; not JSON: never stored.
+    """
     path = _path(key)
     entry = {"key": key, "checked_at": datetime.now(UTC).isoformat(timespec="seconds"), **result}
     try:

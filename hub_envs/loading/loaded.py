@@ -162,11 +162,20 @@ class LoadedEnv:
         return root
 
     def media_file(self, name: str = "rollout.gif") -> Path:
-        """The card's media file ``media/<name>`` (``rollout.gif``; ``rollout.mp4`` when the dataset stores video),
-        fetched on first use (load_env leaves the media on the Hub: only the card and the web page show them) and
-        checked against the manifest's sha256. Raises :class:`~hub_envs.errors.InvalidRepoFormatError` when the
-        repo has no such file, :class:`~hub_envs.errors.OfflineNotCachedError` offline when it is not cached,
-        and :class:`~hub_envs.errors.IntegrityError` (the file is removed from the cache) when it differs."""
+        """The card's media file ``media/<name>``, fetched on first use and checked against the manifest's sha256 (load_env
+        leaves the media on the Hub: only the card and the web page show them).
+
+        Args:
+            name: ``rollout.gif``; ``rollout.mp4`` when the dataset stores video.
+
+        Returns:
+            The file's path.
+
+        Raises:
+            InvalidRepoFormatError: the repo has no such media file.
+            OfflineNotCachedError: offline, and the file is not in the cache.
+            IntegrityError: the file differs from the manifest (it was removed from the cache).
+        """
         return ensure_media_file(
             self.repo_id,
             self.revision,
@@ -179,13 +188,19 @@ class LoadedEnv:
         )
 
     def config_with(self, fields: Mapping[str, Any]) -> Any:
-        """The config with ``fields`` set (values decoded as LeRobot's ``--env.<field>=<value>`` flags are), on
-        top of a published variant's own (``manifest.config_overrides``), before the config's ``__post_init__``.
+        """The config with ``fields`` set, on top of a published variant's own (``manifest.config_overrides``), before the
+        config's ``__post_init__``.
 
-        In-process: an instance of :attr:`config_class`. Isolated: the repo's config class runs in a worker
-        (the parent never imports the repo's code) and what it computed comes back as a read-only
-        :class:`~hub_envs.isolation.config.ManifestConfig`; the envs made from it follow it the same way.
-        A field the config does not have is a :class:`~hub_envs.errors.ConfigError` naming its fields.
+        Args:
+            fields: config fields, values decoded as LeRobot's ``--env.<field>=<value>`` flags are.
+
+        Returns:
+            In-process: an instance of :attr:`config_class`. Isolated: the repo's config class runs in a worker (this
+            process never imports the repo's code) and what it computed comes back as a read-only
+            :class:`~hub_envs.isolation.config.ManifestConfig`; the envs made from it follow it the same way.
+
+        Raises:
+            ConfigError: a field the config does not have (the message names its fields).
         """
         where = str(self.local_folder) if self.is_local else f"{self.repo_id}@{self.revision}"
         fields = {**self.manifest.config_overrides, **fields}
@@ -201,16 +216,35 @@ class LoadedEnv:
 
     # -- making envs --
     def make(self, cfg=None, **kwargs) -> gym.Env:
-        """``gym.make`` this env; ``cfg`` (an instance of :attr:`config_class`) overrides the defaults."""
+        """``gym.make`` this env.
+
+        Args:
+            cfg: an instance of :attr:`config_class` whose ``gym_kwargs`` and ``episode_length`` override the defaults.
+            kwargs: more ``gym.make`` keywords.
+
+        Returns:
+            The env (isolated: a proxy of one running in a worker process).
+        """
         if cfg is not None:
             kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
         return gym.make(self.gym_id, **kwargs)
 
     def make_vec(self, n_envs: int = 1, use_async: bool = False, cfg=None, **kwargs) -> gym.vector.VectorEnv:
-        """A vector env of ``n_envs`` copies (async: one process each, forked so the registration carries over).
+        """A vector env of ``n_envs`` copies.
 
-        Isolated (``load_env(..., isolation="process")``): an :class:`~hub_envs.isolation.vector.IsolatedVectorEnv`
-        (``use_async`` does not apply: its workers always step side by side)."""
+        Args:
+            n_envs: how many envs.
+            use_async: one process each, forked so the registration carries over (isolated: does not apply, the workers
+                always step side by side).
+            cfg: as for :meth:`make`.
+            kwargs: more ``gym.make`` keywords.
+
+        Returns:
+            A ``SyncVectorEnv`` or ``AsyncVectorEnv``; isolated, an :class:`~hub_envs.isolation.vector.IsolatedVectorEnv`.
+
+        Raises:
+            ConfigError: ``n_envs`` below 1.
+        """
         if n_envs < 1:
             raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
         if cfg is not None:
@@ -241,9 +275,14 @@ class LoadedEnv:
         return LeRobotDataset(self.repo_id, root=root, **kwargs)
 
     def processors(self, cfg=None):
-        """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares.
+        """Fresh ``(env_preprocessor, env_postprocessor)`` LeRobot pipelines of the steps the repo declares (empty ones when it
+        declares none; :mod:`hub_envs.loading.processors`).
 
-        Empty pipelines when it declares none. See :mod:`hub_envs.loading.processors`.
+        Args:
+            cfg: a config instance (default: the published one).
+
+        Returns:
+            Two ``PolicyProcessorPipeline`` s.
         """
         from hub_envs.loading.processors import pipelines_for  # heavy: torch, lerobot's processors
 

@@ -67,6 +67,11 @@ class ClipActionProcessorStep(ActionProcessorStep):
 
     @classmethod
     def from_spaces(cls, *, action_space=None, observation_space=None, **kwargs):
+        """The step for an env: ``low``/``high`` not given are the bounds of its Box ``action_space``.
+
+        Raises:
+            TypeError: no bounds given and no Box action space to take them from.
+        """
         if ("low" not in kwargs or "high" not in kwargs) and action_space is not None:
             if not hasattr(action_space, "low"):
                 raise TypeError(f"clip_action needs a Box action space or explicit low/high, got {action_space}")
@@ -82,6 +87,7 @@ class ClipActionProcessorStep(ActionProcessorStep):
             raise ValueError(f"clip_action: low {self.low} and high {self.high} must have one shape and low <= high")
 
     def action(self, action):
+        """The ``(batch, action_dim)`` action tensor clamped to ``[low, high]``."""
         if not isinstance(action, torch.Tensor):
             raise TypeError(f"clip_action expects a torch.Tensor action, got {type(action).__name__}")
         low = torch.as_tensor(self.low, dtype=action.dtype, device=action.device)
@@ -89,9 +95,11 @@ class ClipActionProcessorStep(ActionProcessorStep):
         return torch.maximum(torch.minimum(action, high), low)
 
     def get_config(self) -> dict[str, Any]:
+        """The step's settings, as LeRobot saves them with a pipeline."""
         return {"low": self.low, "high": self.high}
 
     def transform_features(self, features):
+        """Clamping changes no feature."""
         return features
 
 
@@ -132,6 +140,11 @@ class FlattenStateProcessorStep(ObservationProcessorStep):
         return value
 
     def observation(self, observation):
+        """The observation with the ``keys`` concatenated into ``output`` (the sources removed unless ``keep``).
+
+        Raises:
+            KeyError: a key the observation does not have.
+        """
         parts = []
         for key in self.keys:
             try:
@@ -151,9 +164,11 @@ class FlattenStateProcessorStep(ObservationProcessorStep):
         return out
 
     def get_config(self) -> dict[str, Any]:
+        """The step's settings, as LeRobot saves them with a pipeline."""
         return {"keys": list(self.keys), "output": self.output, "keep": self.keep}
 
     def transform_features(self, features):
+        """The features with ``output`` (a STATE of the summed sizes) in place of the flattened keys."""
         obs = dict(features.get(PipelineFeatureType.OBSERVATION, {}))
         tops = [k.split("/")[0] for k in self.keys]
         if all(k in obs and "/" not in k for k in self.keys):
@@ -186,11 +201,19 @@ class ProcessorSpec:
     kwargs: dict[str, Any]
 
     def to_dict(self) -> dict[str, Any]:
+        """The declaration as the manifest records it."""
         return {"name": self.name, "entry_point": self.entry_point, "stage": self.stage, "kwargs": dict(self.kwargs)}
 
 
 def parse_declarations(declarations: Any, *, where: str) -> list[ProcessorSpec]:
-    """Validate the ``processors`` list (pure data; nothing is imported). ``where`` names its source.
+    """Validate a ``processors`` list (pure data; nothing is imported).
+
+    Args:
+        declarations: the list of tables (``[[tool.hub-envs.processors]]``, or the manifest's ``processors``).
+        where: names their source in messages.
+
+    Returns:
+        One :class:`ProcessorSpec` per declaration, in order.
 
     Raises:
         ProcessorError: naming the entry and field, e.g. ``hub_env.json processors[1].stage``.
@@ -269,7 +292,20 @@ def _step_class(spec: ProcessorSpec, *, package: str | None, at: str):
 def build_step(
     spec: ProcessorSpec, *, package: str | None = None, spaces: dict | None = None, where: str = "hub_env.json"
 ) -> ProcessorStep:
-    """Instantiate one declared step (``spaces``: the env's ``action_space`` / ``observation_space``)."""
+    """Instantiate one declared step.
+
+    Args:
+        spec: the declaration.
+        package: the package of the env's imported code (for ``"module:Class"`` entry points).
+        spaces: the env's ``action_space`` / ``observation_space`` (for a step built ``from_spaces``).
+        where: names the declarations' source in messages.
+
+    Returns:
+        The LeRobot ``ProcessorStep``.
+
+    Raises:
+        ProcessorError: an unknown entry point, a step of the other stage, or kwargs the step refuses.
+    """
     at = f"{where} processors[{spec.index}]"
     cls = _step_class(spec, package=package, at=at)
     if not (isinstance(cls, type) and issubclass(cls, ProcessorStep)):
@@ -289,7 +325,18 @@ def build_step(
 
 
 def build_pipelines(specs: list[ProcessorSpec], **kwargs) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
-    """``(env_preprocessor, env_postprocessor)`` made of the declared steps, in declaration order."""
+    """The declared steps, in declaration order, as LeRobot's two env pipelines.
+
+    Args:
+        specs: the declarations.
+        kwargs: :func:`build_step`'s keywords.
+
+    Returns:
+        ``(env_preprocessor, env_postprocessor)``.
+
+    Raises:
+        ProcessorError: as :func:`build_step`.
+    """
     pre = [build_step(s, **kwargs) for s in specs if s.stage == "pre"]
     post = [build_step(s, **kwargs) for s in specs if s.stage == "post"]
     return (
@@ -322,7 +369,19 @@ def dry_run(
     task: str | None = "",
     where: str = "hub_env.json",
 ) -> None:
-    """Run every step once on a live observation and a sampled action; a failure names the step."""
+    """Run every step once on a live observation and a sampled action.
+
+    Args:
+        specs: the declarations.
+        pre, post: their pipelines (:func:`build_pipelines`).
+        env: a live env (reset with ``seed``).
+        seed: the reset seed.
+        task: the config's task text.
+        where: names the declarations' source in messages.
+
+    Raises:
+        ProcessorError: naming the step that failed.
+    """
     episode = SeededEpisode(env, seed, where=where)
     _run_stage(specs, pre, pre.to_transition(policy_observation(episode.obs, task)), "pre", "a live observation", where)
     action = torch.as_tensor(np.asarray(episode.sample(), dtype=np.float32)).reshape(1, -1)
@@ -345,11 +404,23 @@ def _package(loaded) -> str:
 
 
 def specs_for(loaded) -> list[ProcessorSpec]:
+    """The processors ``loaded`` declares, parsed (:func:`parse_declarations`)."""
     return parse_declarations(list(loaded.manifest.processors), where=_source(loaded))
 
 
 def pipelines_for(loaded, cfg=None) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
-    """Fresh ``(pre, post)`` pipelines for a LoadedEnv (``cfg``: a config instance, default the published one)."""
+    """Fresh pipelines for a loaded env.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+        cfg: a config instance (default: the published one).
+
+    Returns:
+        ``(env_preprocessor, env_postprocessor)``.
+
+    Raises:
+        ProcessorError: as :func:`build_step`.
+    """
     specs = specs_for(loaded)
     spaces: dict = {}
     if specs:
@@ -364,7 +435,18 @@ def pipelines_for(loaded, cfg=None) -> tuple[PolicyProcessorPipeline, PolicyProc
 
 
 def validate_for(loaded, *, dry: bool = True) -> list[ProcessorSpec]:
-    """What load_env runs: parse, build, and (``dry``) run every declared step once. Raises ProcessorError."""
+    """What load_env runs: parse, build, and run every declared step once.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+        dry: also run every step once on a live observation and a sampled action.
+
+    Returns:
+        The declarations.
+
+    Raises:
+        ProcessorError: naming the malformed declaration or the failing step.
+    """
     specs = specs_for(loaded)
     if not specs:
         return specs

@@ -136,9 +136,16 @@ def _check_content_digest(expected: str | None, manifest: Manifest, where: str) 
 
 
 def needed_first(path: str) -> bool:
-    """The files the stages before ``load_env``'s checks read: the manifest, the code and its assets (what
+    """Whether a file is one the stages before ``load_env``'s checks read: the manifest, the code and its assets (what
     :func:`~hub_envs.envcode.code_copy.code_copy` copies) and the dataset's ``meta/info.json`` (the feature check). The
-    card and the rest of ``meta/`` download meanwhile, and are verified before load_env returns."""
+    card and the rest of ``meta/`` download meanwhile, and are verified before load_env returns.
+
+    Args:
+        path: a file of the repo.
+
+    Returns:
+        True for a file fetched before the others.
+    """
     return path in (MANIFEST_FILE, f"{DATASET_DIR}/meta/info.json") or bool(code_files({path: ""}))
 
 

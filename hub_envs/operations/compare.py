@@ -39,8 +39,16 @@ HALF_WIDTH = 0.05  # ±5 points of a rate
 
 
 def episodes_for_half_width(values, half_width: float = HALF_WIDTH, confidence: float = 0.95) -> int | None:
-    """Episodes whose mean has a ``confidence`` interval of ± ``half_width``, from the sample standard deviation of
-    ``values`` (normal approximation); None when the values do not vary (no estimate from them)."""
+    """Episodes whose mean would have a ``confidence`` interval of ± ``half_width`` (normal approximation).
+
+    Args:
+        values: per-episode values (their sample standard deviation is used).
+        half_width: the interval's half-width (0.05: ±5 points of a rate).
+        confidence: the interval's level.
+
+    Returns:
+        The number of episodes; None when the values do not vary (no estimate from them).
+    """
     values = [float(v) for v in values]
     if len(values) < 2:
         return None
@@ -66,10 +74,12 @@ class Estimate:
 
     @classmethod
     def of(cls, values: Sequence[float], *, resamples: int, confidence: float, seed: int) -> Estimate:
+        """The estimate of ``values``: their mean and its seeded percentile bootstrap interval (``resamples``, ``confidence``, ``seed``)."""
         v = tuple(float(x) for x in values)
         return cls(v, float(statistics.fmean(v)), bootstrap_ci(v, resamples=resamples, confidence=confidence, seed=seed))
 
     def text(self, *, scale: float = 1.0, sign: str = "", fmt: str = ".4g") -> str:
+        """``mean [low, high]``, each multiplied by ``scale`` and formatted with ``sign`` and ``fmt``."""
         f = f"{sign}{fmt}"
         return f"{scale * self.mean:{f}} [{scale * self.ci[0]:{f}}, {scale * self.ci[1]:{f}}]"
 
@@ -86,6 +96,7 @@ class PolicyResult:
     seconds: float
 
     def summary(self) -> str:
+        """One line: the success rate and mean return with their intervals."""
         success = self.successes.text(scale=100, fmt=".1f").replace(" [", " % [")
         return f"{self.label}: success {success}, mean return {self.returns.text()}"
 
@@ -101,6 +112,7 @@ class PairedDifference:
     episodes_for_5_points: int | None  # on the success-rate difference
 
     def summary(self) -> str:
+        """One line: the paired differences with their intervals."""
         success = self.successes.text(scale=100, sign="+", fmt=".1f").replace(" [", " points [")
         return f"{self.a} - {self.b} (paired over seeds): success {success}, mean return {self.returns.text(sign='+')}"
 
@@ -138,6 +150,7 @@ class CompareReport(ReportFiles):
         return f"{self.repo_id}@{self.sha}" + (f" and {other['repo_id']}@{other['sha']}" if other else "")
 
     def summary(self) -> str:
+        """What ``hub-envs compare`` prints: the envs, each policy, each pair, the episodes a ±5-point estimate needs."""
         conf = int(100 * self.settings["confidence"])
         lines = [f"Compared on {self.envs}: {len(self.seeds)} episodes, seeds {seeds_text(self.seeds)}"]
         lines += [f"  {p.summary()}" for p in self.policies]
@@ -150,6 +163,7 @@ class CompareReport(ReportFiles):
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready data (``report.json``)."""
         return {
             "repo_id": self.repo_id,
             "sha": self.sha,
@@ -162,6 +176,7 @@ class CompareReport(ReportFiles):
         }
 
     def to_markdown(self) -> str:
+        """The report for people (``report.md``): the tables, the provenance, the plot."""
         conf = int(100 * self.settings["confidence"])
         out = [
             f"# Policy comparison on `{self.repo_id}`",
@@ -214,6 +229,7 @@ class CompareReport(ReportFiles):
         return "\n".join(out)
 
     def plot(self, path: str | Path) -> Path | None:
+        """``report.png`` (matplotlib): success rates, returns and the first paired difference; None without matplotlib."""
         try:
             import matplotlib  # heavy: matplotlib
         except ModuleNotFoundError:
@@ -256,11 +272,24 @@ class CompareReport(ReportFiles):
 
 
 def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[str, Any]:
-    """``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``, resolved to its sha).
+    """The spec of a policy named on the command line.
 
     A folder is told from a repo id as ``load_env`` tells an env folder from one (:func:`hub_envs.repo.refs.local_path`):
-    ``user/name`` always means the Hub, even when a folder of that name exists here (a local checkpoint's code runs
-    as the caller's own, without consent); write ``./user/name`` for the folder."""
+    ``user/name`` always means the Hub, even when a folder of that name exists here (a local checkpoint's code runs as
+    the caller's own, without consent); write ``./user/name`` for the folder.
+
+    Args:
+        text: ``random``, a local ``pretrained_model`` folder, or a Hub repo id (``user/policy[@rev]``).
+        token: the Hub token (to resolve a revision).
+
+    Returns:
+        ``{"type": "random"}``, ``{"type": "lerobot", "path": ...}`` or ``{"type": "lerobot", "checkpoint": "user/policy@<sha>"}``
+        (the revision resolved to its commit).
+
+    Raises:
+        ConfigError: a path that is no folder, or text that is no repo id.
+        EnvRepoNotFoundError, RevisionNotFoundError: the Hub has no such repo or revision.
+    """
     if isinstance(text, str):
         text = text.strip(" ")  # around the commas of --policies=a, b (a newline or other character is refused below)
         if text.lower() == "random":
@@ -379,12 +408,30 @@ def compare(
         against: another revision of the env (``user/name@<sha>``, or a local folder; another env with the same
             spaces works too): each policy also runs its episodes there, and the report pairs them seed by seed
             (``against`` minus ``repo_id``, e.g. new minus old): how the revision changed what the policy gets.
+        episodes: episodes per policy (and per env); episode ``i`` resets with seed ``seed + i``.
+        seed: the first episode's seed, and the bootstrap's.
+        revision: the revision of ``repo_id`` (overrides its ``@rev``).
+        trust_remote_code: consent to run the env's code (or ``hub-envs trust`` its commit).
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
+        workers: processes (local; default up to 2) or Ray actors.
+        resamples, confidence: the bootstrap's resamples and level.
+        out: the reports' folder (default ``compare-out/<user>/<name>/``); ``write=False``: no files.
+        progress: progress bars.
+        token: the Hub token.
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`).
         backend, ray_address: where the episodes run (:func:`hub_envs.make_backend`: ``"local"`` processes, or
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
+
+    Returns:
+        The :class:`CompareReport` (written as ``report.json``, ``report.md`` and ``report.png`` unless ``write=False``).
+
+    Raises:
+        ConfigError: fewer than two policies (one with ``against``), fewer than 2 episodes, a confidence outside
+            (0, 1), a misspelt ``run`` keyword, or a policy that is neither ``random``, a folder nor a repo id.
+        ReproductionError: a policy that cannot be run.
+        hub_envs.errors.HubEnvsError: an env or a policy cannot be loaded.
     """
     if len(policies) < (1 if against else 2):
         raise ConfigError(

@@ -99,7 +99,14 @@ def manifest_changes(old: Manifest, new: Manifest) -> list[dict[str, Any]]:
 
 
 def file_changes(old: Manifest, new: Manifest) -> dict[str, dict[str, list[str]]]:
-    """``{group: {"added": [...], "removed": [...], "changed": [...]}}`` from the manifests' file hashes."""
+    """The files added, removed and changed between two manifests, by their hashes.
+
+    Args:
+        old, new: the two revisions' manifests.
+
+    Returns:
+        ``{group: {"added": [...], "removed": [...], "changed": [...]}}``, groups as :func:`classify_file` names them.
+    """
     a, b = dict(old.files), dict(new.files)
     a[MANIFEST_FILE] = old.to_json()  # the manifest is not in its own file list: compare its canonical text
     b[MANIFEST_FILE] = new.to_json()
@@ -141,6 +148,7 @@ class SeedDiff:
         return self.step is not None
 
     def describe(self) -> str:
+        """One line: where this seed's episodes first diverged (step, feature, element, both values), or that they did not."""
         where = f"seed {self.seed} ({self.source})"
         if not self.diverged:
             return f"{where}: identical for {self.steps_old} steps"
@@ -151,6 +159,7 @@ class SeedDiff:
         )
 
     def to_dict(self) -> dict[str, Any]:
+        """The comparison as JSON-ready data."""
         return {**asdict(self), "diverged": self.diverged}
 
 
@@ -285,6 +294,7 @@ class DiffReport(ReportFiles):
         return 0 if self.behaviour_identical else 1
 
     def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready data (``report.json``)."""
         return {
             "verdict": "identical behaviour" if self.behaviour_identical else "behaviour differs",
             "behaviour_identical": self.behaviour_identical,
@@ -305,6 +315,7 @@ class DiffReport(ReportFiles):
         }
 
     def to_json(self) -> str:
+        """``report.json``'s text (NaN and infinities as text)."""
         return json.dumps(jsonable(self.to_dict()), indent=2, sort_keys=True) + "\n"
 
     def _files_lines(self) -> list[str]:
@@ -323,6 +334,7 @@ class DiffReport(ReportFiles):
         return lines or ["no file differs"]
 
     def summary(self) -> str:
+        """What ``hub-envs diff`` prints: the verdict, the files, fields, spaces, seeds, fingerprints and benchmarks that changed."""
         o, n = self.old, self.new
         lines = [
             f"hub-envs diff {o['repo_id']}@{o['sha'][:12]} -> {n['repo_id']}@{n['sha'][:12]}: "
@@ -361,6 +373,7 @@ class DiffReport(ReportFiles):
         return "\n".join(lines)
 
     def to_markdown(self) -> str:
+        """The report for people (``report.md``)."""
         o, n = self.old, self.new
         out = [
             f"# hub-envs diff: `{o['repo_id']}@{o['sha'][:12]}` → `{n['repo_id']}@{n['sha'][:12]}`",
@@ -435,6 +448,7 @@ class DiffReport(ReportFiles):
         return "\n".join(out) + "\n"
 
     def plot(self, path: Path) -> Path | None:
+        """``report.png`` (matplotlib): the per-step errors of up to three diverged seeds; None when nothing diverged or without matplotlib."""
         shown = self.diverged[:3]
         if not shown:  # nothing to plot: no matplotlib import either
             return None

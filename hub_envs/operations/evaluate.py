@@ -56,11 +56,13 @@ class EvalResult:
         return self.metrics["mean_return"]
 
     def to_dict(self) -> dict[str, Any]:
+        """The result as JSON-ready data (``eval.json``), its metrics included."""
         d = asdict(self)
         d["metrics"] = self.metrics
         return d
 
     def summary(self) -> str:
+        """One line: the env commit, the policy, the seeds and the metrics."""
         m = self.metrics
         return (
             f"{self.repo_id}@{self.sha}: {len(self.seeds)} episodes of policy {self.policy} "
@@ -88,9 +90,23 @@ def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust
 def load_for_evaluation(
     repo_id: str, revision: str | None, *, trust_remote_code: bool, token: str | None, run: dict[str, Any], where: str
 ) -> Any:
-    """How an evaluation (:func:`evaluate`, ``hub-envs compare``) loads the env: :func:`hub_envs.load_env` with the
-    feature check on and no fingerprint run (the evaluated episodes run the env anyway); ``run``: :class:`CodeRun`
-    keywords. Use it in a ``with`` block: the env is unregistered at the end."""
+    """How an evaluation loads the env: :func:`hub_envs.load_env` with the feature check on and no fingerprint run (the
+    evaluated episodes run the env anyway). Use it in a ``with`` block: the env is unregistered at the end.
+
+    Args:
+        repo_id: the env (``user/name@<sha>`` or a folder).
+        revision: its revision (overrides ``@rev``).
+        trust_remote_code: consent to run its code.
+        token: the Hub token.
+        run: :class:`~hub_envs.loading.isolated.CodeRun` keywords.
+        where: the operation's name, for messages.
+
+    Returns:
+        The :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Raises:
+        hub_envs.errors.HubEnvsError: as :func:`hub_envs.load_env`.
+    """
     return load_env(
         repo_id,
         revision=revision,
@@ -133,7 +149,12 @@ def evaluate(
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`): isolated, the policy runs in this process, the env in worker processes.
 
+    Returns:
+        The :class:`EvalResult`: per-episode returns, successes and lengths, their means, and what they depended on.
+
     Raises:
+        ConfigError: ``episodes`` or ``seed`` not a count, a misspelt ``run`` keyword, or a policy that is none of the
+            above.
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
     """
     run = code_run(run, "evaluate")  # before anything starts: a misspelt keyword is named at once

@@ -49,7 +49,22 @@ def _env_repo_id(value: Any, dataset_root: Path) -> str:
 def locate_dataset(
     path_or_repo_id: str | Path, *, revision: str | None = None, token: str | None = None
 ) -> tuple[Path, tuple[str, str] | None]:
-    """The local dataset folder, and (env repo id, sha) when the folder is the bundled dataset of an env snapshot."""
+    """The local folder of a dataset, fetched when it names a repo.
+
+    Args:
+        path_or_repo_id: a dataset folder (standalone, or ``<env snapshot>/dataset``), an env repo folder, an env repo id
+            (its bundled dataset, data files fetched and checked against its manifest) or a dataset repo id.
+        revision: the revision of a repo id (overrides ``@rev``).
+        token: the Hub token.
+
+    Returns:
+        ``(dataset folder, (env repo id, sha) or None)``: the second when the folder is the bundled dataset of an env
+        snapshot.
+
+    Raises:
+        ReproductionError: the folder is no LeRobot dataset, or the env repo has no dataset.
+        IntegrityError: a data file differs from the env's manifest.
+    """
     path = Path(str(path_or_repo_id)).expanduser()
     if path.is_dir():
         path = path.absolute()

@@ -143,7 +143,14 @@ def build(
 
 
 def stage_printer(enabled: bool) -> Callable[[str], None]:
-    """``say(message)``: one line on stderr per stage of a push (nothing when not ``enabled``)."""
+    """One line on stderr per stage of a push.
+
+    Args:
+        enabled: False: say nothing.
+
+    Returns:
+        ``say(message)``.
+    """
 
     def say(message: str) -> None:
         if enabled:
@@ -198,16 +205,26 @@ def check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, wh
 
 
 def entry_text(repo_id: str) -> str:
-    """The ``env.py`` every env repo gets (LeRobot's EnvHub imports it), for ``repo_id``."""
+    """The ``env.py`` every env repo gets (LeRobot's EnvHub imports it).
+
+    Args:
+        repo_id: the repo it names.
+
+    Returns:
+        The file's text.
+    """
     return ENTRY_TEMPLATE.read_text(encoding="utf-8").replace("{repo_id}", repo_id)
 
 
 def code_files_of(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
-    """``{path: sha256}`` of the code files a push of ``loaded`` publishes: the folder's files and ``env.py``.
+    """The code files a push of ``loaded`` publishes: the folder's files and ``env.py``.
 
     Args:
         loaded: the env folder, loaded.
         repo_id: the repo it is pushed to (``env.py`` names it).
+
+    Returns:
+        ``{path: sha256}``, sorted.
     """
     files = hash_files(loaded.local_folder, list_files(loaded.local_folder))
     files[ENV_ENTRY_FILE] = hashlib.sha256(entry_text(repo_id).encode("utf-8")).hexdigest()
@@ -215,7 +232,12 @@ def code_files_of(loaded: LoadedEnv, repo_id: str) -> dict[str, str]:
 
 
 def write_code(loaded: LoadedEnv, staging: Path, repo_id: str) -> str:
-    """The env's own files and the generated ``env.py``, copied into ``staging``.
+    """Copy the env's own files and the generated ``env.py`` into ``staging``.
+
+    Args:
+        loaded: the env folder, loaded.
+        staging: the repo's staging folder.
+        repo_id: the repo it is pushed to.
 
     Returns:
         The code digest (what the dataset's ``env_meta`` names).
@@ -260,6 +282,9 @@ def env_meta(loaded: LoadedEnv, repo_id: str, code_digest: str) -> dict[str, Any
         loaded: the env folder, loaded.
         repo_id: the env repo.
         code_digest: the code's digest (:func:`write_code`).
+
+    Returns:
+        ``env_repo_id``, ``code_digest``, the entry points, ``env_kwargs`` and the config values.
     """
     return {
         "env_repo_id": repo_id,
@@ -375,7 +400,14 @@ def generate_dataset(
 
 
 def dataset_uses_video(dataset: dict[str, Any]) -> bool:
-    """Whether a manifest's ``dataset`` record stores a feature as video."""
+    """Whether a manifest's ``dataset`` record stores a feature as video.
+
+    Args:
+        dataset: the manifest's ``dataset`` (its ``features``).
+
+    Returns:
+        True when a feature's dtype is ``video``.
+    """
     return any(isinstance(ft, dict) and ft.get("dtype") == "video" for ft in (dataset.get("features") or {}).values())
 
 
@@ -383,12 +415,26 @@ def dataset_uses_video(dataset: dict[str, Any]) -> bool:
 
 
 def cameras(cfg: Any) -> list[tuple[int, ...]]:
-    """The shapes of the env config's VISUAL features (its cameras)."""
+    """The env config's cameras.
+
+    Args:
+        cfg: the env's config.
+
+    Returns:
+        The shapes of its VISUAL features.
+    """
     return [tuple(ft.shape) for ft in cfg.features.values() if str(getattr(ft.type, "value", ft.type)).upper().endswith("VISUAL")]
 
 
 def default_video(cfg: Any) -> bool:
-    """Video by default when the env has cameras the encoder takes (frames of at least MIN_VIDEO_SIDE px a side)."""
+    """Whether a push stores camera features as video when not told.
+
+    Args:
+        cfg: the env's config.
+
+    Returns:
+        True when the env has cameras the encoder takes (frames of at least ``MIN_VIDEO_SIDE`` px a side).
+    """
     shapes = cameras(cfg)
     return bool(shapes) and all(len(s) >= 2 and min(s[:2]) >= MIN_VIDEO_SIDE for s in shapes)
 
@@ -423,13 +469,28 @@ def render_media(loaded: LoadedEnv, staging: Path, *, seeds: list[int], video: b
 
 
 def published_overrides(loaded: LoadedEnv) -> dict[str, Any]:
-    """The config fields the publisher set, as the config holds them (decoded: ``"50"`` is recorded as 50)."""
+    """The config fields the publisher set, as the config holds them (decoded: ``"50"`` is recorded as 50).
+
+    Args:
+        loaded: the env folder, loaded with ``config=``.
+
+    Returns:
+        ``{field: value}``, sorted.
+    """
     values = encode_config(loaded.config)
     return {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
 
 
 def random_benchmark(returns: list[float], successes: list[bool], seeds: list[int]) -> dict[str, Any]:
-    """The repo's first benchmark: the seeded random policy over the dataset's episodes."""
+    """The repo's first benchmark: the seeded random policy over the dataset's episodes.
+
+    Args:
+        returns, successes: per episode.
+        seeds: the episodes' reset seeds.
+
+    Returns:
+        A manifest ``benchmarks`` entry (metrics, per-episode values, tolerances).
+    """
     return {
         "name": "random-policy",
         "policy": {"type": "random", "seed_source": "episode reset seed (action_space.seed(seed))"},

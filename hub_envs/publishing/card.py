@@ -27,6 +27,17 @@ TAGS = ["lerobot", "gymnasium", "robotics", "hub-envs", "reinforcement-learning"
 
 
 def template_path(name: str = "env_card.md.j2") -> Path:
+    """The path of a card template (package data).
+
+    Args:
+        name: the template's file name.
+
+    Returns:
+        Its path.
+
+    Raises:
+        InvalidRepoFormatError: the template is missing (an incomplete install).
+    """
     path = PACKAGE_DIR / "templates" / name  # package data: the wheel carries it
     if not path.is_file():
         raise InvalidRepoFormatError(f"Card template {path} is missing: this hub-envs install is incomplete. Reinstall hub-envs.")
@@ -34,14 +45,28 @@ def template_path(name: str = "env_card.md.j2") -> Path:
 
 
 def env_documentation(env_class: type) -> str:
-    """The env module's docstring (reward, termination, success), else the class docstring."""
+    """What the card says of the env.
+
+    Args:
+        env_class: the env's class.
+
+    Returns:
+        Its module's docstring (reward, termination, success), else the class's.
+    """
     module = inspect.getmodule(env_class)
     doc = inspect.getdoc(module) if module is not None else None
     return doc or inspect.getdoc(env_class) or "(The env's module has no docstring.)"
 
 
 def success_description(doc: str) -> str:
-    """The docstring paragraph (or bullet) that defines ``is_success``, as one plain line."""
+    """The docstring paragraph (or bullet) that defines ``is_success``, as one plain line.
+
+    Args:
+        doc: the env's documentation (:func:`env_documentation`).
+
+    Returns:
+        The line, or a pointer to the description below.
+    """
     blocks, current = [], []
     for line in doc.splitlines():
         starts_bullet = line.lstrip().startswith(("* ", "- "))
@@ -62,7 +87,14 @@ def success_description(doc: str) -> str:
 
 
 def describe_space(space) -> str:
-    """A compact one-line description of a gymnasium space (Box bounds summarized, not listed)."""
+    """A compact one-line description of a gymnasium space (Box bounds summarized, not listed).
+
+    Args:
+        space: a gymnasium space.
+
+    Returns:
+        The line.
+    """
     if isinstance(space, spaces.Dict):
         return "Dict(" + ", ".join(f"{k}: {describe_space(v)}" for k, v in space.spaces.items()) + ")"
     if isinstance(space, spaces.Box):
@@ -149,14 +181,25 @@ def render_card(
     reproductions: list | tuple = (),
     dataset_repo: bool = False,
 ) -> str:
-    """Render README.md for a repo about to be published, from its manifest (``files`` not final yet: the
-    card is one of them). ``env`` gives the spaces shown; ``env_class`` the documentation.
+    """Render the card (``README.md``) of a repo about to be published, from its manifest (``files`` not final yet: the
+    card is one of them).
 
-    ``license`` is what the env folder's pyproject declares (an SPDX id); none declared means the card
-    claims none. ``reproductions``: merged attestations (:class:`hub_envs.repo.attestations.AttestationEntry`, valid ones);
-    those of this content (its digest) make the "Reproduced on" table. ``dataset_repo``: the dataset is also published as the
-    dataset repo of the same name (``push_env(dataset_repo=True)``): the card says how LeRobot opens it by repo id,
-    and its metadata links that dataset (``datasets:``).
+    Args:
+        manifest: the manifest, with its content digest.
+        env_class: the env's class (its documentation).
+        env: a live env (the spaces shown).
+        content_tag: the content tag the card's load line pins.
+        license: what the env folder's pyproject declares (an SPDX id); None: the card claims none.
+        reproductions: merged attestations (:class:`hub_envs.repo.attestations.AttestationEntry`, valid ones); those of
+            this content (its digest) make the "Reproduced on" table.
+        dataset_repo: the dataset is also published as the dataset repo of the same name: the card says how LeRobot
+            opens it by repo id, and its metadata links that dataset (``datasets:``).
+
+    Returns:
+        The card's text.
+
+    Raises:
+        InvalidRepoFormatError: the card template is missing.
     """
 
     repo_id = manifest.repo_id

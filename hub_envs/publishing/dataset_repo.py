@@ -34,10 +34,19 @@ class DatasetRepo:
 
 
 def dataset_card(manifest: Manifest, info: dict[str, Any], license: str | None) -> str:
-    """The dataset repo's README.md: LeRobot's own dataset card (``create_lerobot_dataset_card``: the ``LeRobot`` tag,
-    the ``data/*/*.parquet`` config the Hub's viewer reads, ``info.json`` shown as LeRobot shows it) with what ties it
-    to its env repo. Made of the manifest and ``info`` alone (the content tag, not a commit sha): the same content
-    gives the same card."""
+    """The dataset repo's ``README.md``: LeRobot's own dataset card (``create_lerobot_dataset_card``: the ``LeRobot`` tag, the
+    ``data/*/*.parquet`` config the Hub's viewer reads, ``info.json`` shown as LeRobot shows it) with what ties it to its
+    env repo. Made of the manifest and ``info`` alone (the content tag, not a commit sha): the same content gives the
+    same card.
+
+    Args:
+        manifest: the env's manifest.
+        info: the dataset's ``meta/info.json``.
+        license: the env folder's license (an SPDX id), or None.
+
+    Returns:
+        The card's text.
+    """
     from lerobot.datasets.utils import create_lerobot_dataset_card  # heavy: lerobot's datasets (torch)
 
     repo_id, tag, ds = manifest.repo_id, content_tag(manifest.content_digest), manifest.dataset
@@ -65,8 +74,14 @@ def dataset_card(manifest: Manifest, info: dict[str, Any], license: str | None) 
 
 
 def stage_dataset_repo(staging: Path, manifest: Manifest, folder: Path, license: str | None) -> Path:
-    """``folder`` holding what the dataset repo is to hold: ``staging``'s ``dataset/`` files (linked, not copied: the
-    same bytes the manifest hashes) at its root, and the card (:func:`dataset_card`).
+    """``folder`` holding what the dataset repo is to hold: ``staging``'s ``dataset/`` files (linked, not copied: the same
+    bytes the manifest hashes) at its root, and the card (:func:`dataset_card`).
+
+    Args:
+        staging: the env repo's staging folder.
+        manifest: the env's manifest.
+        folder: an empty folder.
+        license: the env folder's license, or None.
 
     Returns:
         ``folder``.
@@ -141,7 +156,16 @@ def _holds_exactly(remote: dict[str, str], folder: Path) -> bool:
 
 
 def with_dataset_repo(manifest: Manifest, repo_id: str, sha: str | None) -> Manifest:
-    """The manifest naming the dataset repo commit that holds its dataset (None: not committed yet)."""
+    """The manifest naming the dataset repo commit that holds its dataset.
+
+    Args:
+        manifest: the env's manifest.
+        repo_id: the dataset repo.
+        sha: its commit (None: not committed yet).
+
+    Returns:
+        A copy of ``manifest`` with ``dataset.dataset_repo``.
+    """
     return replace(manifest, dataset={**manifest.dataset, "dataset_repo": {"repo_id": repo_id, "revision": sha}})
 
 
@@ -185,7 +209,13 @@ def publish_dataset_repo(plan: DatasetRepo, manifest: Manifest, *, token: str | 
 
 
 def dataset_commit_exists(repo_id: str, sha: str | None, token: str | None) -> bool:
-    """Whether the dataset repo ``repo_id`` has commit ``sha``."""
+    """Whether the dataset repo ``repo_id`` has commit ``sha``.
+
+    Args:
+        repo_id: the dataset repo.
+        sha: a commit (None: no).
+        token: the Hub token.
+    """
     if sha is None:
         return False
     try:
@@ -195,7 +225,14 @@ def dataset_commit_exists(repo_id: str, sha: str | None, token: str | None) -> b
 
 
 def left_behind(manifest: Manifest) -> str:
-    """What a push whose env commit failed after its dataset repo commit leaves behind, and how to finish it."""
+    """What a push whose env commit failed after its dataset repo commit leaves behind, and how to finish it.
+
+    Args:
+        manifest: the env's manifest, naming the dataset repo commit.
+
+    Returns:
+        The sentence the push's error ends with.
+    """
     record = manifest.dataset["dataset_repo"]
     return (
         f"The dataset repo {record['repo_id']} got commit {record['revision']} on main before the env commit failed; its "

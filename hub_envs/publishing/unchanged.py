@@ -161,7 +161,16 @@ def _generated(path: str) -> bool:
 
 
 def remote_manifest(repo_id: str, sha: str, token: str | None) -> Manifest | None:
-    """The manifest of ``repo_id`` at ``sha``; None when there is none, or it cannot be read (the push replaces it)."""
+    """The manifest of ``repo_id`` at ``sha``.
+
+    Args:
+        repo_id: the env repo.
+        sha: a commit.
+        token: the Hub token.
+
+    Returns:
+        The manifest; None when there is none, or it cannot be read (the push replaces it).
+    """
     text = hub_io.read_remote_text(repo_id, MANIFEST_FILE, revision=sha, token=token)
     if text is None:
         return None

@@ -59,13 +59,28 @@ _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
 def stack_digest(stack: dict[str, Any]) -> str:
-    """12 hex digits naming a stack: the sha256 of its canonical JSON."""
+    """12 hex digits naming a stack: the sha256 of its canonical JSON.
+
+    Args:
+        stack: a stack (:func:`current_stack`).
+
+    Returns:
+        The digest.
+    """
     return hashlib.sha256(json.dumps(stack, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:12]
 
 
 def current_stack(provenance: dict[str, Any], requirements: tuple[str, ...] | list[str]) -> dict[str, Any]:
-    """The stack a reproduction ran on: python, platform, CPU model, the packages it depends on (core, simulator,
-    the env's requirement closure). ``provenance`` is the report's (its ``versions_here`` honour a venv worker)."""
+    """The stack a reproduction ran on: python, platform, CPU model, the packages it depends on (core, simulator, the env's
+    requirement closure).
+
+    Args:
+        provenance: the report's (its ``versions_here`` honour a venv worker).
+        requirements: the env's requirements (their closure is recorded).
+
+    Returns:
+        The stack, JSON-ready.
+    """
     here = dict(provenance.get("versions_here") or {})
     python = here.pop("python", platform.python_version())
     simulator = {k: v for k, v in here.items() if k not in CORE_PACKAGES}
@@ -82,7 +97,14 @@ def current_stack(provenance: dict[str, Any], requirements: tuple[str, ...] | li
 
 
 def describe_stack(stack: dict[str, Any]) -> str:
-    """One line: ``python 3.13.1, lerobot 0.6.1, torch 2.11.0, numpy 2.2.6, pybullet 3.2.7 on Linux x86_64 (AMD EPYC)``."""
+    """One line: ``python 3.13.1, lerobot 0.6.1, torch 2.11.0, numpy 2.2.6, pybullet 3.2.7 on Linux x86_64 (AMD EPYC)``.
+
+    Args:
+        stack: a stack (:func:`current_stack`).
+
+    Returns:
+        The line.
+    """
     pk = stack.get("packages", {})
     parts = [f"python {stack.get('python')}"]
     parts += [f"{n} {pk[n]}" for n in ("lerobot", "torch", "numpy", "gymnasium") if n in pk]
@@ -172,7 +194,17 @@ class Attestation:
         command: list[str] | tuple[str, ...],
         attested_by: str | None = None,
     ) -> Attestation:
-        """The attestation of a :class:`hub_envs.harness.report.ReproduceReport` (its written ``report.json`` is hashed)."""
+        """The attestation of a reproduction.
+
+        Args:
+            report: a :class:`hub_envs.harness.report.ReproduceReport` (its written ``report.json`` is hashed).
+            requirements: the env's requirements.
+            command: the command line that reproduces it.
+            attested_by: the Hub account attesting (self-declared).
+
+        Returns:
+            The :class:`Attestation`, validated.
+        """
         data = report.to_dict()
         written = report.paths.get("json") if getattr(report, "paths", None) else None
         raw = Path(written).read_bytes() if written and Path(written).is_file() else report.to_json().encode()
@@ -203,6 +235,7 @@ class Attestation:
     # -- (de)serialization --
 
     def to_dict(self) -> dict[str, Any]:
+        """The attestation as JSON-ready data."""
         d = dataclasses.asdict(self)
         d["benchmarks"] = list(self.benchmarks)
         d["command"] = list(self.command)
@@ -213,10 +246,12 @@ class Attestation:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
     def validated(self, *, where: str = "attestation") -> Attestation:
+        """This attestation checked as every reader checks it (:meth:`from_dict`)."""
         return type(self).from_dict(self.to_dict(), where=where)
 
     @classmethod
     def from_json(cls, text: str | bytes, *, where: str = "attestation") -> Attestation:
+        """:meth:`from_dict` of a file's text (an :class:`AttestationError` when it is not JSON)."""
         try:
             data = json.loads(text)
         except (ValueError, RecursionError) as e:
@@ -225,7 +260,18 @@ class Attestation:
 
     @classmethod
     def from_dict(cls, data: Any, *, where: str = "attestation") -> Attestation:
-        """Read and check an attestation; :class:`AttestationError` names the field that is wrong."""
+        """Read and check an attestation.
+
+        Args:
+            data: the decoded JSON.
+            where: names it in messages.
+
+        Returns:
+            The :class:`Attestation`.
+
+        Raises:
+            AttestationError: naming the field that is wrong.
+        """
 
         def bad(what: str) -> AttestationError:
             return AttestationError(f"{where}: {what}. Re-attest with `hub-envs reproduce --attest=true`.")
@@ -306,6 +352,7 @@ class Attestation:
     # -- text --
 
     def summary(self) -> str:
+        """One line: the verdict, the env commit and the stack."""
         return f"{self.verdict}: {self.repo_id}@{self.sha[:12]} on {describe_stack(self.stack)}"
 
 
@@ -323,7 +370,18 @@ def _ssh_keygen() -> str:
 
 
 def sign_file(data: bytes, key: str | Path) -> bytes:
-    """The OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of ``data`` with the private key ``key``."""
+    """The OpenSSH signature (``ssh-keygen -Y sign -n hub-envs``) of ``data``.
+
+    Args:
+        data: the attestation file's bytes.
+        key: an OpenSSH private key.
+
+    Returns:
+        The signature file's bytes.
+
+    Raises:
+        AttestationError: no such key, or ssh-keygen refused it.
+    """
     key = Path(key).expanduser()
     if not key.is_file():
         raise AttestationError(f"--sign_key={key}: no such file. Pass an OpenSSH private key (e.g. ~/.ssh/id_ed25519).")
@@ -347,9 +405,18 @@ def sign_file(data: bytes, key: str | Path) -> bytes:
 
 
 def verify_signature(data: bytes, signature: bytes, allowed_signers: str | Path) -> tuple[bool, str]:
-    """Check ``signature`` of ``data`` against ``allowed_signers`` (ssh-keygen's format: ``principal key-type key``).
+    """Check a signature against an ``allowed_signers`` file (ssh-keygen's format: ``principal key-type key``).
 
-    Returns ``(ok, who or why not)``: the principal whose key signed it, or ssh-keygen's message.
+    Args:
+        data: the signed bytes.
+        signature: the signature file's bytes.
+        allowed_signers: the file.
+
+    Returns:
+        ``(ok, who or why not)``: the principal whose key signed it, or ssh-keygen's message.
+
+    Raises:
+        AttestationError: no such ``allowed_signers`` file, or no ssh-keygen.
     """
     allowed = Path(allowed_signers).expanduser()
     if not allowed.is_file():
@@ -495,8 +562,20 @@ def _find_merged_authors(client: Any, repo_id: str, head: str, wanted: set[str],
 
 
 def merged_attestations(repo_id: str, revision: str | None = None, *, token: str | None = None) -> list[AttestationEntry]:
-    """The attestations on main (or at ``revision``): those merged by the repo's owner, each with the author of the
-    pull request it came from (:attr:`AttestationEntry.author`)."""
+    """The attestations merged by the repo's owner, each with the author of the pull request it came from
+    (:attr:`AttestationEntry.author`).
+
+    Args:
+        repo_id: the env repo.
+        revision: where to read them (None: main).
+        token: the Hub token.
+
+    Returns:
+        The entries (an invalid file is an entry with ``error`` set); none when the repo does not exist.
+
+    Raises:
+        ConfigError: ``repo_id`` is no repo id.
+    """
     check_repo_id(repo_id)
     head = revision or hub_io.remote_head(repo_id, token=token)
     if head is None:
@@ -510,7 +589,19 @@ def merged_attestations(repo_id: str, revision: str | None = None, *, token: str
 
 
 def collect_attestations(repo_id: str, *, token: str | None = None) -> list[AttestationEntry]:
-    """Every attestation of ``repo_id``: merged (on main) and in open pull requests (files they add or change)."""
+    """Every attestation of a repo: merged (on main) and in open pull requests (files they add or change).
+
+    Args:
+        repo_id: the env repo.
+        token: the Hub token.
+
+    Returns:
+        The entries, merged first, then by pull request.
+
+    Raises:
+        ConfigError: ``repo_id`` is no repo id.
+        HubError: the Hub cannot be read.
+    """
     check_repo_id(repo_id)
     merged = merged_attestations(repo_id, token=token)
     on_main = {e.path: e.data for e in merged}
@@ -540,9 +631,17 @@ def _signature_mark(entry: AttestationEntry, verified: tuple[bool, str] | None) 
 
 
 def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool, str]] | None = None) -> str:
-    """The matrix env revision x stack -> verdict (each cell says whether the claim is signed), the stacks' legend,
-    and one line per file naming who attests: the pull request's author, as the Hub says. Every repo-controlled
-    field is made safe to print (:func:`hub_envs._text.safe_text`)."""
+    """The matrix env revision x stack -> verdict (each cell says whether the claim is signed), the stacks' legend, and one
+    line per file naming who attests: the pull request's author, as the Hub says. Every repo-controlled field is made
+    safe to print (:func:`hub_envs._text.safe_text`).
+
+    Args:
+        entries: :func:`collect_attestations`' entries.
+        verified: ``{entry index: (ok, who)}`` of the signatures checked.
+
+    Returns:
+        The text ``hub-envs attestations`` prints.
+    """
     good = [(i, e) for i, e in enumerate(entries) if e.attestation is not None]
     if not entries:
         return "No attestations yet: hub-envs reproduce --repo_id=<repo>@<sha> --trust_remote_code=true --attest=true"

@@ -55,7 +55,14 @@ _SHA1_RE = re.compile(r"^[0-9a-f]{40}$")
 
 
 def is_commit_sha(revision: str | None) -> bool:
-    """True for a full 40-hex commit id (the only revision that pins content)."""
+    """Whether ``revision`` is a full 40-hex commit id (the only revision that pins content).
+
+    Args:
+        revision: a revision, or None.
+
+    Returns:
+        True for a commit sha.
+    """
     return bool(revision) and bool(_SHA1_RE.match(revision))
 
 
@@ -98,8 +105,15 @@ def is_media_file(path: str) -> bool:
 
 
 def is_on_demand_file(path: str) -> bool:
-    """A file ``load_env`` leaves on the Hub until something needs it: the dataset's data
-    (:func:`is_lazy_file`) and the card's media (:func:`is_media_file`)."""
+    """Whether ``load_env`` leaves a file on the Hub until something needs it: the dataset's data (:func:`is_lazy_file`)
+    and the card's media (:func:`is_media_file`).
+
+    Args:
+        path: a repo path.
+
+    Returns:
+        True for such a file.
+    """
     return is_lazy_file(path) or is_media_file(path)
 
 
@@ -136,6 +150,7 @@ def beyond_manifest(path: str) -> bool:
 
 
 def is_code_file(path: str) -> bool:
+    """Whether a repo path is code (``.py``, ``pyproject.toml``): what the trust prompt lists."""
     return path.endswith(CODE_SUFFIXES)
 
 
@@ -146,7 +161,14 @@ COMPILED_SUFFIXES = (".pyc", ".pyo", ".so", ".pyd")
 
 
 def is_bytecode_path(path: str) -> bool:
-    """True for ``.pyc``/``.pyo`` files and anything under a ``__pycache__/`` folder."""
+    """Whether a repo path is bytecode: ``.pyc``/``.pyo`` files and anything under a ``__pycache__/`` folder.
+
+    Args:
+        path: a repo path.
+
+    Returns:
+        True for bytecode.
+    """
     return path.endswith(BYTECODE_SUFFIXES) or "__pycache__" in PurePosixPath(path).parts
 
 
@@ -162,8 +184,19 @@ MAX_NAME_BYTES = 255
 
 
 def safe_relpath(path: str, *, where: str) -> str:
-    """Return ``path`` as a normalized POSIX path inside a repo, or raise if it could escape it, holds
-    control or bidi-override characters, or has a component longer than file systems allow."""
+    """A path of a manifest, checked to stay inside the repo.
+
+    Args:
+        path: a repo path as a manifest lists it.
+        where: names the manifest in messages.
+
+    Returns:
+        ``path`` as a normalized POSIX path.
+
+    Raises:
+        ManifestError: a path that could escape the repo, holds control or bidi-override characters, or has a component
+            longer than file systems allow.
+    """
     if not isinstance(path, str) or not path or "\x00" in path or "\\" in path:
         raise ManifestError(f"{where}: {path!r} is not a valid repo path. Use forward-slash paths relative to the repo root.")
     p = PurePosixPath(path)
@@ -188,6 +221,7 @@ def safe_relpath(path: str, *, where: str) -> str:
 
 
 def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    """The sha256 of a file, read in chunks of ``chunk`` bytes."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(chunk):
@@ -204,7 +238,14 @@ EXECUTABLE_SUFFIXES = (".py", ".pyc", ".pyo", ".so", ".pyd")
 
 
 def executable_files(root: Path) -> list[str]:
-    """Every file under ``root`` Python could run, caches included (``__pycache__/*.pyc``, ``*.so``)."""
+    """Every file under a folder Python could run, caches included (``__pycache__/*.pyc``, ``*.so``).
+
+    Args:
+        root: a folder.
+
+    Returns:
+        Their relative POSIX paths, sorted.
+    """
     root = Path(root)
     out = []
     for dirpath, dirnames, filenames in os.walk(root):
@@ -216,7 +257,15 @@ def executable_files(root: Path) -> list[str]:
 
 
 def list_files(root: Path, *, skip: tuple[str, ...] = ()) -> list[str]:
-    """Relative POSIX paths of the files under ``root`` (sorted), leaving out caches and ``skip``."""
+    """The files of a folder a push publishes.
+
+    Args:
+        root: a folder.
+        skip: relative paths to leave out too.
+
+    Returns:
+        Relative POSIX paths, sorted; caches (:data:`IGNORED_PARTS`) and the Hub's own files left out.
+    """
     root = Path(root)
     out = []
     for dirpath, dirnames, filenames in os.walk(root):
@@ -232,14 +281,17 @@ def list_files(root: Path, *, skip: tuple[str, ...] = ()) -> list[str]:
 def check_publishable(root: Path) -> None:
     """Refuse to publish an env folder holding what must never reach the Hub.
 
-    * a symlink (to a file or a folder) whose target lies outside ``root``, or does not exist:
-      publishing follows links, so ``assets/calibration.yaml -> ~/.ssh/id_ed25519`` would upload the
-      key. Symlinks to files inside the folder are fine (their target's contents are published);
-    * compiled files (``.pyc``, ``.pyo``, ``.so``, ``.pyd``): hub-envs imports ``.py`` sources only,
-      and the manifest must list only what a reader can check.
+    * a symlink (to a file or a folder) whose target lies outside ``root``, or does not exist: publishing follows links,
+      so ``assets/calibration.yaml -> ~/.ssh/id_ed25519`` would upload the key. Symlinks to files inside the folder are
+      fine (their target's contents are published);
+    * compiled files (``.pyc``, ``.pyo``, ``.so``, ``.pyd``): hub-envs imports ``.py`` sources only, and the manifest
+      must list only what a reader can check.
 
-    ``__pycache__/`` folders (written by your own Python) and the other :data:`IGNORED_PARTS` are
-    skipped silently: they are never published.
+    ``__pycache__/`` folders (written by your own Python) and the other :data:`IGNORED_PARTS` are skipped silently: they
+    are never published.
+
+    Args:
+        root: the env folder.
 
     Raises:
         EnvFolderError: naming every offending file (and each link's target) and what to do.
@@ -283,13 +335,19 @@ def check_publishable(root: Path) -> None:
 
 
 def hash_files(root: Path, paths: list[str]) -> dict[str, str]:
+    """``{path: sha256}`` of the files ``paths`` (relative to ``root``), sorted."""
     return {p: sha256_file(Path(root, p)) for p in sorted(paths)}
 
 
 def content_digest(files: dict[str, str]) -> str:
-    """One sha256 over (path, sha256) pairs: the identity of a repo's content, card and manifest excluded.
+    """The identity of a repo's content: one sha256 over its (path, sha256) pairs, card and manifest excluded (the card names
+    this digest: a commit cannot name its own sha).
 
-    The card names this digest (a commit cannot name its own sha), so it cannot be part of it.
+    Args:
+        files: ``{path: sha256}``.
+
+    Returns:
+        64 hex digits.
     """
     h = hashlib.sha256()
     for path in sorted(files):
@@ -300,15 +358,29 @@ def content_digest(files: dict[str, str]) -> str:
 
 
 def code_digest(files: dict[str, str]) -> str:
-    """The digest of the env's code alone (all files but dataset, media, card and manifest): what the
-    dataset's ``env_meta.code_digest`` names, since the dataset cannot name the commit it is part of."""
+    """The digest of the env's code alone (all files but dataset, media, card and manifest): what the dataset's
+    ``env_meta.code_digest`` names, since the dataset cannot name the commit it is part of.
+
+    Args:
+        files: ``{path: sha256}``.
+
+    Returns:
+        64 hex digits.
+    """
     return content_digest(
         {p: h for p, h in files.items() if not p.startswith(f"{DATASET_DIR}/") and not p.startswith(f"{MEDIA_DIR}/")}
     )
 
 
 def content_tag(digest: str) -> str:
-    """The tag push_env puts on every commit it makes: content-addressed, so a card can pin it."""
+    """The tag push_env puts on every commit it makes: content-addressed, so a card can pin it.
+
+    Args:
+        digest: a content digest.
+
+    Returns:
+        ``sha256-<first 16 hex digits>``.
+    """
     return f"sha256-{digest[:16]}"
 
 
@@ -377,13 +449,17 @@ def _check_namespaces(repo_id: str, gym_id: str, env_type: str, *, where: str, w
 
 
 def check_names_belong_to(manifest: Manifest, repo_id: str) -> None:
-    """Refuse ``manifest`` (read from the Hub repo ``repo_id``) if a name it registers or claims is under
-    another namespace: its ``gym_id``, ``env_type`` (what load_env registers with gymnasium and draccus)
-    and ``repo_id`` must all be in ``repo_id``'s namespace (case-insensitively, as on the Hub).
+    """Refuse a manifest downloaded from the Hub repo ``repo_id`` if a name it registers or claims is under another
+    namespace: its ``gym_id``, ``env_type`` (what load_env registers with gymnasium and draccus) and ``repo_id`` must all
+    be in ``repo_id``'s namespace (case-insensitively, as on the Hub).
 
-    ``Manifest.from_dict`` checks the manifest against its own ``repo_id`` field, which the publisher
-    writes; this checks it against the repo it was actually downloaded from. Call it in ``load_env``
-    right after reading a Hub snapshot's manifest, before the trust gate.
+    ``Manifest.from_dict`` checks the manifest against its own ``repo_id`` field, which the publisher writes; this checks
+    it against the repo it was actually downloaded from (load_env calls it right after reading a Hub snapshot's
+    manifest, before the trust gate).
+
+    Args:
+        manifest: the manifest read.
+        repo_id: the repo it was downloaded from.
 
     Raises:
         ManifestError: naming both the claimed and the actual namespace.
@@ -543,10 +619,21 @@ class Manifest:
     # -- (de)serialization --
 
     def validated(self, *, where: str = MANIFEST_FILE) -> Manifest:
-        """This manifest checked as every reader checks it, so what push_env publishes is what load_env accepts."""
+        """This manifest checked as every reader checks it, so what push_env publishes is what load_env accepts.
+
+        Args:
+            where: names it in messages.
+
+        Returns:
+            The manifest, read back from its own dict.
+
+        Raises:
+            ManifestError: a field that is not what the format allows.
+        """
         return type(self).from_dict(self.to_dict(), where=where)
 
     def to_dict(self) -> dict[str, Any]:
+        """The manifest as JSON-ready data, with only the fields of its ``format_version``."""
         d = {k: v for k, v in asdict(self).items() if _FIELD_SINCE.get(k, 1) <= self.format_version}
         d["requirements"] = list(self.requirements)
         d["benchmarks"] = list(self.benchmarks)
@@ -559,7 +646,19 @@ class Manifest:
 
     @classmethod
     def from_dict(cls, data: Any, *, where: str = MANIFEST_FILE) -> Manifest:
-        """Read and check a manifest of any format this hub-envs reads (a field added later gets its default)."""
+        """Read and check a manifest of any format this hub-envs reads (a field added later gets its default).
+
+        Args:
+            data: the decoded ``hub_env.json``.
+            where: names it in messages.
+
+        Returns:
+            The :class:`Manifest`.
+
+        Raises:
+            ManifestError: a newer format (naming the hub-envs that reads it), an unknown field, or a field of the wrong type
+                or value.
+        """
         if not isinstance(data, dict):
             raise ManifestError(
                 f"{where}: the manifest must be a JSON object, got {type(data).__name__}. Re-publish with push_env."
@@ -640,6 +739,7 @@ class Manifest:
 
     @classmethod
     def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
+        """:meth:`from_dict` of ``hub_env.json``'s text (a :class:`ManifestError` when it is not JSON)."""
         try:
             data = json.loads(text)
         except json.JSONDecodeError as e:
@@ -650,6 +750,7 @@ class Manifest:
 
     @classmethod
     def read(cls, folder: Path, *, where: str | None = None) -> Manifest:
+        """:meth:`from_json` of ``folder``'s ``hub_env.json`` (a :class:`ManifestError` when there is none)."""
         path = Path(folder, MANIFEST_FILE)
         where = where or str(path)
         if not path.is_file():
@@ -666,9 +767,15 @@ class Manifest:
     def verify_files(self, folder: Path, *, where: str, lazy: bool = False, skip: Collection[str] = ()) -> None:
         """Refuse a snapshot whose files differ from the manifest: tampered, missing, or unlisted code.
 
-        ``lazy``: leave the files fetched on demand (:func:`is_on_demand_file`: the dataset's data, the
-        media) out; they are verified when fetched. ``skip``: files verified at another time (still downloading,
-        or verified already).
+        Args:
+            folder: the snapshot.
+            where: names it in messages.
+            lazy: leave the files fetched on demand (:func:`is_on_demand_file`: the dataset's data, the media) out; they are
+                verified when fetched.
+            skip: files verified at another time (still downloading, or verified already).
+
+        Raises:
+            IntegrityError: listing every file that is missing, differs, or is code the manifest does not list.
         """
         folder = Path(folder)
         problems = []
@@ -743,6 +850,9 @@ class EnvFolder:
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
+        """Read an env folder (its ``pyproject.toml`` and ``[tool.hub-envs]``): an :class:`EnvFolderError` naming what is
+        missing or malformed.
+        """
         root = Path(root).resolve()
         if not root.is_dir():
             raise EnvFolderError(f"Env folder {root} does not exist. Pass the folder holding pyproject.toml and the env's code.")

@@ -261,15 +261,25 @@ ensure_checked()
 
 
 def offline() -> bool:
+    """Whether the client is offline (``HF_HUB_OFFLINE``, as huggingface_hub read it)."""
     return bool(constants.HF_HUB_OFFLINE)
 
 
 def endpoint() -> str:
+    """The Hub's URL the client uses (``HF_ENDPOINT``, as huggingface_hub resolved it)."""
     return constants.ENDPOINT
 
 
 def api(token: str | None = None) -> HfApi:
-    """A fresh client at the current endpoint (never the one captured when huggingface_hub was imported)."""
+    """A fresh client at the current endpoint (never the one captured when huggingface_hub was imported), with the
+    endpoint check installed.
+
+    Args:
+        token: the Hub token (None: huggingface_hub's own).
+
+    Returns:
+        An ``HfApi``.
+    """
     ensure_checked()
     return HfApi(endpoint=constants.ENDPOINT, token=token)
 
@@ -360,10 +370,16 @@ def check_write_access(repo_id: str, *, token: str | None = None, pull_request: 
 
 
 def cache_snapshots_dir(repo_id: str, cache_dir: str | Path | None = None) -> Path:
-    """The ``snapshots/`` folder of ``repo_id`` in the HF cache (huggingface_hub's own naming; may not exist).
+    """The ``snapshots/`` folder of ``repo_id`` in the HF cache (huggingface_hub's own naming; it may not exist). The one
+    place hub-envs names a cache path: everything else asks ``snapshot_download`` / ``try_to_load_from_cache`` or goes
+    through here.
 
-    The one place hub-envs names a cache path: everything else asks ``snapshot_download`` /
-    ``try_to_load_from_cache`` or goes through here.
+    Args:
+        repo_id: an env repo.
+        cache_dir: the cache (None: ``HF_HUB_CACHE``).
+
+    Returns:
+        The folder's path.
     """
     cache = Path(cache_dir or constants.HF_HUB_CACHE)
     return cache / repo_folder_name(repo_id=repo_id, repo_type=REPO_TYPE) / "snapshots"
@@ -400,7 +416,18 @@ def _sent_a_token(response) -> bool:
 
 @contextlib.contextmanager
 def translate_hub_errors(repo_id: str, revision: str | None):
-    """Turn huggingface_hub / HTTP errors into hub-envs errors that say what to do next."""
+    """Inside the block, huggingface_hub's and the HTTP library's errors become hub-envs errors that say what to do next.
+
+    Args:
+        repo_id: the repo the block works on (messages name it).
+        revision: its revision, or None.
+
+    Raises:
+        EnvRepoNotFoundError, RevisionNotFoundError: no such repo or revision.
+        HubAccessError: a token is needed, or refused.
+        OfflineNotCachedError: offline (or the Hub unreachable), and not in the cache.
+        HubError: any other failure of the Hub or the transfer (the message says whether to retry).
+    """
     where = f"{repo_id}@{revision}" if revision else repo_id
     ensure_checked()
     try:
@@ -470,15 +497,29 @@ def resolve_snapshot(
     lazy: bool = False,
     first: Callable[[str], bool] | None = None,
 ) -> Snapshot:
-    """Resolve ``revision`` (default: main) to a commit sha and make sure its files are on disk.
+    """Resolve ``revision`` to a commit sha and make sure its files are on disk.
 
-    A cached 40-hex sha is served without any request, so a pinned warm load works offline and is
-    fast. A branch or tag asks the Hub which commit it names (or the cache's refs when offline).
-    ``lazy``: leave the files fetched on demand out (the dataset's data and the card's media:
-    :func:`hub_envs.repo.format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
-    :func:`fetch_files`), and what the manifest does not cover (:func:`hub_envs.repo.format.beyond_manifest`: the
-    Hub's ``.gitattributes``, merged attestations). ``first``: return once the files it accepts are on disk; the others keep
-    downloading in the background (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
+    A cached 40-hex sha is served without any request, so a pinned warm load works offline and is fast. A branch or tag
+    asks the Hub which commit it names (or the cache's refs when offline).
+
+    Args:
+        repo_id: the env repo.
+        revision: a branch, tag or sha (None: main).
+        token: the Hub token (None: huggingface_hub's own).
+        cache_dir: the cache (None: ``HF_HUB_CACHE``).
+        force_download: download again even what the cache holds.
+        lazy: leave out the files fetched on demand (the dataset's data and the card's media:
+            :func:`hub_envs.repo.format.is_on_demand_file`; fetch them with :func:`fetch_dataset_files`,
+            :func:`fetch_files`) and what the manifest does not cover (:func:`hub_envs.repo.format.beyond_manifest`).
+        first: return once the files it accepts are on disk; the others keep downloading in the background
+            (:attr:`Snapshot.pending`; :meth:`Snapshot.wait` for them).
+
+    Returns:
+        The :class:`Snapshot` (not verified: the caller checks it against its manifest).
+
+    Raises:
+        EnvRepoNotFoundError, RevisionNotFoundError, OfflineNotCachedError, HubError: as :func:`translate_hub_errors`.
+        HostileResponseError: the endpoint answered what huggingface_hub would have written outside the cache.
     """
     if (
         revision is not None
@@ -698,8 +739,21 @@ def _digest_of(blob: Path, etag: str) -> str | None:
 def fetch_files(
     repo_id: str, sha: str, names: Iterable[str], *, token: str | None = None, cache_dir: str | Path | None = None
 ) -> Path:
-    """Download ``names`` of ``repo_id`` at commit ``sha`` into the cache (files already there are not fetched
-    again); return the snapshot folder. The caller verifies them against the manifest."""
+    """Download files of a commit into the cache (those already there are not fetched again).
+
+    Args:
+        repo_id: the env repo.
+        sha: the commit.
+        names: repo paths.
+        token: the Hub token (None: huggingface_hub's own).
+        cache_dir: the cache (None: ``HF_HUB_CACHE``).
+
+    Returns:
+        The snapshot folder. The caller verifies the files against the manifest.
+
+    Raises:
+        HubError: as :func:`translate_hub_errors`.
+    """
     with translate_hub_errors(repo_id, sha):
         path, _, _ = _fetch(repo_id, sha, names, token=token, cache_dir=cache_dir)
     _check_resolved(repo_id, sha, path.name)
@@ -718,8 +772,21 @@ def _download(
 def fetch_dataset_files(
     repo_id: str, sha: str, *, token: str | None = None, cache_dir: str | Path | None = None, force_download: bool = False
 ) -> Path:
-    """Download the dataset folder of ``repo_id`` at commit ``sha`` into the cache (files already there
-    are not fetched again); return the snapshot folder. The caller verifies them against the manifest."""
+    """Download the dataset folder of a commit into the cache (files already there are not fetched again).
+
+    Args:
+        repo_id: the env repo.
+        sha: the commit.
+        token: the Hub token (None: huggingface_hub's own).
+        cache_dir: the cache (None: ``HF_HUB_CACHE``).
+        force_download: download again even what the cache holds.
+
+    Returns:
+        The snapshot folder. The caller verifies the files against the manifest.
+
+    Raises:
+        HubError: as :func:`translate_hub_errors`.
+    """
     with translate_hub_errors(repo_id, sha):
         path = _download(
             repo_id, sha, token=token, cache_dir=cache_dir, force_download=force_download, allow_patterns=[f"{DATASET_DIR}/*"]
@@ -744,17 +811,33 @@ def _check_resolved(repo_id: str, requested: str | None, sha: str | None) -> Non
 
 
 def snapshot_cache_dir(repo_id: str, sha: str, cache_dir: str | Path | None = None) -> Path:
-    """Where huggingface_hub keeps ``repo_id`` at commit ``sha`` (it may not exist)."""
+    """Where huggingface_hub keeps ``repo_id`` at commit ``sha``.
+
+    Args:
+        repo_id: the env repo.
+        sha: the commit.
+        cache_dir: the cache (None: ``HF_HUB_CACHE``).
+
+    Returns:
+        The folder's path (it may not exist).
+    """
     return _cache_snapshot_dir(repo_id, sha, cache_dir)
 
 
 def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
-    """A cache snapshot holds exactly the manifest's files, each a link into its repo's ``blobs/``.
+    """Refuse a cache snapshot that holds anything but the manifest's files, each a link into its repo's ``blobs/``.
 
-    huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving
-    anywhere else, or a file the manifest does not list (but those the Hub workflow adds after publication:
-    :func:`hub_envs.repo.format.beyond_manifest`), was not put there by a download of this commit: the snapshot
-    is refused.
+    huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving anywhere else, or a
+    file the manifest does not list (but those the Hub workflow adds after publication:
+    :func:`hub_envs.repo.format.beyond_manifest`), was not put there by a download of this commit.
+
+    Args:
+        path: the snapshot folder.
+        listed: the manifest's files.
+        where: names the snapshot in messages.
+
+    Raises:
+        IntegrityError: naming the links and files that do not belong.
     """
     blobs = path.parent.parent / "blobs"
     bad = []
@@ -778,13 +861,29 @@ def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
 
 
 def drop_snapshot(path: Path) -> None:
-    """Remove one snapshot folder of the cache (its blobs stay: they are content-addressed)."""
+    """Remove one snapshot folder of the cache (its blobs stay: they are content-addressed).
+
+    Args:
+        path: ``.../snapshots/<sha>`` (anything else is left alone).
+    """
     if path.parent.name == "snapshots" and is_commit_sha(path.name):
         shutil.rmtree(path, ignore_errors=True)
 
 
 def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> str:
-    """The text of ``hub_env.json`` at commit ``sha``: from the cache when it is there, else from the Hub."""
+    """The text of ``hub_env.json`` at a commit: from the cache when it is there, else from the Hub.
+
+    Args:
+        repo_id: the env repo.
+        sha: the commit.
+        token: the Hub token (None: huggingface_hub's own).
+
+    Returns:
+        The manifest's text (not validated).
+
+    Raises:
+        EnvRepoNotFoundError: the commit has no manifest (not an env repo).
+    """
     cached = try_to_load_from_cache(repo_id, MANIFEST_FILE, revision=sha, repo_type=REPO_TYPE)
     if isinstance(cached, str) and Path(cached).is_file():
         return Path(cached).read_text(encoding="utf-8")
@@ -795,7 +894,20 @@ def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> s
 
 
 def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None, repo_type: str = REPO_TYPE) -> str | None:
-    """The commit sha ``branch`` points at, or None if the repo does not exist yet."""
+    """The commit a branch points at.
+
+    Args:
+        repo_id: the repo.
+        branch: the branch (or any revision).
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` (an env repo) or ``"dataset"``.
+
+    Returns:
+        The commit sha, or None when the repo does not exist (yet).
+
+    Raises:
+        RevisionNotFoundError: the repo has no such branch.
+    """
     try:
         with translate_hub_errors(repo_id, branch):
             return api(token).repo_info(repo_id, revision=branch, repo_type=repo_type).sha
@@ -804,7 +916,16 @@ def remote_head(repo_id: str, *, branch: str = "main", token: str | None = None,
 
 
 def repo_private(repo_id: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> bool | None:
-    """Whether the repo is private; None if it does not exist (or this token cannot see it)."""
+    """Whether a repo is private.
+
+    Args:
+        repo_id: the repo.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        True or False; None when it does not exist (or this token cannot see it).
+    """
     try:
         with translate_hub_errors(repo_id, None):
             return bool(api(token).repo_info(repo_id, repo_type=repo_type).private)
@@ -813,9 +934,18 @@ def repo_private(repo_id: str, *, token: str | None = None, repo_type: str = REP
 
 
 def remote_file_digests(repo_id: str, sha: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> dict[str, str]:
-    """``{path: digest}`` of every file of ``repo_id`` at commit ``sha``, as the Hub lists them (one request per
-    page of the tree): ``"sha256:<hex>"`` for an LFS (or Xet) file, ``"git:<blob sha1>"`` for a regular one. Compare
-    with :func:`local_file_digest` of the same file."""
+    """Every file of a commit as the Hub lists it (one request per page of the tree).
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        ``{path: digest}``: ``"sha256:<hex>"`` for an LFS (or Xet) file, ``"git:<blob sha1>"`` for a regular one; compare
+        with :func:`local_file_digest` of the same file.
+    """
     with translate_hub_errors(repo_id, sha):
         entries = api(token).list_repo_tree(repo_id, revision=sha, recursive=True, repo_type=repo_type)
         out = {}
@@ -829,7 +959,15 @@ def remote_file_digests(repo_id: str, sha: str, *, token: str | None = None, rep
 
 
 def local_file_digest(path: Path, like: str) -> str:
-    """The digest of a local file in the form ``like`` (a value of :func:`remote_file_digests`) has."""
+    """The digest of a local file in the form of a Hub listing's.
+
+    Args:
+        path: the file.
+        like: a value of :func:`remote_file_digests` (its form: ``sha256:`` or ``git:``).
+
+    Returns:
+        ``"sha256:<hex>"`` or ``"git:<blob sha1>"``.
+    """
     path = Path(path)
     lfs = like.startswith("sha256:")
     digest = _etag_digest("0" * 64 if lfs else "0" * 40, path.stat().st_size)  # sha256, or git's blob sha1
@@ -842,7 +980,18 @@ def local_file_digest(path: Path, like: str) -> str:
 def read_remote_text(
     repo_id: str, path: str, *, revision: str, token: str | None = None, repo_type: str = REPO_TYPE
 ) -> str | None:
-    """The text of one file at ``revision``, or None if it does not exist there."""
+    """The text of one file of a repo at a revision.
+
+    Args:
+        repo_id: the repo.
+        path: the file's path in the repo.
+        revision: a commit, branch or tag.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        The text, or None when the file does not exist there.
+    """
     try:
         with translate_hub_errors(repo_id, revision):
             local = hf_hub_download(repo_id, path, revision=revision, repo_type=repo_type, token=token)
@@ -865,10 +1014,25 @@ def publish_folder(
     token: str | None = None,
     repo_type: str = REPO_TYPE,
 ) -> str:
-    """Make the repo's content exactly ``folder`` in ONE commit on main; return the new commit sha.
+    """Make a repo's content exactly ``folder`` in ONE commit on main.
 
-    ``parent_commit`` guards against a concurrent push: if main moved since it was read, the Hub
-    refuses the commit and nothing is written.
+    Args:
+        folder: what the repo is to hold.
+        repo_id: the repo (created when it does not exist).
+        parent_commit: main as it was read: if main moved since, the Hub refuses the commit and nothing is written.
+        remote_files: main's files (those ``folder`` does not hold are deleted, ``.gitattributes`` kept).
+        message: the commit's title.
+        description: the commit's description.
+        private: create the repo private.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        The new commit's sha.
+
+    Raises:
+        ConcurrentPushError: main moved since ``parent_commit``.
+        HubAccessError, HubError: the Hub refused the commit, or the transfer broke.
     """
     folder = Path(folder)
     local = sorted(str(p.relative_to(folder).as_posix()) for p in folder.rglob("*") if p.is_file())
@@ -880,7 +1044,23 @@ def publish_folder(
 def update_files(
     repo_id: str, files: dict[str, bytes], *, parent_commit: str, message: str, description: str = "", token: str | None = None
 ) -> str:
-    """Replace ``files`` (path -> content) on main in ONE commit on top of ``parent_commit``, nothing else; the sha."""
+    """Replace some files on main in ONE commit on top of ``parent_commit``, nothing else.
+
+    Args:
+        repo_id: the env repo.
+        files: ``{path: content}``.
+        parent_commit: main as it was read.
+        message: the commit's title.
+        description: the commit's description.
+        token: the Hub token (None: huggingface_hub's own).
+
+    Returns:
+        The new commit's sha.
+
+    Raises:
+        ConcurrentPushError: main moved since ``parent_commit``.
+        HubAccessError, HubError: the Hub refused the commit.
+    """
     ops = [CommitOperationAdd(path_in_repo=p, path_or_fileobj=data) for p, data in sorted(files.items())]
     return _commit_to_main(repo_id, ops, parent_commit, message, description, token=token)
 
@@ -940,6 +1120,20 @@ def tag(
     exist_ok: bool = True,
     repo_type: str = REPO_TYPE,
 ) -> None:
+    """Put tag ``name`` on commit ``sha`` (nothing to do when it already names it).
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+        name: the tag.
+        message: the tag's message.
+        token: the Hub token (None: huggingface_hub's own).
+        exist_ok: False: a tag that exists, even on ``sha``, is an error.
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Raises:
+        HubError: the tag names another commit.
+    """
     client = api(token)
     with translate_hub_errors(repo_id, sha):
         try:
@@ -960,7 +1154,17 @@ def tag(
 
 
 def tag_target(repo_id: str, name: str, *, token: str | None = None, repo_type: str = REPO_TYPE) -> str | None:
-    """The commit sha tag ``name`` names, or None if the repo or the tag does not exist."""
+    """The commit a tag names.
+
+    Args:
+        repo_id: the repo.
+        name: the tag.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        The commit sha; None when the repo or the tag does not exist.
+    """
     try:
         with translate_hub_errors(repo_id, name):
             refs = api(token).list_repo_refs(repo_id, repo_type=repo_type)
@@ -972,8 +1176,17 @@ def tag_target(repo_id: str, name: str, *, token: str | None = None, repo_type: 
 def move_tag(
     repo_id: str, sha: str, name: str, *, message: str = "", token: str | None = None, repo_type: str = REPO_TYPE
 ) -> None:
-    """Make tag ``name`` name commit ``sha``, wherever it pointed before (delete it, then create it: as LeRobot's own
-    ``LeRobotDataset.push_to_hub`` moves its ``v3.0`` tag; the Hub has no atomic move)."""
+    """Make tag ``name`` name commit ``sha``, wherever it pointed before (deleted, then created: as LeRobot's own
+    ``LeRobotDataset.push_to_hub`` moves its ``v3.0`` tag; the Hub has no atomic move).
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+        name: the tag.
+        message: the tag's message.
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+    """
     target = tag_target(repo_id, name, token=token, repo_type=repo_type)
     if target == sha:
         return
@@ -984,6 +1197,17 @@ def move_tag(
 
 
 def list_remote_files(repo_id: str, sha: str | None, *, token: str | None = None, repo_type: str = REPO_TYPE) -> list[str]:
+    """The files of a repo at a commit.
+
+    Args:
+        repo_id: the repo.
+        sha: the commit (None: no commit yet, no files).
+        token: the Hub token (None: huggingface_hub's own).
+        repo_type: ``"model"`` or ``"dataset"``.
+
+    Returns:
+        Their repo paths.
+    """
     if sha is None:
         return []
     with translate_hub_errors(repo_id, sha):

@@ -40,10 +40,20 @@ def check_repo_id(repo_id: object, *, what: str = "Repo id") -> str:
 
 
 def parse_repo_ref(ref: str, *, what: str = "Repo id") -> tuple[str, str | None]:
-    """``"user/name@rev"`` → ``("user/name", "rev")``; ``"user/name"`` → ``("user/name", None)``.
+    """Split a repo reference: ``"user/name@rev"`` -> ``("user/name", "rev")``, ``"user/name"`` -> ``("user/name", None)``.
 
-    Never a path: ``./x``, ``/abs``, ``~/x`` and anything with characters a Hub repo id cannot have
-    (a trailing newline included) are refused (:func:`check_repo_id`, ``what`` names the value in the message).
+    Never a path: ``./x``, ``/abs``, ``~/x`` and anything with characters a Hub repo id cannot have (a trailing newline
+    included) are refused.
+
+    Args:
+        ref: the reference.
+        what: how messages name the value (``"--repo_id"``, ``"Repo id"``...).
+
+    Returns:
+        ``(repo_id, revision or None)``.
+
+    Raises:
+        ConfigError: not a repo id (:func:`check_repo_id`), a trailing ``@``, or an unprintable revision.
     """
     if not isinstance(ref, str) or not ref:
         raise ConfigError(f"{what} {ref!r} is not valid: use 'user/name', optionally '@revision'.")

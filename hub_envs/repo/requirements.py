@@ -32,16 +32,24 @@ class StandIn:
     satisfies: bool  # its version is within the requirement's specifier (versions of a fork usually follow the original's)
 
     def describe(self) -> str:
+        """``import <module>`` comes from ``<distribution> <version>`` (and, when so, that it is outside the requirement)."""
         within = "" if self.satisfies else f", outside {Requirement(self.requirement).specifier}"
         return f"`import {self.module}` comes from {self.distribution} {self.version}{within}"
 
 
 def stand_in(req: Requirement, *, _provided: dict[str, list[str]] | None = None) -> StandIn | None:
-    """The installed distribution providing the import name of ``req`` (its name in import form: ``pygame``,
-    ``gymnasium_robotics``), when ``req``'s own distribution is not installed; else None.
+    """The installed distribution that provides the import name of a requirement whose own distribution is not installed.
 
-    Uses :func:`importlib.metadata.packages_distributions` (which reads every installed distribution's file list:
-    only ever called for a requirement that is not installed)."""
+    Uses :func:`importlib.metadata.packages_distributions` (which reads every installed distribution's file list: only
+    ever called for a requirement that is not installed).
+
+    Args:
+        req: the requirement (its name in import form: ``pygame``, ``gymnasium_robotics``).
+        _provided: ``packages_distributions()``, when the caller read it already.
+
+    Returns:
+        The :class:`StandIn`, or None.
+    """
     module = canonicalize_name(req.name).replace("-", "_")
     provided = _provided if _provided is not None else md.packages_distributions()
     others = sorted({d for d in provided.get(module, []) if canonicalize_name(d) != canonicalize_name(req.name)})
@@ -54,8 +62,18 @@ def stand_in(req: Requirement, *, _provided: dict[str, list[str]] | None = None)
 
 
 def requirement_status(requirements: list[str] | tuple[str, ...]) -> tuple[list[tuple[str, str]], list[StandIn]]:
-    """``(unmet, stand-ins)``: ``(requirement, why)`` for each requirement this environment does not satisfy, and
-    each one whose import name another installed distribution provides within its specifier (:func:`stand_in`)."""
+    """What this environment makes of an env's requirements.
+
+    Args:
+        requirements: PEP 508 requirement strings.
+
+    Returns:
+        ``(unmet, stand_ins)``: ``(requirement, why)`` for each requirement not satisfied here, and each one whose import
+        name another installed distribution provides within its specifier (:func:`stand_in`).
+
+    Raises:
+        ManifestError: a requirement that is not valid PEP 508.
+    """
     unmet: list[tuple[str, str]] = []
     stand_ins: list[StandIn] = []
     provided: dict[str, list[str]] | None = None
@@ -81,8 +99,18 @@ def requirement_status(requirements: list[str] | tuple[str, ...]) -> tuple[list[
 
 
 def unmet_requirements(requirements: list[str] | tuple[str, ...]) -> list[tuple[str, str]]:
-    """``(requirement, why)`` for each requirement that is not satisfied in this environment (a stand-in within
-    the requirement's specifier satisfies it: see :func:`requirement_status`)."""
+    """The requirements this environment does not satisfy (a stand-in within the requirement's specifier satisfies it:
+    see :func:`requirement_status`).
+
+    Args:
+        requirements: PEP 508 requirement strings.
+
+    Returns:
+        ``(requirement, why)`` for each.
+
+    Raises:
+        ManifestError: a requirement that is not valid PEP 508.
+    """
     return requirement_status(requirements)[0]
 
 

@@ -42,6 +42,7 @@ DIGEST_RE = re.compile(r"[0-9a-f]{64}")
 
 
 def trust_file() -> Path:
+    """The trust list's file: ``trusted.json`` in :func:`hub_envs.paths.hub_envs_home`."""
     return hub_envs_home() / TRUST_FILE
 
 
@@ -63,10 +64,18 @@ class TrustList:
     path: Path
 
     def covers(self, repo_id: str, sha: str, content_digest: str) -> bool:
+        """Whether an entry names exactly this repo, commit and content digest."""
         return any(e.repo_id == repo_id and e.sha == sha and e.content_digest == content_digest for e in self.entries)
 
     def previous(self, repo_id: str) -> list[TrustEntry]:
-        """The entries of ``repo_id``, oldest first."""
+        """The entries of ``repo_id``, oldest first.
+
+        Args:
+            repo_id: a repo.
+
+        Returns:
+            Its :class:`TrustEntry` s.
+        """
         return sorted((e for e in self.entries if e.repo_id == repo_id), key=lambda e: e.trusted_at)
 
 
@@ -110,7 +119,16 @@ def read_trust_list() -> TrustList:
 
 
 def legacy_trusted(repo_id: str, sha: str) -> bool:
-    """Whether an older hub-envs (sha-only entries, kept under ``$HF_HOME/hub_envs``) trusted ``repo_id@sha``."""
+    """Whether an older hub-envs (sha-only entries, kept under ``$HF_HOME/hub_envs``) trusted ``repo_id@sha``: never
+    honoured, only said (consent must now bind the content too).
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+
+    Returns:
+        True when such an entry exists.
+    """
     path = legacy_hub_envs_home() / TRUST_FILE
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -143,22 +161,54 @@ def _write(path: Path, entries: list[TrustEntry]) -> None:
 
 
 def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
-    """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub)."""
+    """The content digest the manifest of ``repo_id@sha`` records (read from the cache, else the Hub).
+
+    Args:
+        repo_id: the env repo.
+        sha: the commit.
+        token: the Hub token.
+
+    Returns:
+        64 hex digits.
+
+    Raises:
+        EnvRepoNotFoundError: the commit has no manifest.
+        ManifestError: the manifest cannot be read.
+    """
     return Manifest.from_json(
         hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
     ).content_digest
 
 
 def snapshot_digest(path: Path) -> str:
-    """The content digest of a downloaded snapshot that has no manifest (a policy checkpoint): sha256 over
-    the sha256 of every file it holds, as a manifest's ``content_digest`` is over the files it lists."""
+    """The content digest of a downloaded snapshot that has no manifest (a policy checkpoint): sha256 over the sha256 of
+    every file it holds, as a manifest's ``content_digest`` is over the files it lists.
+
+    Args:
+        path: the snapshot folder.
+
+    Returns:
+        64 hex digits.
+    """
     files = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
     return content_digest(hash_files(path, files))
 
 
 def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
-    """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of
-    the files of the commit (any other repo, e.g. a LeRobot policy a benchmark names)."""
+    """What consent to ``repo_id@sha`` binds: its manifest's content digest (an env repo), else the digest of the files of
+    the commit (any other repo, e.g. a LeRobot policy a benchmark names).
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+        token: the Hub token.
+
+    Returns:
+        64 hex digits.
+
+    Raises:
+        EnvRepoNotFoundError, HubError: the repo or commit cannot be read.
+    """
     try:
         return manifest_digest(repo_id, sha, token=token)
     except EnvRepoNotFoundError as e:
@@ -170,11 +220,18 @@ def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
 
 
 def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: str | None = None) -> None:
-    """Record consent to run the code of ``repo_id`` at commit ``sha``, bound to its manifest's content digest.
+    """Record consent to run the code of ``repo_id`` at commit ``sha``, bound to its content digest.
 
-    ``content_digest`` defaults to the one the commit's manifest records (read from the local cache when
-    load_env already fetched it, which is what you looked at, else from the Hub); for a repo without a
-    manifest (a policy checkpoint), to the digest of the commit's files (:func:`commit_digest`).
+    Args:
+        repo_id: the repo.
+        sha: the commit (40 hex).
+        content_digest: what the consent covers; None: the one the commit's manifest records (read from the local cache
+            when load_env already fetched it, which is what you looked at, else from the Hub), or, for a repo without a
+            manifest (a policy checkpoint), the digest of the commit's files (:func:`commit_digest`).
+        token: the Hub token.
+
+    Raises:
+        ConfigError: ``sha`` is not a commit sha, a digest is malformed, or ``repo_id`` is no repo id.
     """
 
     repo_id, _ = parse_repo_ref(repo_id)
@@ -193,7 +250,18 @@ def trust(repo_id: str, sha: str, *, content_digest: str | None = None, token: s
 
 
 def untrust(repo_id: str, sha: str | None = None) -> int:
-    """Withdraw consent for one sha (or every sha when ``sha`` is None). Returns how many were removed."""
+    """Withdraw consent for one commit, or for every commit of a repo.
+
+    Args:
+        repo_id: the repo.
+        sha: the commit (None: every commit).
+
+    Returns:
+        How many entries were removed.
+
+    Raises:
+        ConfigError: ``repo_id`` is no repo id.
+    """
 
     check_repo_id(repo_id)  # a mistyped id would remove nothing and say so as if it were done
     with _locked() as path:
@@ -204,7 +272,19 @@ def untrust(repo_id: str, sha: str | None = None) -> int:
 
 
 def is_trusted(repo_id: str, sha: str, content_digest: str | None = None) -> bool:
-    """Whether ``repo_id@sha`` (with that manifest content digest; default: the one its manifest records) is trusted."""
+    """Whether ``repo_id@sha``, with that content, is in the trust list.
+
+    Args:
+        repo_id: the repo.
+        sha: the commit.
+        content_digest: the content (None: the one its manifest records).
+
+    Returns:
+        True when an entry covers it.
+
+    Raises:
+        ConfigError: ``repo_id`` is no repo id.
+    """
 
     check_repo_id(repo_id)
     digest = content_digest if content_digest is not None else commit_digest(repo_id, sha)
