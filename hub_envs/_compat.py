@@ -88,8 +88,12 @@ def file_get_retries_server_errors() -> bool:
 
 @contextlib.contextmanager
 def lfs_instead_of_xet(enabled: bool = True):
-    """Inside the block, huggingface_hub uploads large files through Git LFS, not Xet (both versions
-    read ``constants.HF_HUB_DISABLE_XET`` at each upload). Process-wide while it lasts."""
+    """Inside the block, huggingface_hub uploads large files through Git LFS, not Xet (both versions read
+    ``constants.HF_HUB_DISABLE_XET`` at each upload). Process-wide while it lasts.
+
+    Args:
+        enabled: False: change nothing.
+    """
     if not enabled or constants.HF_HUB_DISABLE_XET:
         yield
         return
@@ -108,11 +112,19 @@ def reset_http_sessions() -> None:
 
 @contextlib.contextmanager
 def stream_file(url: str, headers: Mapping[str, str], timeout: float):
-    """``GET url`` through huggingface_hub's own HTTP client (its session, hooks and proxies), redirects
-    followed, the body streamed: yields ``(status, hub_headers, final_headers, chunks)``. ``hub_headers``
-    are those of the first answer (the Hub's own, with ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it
-    redirects a large file to a CDN), ``final_headers`` those of the answer that carries the body. A
-    redirect to another host drops the ``Authorization`` header (both libraries do)."""
+    """``GET url`` through huggingface_hub's own HTTP client (its session, hooks and proxies), redirects followed, the body
+    streamed. A redirect to another host drops the ``Authorization`` header (both libraries do).
+
+    Args:
+        url: the URL.
+        headers: the request's headers.
+        timeout: seconds.
+
+    Yields:
+        ``(status, hub_headers, final_headers, chunks)``: ``hub_headers`` of the first answer (the Hub's own, with
+        ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it redirects a large file to a CDN), ``final_headers`` of the
+        answer that carries the body, ``chunks`` an iterator of its bytes.
+    """
     session = get_session()
     if HF_HUB_MAJOR >= 1:
         with session.stream("GET", url, headers=dict(headers), follow_redirects=True, timeout=timeout) as response:
@@ -128,17 +140,20 @@ def stream_file(url: str, headers: Mapping[str, str], timeout: float):
 
 
 def install_response_hook(hook) -> bool:
-    """Run ``hook(method, url, status, headers, read_body)`` on every HTTP response huggingface_hub's client
-    receives: each hop of a redirect chain, whether the client (1.x's metadata ``HEAD``, 0.35's relative
-    redirects) or its HTTP library (``GET``) follows it.
+    """Run ``hook(method, url, status, headers, read_body)`` on every HTTP response huggingface_hub's client receives: each hop
+    of a redirect chain, whether the client (1.x's metadata ``HEAD``, 0.35's relative redirects) or its HTTP library
+    (``GET``) follows it. 0.x: a ``requests`` response hook on every session its backend factory makes
+    (``configure_http_backend``); 1.x: an ``httpx`` event hook on the clients of ``set_client_factory``. Whatever factory
+    was configured before (by the user or another library) is kept and wrapped. Reads the current factory from a
+    private name (``_GLOBAL_BACKEND_FACTORY`` / ``_GLOBAL_CLIENT_FACTORY``): huggingface_hub has no getter.
 
-    ``method`` is the request's, ``url`` the URL this answer came from, ``read_body()`` returns the response body
-    (call it only for small API answers, never for file downloads). An exception raised by the hook propagates out
-    of the client call before the client uses the response. 0.x: a ``requests`` response hook on every session its backend factory makes
-    (``configure_http_backend``); 1.x: an ``httpx`` event hook on the clients of ``set_client_factory``.
-    Whatever factory was configured before (by the user or another library) is kept and wrapped.
-    Idempotent per hook; returns True when it installed it now. Reads the current factory from a private
-    name (``_GLOBAL_BACKEND_FACTORY`` / ``_GLOBAL_CLIENT_FACTORY``): huggingface_hub has no getter.
+    Args:
+        hook: called with the request's method, the URL this answer came from, its status and headers, and
+            ``read_body()`` (call it only for small API answers, never for file downloads). An exception it raises
+            propagates out of the client call before the client uses the response.
+
+    Returns:
+        True when it installed the hook now (idempotent per hook).
     """
     name = "_GLOBAL_CLIENT_FACTORY" if HF_HUB_MAJOR >= 1 else "_GLOBAL_BACKEND_FACTORY"
     previous = getattr(_http, name)
@@ -358,8 +373,15 @@ def _rgb_encoder(gop: int):
 
 
 def encode_video_frames(imgs_dir: Path, video_path: Path, fps: int, *, gop: int) -> None:
-    """LeRobot's ``encode_video_frames`` with its defaults (libsvtav1, yuv420p, CRF 30) and GOP ``gop``:
-    0.4 takes ``g=``, 0.6 a ``video_encoder=`` config. ``gop == LEROBOT_VIDEO_GOP`` gives LeRobot's own bytes."""
+    """LeRobot's ``encode_video_frames`` with its defaults (libsvtav1, yuv420p, CRF 30) and GOP ``gop``: 0.4 takes ``g=``, 0.6
+    a ``video_encoder=`` config. ``gop == LEROBOT_VIDEO_GOP`` gives LeRobot's own bytes.
+
+    Args:
+        imgs_dir: a folder of ``frame-000000.png`` files.
+        video_path: the MP4 to write.
+        fps: frames per second.
+        gop: the keyframe interval.
+    """
     video_utils = lerobot_video_utils()
     encoder = _rgb_encoder(gop)
     if encoder is None:
@@ -369,13 +391,19 @@ def encode_video_frames(imgs_dir: Path, video_path: Path, fps: int, *, gop: int)
 
 
 def lerobot_video_info(video_path: str | Path, gop: int = LEROBOT_VIDEO_GOP) -> dict[str, Any]:
-    """The ``info`` of a video feature as the installed LeRobot's writer records it in ``info.json``, for a
-    video encoded with GOP ``gop``.
+    """The ``info`` of a video feature as the installed LeRobot's writer records it in ``info.json``.
 
-    0.4: ``get_video_info(path)`` = the stream's values plus ``video.is_depth_map: false``; 0.4 records no
-    encoder settings, so ``video.g`` is added when ``gop`` is not LeRobot's (absent means LeRobot's, which is how
-    0.6 reads it). From 0.5: ``get_video_info(path, video_encoder=...)`` = the stream's values, the encoder's
-    settings (``video.g``, ``video.crf``, ``video.preset``, ...) and ``is_depth_map: false``.
+    0.4: ``get_video_info(path)`` = the stream's values plus ``video.is_depth_map: false``; 0.4 records no encoder settings,
+    so ``video.g`` is added when ``gop`` is not LeRobot's (absent means LeRobot's, which is how 0.6 reads it). From 0.5:
+    ``get_video_info(path, video_encoder=...)`` = the stream's values, the encoder's settings (``video.g``, ``video.crf``,
+    ``video.preset``, ...) and ``is_depth_map: false``.
+
+    Args:
+        video_path: an MP4 encoded with GOP ``gop``.
+        gop: its keyframe interval.
+
+    Returns:
+        The ``info`` dict.
     """
     video_utils = lerobot_video_utils()
     encoder = _rgb_encoder(gop)
@@ -536,11 +564,14 @@ def live_children() -> set[int]:
 
 
 def terminate_new_children(before: set[int]) -> None:
-    """Terminate the multiprocessing children started since ``before`` (:func:`live_children`).
+    """Terminate the multiprocessing children started since ``before``.
 
-    A ``ProcessPoolExecutor`` abandoned mid-run (``shutdown(wait=False)``) keeps its workers busy until
-    their current task ends; Python 3.14 has ``terminate_workers()`` for that, older ones no public
-    handle on the workers, so the children that appeared since the pool was made are stopped instead.
+    A ``ProcessPoolExecutor`` abandoned mid-run (``shutdown(wait=False)``) keeps its workers busy until their current task
+    ends; Python 3.14 has ``terminate_workers()`` for that, older ones no public handle on the workers, so the children
+    that appeared since the pool was made are stopped instead.
+
+    Args:
+        before: :func:`live_children` before the pool was made.
     """
     for proc in multiprocessing.active_children():
         if proc.pid not in before and proc.is_alive():

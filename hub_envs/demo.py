@@ -21,6 +21,14 @@ DEFAULT_ENVS = ["pendulum", "hover", "reach"]
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the demo.
+
+    Args:
+        argv: its arguments (default: ``sys.argv[1:]``).
+
+    Returns:
+        The exit code.
+    """
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("env_dirs", nargs="*", help="env folders (default: envs/pendulum, envs/hover, envs/reach)")
     parser.add_argument("--episodes", type=int, default=10)

@@ -167,7 +167,11 @@ class HubServer:
         return self._log_path.read_text(errors="replace")
 
     def stop(self, timeout: float = 10.0) -> None:
-        """Stop the server gracefully (SIGTERM, then SIGKILL after ``timeout`` s). Idempotent."""
+        """Stop the server gracefully: SIGTERM, then SIGKILL. Idempotent.
+
+        Args:
+            timeout: seconds to wait after SIGTERM.
+        """
         if self.process is not None and self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
             try:
@@ -233,19 +237,24 @@ def hub_environment(
     token: str | None = None,
     offline: bool = False,
 ) -> Iterator[None]:
-    """Point ``huggingface_hub`` at ``endpoint`` with caches under ``hf_home``, inside a ``with``.
+    """Point ``huggingface_hub`` at ``endpoint`` with caches under ``hf_home``, inside a ``with``; everything is restored on
+    exit. Not thread-safe: it mutates process-wide state.
 
-    Sets ``HF_ENDPOINT``, ``HF_HOME``, ``HF_HUB_CACHE``, ``HF_ASSETS_CACHE``, ``HF_XET_CACHE``,
-    ``HF_TOKEN`` (or removes it when ``token`` is None, so no stored token leaks in),
-    ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_DISABLE_XET=1`` (the loopback server takes large files
-    through Git LFS), ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``,
-    ``HF_DATASETS_CACHE``, ``HUB_ENVS_HOME`` (a folder beside ``hf_home``) and, for a loopback endpoint, ``NO_PROXY``; patches what
-    ``huggingface_hub.constants`` (and the modules that copied from it), ``lerobot.utils.constants`` (its
-    ``HF_LEROBOT_HOME`` and, on LeRobot 0.5+, ``HF_LEROBOT_HUB_CACHE``, where ``LeRobotDataset(repo_id)`` downloads)
-    and ``datasets.config`` computed at import time; resets the client's HTTP sessions and the
-    ``HfFileSystem`` instance cache. Everything is restored on exit.
+    It sets ``HF_ENDPOINT``, ``HF_HOME``, ``HF_HUB_CACHE``, ``HF_ASSETS_CACHE``, ``HF_XET_CACHE``, ``HF_TOKEN`` (or removes it
+    when ``token`` is None, so no stored token leaks in), ``HF_HUB_DISABLE_TELEMETRY=1``, ``HF_HUB_DISABLE_XET=1`` (the
+    loopback server takes large files through Git LFS), ``HF_HUB_OFFLINE``, ``HF_LEROBOT_HOME``, ``HF_DATASETS_CACHE``,
+    ``HUB_ENVS_HOME`` (a folder beside ``hf_home``) and, for a loopback endpoint, ``NO_PROXY``; patches what the clients
+    computed at import time (:func:`hub_envs._compat.point_clients_at`); resets the client's HTTP sessions and the
+    ``HfFileSystem`` instance cache.
 
-    Not thread-safe: it mutates process-wide state.
+    Args:
+        endpoint: the Hub's URL.
+        hf_home: the ``HF_HOME`` to use.
+        token: the Hub token (None: none at all).
+        offline: the clients' offline mode.
+
+    Yields:
+        None, inside the block.
     """
     endpoint = endpoint.rstrip("/")
     home = Path(hf_home).resolve()
@@ -325,11 +334,20 @@ def _reset_client_state(huggingface_hub) -> None:
 
 
 def add_random_data_files(folder: Path, count: int, mib_each: int, *, chunk: str = "chunk-001") -> dict[str, str]:
-    """Grow the dataset of the env repo in ``folder`` (a published snapshot copied out, or push_env's folder) by
-    ``count`` files of ``mib_each`` MiB of random bytes under ``dataset/data/<chunk>/``, listed in its manifest (the
-    files and the content digest updated), as a large camera dataset would be; returns ``{path: sha256}``. For
-    tests and benchmarks of the Hub at real sizes (the bytes are not parquet: they are fetched and verified, not
-    decoded). Publish the folder with :func:`hub_envs.repo.hub_io.publish_folder`."""
+    """Grow the dataset of the env repo in ``folder`` (a published snapshot copied out, or push_env's folder) by random
+    files under ``dataset/data/<chunk>/``, listed in its manifest (the files and the content digest updated), as a large
+    camera dataset would be. For tests and benchmarks of the Hub at real sizes (the bytes are not parquet: they are
+    fetched and verified, not decoded). Publish the folder with :func:`hub_envs.repo.hub_io.publish_folder`.
+
+    Args:
+        folder: the env repo's folder.
+        count: how many files.
+        mib_each: MiB of random bytes each.
+        chunk: the data chunk folder.
+
+    Returns:
+        ``{path: sha256}`` of the files added.
+    """
     manifest = json.loads((folder / MANIFEST_FILE).read_text())
     added = {}
     for i in range(count):

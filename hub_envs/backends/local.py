@@ -28,7 +28,14 @@ class LocalBackend(Backend):
             raise ConfigError(f"workers={self.workers!r}: pass a positive number of processes.")
 
     def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts"):
-        """As :meth:`Backend.episodes`, in this machine's worker processes (:func:`~hub_envs.harness.rollout.iter_episodes`)."""
+        """As :meth:`Backend.episodes`, in this machine's worker processes (:func:`~hub_envs.harness.rollout.iter_episodes`).
+
+        Args:
+            loaded, seeds, max_steps, policy, record_states, progress, desc: as :meth:`Backend.episodes`.
+
+        Returns:
+            The rollouts, in episode order.
+        """
         return iter_episodes(
             loaded.make,
             seeds,

@@ -450,6 +450,12 @@ class RayBackend(Backend):
     def episodes(self, loaded, seeds, *, max_steps, policy=None, record_states=False, progress=True, desc="rollouts") -> RayRun:
         """As :meth:`~hub_envs.backends.base.Backend.episodes`, sharded across the cluster, consumed in shard order.
 
+        Args:
+            loaded, seeds, max_steps, policy, record_states, progress, desc: as :meth:`~hub_envs.backends.base.Backend.episodes`.
+
+        Returns:
+            A :class:`RayRun` (an iterator of the rollouts; closing it cancels the shards in flight).
+
         Raises:
             ClusterUnreachableError, ClusterAuthError: the cluster cannot be used.
             MissingRequirementsError: Ray is not installed.

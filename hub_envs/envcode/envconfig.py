@@ -120,7 +120,15 @@ def encode_config(cfg: EnvConfig) -> dict[str, Any]:
 
 
 def config_differences(recorded: dict[str, Any], actual: dict[str, Any]) -> list[str]:
-    """One line per field whose recorded and actual values differ (``field: manifest X vs code Y``)."""
+    """The fields whose recorded and actual values differ.
+
+    Args:
+        recorded: the manifest's ``config``.
+        actual: :func:`encode_config` of the config the code computes.
+
+    Returns:
+        One line per field: ``field: manifest X vs code Y``.
+    """
     keys = sorted(set(recorded) | set(actual))
     return [
         f"{k}: manifest {recorded.get(k, '<absent>')!r} vs code {actual.get(k, '<absent>')!r}"

@@ -290,5 +290,12 @@ def unregister(registration: Registration) -> None:
 
 
 def owner_of_choice(env_type: str) -> str | None:
-    """Who registered the draccus choice ``env_type`` through hub-envs (None: not hub-envs)."""
+    """Who registered a draccus choice through hub-envs.
+
+    Args:
+        env_type: a choice name.
+
+    Returns:
+        The owner (``user/name@<sha>``), or None when hub-envs did not register it.
+    """
     return _OWNED_CHOICES.get(env_type)

@@ -32,7 +32,14 @@ __all__ = ["stored_action", "accepts_declared", "unsupported_reason", "to_env_ac
 
 
 def unsupported_reason(space: Any) -> str | None:
-    """Why hub-envs cannot record actions of ``space``, or None when it can."""
+    """Why hub-envs cannot record actions of a space.
+
+    Args:
+        space: an action space.
+
+    Returns:
+        The reason, or None when it can (Box of numbers, Discrete, MultiDiscrete, MultiBinary).
+    """
     if isinstance(space, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)):
         return None
     if isinstance(space, spaces.Box) and (np.issubdtype(space.dtype, np.floating) or np.issubdtype(space.dtype, np.integer)):
@@ -48,19 +55,42 @@ def _integer(space: Any) -> bool:
 
 
 def stored_action(space: Any) -> tuple[tuple[int, ...], str]:
-    """(shape, dtype) of the dataset's ``action`` column for ``space`` (a supported one)."""
+    """How the dataset's ``action`` column stores actions of a supported space.
+
+    Args:
+        space: an action space.
+
+    Returns:
+        ``(shape, dtype)``: a Discrete's scalar as ``(1,)``, integers as ``int64``, floats as ``float32``.
+    """
     shape = tuple(int(d) for d in (space.shape or ()))
     return (shape or (1,)), ("int64" if _integer(space) else "float32")
 
 
 def accepts_declared(space: Any, declared: tuple[int, ...]) -> bool:
-    """Whether a config may declare ``declared`` as the action shape of ``space``."""
+    """Whether a config may declare ``declared`` as the action shape of ``space`` (a Discrete: ``()`` or ``(1,)``).
+
+    Args:
+        space: the env's action space.
+        declared: the shape the config declares.
+
+    Returns:
+        True when it may.
+    """
     shape = tuple(space.shape or ())
     return declared == shape or (shape == () and declared in ((), (1,)))
 
 
 def to_env_actions(actions: np.ndarray, space: Any) -> np.ndarray:
-    """Recorded actions ``(T, *stored shape)`` in the env's own layout and dtype (a Discrete's scalar per step)."""
+    """Recorded actions back in the env's own layout and dtype (a Discrete's scalar per step).
+
+    Args:
+        actions: ``(T, *stored shape)``.
+        space: the env's action space.
+
+    Returns:
+        ``(T, *space.shape)`` of the space's dtype (integers rounded from floats).
+    """
     shape = tuple(space.shape or ())
     dtype = getattr(space, "dtype", None)
     if actions.shape[1:] != shape and int(np.prod(actions.shape[1:])) == int(np.prod(shape)):
@@ -75,6 +105,14 @@ class IntegerActions(gym.ActionWrapper):
     floats in LeRobot's layout (``Discrete``: shape ``(1,)``), as LeRobot's eval loop does; other actions pass."""
 
     def action(self, action: Any) -> Any:
+        """An action in the env's integer form.
+
+        Args:
+            action: what the policy gave (floats for an integer space are rounded).
+
+        Returns:
+            A Discrete's scalar, or an integer array of the space's shape.
+        """
         arr = np.asarray(action)
         if isinstance(self.env.action_space, spaces.Discrete):
             return np.int64(np.rint(arr.reshape(-1)[0])) if arr.size == 1 else action

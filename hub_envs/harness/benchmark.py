@@ -38,7 +38,18 @@ def bootstrap_ci(
     seed: int = 0,
     statistic: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of the mean (or ``statistic`` over axis 1), seeded."""
+    """Percentile bootstrap confidence interval of the mean (or of ``statistic``), seeded.
+
+    Args:
+        values: the per-episode values.
+        resamples: bootstrap resamples.
+        confidence: the interval's level.
+        seed: the resampling's seed (the same values give the same interval).
+        statistic: computed over axis 1 of the ``(resamples, n)`` samples (default: the mean).
+
+    Returns:
+        ``(low, high)``; NaNs for no values.
+    """
     x = np.asarray(values, dtype=np.float64)
     if x.size == 0:
         return (float("nan"), float("nan"))
@@ -66,6 +77,7 @@ class MetricResult:
         return self.reproduced - self.published
 
     def to_dict(self) -> dict[str, Any]:
+        """The metric as JSON-ready data, its difference included."""
         d = asdict(self)
         d["difference"] = self.difference
         return d
@@ -98,6 +110,7 @@ class BenchmarkResult:
         return sorted(out)
 
     def summary(self) -> str:
+        """One line: each metric published -> reproduced, its interval and PASS/FAIL (or why it was not reproduced)."""
         if self.error:
             return f"benchmark {self.name}: not reproduced: {self.error}"
         parts = [
@@ -107,6 +120,7 @@ class BenchmarkResult:
         return f"benchmark {self.name} ({self.policy.get('type')} policy, {len(self.seeds)} episodes): " + "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
+        """The result as JSON-ready data (``report.json``)."""
         return {
             "name": self.name,
             "policy": self.policy,
@@ -193,6 +207,11 @@ class BenchmarkRun:
         return self.runnable and self.policy is None
 
     def consume(self, rollout: Any) -> None:
+        """Take one rollout of this benchmark's episodes, in order.
+
+        Args:
+            rollout: an :class:`~hub_envs.harness.rollout.EpisodeRollout`.
+        """
         for m in self.metrics:
             key, get = METRICS[m]
             self.per_episode[key].append(get(rollout))
@@ -238,6 +257,14 @@ class BenchmarkRun:
         return self.finish(episodes_seconds=seconds)
 
     def finish(self, *, episodes_seconds: float = 0.0) -> BenchmarkResult:
+        """Compute the metrics of the rollouts consumed.
+
+        Args:
+            episodes_seconds: the time the episodes took (when they ran in a shared pass).
+
+        Returns:
+            The :class:`BenchmarkResult`.
+        """
         _restore_torch_threads(self._threads)
         result = self.result
         if result.error is not None:

@@ -26,7 +26,18 @@ FINGERPRINT_STEPS = 32
 
 
 def run_env_checker(env, *, where: str) -> list[str]:
-    """Run gymnasium's ``check_env`` on the unwrapped env; return its warnings, raise on failure."""
+    """Run gymnasium's ``check_env`` on the unwrapped env.
+
+    Args:
+        env: the env.
+        where: names it in messages.
+
+    Returns:
+        The checker's warnings.
+
+    Raises:
+        EnvCheckError: the checker refused the env.
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -78,9 +89,17 @@ def _first_difference(a: EpisodeRollout, b: EpisodeRollout) -> str:
 
 
 def check_determinism(make_env: Callable[[], Any], *, seeds: Sequence[int], steps: int, where: str) -> None:
-    """Per seed, two fresh envs reset with it and driven by the same seeded random actions for up to ``steps``
-    steps (a whole episode by default at push): the rollouts must be bit-identical. A difference is named by
-    seed, key, step and size, before any other check could report it less precisely."""
+    """Per seed, two fresh envs reset with it and driven by the same seeded random actions must give bit-identical rollouts.
+
+    Args:
+        make_env: makes a fresh env.
+        seeds: the seeds to try.
+        steps: steps per rollout (a whole episode at push).
+        where: names the env in messages.
+
+    Raises:
+        DeterminismError: naming the seed, key, step and size of the first difference.
+    """
     for seed in seeds:
         first = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
         second = run_episodes(make_env, [seed], max_steps=steps, progress=False)[0]
@@ -93,8 +112,16 @@ def check_determinism(make_env: Callable[[], Any], *, seeds: Sequence[int], step
 
 
 def episode_prefix(ep: EpisodeRollout, steps: int) -> EpisodeRollout:
-    """The first ``steps`` steps of ``ep``, exactly as a run cut at ``max_steps=steps`` records them (the cut
-    step is a time-limit truncation), so a fingerprint can come from longer rollouts (push's dataset)."""
+    """The first ``steps`` steps of an episode, exactly as a run cut at ``max_steps=steps`` records them (the cut step is a
+    time-limit truncation), so a fingerprint can come from longer rollouts (push's dataset).
+
+    Args:
+        ep: a rollout.
+        steps: how many steps.
+
+    Returns:
+        The cut rollout (``ep`` itself when it is no longer).
+    """
     if ep.length <= steps:
         return ep
     cut = slice(0, steps)
@@ -114,23 +141,50 @@ def episode_prefix(ep: EpisodeRollout, steps: int) -> EpisodeRollout:
 
 
 def fingerprint_of(episodes: Sequence[EpisodeRollout], *, steps: int) -> dict[str, Any]:
-    """The golden-rollout fingerprint of seeded random-action ``episodes`` (each cut to its first ``steps``)."""
+    """The golden-rollout fingerprint of seeded random-action episodes.
+
+    Args:
+        episodes: the rollouts (each cut to its first ``steps``).
+        steps: the steps hashed.
+
+    Returns:
+        ``{"algorithm", "seeds", "steps", "digest", "episodes"}``: one digest per episode and one overall.
+    """
     digests = [_episode_digest(episode_prefix(ep, steps)) for ep in episodes]
     overall = hashlib.sha256("".join(digests).encode()).hexdigest()
     return {"algorithm": "sha256", "seeds": [ep.seed for ep in episodes], "steps": steps, "digest": overall, "episodes": digests}
 
 
 def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: int) -> dict[str, Any]:
-    """Hash the first ``steps`` steps of seeded random-action rollouts, one digest per seed plus one overall."""
+    """Run seeded random-action rollouts and fingerprint their first ``steps`` steps (:func:`fingerprint_of`).
+
+    Args:
+        make_env: makes a fresh env.
+        seeds: one episode per seed.
+        steps: steps per episode.
+
+    Returns:
+        The fingerprint.
+    """
     return fingerprint_of(run_episodes(make_env, list(seeds), max_steps=steps, progress=False), steps=steps)
 
 
 def verify_fingerprint(
     make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str, versions_note: str | Callable[[], str] = ""
 ) -> dict[str, Any]:
-    """Recompute a recorded fingerprint; raise :class:`FingerprintMismatchError` naming the drifting seeds.
+    """Recompute a recorded fingerprint.
 
-    ``versions_note`` (or a callable returning it, called only on a mismatch) ends the message.
+    Args:
+        make_env: makes a fresh env.
+        recorded: the manifest's ``fingerprint``.
+        where: names the env in messages.
+        versions_note: what ends a mismatch's message (or a callable returning it, called only on a mismatch).
+
+    Returns:
+        The fresh fingerprint.
+
+    Raises:
+        FingerprintMismatchError: naming the seeds that drifted.
     """
     fresh = golden_fingerprint(make_env, seeds=list(recorded["seeds"]), steps=int(recorded["steps"]))
     if fresh["digest"] != recorded["digest"]:

@@ -31,7 +31,14 @@ def _raised_at(exc: BaseException) -> str:
 
 
 def exception_text(exc: BaseException) -> str:
-    """``"TypeName: message (raised at file:line in function)"``: what an error message quotes of env code."""
+    """What an error message quotes of an exception raised by env code.
+
+    Args:
+        exc: the exception.
+
+    Returns:
+        ``"TypeName: message (raised at file:line in function)"``.
+    """
     return f"{type(exc).__name__}: {exc}{_raised_at(exc)}"
 
 
@@ -72,7 +79,17 @@ class SeededEpisode:
         return self.space.sample()
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict]:
-        """``env.step(action)``; returns its ``(obs, reward, terminated, truncated, info)``."""
+        """Step the env.
+
+        Args:
+            action: the action.
+
+        Returns:
+            ``env.step(action)``'s ``(obs, reward, terminated, truncated, info)``.
+
+        Raises:
+            EnvCodeError: the env's step raised (naming the episode, seed and step).
+        """
         try:
             result = obs, _reward, terminated, truncated, info = self._step(action)
         except Exception as exc:

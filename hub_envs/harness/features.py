@@ -50,6 +50,7 @@ class FeatureReport:
         return [r for r in self.rows if not r.ok]
 
     def table(self) -> str:
+        """The report as a text table: feature, LeRobot key, declared, live, dataset, verdict."""
         header = ("feature", "lerobot key", "declared", "live", "dataset", "verdict")
         body = [
             (r.feature, r.lerobot_key, r.declared, r.live, r.dataset, "ok" if r.ok else "; ".join(r.problems)) for r in self.rows
@@ -60,6 +61,7 @@ class FeatureReport:
         return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, body)])
 
     def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready data (the check cache stores it)."""
         return {
             "ok": self.ok,
             "steps": self.steps,
@@ -70,6 +72,14 @@ class FeatureReport:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FeatureReport:
+        """The report :meth:`to_dict` wrote.
+
+        Args:
+            data: :meth:`to_dict`'s output.
+
+        Returns:
+            The :class:`FeatureReport`.
+        """
         return cls(
             rows=[FeatureRow(**row) for row in data["rows"]],
             steps=int(data["steps"]),
@@ -78,6 +88,14 @@ class FeatureReport:
         )
 
     def raise_if_mismatch(self, where: str) -> None:
+        """Raise when a row disagrees.
+
+        Args:
+            where: names the env in the message.
+
+        Raises:
+            FeatureMismatchError: with the whole table, and the mismatches.
+        """
         if self.ok:
             return
         n = len(self.mismatches)
@@ -272,10 +290,24 @@ def _success_row(infos: list[dict], dataset_features: dict | None) -> FeatureRow
 def check_features(
     cfg, env, dataset_features: dict[str, Any] | None, *, steps: int = 8, seed: int = 0, where: str = "the env"
 ) -> FeatureReport:
-    """Compare declared features, a live seeded rollout of ``env`` and the dataset's info.json features.
+    """Compare the features the config declares with a live seeded rollout of ``env`` and the dataset's ``info.json``.
 
-    One row per declared feature (:func:`_live_action` or :func:`_live_observation`, then :func:`_in_dataset`),
-    rows for what is not declared (:func:`_undeclared`), and the success flag (:func:`_success_row`).
+    One row per declared feature (:func:`_live_action` or :func:`_live_observation`, then :func:`_in_dataset`), rows for
+    what is not declared (:func:`_undeclared`), and the success flag (:func:`_success_row`).
+
+    Args:
+        cfg: the env's config (``features``, ``features_map``).
+        env: a live env (reset with ``seed``, stepped ``steps`` times with seeded random actions).
+        dataset_features: the dataset's ``info.json`` ``features`` (None: no dataset half).
+        steps: random-action steps.
+        seed: the reset seed.
+        where: names the env in messages.
+
+    Returns:
+        The :class:`FeatureReport` (:meth:`FeatureReport.raise_if_mismatch` refuses a disagreement).
+
+    Raises:
+        EnvCodeError: the env raised while stepping.
     """
     from lerobot.configs.types import FeatureType  # heavy: lerobot (torch)
 

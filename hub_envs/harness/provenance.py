@@ -40,7 +40,14 @@ def _version(name: str) -> str:
 
 
 def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str, str]:
-    """python, the core packages, and every package named in ``requirements`` (the simulator)."""
+    """The versions a result depends on, as installed here.
+
+    Args:
+        requirements: the env's requirements (their packages are added: the simulator).
+
+    Returns:
+        ``{package: version}`` of python, the core packages and each requirement's package (``"not installed"``).
+    """
     names = list(CORE_PACKAGES)
     for text in requirements:
         try:
@@ -53,14 +60,28 @@ def package_versions(requirements: tuple[str, ...] | list[str] = ()) -> dict[str
 
 
 def recorded_versions(manifest: Any) -> dict[str, str]:
-    """Every package version ``manifest`` records: ``versions`` (python, the core packages, each requirement's
-    package), then the rest of ``resolved`` (:func:`closure_only`)."""
+    """Every package version a manifest records: ``versions`` (python, the core packages, each requirement's package), then
+    the rest of ``resolved`` (:func:`closure_only`).
+
+    Args:
+        manifest: a :class:`~hub_envs.repo.format.Manifest`.
+
+    Returns:
+        ``{package: version}``.
+    """
     return {**dict(manifest.versions), **closure_only(manifest)}
 
 
 def closure_only(manifest: Any) -> dict[str, str]:
-    """The versions of ``manifest``'s ``resolved`` (format 3: the requirements' dependency closure, the simulator a
-    requirement pulls in included) that ``versions`` does not record already (under any spelling)."""
+    """The versions of a manifest's ``resolved`` (the requirements' dependency closure, the simulator a requirement pulls in
+    included) that ``versions`` does not record already (under any spelling).
+
+    Args:
+        manifest: a :class:`~hub_envs.repo.format.Manifest`.
+
+    Returns:
+        ``{package: version}``.
+    """
     named = {canonicalize_name(k) for k in manifest.versions}
     return {k: v for k, v in dict(getattr(manifest, "resolved", {}) or {}).items() if canonicalize_name(k) not in named}
 
@@ -70,8 +91,15 @@ def _worker_installed(record: dict[str, Any]) -> dict[str, str]:
 
 
 def worker_provenance(loaded: Any) -> dict[str, Any] | None:
-    """For a venv-isolated load (``loaded.worker_venv``): where the env ran (venv, python, every installed package,
-    notes) and the versions of the packages the manifest records, as the worker has them; else None."""
+    """Where a venv-isolated load's env ran.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        For ``isolation="venv"``: the venv, its python, every installed package, the notes, and the versions of the
+        packages the manifest records as the worker has them; else None.
+    """
     record = loaded.worker_venv
     if record is None:
         return None
@@ -88,16 +116,29 @@ def worker_provenance(loaded: Any) -> dict[str, Any] | None:
 
 
 def versions_run_with(loaded: Any) -> dict[str, str]:
-    """The package versions ``loaded``'s code runs with: this process's (:func:`package_versions` of its
-    requirements), or, isolated in a venv, the worker's where it has them (python included)."""
+    """The package versions a loaded env's code runs with.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        This process's (:func:`package_versions` of its requirements), or, isolated in a venv, the worker's where it has
+        them (python included).
+    """
     here = package_versions(loaded.manifest.requirements)
     worker = worker_provenance(loaded)
     return {**here, **worker["versions"]} if worker is not None else here
 
 
 def closure_run_with(loaded: Any) -> dict[str, str]:
-    """For each package of the manifest's dependency closure that ``versions`` does not name (:func:`closure_only`):
-    the version ``loaded``'s code runs with (this process's, or a venv worker's), or ``"not installed"``."""
+    """The versions the env's code runs with of the manifest's dependency closure beyond ``versions`` (:func:`closure_only`).
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        ``{package: version or "not installed"}`` (a venv worker's, when it runs in one).
+    """
     names = closure_only(loaded.manifest)
     record = loaded.worker_venv
     if record is None:
@@ -107,9 +148,15 @@ def closure_run_with(loaded: Any) -> dict[str, str]:
 
 
 def run_provenance(loaded: Any) -> dict[str, Any]:
-    """What every report of a run on ``loaded`` (a :class:`hub_envs.loading.loaded.LoadedEnv`) records first: the repo, the
-    revision asked for and the sha it resolved to, the content digest, the published dataset fingerprint, the
-    package versions the env's code ran with (:func:`versions_run_with`), hub-envs' version and when."""
+    """What every report of a run records first.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        The repo, the revision asked for and the sha it resolved to, the content digest, the published dataset
+        fingerprint, the package versions the env's code ran with (:func:`versions_run_with`), hub-envs' version and when.
+    """
     m = loaded.manifest
     return {
         "repo_id": loaded.repo_id,
@@ -124,7 +171,15 @@ def run_provenance(loaded: Any) -> dict[str, Any]:
 
 
 def version_differences(recorded: dict[str, str], current: dict[str, str]) -> dict[str, tuple[str, str]]:
-    """``{package: (published, here)}`` for every package whose version differs."""
+    """The packages whose version differs.
+
+    Args:
+        recorded: the published versions.
+        current: the versions here.
+
+    Returns:
+        ``{package: (published, here)}`` for each package ``recorded`` names whose version differs.
+    """
     return {
         k: (recorded.get(k, "?"), current.get(k, "?"))
         for k in sorted(set(recorded) | set(current))
@@ -133,11 +188,17 @@ def version_differences(recorded: dict[str, str], current: dict[str, str]) -> di
 
 
 def drift_kinds(names, manifest: Any) -> dict[str, str]:
-    """What each of ``names`` (packages whose recorded version differs) is to the env of ``manifest``, a key of
-    :data:`DRIFT_KINDS`: one of its ``requirements``; a ``dependency`` of them (in ``resolved``, the requirements'
-    closure the publisher had, less what only numpy and gymnasium pull in here); the ``simulator`` (a physics
-    engine, :data:`SIMULATORS`); numpy, gymnasium and their own dependencies (``worker``: what every env runs
-    on); else the ``stack`` (python, lerobot, torch, ...)."""
+    """What each package whose recorded version differs is to the env.
+
+    Args:
+        names: the packages.
+        manifest: the env's manifest.
+
+    Returns:
+        ``{package: kind}``, a key of :data:`DRIFT_KINDS`: one of its ``requirements``; a ``dependency`` of them (in
+        ``resolved``, less what only numpy and gymnasium pull in here); the ``simulator`` (:data:`SIMULATORS`);
+        ``worker`` (numpy, gymnasium and their own dependencies); else the ``stack`` (python, lerobot, torch, ...).
+    """
     requirements = set()
     for text in manifest.requirements:
         try:
@@ -165,9 +226,17 @@ def drift_kinds(names, manifest: Any) -> dict[str, str]:
 
 
 def ranked_differences(manifest: Any, here: dict[str, str]) -> dict[str, tuple[str, str]]:
-    """``{package: (published, here)}`` for every version ``manifest`` records (:func:`recorded_versions`) that
-    differs from ``here``, the most suspect first: the env's requirements, their dependencies (a simulator first),
-    the simulator, numpy and gymnasium, then the rest of the stack (:func:`drift_kinds`); by name within each."""
+    """The recorded versions (:func:`recorded_versions`) that differ from ``here``, the most suspect first: the env's
+    requirements, their dependencies (a simulator first), the simulator, numpy and gymnasium, then the rest of the stack
+    (:func:`drift_kinds`); by name within each.
+
+    Args:
+        manifest: the env's manifest.
+        here: the versions the env's code runs with.
+
+    Returns:
+        ``{package: (published, here)}``, ranked.
+    """
     diffs = version_differences(recorded_versions(manifest), here)
     kinds = drift_kinds(diffs, manifest)
     order = list(DRIFT_KINDS)
@@ -177,8 +246,15 @@ def ranked_differences(manifest: Any, here: dict[str, str]) -> dict[str, tuple[s
 
 
 def describe_differences(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | None = None) -> str:
-    """The sentence a drift message ends with: which versions differ (in ``diffs``' order, each with its kind when
-    ``kinds`` says it), or that none does (then the code or machine did)."""
+    """The sentence a drift message ends with.
+
+    Args:
+        diffs: ``{package: (published, here)}``, in the order to say them.
+        kinds: each package's kind (:func:`drift_kinds`), when known.
+
+    Returns:
+        Which versions differ, or that none does (then the code, the assets or the machine changed).
+    """
     if not diffs:
         return (
             "\nNo package version differs from the publisher's, so the env's code or assets, or the machine "
@@ -188,7 +264,15 @@ def describe_differences(diffs: dict[str, tuple[str, str]], kinds: dict[str, str
 
 
 def difference_text(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | None = None) -> str:
-    """``"mujoco 3.3.0 (published) vs 3.3.7 (here, a dependency of its requirements), ..."``."""
+    """``"mujoco 3.3.0 (published) vs 3.3.7 (here, a dependency of its requirements), ..."``.
+
+    Args:
+        diffs: ``{package: (published, here)}``.
+        kinds: each package's kind, when known.
+
+    Returns:
+        The text.
+    """
     kinds = kinds or {}
     return ", ".join(
         f"{k} {a} (published) vs {b} (here{', ' + DRIFT_KINDS[kinds[k]] if k in kinds else ''})" for k, (a, b) in diffs.items()
@@ -196,8 +280,14 @@ def difference_text(diffs: dict[str, tuple[str, str]], kinds: dict[str, str] | N
 
 
 def drift_note(loaded: Any) -> str:
-    """:func:`describe_differences` for ``loaded`` (a :class:`hub_envs.loading.loaded.LoadedEnv`): the recorded versions that
-    differ from those its code runs with (:func:`versions_run_with`, :func:`closure_run_with`), ranked
-    (:func:`ranked_differences`)."""
+    """:func:`describe_differences` for a loaded env: the recorded versions that differ from those its code runs with
+    (:func:`versions_run_with`, :func:`closure_run_with`), ranked (:func:`ranked_differences`).
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        The sentence.
+    """
     diffs = ranked_differences(loaded.manifest, {**closure_run_with(loaded), **versions_run_with(loaded)})
     return describe_differences(diffs, drift_kinds(diffs, loaded.manifest))

@@ -37,6 +37,14 @@ def _fmt(x: Any, digits: int = 6) -> str:
 
 
 def jsonable(value: Any) -> Any:
+    """A value as JSON can hold it.
+
+    Args:
+        value: nested dicts, lists, numbers...
+
+    Returns:
+        The same, with NaN and infinities as text, keys as text, tuples as lists.
+    """
     if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
         return str(value)
     if isinstance(value, dict):
@@ -79,6 +87,7 @@ class ReproduceReport(ReportFiles):
         return all(self.checks.values())
 
     def verdict(self) -> str:
+        """``REPRODUCED`` or ``NOT REPRODUCED``."""
         return "REPRODUCED" if self.reproduced else "NOT REPRODUCED"
 
     @property
@@ -157,6 +166,7 @@ class ReproduceReport(ReportFiles):
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready data (``report.json``)."""
         return jsonable(
             {
                 "repo_id": self.repo_id,
@@ -175,6 +185,7 @@ class ReproduceReport(ReportFiles):
         )
 
     def to_markdown(self) -> str:
+        """The report for people (``report.md``): the verdict, the checks, the replay, the benchmarks, the provenance."""
         p = self.provenance
         out = [
             f"# Reproduction of `{self.repo_id}`",
@@ -300,7 +311,11 @@ class ReproduceReport(ReportFiles):
     def plot(self, path: str | Path) -> Path | None:
         """Per-episode returns published vs reproduced; the divergence over steps when there is one.
 
-        None (and no file) without matplotlib: it is the ``plots`` extra (``pip install 'hub-envs[plots]'``).
+        Args:
+            path: the PNG to write.
+
+        Returns:
+            ``path``; None (and no file) without matplotlib: it is the ``plots`` extra (``pip install 'hub-envs[plots]'``).
         """
         try:
             import matplotlib  # heavy: matplotlib

@@ -231,6 +231,7 @@ class EpisodeRunner:
         return self.env
 
     def close(self) -> None:
+        """Close the runner's env (an error closing it is ignored: it must not mask results or the original error)."""
         if self.env is not None:
             try:
                 self.env.close()
@@ -257,8 +258,20 @@ class EpisodeRunner:
         return self.shared_actions
 
     def run(self, index: int, seed: int, *, episode: int | None = None) -> EpisodeRollout:
-        """Run episode ``index`` of this runner's seeds (its actions, if replayed); ``episode``: the number it
-        is recorded and reported under (default ``index``; a shard of a larger run passes its global index)."""
+        """Run one episode of this runner's seeds.
+
+        Args:
+            index: the episode's index among the runner's seeds (its recorded actions, when replayed).
+            seed: its reset seed.
+            episode: the number it is recorded and reported under (default ``index``; a shard of a larger run passes its
+                global index).
+
+        Returns:
+            The :class:`EpisodeRollout`.
+
+        Raises:
+            EnvCodeError: the env raised, or produced a NaN/inf observation or reward.
+        """
         env = self._ensure_env()
         number = index if episode is None else int(episode)
         where = f"episode {number} (seed {seed})"
@@ -446,10 +459,19 @@ def iter_episodes(
     progress: bool = True,
     desc: str = "rollouts",
 ) -> Iterator[EpisodeRollout]:
-    """Like :func:`run_episodes`, but yields rollouts one by one in episode order (bounded memory).
+    """Like :func:`run_episodes`, but yields the rollouts one by one in episode order (bounded memory): with
+    ``workers > 1`` at most ``2 * workers`` finished episodes wait for the consumer; closing the iterator early stops the
+    workers.
 
-    With ``workers > 1`` at most ``2 * workers`` finished episodes wait in memory for the consumer.
-    Closing the iterator early stops the workers.
+    Args:
+        make_env, seeds, max_steps, policy, record_states, workers, progress, desc: as :func:`run_episodes`.
+
+    Returns:
+        An iterator of :class:`EpisodeRollout`.
+
+    Raises:
+        ConfigError: invalid seeds, max_steps or workers (at once, not on the first ``next()``).
+        EnvCodeError: an episode raised (when it is consumed).
     """
     seeds = check_seeds(seeds)  # validate now, not on the first next()
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
@@ -526,24 +548,26 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
 
 
 def run_episodes(make_env: Callable[[], Any], seeds: Sequence[int], **options: Any) -> list[EpisodeRollout]:
-    """Run one episode per seed and return the rollouts in seed order. ``options`` are :func:`iter_episodes`'.
+    """Run one episode per seed and return the rollouts in seed order.
 
     Args:
-        make_env: zero-argument callable returning a gymnasium env. Called once per worker; the env
-            is reused across that worker's episodes. With ``workers > 1`` on Linux the pool forks,
-            so it need not be picklable.
+        make_env: zero-argument callable returning a gymnasium env. Called once per worker; the env is reused across that
+            worker's episodes. With ``workers > 1`` on Linux the pool forks, so it need not be picklable.
         seeds: one non-negative int per episode; episode ``i`` runs ``env.reset(seed=seeds[i])`` and
             ``env.action_space.seed(seeds[i])``.
-        max_steps: at most this many steps per episode (the env may end it earlier).
-        policy: ``None`` (seeded uniform random actions from ``env.action_space.sample()``), a
-            callable ``(obs, step_index) -> action`` (``obs`` as the env returns it), an action array
-            ``(T, *A)`` applied to every episode, or a list with one ``(T_i, *A)`` array (or ``None``: seeded
-            random actions) per episode
-            (replay). Replayed episodes last at most as many steps as there are actions.
-        record_states: also record ``env.get_state()`` before each action (when the env has it).
-        workers: number of processes. Results are identical for any value.
-        progress: show a progress bar (hidden by ``HF_HUB_DISABLE_PROGRESS_BARS=1`` too).
-        desc: label of the progress bar.
+        options: :func:`iter_episodes`' keywords:
+            ``max_steps`` (at most this many steps per episode; the env may end it earlier);
+            ``policy`` (``None``: seeded uniform random actions from ``env.action_space.sample()``; a callable
+            ``(obs, step_index) -> action``; an action array ``(T, *A)`` applied to every episode; or a list with one
+            ``(T_i, *A)`` array, or ``None`` for seeded random actions, per episode: replay, at most as many steps as
+            there are actions);
+            ``record_states`` (also record ``env.get_state()`` before each action, when the env has it);
+            ``workers`` (processes; results are identical for any value);
+            ``progress`` (a progress bar, hidden by ``HF_HUB_DISABLE_PROGRESS_BARS=1`` too);
+            ``desc`` (the bar's label).
+
+    Returns:
+        One :class:`EpisodeRollout` per seed.
 
     Raises:
         EnvCodeError: the env raised in make_env/reset/step, or produced NaN/inf observations or rewards.

@@ -30,7 +30,15 @@ _CONSUMED = ("repo_id", "revision", "trust_remote_code", "fingerprint", "check")
 
 
 def flag(argv: list[str], name: str) -> str | None:
-    """The value of ``--name=value`` in ``argv`` (the last one wins), else None."""
+    """The value of a ``--name=value`` flag.
+
+    Args:
+        argv: the arguments.
+        name: the flag's name.
+
+    Returns:
+        Its value (the last one wins), else None.
+    """
     prefix = f"--{name}="
     values = [a[len(prefix) :] for a in argv if a.startswith(prefix)]
     return values[-1] if values else None
@@ -64,7 +72,20 @@ def _resolve_short_sha(repo_id: str, prefix: str) -> str:
 
 
 def prepare_argv(argv: list[str], *, command: str) -> tuple[list[str], Any]:
-    """Register hub-envs' choices, pre-load the env the flags name, and return (argv for LeRobot, LoadedEnv or None)."""
+    """Register hub-envs' choices and hooks in LeRobot, and load the env the flags name before LeRobot parses them.
+
+    Args:
+        argv: LeRobot's flags (``--env.type=hub --env.repo_id=...``, or a per-repo ``--env.type=user/name@<sha12>``).
+        command: ``"train"``, ``"eval"`` or ``"plugin"`` (LeRobot's own CLI).
+
+    Returns:
+        ``(argv for LeRobot, the LoadedEnv or None)``.
+
+    Raises:
+        ConfigError: a flag that names no repo or a malformed one.
+        UntrustedCodeError: no consent to run the repo's code.
+        HubEnvsError: as :func:`hub_envs.load_env`.
+    """
     from hub_envs.lerobot.env import HUB_CHOICE, install_hooks, load_cached, set_cli_consent  # heavy: lerobot
 
     install_hooks()
@@ -200,7 +221,14 @@ def _json_default(value):
 
 
 def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
-    """What identifies the env a LeRobot config names: repo, sha, digests, config values, processors."""
+    """What identifies the env a LeRobot config names.
+
+    Args:
+        env_cfg_or_hub: LeRobot's ``cfg.env``.
+
+    Returns:
+        The repo, sha, digests, config values and processors; None for a config that is not a hub env's.
+    """
     from hub_envs.envcode.envconfig import encode_config  # heavy: lerobot (its EnvConfig)
     from hub_envs.lerobot.env import loaded_for  # heavy: lerobot (its EnvConfig)
 
@@ -229,6 +257,17 @@ def env_provenance(env_cfg_or_hub) -> dict[str, Any] | None:
 
 
 def dataset_provenance(repo_id: str | None, root: str | Path | None, revision: str | None, env: dict | None) -> dict[str, Any]:
+    """What identifies the dataset a run trained on.
+
+    Args:
+        repo_id: LeRobot's ``--dataset.repo_id``.
+        root: ``--dataset.root``.
+        revision: ``--dataset.revision``.
+        env: :func:`env_provenance` of the run's env (to say whether it is that env's own dataset).
+
+    Returns:
+        The repo id, root, revision and fingerprint (and ``is_env_dataset``).
+    """
     out: dict[str, Any] = {"repo_id": repo_id, "root": str(root) if root else None, "revision": revision, "fingerprint": None}
     if root and (Path(root) / "meta" / "info.json").is_file():
         out["fingerprint"] = dataset_fingerprint(root)
@@ -266,7 +305,15 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
-    """What ``hub-envs train`` records beside the checkpoints; ``argv``: the command's flags (:func:`portable_argv`)."""
+    """What ``hub-envs train`` records beside the checkpoints.
+
+    Args:
+        cfg: LeRobot's ``TrainPipelineConfig``.
+        argv: the command's flags (:func:`portable_argv`).
+
+    Returns:
+        The env, dataset and policy provenance, the command and the package versions.
+    """
     env = env_provenance(cfg.env) if cfg.env is not None else None
     return {
         "hub_envs_provenance": 1,
@@ -283,6 +330,15 @@ def train_provenance(cfg, argv: list[str]) -> dict[str, Any]:
 
 
 def eval_provenance(cfg, argv: list[str]) -> dict[str, Any]:
+    """What ``hub-envs eval`` records in ``eval_info.json``.
+
+    Args:
+        cfg: LeRobot's ``EvalPipelineConfig``.
+        argv: the command's flags (:func:`portable_argv`).
+
+    Returns:
+        The env and policy provenance (the training's, when the checkpoint has it), the command and the package versions.
+    """
     env = env_provenance(cfg.env)
     policy_path = getattr(cfg.policy, "pretrained_path", None) if cfg.policy else None
     return {

@@ -44,7 +44,11 @@ _CLI_CONSENT: list[bool] = []
 
 
 def set_cli_consent(trust_remote_code: bool | None) -> None:
-    """Declare the consent of the command line LeRobot is about to parse (None: no command line, a Python call)."""
+    """Declare the consent of the command line LeRobot is about to parse.
+
+    Args:
+        trust_remote_code: the command line's ``--env.trust_remote_code`` (None: no command line, a Python call).
+    """
     _CLI_CONSENT.clear()
     if trust_remote_code is not None:
         _CLI_CONSENT.append(bool(trust_remote_code))
@@ -59,7 +63,18 @@ def load_cached(
     check: bool = True,
     **run: Unpack[CodeRun],
 ) -> LoadedEnv:
-    """:func:`hub_envs.load_env`, once per process for the same arguments (``run``: how the code runs)."""
+    """:func:`hub_envs.load_env`, once per process for the same arguments.
+
+    Args:
+        repo_id, revision, trust_remote_code, fingerprint, check: as :func:`hub_envs.load_env` takes them.
+        run: how the env's code runs (:class:`~hub_envs.loading.isolated.CodeRun`).
+
+    Returns:
+        The :class:`~hub_envs.loading.loaded.LoadedEnv` (the same one while it stays registered).
+
+    Raises:
+        HubEnvsError: as :func:`hub_envs.load_env`.
+    """
     iso = tuple(sorted(code_run(run, "load_cached", complete=True).items()))
     key = (repo_id, revision, fingerprint, bool(check), iso)
     loaded = _CACHE.get(key)
@@ -199,7 +214,15 @@ class HubEnv(EnvConfig):
     # LeRobot >= 0.5 asks the config itself for its envs and env processors (0.4 branches in its factory,
     # where install_hooks routes hub env configs here).
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
-        """``{name: {0: VectorEnv}}`` of ``n_envs`` copies, as LeRobot's eval loop expects (see :func:`make_vec_env`)."""
+        """LeRobot >= 0.5's env creation (:func:`make_vec_env`).
+
+        Args:
+            n_envs: how many envs.
+            use_async_envs: one process each.
+
+        Returns:
+            ``{name: {0: VectorEnv}}``.
+        """
         return {self._loaded.manifest.name: {0: make_vec_env(self._loaded, self._env_config, n_envs, use_async_envs)}}
 
     def get_env_processors(self):
@@ -220,7 +243,14 @@ class TaskDescription(gym.Wrapper):
 
 
 def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
-    """``(loaded env, repo config instance)`` for a hub env config (``hub`` or a per-repo choice), else None."""
+    """The load behind a hub env config.
+
+    Args:
+        cfg: LeRobot's ``cfg.env``.
+
+    Returns:
+        ``(loaded env, repo config instance)`` for a hub env config (``hub`` or a per-repo choice), else None.
+    """
     if isinstance(cfg, HubEnv):
         return cfg.loaded, cfg.env_config
     if isinstance(cfg, EnvConfig):
@@ -237,7 +267,22 @@ def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
 def make_vec_env(
     loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 1, use_async_envs: bool = False
 ) -> gym.vector.VectorEnv:
-    """``n_envs`` copies of a loaded env, as LeRobot's eval loop expects them (see the module docstring)."""
+    """``n_envs`` copies of a loaded env, as LeRobot's eval loop expects them: ``AutoresetMode.SAME_STEP`` (so
+    ``info["final_info"]["is_success"]`` is there), the config's ``episode_length`` as time limit, its ``task`` exposed as
+    ``task``/``task_description``.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+        cfg: a config instance (default: the published one).
+        n_envs: how many envs.
+        use_async_envs: one process each.
+
+    Returns:
+        The vector env.
+
+    Raises:
+        ConfigError: ``n_envs`` below 1.
+    """
     if n_envs < 1:
         raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
     cfg = cfg if cfg is not None else loaded.config
@@ -260,10 +305,16 @@ def make_vec_env(
 def make_env(
     cfg, n_envs: int = 1, use_async_envs: bool = False, hub_cache_dir: str | None = None, trust_remote_code: bool = False
 ) -> dict[str, dict[int, gym.vector.VectorEnv]]:
-    """LeRobot's ``make_env`` signature; hub env configs get :func:`make_vec_env`, others LeRobot's own.
+    """LeRobot's ``make_env``: hub env configs get :func:`make_vec_env`, others LeRobot's own. A hub env config was loaded
+    through load_env's trust gate when it was built, so LeRobot's ``trust_remote_code`` (which ``lerobot_train`` never
+    passes) is not needed for it.
 
-    A hub env config was loaded through load_env's trust gate when it was built, so LeRobot's
-    ``trust_remote_code`` argument (which ``lerobot_train`` never passes) is not needed for it.
+    Args:
+        cfg: LeRobot's env config.
+        n_envs, use_async_envs, hub_cache_dir, trust_remote_code: LeRobot's.
+
+    Returns:
+        ``{name: {0: VectorEnv}}``.
     """
     found = loaded_for(cfg)
     if found is None:
@@ -277,7 +328,15 @@ def make_env(
 
 
 def make_env_pre_post_processors(env_cfg, policy_cfg):
-    """LeRobot's ``make_env_pre_post_processors``, plus the processors a hub env repo declares."""
+    """LeRobot's ``make_env_pre_post_processors``, plus the processors a hub env repo declares.
+
+    Args:
+        env_cfg: LeRobot's env config.
+        policy_cfg: its policy config.
+
+    Returns:
+        ``(env_preprocessor, env_postprocessor)``.
+    """
     from lerobot.envs import factory  # heavy: lerobot (torch)
     from lerobot.processor import PolicyProcessorPipeline  # heavy: lerobot (torch)
 
@@ -296,10 +355,15 @@ def make_env_pre_post_processors(env_cfg, policy_cfg):
 def keep_declared_shapes(dataset):
     """Make ``action`` / ``observation.*`` features declared with shape ``(1,)`` come back with that shape.
 
-    LeRobot stores a shape-``(1,)`` feature as a scalar column and returns it as a 0-d tensor (and a
-    chunk of them as ``(T,)``), while its policies expect ``(..., 1)``: a 1-D action (pendulum's torque)
-    breaks ACT and diffusion training with a broadcasting error. This adds the last dimension back,
-    in the dataset's own torch transform.
+    LeRobot stores a shape-``(1,)`` feature as a scalar column and returns it as a 0-d tensor (and a chunk of them as
+    ``(T,)``), while its policies expect ``(..., 1)``: a 1-D action (pendulum's torque) breaks ACT and diffusion training
+    with a broadcasting error. This adds the last dimension back, in the dataset's own torch transform.
+
+    Args:
+        dataset: a ``LeRobotDataset``.
+
+    Returns:
+        ``dataset``, its transform wrapped.
     """
     import torch  # heavy: torch
     from lerobot.utils.constants import ACTION, OBS_PREFIX  # heavy: lerobot (torch)
@@ -348,14 +412,29 @@ def _fix_shapes(cfg, dataset):
 
 
 def make_dataset(cfg):
-    """LeRobot's ``make_dataset``; for a hub env run or a hub-envs dataset, with :func:`keep_declared_shapes`."""
+    """LeRobot's ``make_dataset``; for a hub env run or a hub-envs dataset, with :func:`keep_declared_shapes`.
+
+    Args:
+        cfg: LeRobot's ``TrainPipelineConfig``.
+
+    Returns:
+        The dataset.
+    """
     from lerobot.datasets import factory  # heavy: lerobot (torch)
 
     return _fix_shapes(cfg, factory.make_dataset(cfg))
 
 
 def make_train_eval_datasets(cfg, *args, **kwargs):
-    """LeRobot >= 0.5's ``make_train_eval_datasets``, each dataset with :func:`keep_declared_shapes`."""
+    """LeRobot >= 0.5's ``make_train_eval_datasets``, each dataset with :func:`keep_declared_shapes`.
+
+    Args:
+        cfg: LeRobot's ``TrainPipelineConfig``.
+        args, kwargs: LeRobot's.
+
+    Returns:
+        ``(train, eval or None)``.
+    """
     from lerobot.datasets import factory  # heavy: lerobot (torch)
 
     train, evaluation = factory.make_train_eval_datasets(cfg, *args, **kwargs)

@@ -69,6 +69,14 @@ class ClipActionProcessorStep(ActionProcessorStep):
     def from_spaces(cls, *, action_space=None, observation_space=None, **kwargs):
         """The step for an env: ``low``/``high`` not given are the bounds of its Box ``action_space``.
 
+        Args:
+            action_space: the env's action space.
+            observation_space: the env's observation space (unused).
+            kwargs: the declaration's ``kwargs`` (``low``, ``high``).
+
+        Returns:
+            The step.
+
         Raises:
             TypeError: no bounds given and no Box action space to take them from.
         """
@@ -87,7 +95,17 @@ class ClipActionProcessorStep(ActionProcessorStep):
             raise ValueError(f"clip_action: low {self.low} and high {self.high} must have one shape and low <= high")
 
     def action(self, action):
-        """The ``(batch, action_dim)`` action tensor clamped to ``[low, high]``."""
+        """Clamp an action.
+
+        Args:
+            action: a ``(batch, action_dim)`` tensor.
+
+        Returns:
+            It, clamped to ``[low, high]``.
+
+        Raises:
+            TypeError: not a tensor.
+        """
         if not isinstance(action, torch.Tensor):
             raise TypeError(f"clip_action expects a torch.Tensor action, got {type(action).__name__}")
         low = torch.as_tensor(self.low, dtype=action.dtype, device=action.device)
@@ -99,7 +117,14 @@ class ClipActionProcessorStep(ActionProcessorStep):
         return {"low": self.low, "high": self.high}
 
     def transform_features(self, features):
-        """Clamping changes no feature."""
+        """Clamping changes no feature.
+
+        Args:
+            features: the pipeline's features.
+
+        Returns:
+            ``features``.
+        """
         return features
 
 
@@ -140,7 +165,13 @@ class FlattenStateProcessorStep(ObservationProcessorStep):
         return value
 
     def observation(self, observation):
-        """The observation with the ``keys`` concatenated into ``output`` (the sources removed unless ``keep``).
+        """Flatten the keys into one state vector.
+
+        Args:
+            observation: a batched observation.
+
+        Returns:
+            It with the ``keys`` concatenated into ``output`` (the sources removed unless ``keep``).
 
         Raises:
             KeyError: a key the observation does not have.
@@ -168,7 +199,14 @@ class FlattenStateProcessorStep(ObservationProcessorStep):
         return {"keys": list(self.keys), "output": self.output, "keep": self.keep}
 
     def transform_features(self, features):
-        """The features with ``output`` (a STATE of the summed sizes) in place of the flattened keys."""
+        """The features after the step.
+
+        Args:
+            features: the pipeline's features.
+
+        Returns:
+            Them with ``output`` (a STATE of the summed sizes) in place of the flattened keys.
+        """
         obs = dict(features.get(PipelineFeatureType.OBSERVATION, {}))
         tops = [k.split("/")[0] for k in self.keys]
         if all(k in obs and "/" not in k for k in self.keys):
@@ -404,7 +442,17 @@ def _package(loaded) -> str:
 
 
 def specs_for(loaded) -> list[ProcessorSpec]:
-    """The processors ``loaded`` declares, parsed (:func:`parse_declarations`)."""
+    """The processors a loaded env declares.
+
+    Args:
+        loaded: a :class:`~hub_envs.loading.loaded.LoadedEnv`.
+
+    Returns:
+        Its :class:`ProcessorSpec` s (:func:`parse_declarations`).
+
+    Raises:
+        ProcessorError: a malformed declaration.
+    """
     return parse_declarations(list(loaded.manifest.processors), where=_source(loaded))
 
 

@@ -74,12 +74,29 @@ class Estimate:
 
     @classmethod
     def of(cls, values: Sequence[float], *, resamples: int, confidence: float, seed: int) -> Estimate:
-        """The estimate of ``values``: their mean and its seeded percentile bootstrap interval (``resamples``, ``confidence``, ``seed``)."""
+        """The estimate of per-episode values.
+
+        Args:
+            values: in seed order.
+            resamples, confidence, seed: the bootstrap's.
+
+        Returns:
+            Their mean and its seeded percentile bootstrap interval.
+        """
         v = tuple(float(x) for x in values)
         return cls(v, float(statistics.fmean(v)), bootstrap_ci(v, resamples=resamples, confidence=confidence, seed=seed))
 
     def text(self, *, scale: float = 1.0, sign: str = "", fmt: str = ".4g") -> str:
-        """``mean [low, high]``, each multiplied by ``scale`` and formatted with ``sign`` and ``fmt``."""
+        """The estimate as text.
+
+        Args:
+            scale: multiplies the numbers (100: percent).
+            sign: ``"+"`` to sign them.
+            fmt: their format.
+
+        Returns:
+            ``mean [low, high]``.
+        """
         f = f"{sign}{fmt}"
         return f"{scale * self.mean:{f}} [{scale * self.ci[0]:{f}}, {scale * self.ci[1]:{f}}]"
 
@@ -229,7 +246,14 @@ class CompareReport(ReportFiles):
         return "\n".join(out)
 
     def plot(self, path: str | Path) -> Path | None:
-        """``report.png`` (matplotlib): success rates, returns and the first paired difference; None without matplotlib."""
+        """Success rates, returns and the first paired difference.
+
+        Args:
+            path: the PNG to write.
+
+        Returns:
+            ``path``; None without matplotlib.
+        """
         try:
             import matplotlib  # heavy: matplotlib
         except ModuleNotFoundError:

@@ -448,7 +448,14 @@ class DiffReport(ReportFiles):
         return "\n".join(out) + "\n"
 
     def plot(self, path: Path) -> Path | None:
-        """``report.png`` (matplotlib): the per-step errors of up to three diverged seeds; None when nothing diverged or without matplotlib."""
+        """The per-step errors of up to three diverged seeds.
+
+        Args:
+            path: the PNG to write.
+
+        Returns:
+            ``path``; None when nothing diverged, or without matplotlib.
+        """
         shown = self.diverged[:3]
         if not shown:  # nothing to plot: no matplotlib import either
             return None

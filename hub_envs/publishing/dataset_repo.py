@@ -215,6 +215,9 @@ def dataset_commit_exists(repo_id: str, sha: str | None, token: str | None) -> b
         repo_id: the dataset repo.
         sha: a commit (None: no).
         token: the Hub token.
+
+    Returns:
+        True when it has.
     """
     if sha is None:
         return False

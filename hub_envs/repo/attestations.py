@@ -246,12 +246,33 @@ class Attestation:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
     def validated(self, *, where: str = "attestation") -> Attestation:
-        """This attestation checked as every reader checks it (:meth:`from_dict`)."""
+        """This attestation checked as every reader checks it.
+
+        Args:
+            where: names it in messages.
+
+        Returns:
+            It, read back from its own dict.
+
+        Raises:
+            AttestationError: a field that is not what the format allows.
+        """
         return type(self).from_dict(self.to_dict(), where=where)
 
     @classmethod
     def from_json(cls, text: str | bytes, *, where: str = "attestation") -> Attestation:
-        """:meth:`from_dict` of a file's text (an :class:`AttestationError` when it is not JSON)."""
+        """Read an attestation file.
+
+        Args:
+            text: the file's text or bytes.
+            where: names it in messages.
+
+        Returns:
+            The :class:`Attestation`.
+
+        Raises:
+            AttestationError: not JSON, or a field that is wrong.
+        """
         try:
             data = json.loads(text)
         except (ValueError, RecursionError) as e:

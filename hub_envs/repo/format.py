@@ -150,7 +150,14 @@ def beyond_manifest(path: str) -> bool:
 
 
 def is_code_file(path: str) -> bool:
-    """Whether a repo path is code (``.py``, ``pyproject.toml``): what the trust prompt lists."""
+    """Whether a repo path is code: what the trust prompt lists.
+
+    Args:
+        path: a repo path.
+
+    Returns:
+        True for ``.py`` files and ``pyproject.toml``.
+    """
     return path.endswith(CODE_SUFFIXES)
 
 
@@ -221,7 +228,15 @@ def safe_relpath(path: str, *, where: str) -> str:
 
 
 def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
-    """The sha256 of a file, read in chunks of ``chunk`` bytes."""
+    """The sha256 of a file.
+
+    Args:
+        path: the file.
+        chunk: bytes read at a time.
+
+    Returns:
+        64 hex digits.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(chunk):
@@ -335,7 +350,15 @@ def check_publishable(root: Path) -> None:
 
 
 def hash_files(root: Path, paths: list[str]) -> dict[str, str]:
-    """``{path: sha256}`` of the files ``paths`` (relative to ``root``), sorted."""
+    """The sha256 of files of a folder.
+
+    Args:
+        root: the folder.
+        paths: relative paths.
+
+    Returns:
+        ``{path: sha256}``, sorted.
+    """
     return {p: sha256_file(Path(root, p)) for p in sorted(paths)}
 
 
@@ -739,7 +762,18 @@ class Manifest:
 
     @classmethod
     def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
-        """:meth:`from_dict` of ``hub_env.json``'s text (a :class:`ManifestError` when it is not JSON)."""
+        """Read ``hub_env.json``'s text.
+
+        Args:
+            text: the text.
+            where: names it in messages.
+
+        Returns:
+            The :class:`Manifest`.
+
+        Raises:
+            ManifestError: not JSON, or as :meth:`from_dict`.
+        """
         try:
             data = json.loads(text)
         except json.JSONDecodeError as e:
@@ -750,7 +784,18 @@ class Manifest:
 
     @classmethod
     def read(cls, folder: Path, *, where: str | None = None) -> Manifest:
-        """:meth:`from_json` of ``folder``'s ``hub_env.json`` (a :class:`ManifestError` when there is none)."""
+        """Read a folder's ``hub_env.json``.
+
+        Args:
+            folder: the folder.
+            where: names it in messages (default: the file's path).
+
+        Returns:
+            The :class:`Manifest`.
+
+        Raises:
+            ManifestError: there is none, or as :meth:`from_json`.
+        """
         path = Path(folder, MANIFEST_FILE)
         where = where or str(path)
         if not path.is_file():
@@ -850,8 +895,16 @@ class EnvFolder:
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
-        """Read an env folder (its ``pyproject.toml`` and ``[tool.hub-envs]``): an :class:`EnvFolderError` naming what is
-        missing or malformed.
+        """Read an env folder: its ``pyproject.toml`` (``[project]`` and ``[tool.hub-envs]``) and its files.
+
+        Args:
+            root: the folder.
+
+        Returns:
+            The :class:`EnvFolder`.
+
+        Raises:
+            EnvFolderError: naming what is missing or malformed.
         """
         root = Path(root).resolve()
         if not root.is_dir():

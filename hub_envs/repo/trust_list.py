@@ -64,7 +64,16 @@ class TrustList:
     path: Path
 
     def covers(self, repo_id: str, sha: str, content_digest: str) -> bool:
-        """Whether an entry names exactly this repo, commit and content digest."""
+        """Whether an entry names exactly this repo, commit and content.
+
+        Args:
+            repo_id: the repo.
+            sha: the commit.
+            content_digest: the content digest.
+
+        Returns:
+            True when one does.
+        """
         return any(e.repo_id == repo_id and e.sha == sha and e.content_digest == content_digest for e in self.entries)
 
     def previous(self, repo_id: str) -> list[TrustEntry]:
