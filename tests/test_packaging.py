@@ -10,6 +10,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -122,3 +123,16 @@ def test_the_readme_architecture_map_names_every_module():
         if not found:
             missing.append(str(rel))
     assert not missing, f"README's Architecture section does not name {missing}"
+
+
+def test_the_readme_layers_are_the_layers_lint_imports_enforces():
+    """README's list of layers is the layers contract of pyproject.toml's [tool.importlinter] (what `make lint` runs):
+    the map a newcomer reads is the architecture the tool checks, not a description that can drift from it."""
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    layers = next(c["layers"] for c in contracts if c["type"] == "layers")
+    expected = [" | ".join(part.strip().removeprefix("hub_envs.") for part in layer.split("|")) for layer in layers]
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Architecture") :]
+    block = section[section.index("The layers, top to bottom") :]
+    block = block[block.index("```") + 3 : block.index("```", block.index("```") + 3)]
+    assert [line.strip() for line in block.strip().splitlines()] == expected
