@@ -575,9 +575,10 @@ def test_an_edited_checker_never_reuses_the_cached_verdicts(tmp_path):
     under development, a ``git checkout``) changes it, so verdicts reached by other checking code are not reused;
     an untouched tree keeps its key (the cache works)."""
     from hub_envs.loading import check_cache
+    from hub_envs.paths import PACKAGE_DIR
 
     tree = tmp_path / "hub_envs"
-    shutil.copytree(Path(check_cache.__file__).resolve().parent, tree, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(PACKAGE_DIR, tree, ignore=shutil.ignore_patterns("__pycache__"))
     before = check_cache._checker_source_digest(tree)
     assert check_cache._checker_source_digest(tree) == before
     (tree / "__pycache__").mkdir(exist_ok=True)
