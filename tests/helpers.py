@@ -55,18 +55,6 @@ def republish(
     return info.oid
 
 
-def comparable_report(report) -> dict:
-    """A reproduction report as a dict, minus what differs between identical runs (wall-clock times, settings)."""
-    d = report.to_dict()
-    d["provenance"].pop("generated_at")
-    d["replay"].pop("seconds")
-    for b in d["benchmarks"]:
-        b.pop("seconds")
-    d.pop("settings")
-    d.pop("timings")
-    return d
-
-
 def saved_figures(monkeypatch, module) -> list:
     """The matplotlib figures ``module`` saves as report PNGs from now on (its ``save_figure``, still called: the
     PNGs are written as always), to assert on what the plot draws rather than on pixels."""
@@ -78,3 +66,15 @@ def saved_figures(monkeypatch, module) -> list:
 
     monkeypatch.setattr(module, "save_figure", spy)
     return figures
+
+
+def comparable_report(report) -> dict:
+    """A reproduction report as a dict, minus what differs between identical runs (wall-clock times, settings)."""
+    d = report.to_dict()
+    d["provenance"].pop("generated_at")
+    d["replay"].pop("seconds")
+    for b in d["benchmarks"]:
+        b.pop("seconds")
+    d.pop("settings")
+    d.pop("timings")
+    return d

@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import TINY, comparable_report, copy_env, republish, saved_figures
+from helpers import TINY, comparable_report, copy_env, republish
 
 from hub_envs import env_from_dataset, errors, load_env, push_env, reproduce, trust
 from hub_envs.cli import main as cli_main
@@ -72,6 +72,8 @@ def _reach_small(tmp_path: Path) -> Path:
 
 @pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
 def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name, monkeypatch):
+    from helpers import saved_figures
+
     import hub_envs.harness.report
 
     if not (ENVS / name).is_dir():
