@@ -61,7 +61,7 @@ from hub_envs.errors import (
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
-from hub_envs.harness.media import render_size_overrides, write_rollout_media
+from hub_envs.harness.media import MEDIA_EPISODES, MEDIA_STEPS, card_media_kwargs, write_rollout_media
 from hub_envs.harness.provenance import package_versions, requirement_closure
 from hub_envs.importing import forget_env_folder, module_key
 from hub_envs.load import LoadedEnv, load_env
@@ -327,10 +327,12 @@ def _refresh_card(
     from main's manifest (as :func:`build_repo` renders it) and commit it with the manifest's new hash of it, on
     top of ``head``: nothing else is rebuilt, and the content digest (which excludes the card) stays."""
     env = loaded.make()
+    folder = EnvFolder.read(loaded.local_folder)
     try:
         card = render_card(
             replace(remote, files={}),  # as build_repo renders it: before the files are hashed
             env_class=loaded.env_class,
+            media_kwargs=card_media_kwargs(loaded.config.gym_kwargs, folder.media_gym_kwargs),
             env=env,
             content_tag=content_tag(remote.content_digest),
             license=EnvFolder.read(loaded.local_folder).license,
@@ -509,6 +511,25 @@ def _draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: _
     )
 
 
+def _media_env_maker(loaded: LoadedEnv, media_kwargs: dict[str, Any], folder: EnvFolder):
+    """``make()`` for the card's media: the env with ``media_kwargs``; the author's ``[tool.hub-envs.media]
+    gym_kwargs`` that the env refuses are named with where they come from."""
+
+    def make():
+        try:
+            return loaded.make(**media_kwargs)
+        except (TypeError, ValueError) as exc:
+            if not folder.media_gym_kwargs:
+                raise
+            raise EnvFolderError(
+                f"{folder.root / 'pyproject.toml'}: [tool.hub-envs.media] gym_kwargs = {folder.media_gym_kwargs}: the env "
+                f"refused them when push_env made it to render the card's media ({type(exc).__name__}: {exc}). Give "
+                f"keyword arguments that {getattr(loaded.env_class, '__name__', 'the env')} takes, or remove the table."
+            ) from exc
+
+    return make
+
+
 def build_repo(
     loaded: LoadedEnv,
     staging: Path,
@@ -528,7 +549,8 @@ def build_repo(
 ) -> Manifest:
     """Run the checks and write the complete repo content for ``loaded`` (a local folder) into ``staging``.
 
-    The stages, in order: check the env (:func:`_check_env`), copy the code (:func:`_write_code`), the one
+    The stages, in order: check the env (:func:`_check_env`) and the env the card's media need (the author's
+    ``[tool.hub-envs.media] gym_kwargs``, :func:`_media_env_maker`), copy the code (:func:`_write_code`), the one
     rollout pass (:func:`_generate_dataset`: dataset, states, returns, fingerprint), the dataset half of the
     feature check, the GIF, the manifest and the card. Returns the manifest it wrote (validated as load_env
     validates it). The episodes run on ``backend`` (default: ``workers`` local processes); the repo content
@@ -541,6 +563,11 @@ def build_repo(
     say(f"Checking {loaded.local_folder.name}: determinism, gymnasium check_env, three-way features")
     env = _check_env(loaded, seed=seed, determinism_steps=determinism_steps, where=where)
     try:
+        folder = EnvFolder.read(loaded.local_folder)
+        media_kwargs = card_media_kwargs(cfg.gym_kwargs, folder.media_gym_kwargs)  # the author's camera, >= 256 px
+        make_media_env = _media_env_maker(loaded, media_kwargs, folder)
+        if folder.media_gym_kwargs:  # the author's media kwargs refused now, not after the dataset is built
+            make_media_env().close()
         code_digest = _write_code(loaded, staging, repo_id)
         where_run = ", ".join(f"{k}={v}" for k, v in backend.settings().items() if v is not None)
         say(f"Generating the random-action dataset: {episodes} episodes x up to {cfg.episode_length} steps ({where_run})")
@@ -560,13 +587,12 @@ def build_repo(
         check_features(cfg, env, read_info(staging / DATASET_DIR)["features"], seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
         seeds = list(run.summary.seeds)
-        size = render_size_overrides(cfg.gym_kwargs)  # the card's media at >= 256 px, rendered by the env at that size
         write_rollout_media(
-            lambda: loaded.make(**size),
+            make_media_env,
             staging / GIF_FILE,
-            seeds=seeds[:3],
+            seeds=seeds[:MEDIA_EPISODES],
             fps=int(cfg.fps),
-            max_steps=min(60, int(cfg.episode_length)),
+            max_steps=min(MEDIA_STEPS, int(cfg.episode_length)),
             mp4_path=staging / MP4_FILE if video and _has_cameras(cfg) else None,
         )
         manifest = _draft_manifest(loaded, repo_id=repo_id, code_digest=code_digest, run=run, seed=seed)
@@ -576,6 +602,7 @@ def build_repo(
         card = render_card(
             manifest,
             env_class=loaded.env_class,
+            media_kwargs=media_kwargs,
             env=env,
             content_tag=content_tag(manifest.content_digest),
             license=EnvFolder.read(loaded.local_folder).license,

@@ -75,11 +75,16 @@ def _reach_small(tmp_path: Path) -> Path:
 
 
 @pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
-def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name):
+def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name, monkeypatch):
+    from helpers import saved_figures
+
+    import hub_envs.harness.report
+
     if not (ENVS / name).is_dir():
         pytest.skip(f"envs/{name} is not there")
     folder = _reach_small(tmp_path) if name == "reach" else ENVS / name
     pushed = _push(folder, f"alice/{name}", video=False)  # PNG images: exact (tests/test_video.py: the video default)
+    figures = saved_figures(monkeypatch, hub_envs.harness.report)
     before = snapshot_registries()
     report = reproduce(
         f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False
@@ -117,6 +122,10 @@ def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_pat
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert "**REPRODUCED**" in markdown and pushed.sha in markdown
     assert (tmp_path / "out" / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # no video feature (reach's camera is stored as PNG images here): no video panel, no tolerance line
+    (fig,) = figures
+    assert replay.video is None and [ax.get_title() for ax in fig.axes] == ["benchmark random-policy: per-episode returns (pass)"]
+    assert not any(line.get_label().startswith("tolerance") for ax in fig.axes for line in ax.get_lines())
 
 
 # --- a perturbed env --------------------------------------------------------------------------

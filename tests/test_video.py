@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import copy_env
+from helpers import copy_env, saved_figures
 
 from hub_envs import errors, load_env, push_env, reproduce
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_info
@@ -295,6 +295,38 @@ def test_reproduce_reach_video_within_the_tolerance(hub_module, reach_video, tmp
     # and beyond the tolerance: the replayed frames, re-encoded with the same encoder, decode bit for bit
     assert replay.video["bit_exact_after_reencode"] and all(e.video_exact == {"observation.image": True} for e in replay.episodes)
     assert "re-encoded, bit for bit" in replay.summary()
+
+
+def video_panels(fig) -> list:
+    """The axes of a reproduce figure that plot the video error: those with a tolerance line."""
+    return [ax for ax in fig.axes if any(line.get_label().startswith("tolerance") for line in ax.get_lines())]
+
+
+def test_the_reproduce_plot_shows_each_frames_video_error_against_the_tolerance(hub_module, reach_video, tmp_path, monkeypatch):
+    """The one figure of a reproduction that is not exact, plotted: every replayed frame's mean abs error against
+    the decoded video, over the whole replay, under the tolerance line; the Markdown states the numbers."""
+    import hub_envs.harness.report
+
+    _, pushed = reach_video
+    figures = saved_figures(monkeypatch, hub_envs.harness.report)
+    report = reproduce(f"alice/reach-video@{pushed.sha}", trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    assert report.reproduced, report.summary()
+    (fig,) = figures  # what report.png was drawn from
+    (ax,) = video_panels(fig)
+    assert "observation.image" in ax.get_title()
+    (tolerance,) = [line for line in ax.get_lines() if line.get_label().startswith("tolerance")]
+    assert list(tolerance.get_ydata()) == [VIDEO_TOLERANCE.max_mean_abs_error] * 2
+    (curve,) = [line for line in ax.get_lines() if len(line.get_ydata()) > 2]
+    errors = np.asarray(curve.get_ydata(), dtype=float)
+    assert len(errors) == sum(e.length for e in report.replay.episodes) == pushed.manifest.dataset["frames"]
+    worst = max(e.max_abs_diff["observation.image"] for e in report.replay.episodes)
+    assert errors.max() == pytest.approx(worst, rel=1e-6) and 0 < worst <= VIDEO_TOLERANCE.max_mean_abs_error
+    assert ax.get_ylim()[0] == 0 and ax.get_ylim()[1] > VIDEO_TOLERANCE.max_mean_abs_error  # the line is in view
+    assert report.replay.video["mean"] == pytest.approx(float(errors.mean()), rel=1e-6)
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "Video `observation.image` (lossy)" in markdown and f"at most {VIDEO_TOLERANCE.max_mean_abs_error:g}" in markdown
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert "video_errors" not in data["replay"]["episodes"][0]  # per-frame errors stay out of the JSON: bounded size
 
 
 def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach_video):

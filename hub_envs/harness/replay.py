@@ -32,7 +32,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +101,9 @@ class EpisodeReplay:
     #: per video feature: the replayed frames, encoded with the same (deterministic) encoder, decode to exactly
     #: the dataset's decoded frames
     video_exact: dict[str, bool] = field(default_factory=dict)
+    #: per video feature: each frame's mean |replay - decoded| (0-255), every episode; for the report's plot, not its
+    #: JSON (a frame's float each: unbounded)
+    video_errors: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def ok(self) -> bool:
@@ -111,7 +114,8 @@ class EpisodeReplay:
         return self.divergences[0] if self.divergences else None
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
+        d = asdict(replace(self, video_errors={}))
+        del d["video_errors"]
         d["ok"] = self.ok
         return d
 
@@ -127,7 +131,7 @@ class ReplayResult:
     states: str  # how recorded states were used
     steps: int  # env steps taken by the open-loop replay
     seconds: float
-    video: dict[str, Any] | None = None  # video features compared: keys and the tolerance (VideoTolerance.to_dict())
+    video: dict[str, Any] | None = None  # video features compared: keys, the tolerance (VideoTolerance.to_dict()), worst, mean
 
     @property
     def ok(self) -> bool:
@@ -398,6 +402,8 @@ def _compare_episode(
             continue
         video = key in plan.video_keys
         errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
+        if video:
+            result.video_errors[key] = errors.astype(np.float32)
         if video and len(rep) == len(dat):
             result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps, plan.video_gops.get(key))
         curves[key] = errors
@@ -737,10 +743,12 @@ class Replay:
         if plan.video_keys:
             worst = max((e.max_abs_diff.get(k, 0.0) for e in results for k in plan.video_keys), default=0.0)
             exact = all(e.video_exact.get(k, False) for e in results for k in plan.video_keys)
+            per_frame = [e.video_errors[k] for e in results for k in plan.video_keys if k in e.video_errors]
             video = {
                 "keys": sorted(plan.video_keys),
                 "tolerance": VIDEO_TOLERANCE.to_dict(),
                 "worst": worst,
+                "mean": float(np.concatenate(per_frame).mean(dtype=np.float64)) if any(len(f) for f in per_frame) else 0.0,
                 "bit_exact_after_reencode": exact,
             }
         if plan.states is not None and self.record_states:
