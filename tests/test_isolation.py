@@ -114,6 +114,7 @@ def test_an_isolated_env_steps_bit_identically_to_the_in_process_env(published, 
         assert _same(ra, rb)
         assert any(step[3] for step in rb[1:-1] if len(step) == 5)
         # get_state / reset_to through the proxy restore a step exactly, as in-process
+        assert hasattr(b.unwrapped, "get_state") and hasattr(b.unwrapped, "reset_to")
         state = b.unwrapped.get_state()
         assert _same(state, a.unwrapped.get_state())
         action = np.asarray(b.action_space.sample())
@@ -172,6 +173,7 @@ def hostile(published):
 def test_the_envs_own_error_comes_back_with_its_remote_traceback(hostile):
     env = hostile.make()
     try:
+        assert not hasattr(env.unwrapped, "get_state") and not hasattr(env.unwrapped, "reset_to")  # as the env itself
         env.reset(seed=0, options={"mode": "raise"})
         with pytest.raises(ValueError, match="refuses this action") as info:
             env.step(env.action_space.sample())
@@ -302,13 +304,13 @@ def test_shared_observation_buffers_give_back_exactly_what_was_written():
     dict keys keep their order; anything else (another order, dtype or shape) is refused, to travel in the answer."""
     from gymnasium import spaces
 
-    from hub_envs.isolation.vector import _box_leaves, _Buffers
+    from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
 
-    scalar = _Buffers(_box_leaves(spaces.Box(0.0, 1.0, (), np.float32)), 1)
+    scalar = ObservationBuffers(box_leaves(spaces.Box(0.0, 1.0, (), np.float32)), 1)
     nested_space = spaces.Dict(
         {"a": spaces.Box(0, 1, (2,), np.float32), "b": spaces.Dict({"c": spaces.Box(0, 9, (3,), np.int64)})}
     )
-    nested = _Buffers(_box_leaves(nested_space), 1)
+    nested = ObservationBuffers(box_leaves(nested_space), 1)
     try:
         assert scalar.write_exact(0, np.array(0.5, np.float32))
         back = scalar.read_one()
