@@ -510,6 +510,21 @@ def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
         isolated.unregister()
 
 
+def test_a_worker_has_its_own_process_group_in_its_parents_session_unless_sandboxed(hostile, sandboxed):
+    """A worker is the leader of its own process group (killed whole; the terminal's Ctrl-C goes to the parent's
+    group only) in the parent's session: a session is an autogroup of the scheduler, and a worker alone in one
+    waits far longer for a CPU on a busy machine. A sandboxed worker gets a session of its own: no controlling
+    terminal its code could write escape sequences to or push input into."""
+    env, boxed = hostile.make(), sandboxed.make()
+    try:
+        pid, boxed_pid = _inner(env).worker.pid, _inner(boxed).worker.pid
+        assert os.getpgid(pid) == pid != os.getpgrp() and os.getsid(pid) == os.getsid(0)
+        assert os.getsid(boxed_pid) == boxed_pid != os.getsid(0)
+    finally:
+        env.close()
+        boxed.close()
+
+
 def test_no_worker_outlives_its_parent(hostile, tmp_path):
     """The parent is SIGKILLed (no cleanup of its own runs): the kernel's parent-death signal ends the worker."""
     from hub_envs.isolation.proxy import EnvTarget

@@ -264,7 +264,12 @@ class Worker:
                 stdout=log,
                 stderr=log,
                 env=_worker_environ(options),
-                start_new_session=True,
+                # its own process group (killed whole, never sent the terminal's Ctrl-C); a new session only when
+                # sandboxed (no controlling terminal to write to or push input into, TIOCSTI): a session is also an
+                # autogroup of the scheduler, and a worker in an autogroup of its own waits far longer for a CPU
+                # on a busy machine than one in its parent's
+                start_new_session=options.sandbox,
+                process_group=None if options.sandbox else 0,
                 preexec_fn=preexec,
                 cwd="/" if options.sandbox else None,
             )
