@@ -510,6 +510,26 @@ def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
         isolated.unregister()
 
 
+def test_the_parent_switches_its_way_of_waiting_and_every_way_gives_the_same_steps(published):
+    """The parent chooses, step by step, how to wait for its worker (busy-wait, sleep on its CPU, sleep wherever the
+    scheduler puts it: hub_envs.isolation.doorbell.WaitChooser) by what each way costs on this machine now, and tries
+    the others now and then: a rollout that goes through the ways gives the in-process env's steps exactly."""
+    here = load_env(published["pendulum"], trust_remote_code=True)
+    isolated = load_env(published["pendulum"], trust_remote_code=True, isolation="process", check=False)
+    a, b = here.make(), isolated.make()
+    try:
+        assert _same(_rollout(a, 7, 90), _rollout(b, 7, 90))
+        tried = {way for way, usual in _inner(b)._waits.usual.items() if usual is not None}
+        # the busy-wait is only possible while steps are short on a machine with CPUs to spare; the two ways of
+        # sleeping always are (each one is tried within the first 56 steps)
+        assert {"pin", "sleep"} <= tried, tried
+    finally:
+        a.close()
+        b.close()
+        here.unregister()
+        isolated.unregister()
+
+
 def test_a_worker_has_its_own_process_group_in_its_parents_session_unless_sandboxed(hostile, sandboxed):
     """A worker is the leader of its own process group (killed whole; the terminal's Ctrl-C goes to the parent's
     group only) in the parent's session: a session is an autogroup of the scheduler, and a worker alone in one

@@ -1,6 +1,7 @@
-"""The page a worker shares with its parent beside their socket: message counters, mail slots for short messages,
-and a bounded, adaptive busy-wait before a side sleeps. The design, its memory ordering and what a hostile worker
-can do with the page: ``docs/isolation.md``.
+"""The page a worker shares with its parent beside their socket (message counters, mail slots for short messages,
+a bounded busy-wait before a side sleeps) and the parent's choice of how to wait for each answer
+(:class:`WaitChooser`). The design, its memory ordering and what a hostile worker can do with the page:
+``docs/isolation.md``.
 
 Example:
     >>> import socket
@@ -26,15 +27,18 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import math
 import mmap
 import os
 import platform
 import select
 import socket
+import statistics
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 #: the counters' slots (int64 indices, 128 bytes apart so that each has its cache line): what the parent sent,
 #: what the worker sent. The slot after a counter holds the length of the message in that side's mail slot (-1:
@@ -290,10 +294,10 @@ class Doorbell:
             for fd, _ in ready:
                 if fd == self._sock_fd:
                     sock_ready = True
-                else:  # woken: empty the wake-up socket (never blocking, whatever the other end did)
+                else:  # woken: take what the wake-up socket holds (one byte a ring), never blocking, whatever the
+                    # other end did (more than this read leaves the next poll ready at once: a wake-up for nothing)
                     try:
-                        while self._wake_sock.recv(4096, socket.MSG_DONTWAIT):
-                            pass
+                        self._wake_sock.recv(4096, socket.MSG_DONTWAIT)
                     except OSError:
                         pass
             if slots[box] > heard:  # a message, even if it came just as the deadline passed
@@ -359,3 +363,143 @@ class SpinBudget:
             waited: its seconds (clipped, so one long pause does not stop spinning for long).
         """
         self.usual += self.ALPHA * (min(waited, 4 * MAX_SPIN_S) - self.usual)
+
+
+#: how a parent waits for an answer (:class:`WaitChooser`): both sides busy-wait; it sleeps and the worker sleeps on
+#: its CPU (:mod:`~hub_envs.isolation.affinity`); both sleep wherever the scheduler puts them
+SPIN, PIN, SLEEP = "spin", "pin", "sleep"
+
+
+class WaitChooser:
+    """The parent's choice, step by step, of how to wait for the worker: the way whose steps took least time lately.
+
+    Busy-waiting is fastest where each side has a CPU to itself, and the slowest of all where they must share one
+    with other work (a spinning side takes the CPU the other needs); sleeping on the parent's CPU makes wake-ups
+    cheap on a machine whose idle CPUs halt, and costs migrations where that CPU is busy. Which way wins depends on
+    the machine and its load at the time, so the chooser measures each way's cycle (one step's request to the
+    next's: what waiting that way cost the caller, the worker's work and the caller's own included) and uses the way
+    whose last cycles (at most :attr:`KEPT`) took least on average. Every other way is tried for :attr:`TRY` steps now and
+    then: after :attr:`FIRST` steps, then twice as long after each try it lost, at most :attr:`LAST` (a try ends
+    early when it is clearly losing), and soon when the way in use got slower than another way was when last tried
+    (the machine got busy).
+
+    Args:
+        ways: the ways that may be chosen, in order of preference while nothing is known yet.
+
+    >>> chooser = WaitChooser((SPIN, SLEEP))
+    >>> chooser.next(0.0)
+    'spin'
+    >>> t = 0.0
+    >>> for _ in range(500):                  # spinning takes 400 us a step, sleeping 150 us (a busy machine)
+    ...     way = chooser.next(t)
+    ...     t += 400e-6 if way == SPIN else 150e-6
+    >>> chooser.way, round(chooser.usual[SLEEP] * 1e6)   # the way in use (the other one is still tried now and then)
+    ('sleep', 150)
+    """
+
+    #: steps of a try of another way, and how many of its first ones are not counted (the other side is still
+    #: waiting the old way)
+    TRY, SETTLE = 12, 2
+    FIRST, LAST = 64, 4096
+    #: cycles kept per way (their mean is the way's usual cycle; one over :attr:`OUTLIER` times their median is left
+    #: out: the caller paused, or did something else between two steps)
+    KEPT, OUTLIER = 32, 10.0
+    #: how much cheaper another way must be to be chosen (noise must not flip the choice back and forth), and how
+    #: much slower a try must be to end early, lost
+    MARGIN, LOSING = 0.9, 2.0
+
+    def __init__(self, ways: tuple[str, ...]):
+        self.ways = tuple(ways)
+        self.way = self.ways[0]
+        self._cycles: dict[str, collections.deque] = {way: collections.deque(maxlen=self.KEPT) for way in self.ways}
+        self._steps = 0
+        self._last: tuple[str, float] | None = None  # the way and the start of the step before this one
+        self._trying: str | None = None
+        self._tried: list[float] = []  # the counted cycles of the current try
+        self._try_steps = 0
+        self._gap = dict.fromkeys(self.ways, self.FIRST)
+        self._next_try = {way: self.FIRST // 4 * (i + 1) for i, way in enumerate(self.ways)}  # each tried early once
+        self._next_check = self.FIRST
+
+    @property
+    def usual(self) -> dict[str, float | None]:
+        """Each way's usual cycle in seconds (the mean of its last cycles; None: never measured)."""
+        return {way: self._mean(c) if c else None for way, c in self._cycles.items()}
+
+    @classmethod
+    def _mean(cls, cycles: Any) -> float:
+        top = cls.OUTLIER * statistics.median(cycles)
+        kept = [c for c in cycles if c <= top]
+        return sum(kept) / len(kept)
+
+    def next(self, now: float, allowed: tuple[str, ...] | None = None) -> str:
+        """The way to wait for the answer to the step starting now; counts the step before it.
+
+        Args:
+            now: the ``time.perf_counter()`` at which this step's request is sent.
+            allowed: the ways possible for this step (default all); one that is not is skipped.
+
+        Returns:
+            :data:`SPIN`, :data:`PIN` or :data:`SLEEP`.
+        """
+        if self._last is not None:
+            way, started = self._last
+            if self._trying != way or self._try_steps > self.SETTLE:
+                self._cycles[way].append(now - started)
+                if self._trying == way:
+                    self._tried.append(now - started)
+        self._steps += 1
+        way = self._choose(self.ways if allowed is None else allowed)
+        self._last = (way, now)
+        return way
+
+    def forget_last(self) -> None:
+        """The step that was just waited for says nothing of its way (something else ran before the next step)."""
+        self._last = None
+
+    def _choose(self, allowed: tuple[str, ...]) -> str:
+        if self._trying is not None:
+            if self._trying in allowed and self._try_steps < self.TRY and not self._losing():
+                self._try_steps += 1
+                return self._trying
+            self._end_try()
+        if self._steps >= self._next_check:
+            self._check()
+        ways = [way for way in self.ways if way in allowed]
+        if not ways:
+            return SLEEP
+        for way in ways:  # a way whose turn to be tried came
+            if way != self.way and self._steps >= self._next_try[way]:
+                self._trying, self._tried, self._try_steps = way, [], 1
+                return way
+        if self.way not in ways:  # the way in use is not possible now: the best of the others
+            usual = self.usual
+            return min(ways, key=lambda w: (usual[w] is None, usual[w] or 0.0))
+        return self.way
+
+    def _end_try(self) -> None:
+        way, tried, self._trying = self._trying, self._tried, None
+        current = self._cycles[self.way]
+        if tried and (not current or self._mean(tried) < self.MARGIN * self._mean(current)):
+            self._gap[self.way] = self.FIRST  # the way it replaces may win again soon: tried again early
+            self._next_try[self.way] = self._steps + self.FIRST
+            self.way, self._gap[way] = way, self.FIRST
+        else:
+            self._gap[way] = min(2 * self._gap[way], self.LAST)
+        self._next_try[way] = self._steps + self._gap[way]
+
+    def _losing(self) -> bool:
+        """Whether the try so far is so much slower than the way in use that more of it would only cost."""
+        current = self._cycles[self.way]
+        return len(self._tried) >= 2 and bool(current) and min(self._tried) > self.LOSING * self._mean(current)
+
+    def _check(self) -> None:
+        """Every :attr:`FIRST` steps: is the way in use now slower than another way was when last tried? Then that
+        one is tried soon."""
+        self._next_check = self._steps + self.FIRST
+        usual = self.usual
+        if usual[self.way] is None:
+            return
+        for way in self.ways:
+            if way != self.way and usual[way] is not None and self.MARGIN * usual[self.way] > usual[way]:
+                self._gap[way], self._next_try[way] = self.FIRST, min(self._next_try[way], self._steps)

@@ -30,9 +30,21 @@ import numpy as np
 
 from hub_envs._text import safe_lines, safe_text
 from hub_envs.errors import AnswerTooLargeError, EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.affinity import pin_here, unpin
+from hub_envs.isolation import affinity
+from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
 from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
-from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
+from hub_envs.isolation.doorbell import (
+    MAIL,
+    PIN,
+    SLEEP,
+    SPIN,
+    SPINNING,
+    Doorbell,
+    Oversized,
+    PastDeadline,
+    SpinBudget,
+    WaitChooser,
+)
 from hub_envs.isolation.lifetime import ENTER_FAILED_EXIT, MEMORY_EXIT
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import (
@@ -191,6 +203,37 @@ def warn_unsent_metadata(desc: dict, where: str) -> None:
             f"send to its parent (hub_envs.isolation.wire); the isolated env's metadata leaves them out.",
             stacklevel=3,
         )
+
+
+#: the ways a parent may wait for an answer, the first one tried first (:class:`~hub_envs.isolation.doorbell.WaitChooser`)
+WAYS = (SPIN, PIN, SLEEP)
+_ALLOWED = {
+    (True, True): WAYS,
+    (True, False): (SPIN, SLEEP),
+    (False, True): (PIN, SLEEP),
+    (False, False): (SLEEP,),
+}
+
+
+def begin_wait(chooser: WaitChooser, spins: bool) -> tuple[str, int, set[int] | None]:
+    """How to wait for the answer to the step about to be sent (then :func:`~hub_envs.isolation.affinity.unpin`).
+
+    Args:
+        chooser: the env's choice of ways so far.
+        spins: whether busy-waiting is possible for this step (:attr:`Worker.spins`).
+
+    Returns:
+        ``(way, the CPU field of the request, the CPU set to give back to unpin)``: busy-waiting, both sides stay
+        awake and nothing is pinned; sleeping on this CPU (:data:`~hub_envs.isolation.doorbell.PIN`), the calling
+        thread is pinned where it runs and the worker told to sleep there too; sleeping
+        (:data:`~hub_envs.isolation.doorbell.SLEEP`), the scheduler places both.
+    """
+    way = chooser.next(time.perf_counter(), _ALLOWED[spins, affinity.enabled])
+    if way == SPIN:
+        return way, SPINNING, None
+    if way == PIN:
+        return (way, *pin_here())
+    return way, NO_CPU, None
 
 
 def _signal_name(code: int) -> str:
@@ -419,15 +462,17 @@ class Worker:
 
     @property
     def spins(self) -> bool:
-        """Whether the next :meth:`receive` busy-waits first (then the caller need not pin, see affinity)."""
+        """Whether busy-waiting is possible for the next step: the answers' usual wait is short, this process may use
+        more than one CPU, busy-waiting is on (``doorbell.enabled``) and the worker was made to (``spin``)."""
         return self._spin.seconds() > 0
 
-    def receive(self, op: str, timeout: float | None = None) -> Any:
+    def receive(self, op: str, timeout: float | None = None, *, spin: bool = True) -> Any:
         """The second half of :meth:`request`.
 
         Args:
             op: the request's name (in errors).
             timeout: seconds from the send to the answer (None: no watchdog).
+            spin: busy-wait a while first if :attr:`spins` (False: sleep at once).
 
         Returns:
             The answer's value.
@@ -435,14 +480,15 @@ class Worker:
         Raises:
             as :meth:`request`.
         """
-        return self._decode(op, self._wait(op, timeout))
+        return self._decode(op, self._wait(op, timeout, spin))
 
-    def receive_step(self, timeout: float | None = None) -> tuple:
+    def receive_step(self, timeout: float | None = None, *, spin: bool = True) -> tuple:
         """The answer to a single env's fast step (a :data:`~hub_envs.isolation.protocol.FAST_ANSWER` or an encoded
         answer).
 
         Args:
             timeout: seconds from the send to the answer (None: no watchdog).
+            spin: busy-wait a while first if :attr:`spins` (False: sleep at once).
 
         Returns:
             ``(reward, terminated, truncated, info, obs, shared)``; ``shared``: the observation is in shared memory
@@ -451,7 +497,7 @@ class Worker:
         Raises:
             as :meth:`request`.
         """
-        data = self._wait("step", timeout)
+        data = self._wait("step", timeout, spin)
         if data[:1] != b"F":
             answer = self._decode("step", data)
             if type(answer) is not tuple or len(answer) != 6 or type(answer[5]) is not bool:
@@ -468,12 +514,12 @@ class Worker:
             raise self.garbled("step", e) from None
         return reward, terminated, truncated, info, None, True
 
-    def _wait(self, op: str, timeout: float | None) -> bytes:
+    def _wait(self, op: str, timeout: float | None, spin: bool = True) -> bytes:
         """The bytes of the next answer, within ``timeout`` of the last send (the watchdog)."""
         if self.dead is not None:
             raise self.dead
         try:
-            budget = self._spin.seconds()
+            budget = self._spin.seconds() if spin else 0.0
             spin_until = self._sent_at + (min(budget, timeout) if timeout is not None else budget) if budget else 0.0
             # the watchdog holds whatever the worker writes into the shared page (see doorbell)
             data = self.bell.receive(None if timeout is None else self._sent_at + timeout, spin_until, self._recv_by)
@@ -663,6 +709,7 @@ class IsolatedEnv(gym.Env):
         self._fast_buffers = None
         self._closed = False
         self._state_methods: tuple[str, ...] = ()
+        self._waits = WaitChooser(WAYS)
         self._start()
 
     def _start(self) -> None:
@@ -718,6 +765,7 @@ class IsolatedEnv(gym.Env):
         if self._worker is not None and self._worker.dead is not None and self._options.restart and not self._closed:
             self._worker.close()
             self._start()
+        self._waits.forget_last()  # the time from the last step to the next one holds this reset
         return self._call("reset", seed, options)
 
     def _arm_fast_step(self) -> None:
@@ -759,12 +807,12 @@ class IsolatedEnv(gym.Env):
             if self._closed:
                 raise IsolationError(f"{self._target.where}: step on a closed isolated env. Make a new one.")
             worker = self._worker
-            # a busy wait keeps both sides awake, each on its CPU; else this thread sleeps on its CPU, and the
-            # worker is told to sleep there too (see affinity)
-            cpu, saved = (SPINNING, None) if worker.spins else pin_here()
+            way, cpu, saved = begin_wait(self._waits, worker.spins)
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
-                reward, terminated, truncated, info, obs, shared = worker.receive_step(self._options.call_timeout)
+                reward, terminated, truncated, info, obs, shared = worker.receive_step(
+                    self._options.call_timeout, spin=way == SPIN
+                )
             finally:
                 unpin(saved)
             return (self._fast_buffers.read_one() if shared else obs), reward, terminated, truncated, info

@@ -21,12 +21,12 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from hub_envs.errors import ConfigError
-from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.affinity import NO_CPU, unpin
 from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
-from hub_envs.isolation.doorbell import SPINNING, available_cpus
+from hub_envs.isolation.doorbell import SPIN, WaitChooser, available_cpus
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import FAST_HEADER
-from hub_envs.isolation.proxy import EnvTarget, Worker, warn_unsent_metadata
+from hub_envs.isolation.proxy import WAYS, EnvTarget, Worker, begin_wait, warn_unsent_metadata
 
 try:
     from gymnasium.vector import AutoresetMode
@@ -86,6 +86,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         self._slices: list[tuple[int, int]] = []
         self._buffers: ObservationBuffers | None = None
         self._closed_vec = False
+        self._waits = WaitChooser(WAYS)
         try:
             counts = [min(per, n_envs - o) for o in range(0, n_envs, per)]
             spin = len(counts) < cpus  # a CPU for each worker and one for the caller: both sides busy-wait
@@ -140,11 +141,11 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             w.send(op, *args)
         return self._gather(op)
 
-    def _gather(self, op: str) -> list[Any]:
+    def _gather(self, op: str, spin: bool = True) -> list[Any]:
         out, error = [], None
         for w in self._workers:
             try:
-                out.append(w.receive(op, timeout=self._options.call_timeout))
+                out.append(w.receive(op, timeout=self._options.call_timeout, spin=spin))
             except Exception as e:  # keep reading the others, so every worker stays in step
                 out.append(None)
                 error = error or e
@@ -188,6 +189,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             )
         if options is not None and "reset_mask" in options:
             raise ConfigError("reset_mask is not supported by an isolated vector env (it autoresets on the next step).")
+        self._waits.forget_last()  # the time from the last step to the next one holds this reset
         answers = self._all("vreset", [(seeds[o : o + c], options) for o, c in self._slices])
         infos: dict = {}
         i = 0
@@ -216,15 +218,15 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             and actions.dtype == space.dtype
             and actions.shape == (self.num_envs, *space.shape)
         ):  # raw bytes, one message per worker
-            # busy-waiting (a CPU for everyone): no pinning; else the first worker sleeps where this thread waits
+            # busy-waiting (a CPU for everyone): no pinning; else the first worker may sleep where this thread waits
             # (see affinity) and the others, sent theirs first, run wherever the scheduler finds a CPU
-            spinning = self._workers[0].spins
-            cpu, saved = (SPINNING, None) if spinning else pin_here()
+            way, cpu, saved = begin_wait(self._waits, self._workers[0].spins)
+            spinning = way == SPIN
             try:
                 for k in range(len(self._workers) - 1, -1, -1):
                     w, (o, c) = self._workers[k], self._slices[k]
                     w.send_raw(FAST_HEADER.pack(b"v", cpu if k == 0 or spinning else NO_CPU) + actions[o : o + c].tobytes())
-                answers = self._gather("vstep")
+                answers = self._gather("vstep", spin=spinning)
             finally:
                 unpin(saved)
         else:
