@@ -521,7 +521,7 @@ def test_the_parent_switches_its_way_of_waiting_and_every_way_gives_the_same_ste
         assert _same(_rollout(a, 7, 90), _rollout(b, 7, 90))
         tried = {way for way, usual in _inner(b)._waits.usual.items() if usual is not None}
         # the busy-wait is only possible while steps are short on a machine with CPUs to spare; the two ways of
-        # sleeping always are (each one is tried within the first 56 steps)
+        # sleeping always are (the first steps sleep, the pinned sleep is tried from the 32nd)
         assert {"pin", "sleep"} <= tried, tried
     finally:
         a.close()
@@ -869,13 +869,14 @@ def _affinity_becomes(pid: int, want, seconds: float = 10.0) -> set[int]:
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: there is nothing to place")
 def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(hostile):
-    """The wake-up placement (hub_envs.isolation.affinity): between steps the worker waits pinned to the CPU the
-    stepping thread waited on; the env's step itself runs with the worker's whole CPU set; the calling thread
-    gets its own CPU set back after every step; with affinity off nothing is pinned."""
+    """The wake-up placement (hub_envs.isolation.affinity), when the parent sleeps on its CPU (the way of waiting
+    it picks where waking an idle CPU is costly; here the only one it may pick): between steps the worker waits
+    pinned to the CPU the stepping thread waited on; the env's step itself runs with the worker's whole CPU set;
+    the calling thread gets its own CPU set back after every step; with affinity off nothing is pinned."""
     from hub_envs.isolation import affinity, doorbell
 
-    doorbell.enabled = False  # a busy-waiting worker does not sleep at all (see doorbell)
     env = hostile.make()
+    _inner(env)._waits = doorbell.WaitChooser((doorbell.PIN,))
     mine = os.sched_getaffinity(0)
     try:
         pid = _inner(env).worker.pid
@@ -891,7 +892,6 @@ def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(h
         assert _affinity_becomes(pid, mine) == mine
     finally:
         affinity.enabled = True
-        doorbell.enabled = True
         env.close()
 
 

@@ -205,12 +205,13 @@ def warn_unsent_metadata(desc: dict, where: str) -> None:
         )
 
 
-#: the ways a parent may wait for an answer, the first one tried first (:class:`~hub_envs.isolation.doorbell.WaitChooser`)
-WAYS = (SPIN, PIN, SLEEP)
+#: the ways a parent may wait for an answer (:class:`~hub_envs.isolation.doorbell.WaitChooser`), in the order they are
+#: first used: sleeping never costs much, busy-waiting where it does not pay costs a CPU's time slice a step
+WAYS = (SLEEP, SPIN, PIN)
 _ALLOWED = {
     (True, True): WAYS,
-    (True, False): (SPIN, SLEEP),
-    (False, True): (PIN, SLEEP),
+    (True, False): (SLEEP, SPIN),
+    (False, True): (SLEEP, PIN),
     (False, False): (SLEEP,),
 }
 
