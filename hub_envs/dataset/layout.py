@@ -48,3 +48,7 @@ BOOKKEEPING_KEYS = frozenset(DEFAULT_FEATURES) | frozenset(NEXT_FEATURES)
 STATE_FEATURE = "env_state"
 #: Simulator states recorded beside the data (``hub_envs.dataset.states``).
 STATES_PATH = "meta/env_states.parquet"
+#: The episodes-metadata column, one per video feature, holding ``hub_envs.dataset.video.frames_sha256`` of the
+#: episode's frames as the env rendered them (before the lossy encoder): replay checks the frames it renders
+#: against it. LeRobot's reader ignores it, as it ignores the ``seed`` column.
+FRAMES_SHA256_COLUMN = "frames_sha256/{key}"

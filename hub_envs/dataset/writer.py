@@ -27,7 +27,8 @@ by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at lev
   Global stats aggregate the episode stats with LeRobot's formula (1000 episodes at a time).
 * Several episodes share one parquet row group; files roll over by the same size rule, measured on
   the Arrow bytes written rather than the file size on disk.
-* Extra: a ``seed`` column in the episodes metadata and
+* Extra: a ``seed`` column in the episodes metadata (and ``frames_sha256/<key>`` per video feature: the
+  rendered frames' sha256, which replay checks) and
   ``info["hub_envs"] = {"seeds": [...], "stats": STATS_NOTE, **extra_info}``.
 * Byte-deterministic: no timestamps or random fingerprints in any file, fixed writer options.
 
@@ -71,6 +72,7 @@ from hub_envs.dataset.layout import (
     DEFAULT_FEATURES,
     DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     EPISODES_PATH,
+    FRAMES_SHA256_COLUMN,
     INFO_PATH,
     NEXT_FEATURES,
     STATS_PATH,
@@ -330,6 +332,7 @@ class _Episode:
     columns: dict[str, np.ndarray]  # numeric columns, cast; images as uint8 (T, H, W, C)
     pngs: dict[str, list[bytes]] = field(default_factory=dict)
     videos: dict[str, tuple[Path, float, int]] = field(default_factory=dict)  # key -> (mp4, duration s, bytes)
+    digests: dict[str, str] = field(default_factory=dict)  # video key -> frames_sha256 of the frames before encoding
     stats: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
@@ -486,13 +489,14 @@ class _Writer:
     def encode(self, ep: _Episode) -> _Episode:
         """PNG-encode images, video-encode video features (one MP4 per episode and key, joined into the
         dataset's files by :meth:`write`) and compute episode stats (thread-safe, no shared state)."""
-        from hub_envs.dataset.video import encode_episode
+        from hub_envs.dataset.video import encode_episode, frames_sha256
 
         for key in self.image_keys:
             ep.pngs[key] = encode_png(ep.columns[key])
         for key in self.video_keys:
             part = self.tmp / ".video-parts" / key / f"episode-{ep.index:06d}.mp4"
             ep.videos[key] = encode_episode(ep.columns[key], part, self.fps, self.video_gop)
+            ep.digests[key] = frames_sha256(ep.columns[key])  # what replay checks the rendered frames against
         for key, ft in self.features.items():
             col = ep.columns[key]
             ep.stats[key] = image_stats(col) if ft["dtype"] in ("image", "video") else vector_stats(col)
@@ -546,6 +550,7 @@ class _Writer:
         }
         for key in self.video_keys:
             row.update(self._place_video(key, ep.videos[key]))
+            row[FRAMES_SHA256_COLUMN.format(key=key)] = ep.digests[key]
         for key in self.features:
             for stat, value in ep.stats[key].items():
                 row[f"stats/{key}/{stat}"] = value.tolist()

@@ -7,7 +7,9 @@ compares what comes out with what the dataset holds, frame by frame: every obser
 ``next.success`` and, when push_env recorded them (:mod:`hub_envs.dataset.states`), the simulator states.
 Exactly by default; within an absolute ``tolerance`` if one is given (booleans are always exact).
 Video features (dtype ``"video"``, lossy-encoded) are the one exception: a frame matches when its mean
-absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`.
+absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`; the
+videos are decoded front to back in a background thread while the env steps, and the rendered frames are
+also checked bit for bit against the sha256 push recorded of them (``EpisodeReplay.video_exact``).
 
 A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
 so a changed transition at step ``t`` shows in ``next.*`` at frame ``t`` and in the observations at
@@ -39,10 +41,10 @@ from typing import Any
 import numpy as np
 
 from hub_envs._compat import LEROBOT_VIDEO_GOP, video_gop
-from hub_envs.dataset.layout import NEXT_KEYS, STATE_FEATURE
+from hub_envs.dataset.layout import FRAMES_SHA256_COLUMN, NEXT_KEYS, STATE_FEATURE
 from hub_envs.dataset.reader import DatasetFrames, read_episode_meta, read_info
 from hub_envs.dataset.states import read_env_states
-from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors
+from hub_envs.dataset.video import VIDEO_TOLERANCE, frame_errors, frames_sha256
 from hub_envs.dataset.writer import rollout_to_frames
 from hub_envs.errors import DatasetError, HubEnvsError, ReproductionError
 from hub_envs.harness.actions import to_env_actions
@@ -98,9 +100,11 @@ class EpisodeReplay:
     max_abs_diff: dict[str, float] = field(default_factory=dict)  # over the whole episode, per feature
     error_curve: dict[str, list[float]] = field(default_factory=dict)  # per-step max |diff| (diverged episodes)
     localization: dict[str, Any] | None = None
-    #: per video feature: the replayed frames, encoded with the same (deterministic) encoder, decode to exactly
-    #: the dataset's decoded frames
+    #: per video feature: the replayed frames are the recorded ones bit for bit: their sha256 is the one push
+    #: recorded (``frames_sha256/<key>``), or, for a dataset that records none, encoded with the same
+    #: (deterministic) encoder they decode to exactly the dataset's frames
     video_exact: dict[str, bool] = field(default_factory=dict)
+    video_exact_by: dict[str, str] = field(default_factory=dict)  # per video feature: "frames_sha256" or "reencode"
 
     @property
     def ok(self) -> bool:
@@ -154,7 +158,11 @@ class ReplayResult:
                 text += (
                     f", video {', '.join(self.video['keys'])} within mean abs error "
                     f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g}"
-                    + ("; re-encoded, bit for bit" if self.video.get("bit_exact_after_reencode") else "")
+                    + (
+                        _BIT_EXACT_TEXT.get(self.video.get("bit_exact_by"), "; bit for bit")
+                        if self.video.get("bit_exact")
+                        else ""
+                    )
                     + ")"
                 )
             return text
@@ -399,7 +407,12 @@ def _compare_episode(
         video = key in plan.video_keys
         errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
         if video and len(rep) == len(dat):
-            result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps, plan.video_gops.get(key))
+            recorded = meta.get(FRAMES_SHA256_COLUMN.format(key=key))
+            if isinstance(recorded, str):  # push recorded the rendered frames' sha256: no second encoder pass
+                result.video_exact[key], result.video_exact_by[key] = frames_sha256(rep) == recorded, "frames_sha256"
+            else:
+                result.video_exact[key] = _reencodes_exactly(rep, dat, plan.fps, plan.video_gops.get(key))
+                result.video_exact_by[key] = "reencode"
         curves[key] = errors
         result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
         limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
@@ -435,6 +448,13 @@ def _compare_episode(
     if result.divergences and keep_curves:
         result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
     return result
+
+
+#: how the summary says a video was reproduced bit for bit, by ``video["bit_exact_by"]``
+_BIT_EXACT_TEXT = {
+    "frames_sha256": "; rendered bit for bit as recorded: the frames' sha256",
+    "reencode": "; re-encoded, bit for bit",
+}
 
 
 def _reencodes_exactly(replay: np.ndarray, decoded: np.ndarray, fps: int, gop: int | None) -> bool:
@@ -670,6 +690,8 @@ class Replay:
         if reader is not None:
             reader.shutdown(wait=True, cancel_futures=True)
             self._reader = None
+        if getattr(self, "plan", None) is not None:
+            self.plan.frames.close()
         if getattr(self, "probe", None) is not None:
             try:
                 self.probe.close()
@@ -737,11 +759,13 @@ class Replay:
         if plan.video_keys:
             worst = max((e.max_abs_diff.get(k, 0.0) for e in results for k in plan.video_keys), default=0.0)
             exact = all(e.video_exact.get(k, False) for e in results for k in plan.video_keys)
+            by = sorted({how for e in results for how in e.video_exact_by.values()})
             video = {
                 "keys": sorted(plan.video_keys),
                 "tolerance": VIDEO_TOLERANCE.to_dict(),
                 "worst": worst,
-                "bit_exact_after_reencode": exact,
+                "bit_exact": exact,
+                "bit_exact_by": ", ".join(by) or None,
             }
         if plan.states is not None and self.record_states:
             features[STATE_FEATURE] = None
