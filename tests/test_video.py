@@ -350,11 +350,13 @@ def _strip_frames_sha256(dataset: Path, dest: Path) -> Path:
 
 def test_replay_checks_the_rendered_frames_against_their_recorded_sha256(hub_module, reach_video, tmp_path):
     """The env renders the recorded frames bit for bit: the sha256 push recorded says so without a second
-    encoder pass; a camera off by one level in one pixel (far inside the codec's tolerance) still reproduces
-    within the tolerance, but not bit for bit; so does an edited sha256."""
+    encoder pass, and the video's keyframes, decoded, are within the tolerance of them (the file holds them);
+    a camera off by one level in one pixel (far inside the codec's tolerance) still reproduces within the
+    tolerance, every frame decoded, but not bit for bit; so does an edited sha256."""
     import gymnasium as gym
     import pyarrow.parquet as pq
 
+    from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
     from hub_envs.harness.replay import replay_dataset
 
     _, pushed = reach_video
@@ -364,6 +366,10 @@ def test_replay_checks_the_rendered_frames_against_their_recorded_sha256(hub_mod
         same = replay_dataset(loaded.make, root, fmap, progress=False)
         assert same.ok and same.video["bit_exact"] and same.video["bit_exact_by"] == "frames_sha256", same.summary()
         assert all(e.video_exact_by == {"observation.image": "frames_sha256"} for e in same.episodes)
+        keyframes = [-(-e.length // DEFAULT_VIDEO_GOP) for e in same.episodes]  # the first frame, then every GOP-th
+        assert [e.video_checked["observation.image"] for e in same.episodes] == keyframes
+        assert same.video["frames_checked"] == sum(keyframes) < same.video["frames"] == sum(e.length for e in same.episodes)
+        assert 0 < same.video["worst"] <= VIDEO_TOLERANCE.max_mean_abs_error
 
         class OneLevelOff(gym.ObservationWrapper):
             def observation(self, obs):
@@ -374,6 +380,7 @@ def test_replay_checks_the_rendered_frames_against_their_recorded_sha256(hub_mod
         off = replay_dataset(lambda: OneLevelOff(loaded.make()), root, fmap, progress=False)
         assert off.ok, off.summary()  # within the tolerance
         assert not off.video["bit_exact"] and all(e.video_exact == {"observation.image": False} for e in off.episodes)
+        assert off.video["frames_checked"] == off.video["frames"]  # not the recorded frames: every one is decoded
         assert "bit for bit" not in off.summary() and "within mean abs error" in off.summary()
 
         edited = tmp_path / "edited"
@@ -387,6 +394,50 @@ def test_replay_checks_the_rendered_frames_against_their_recorded_sha256(hub_mod
         assert lied.ok and not lied.video["bit_exact"], lied.summary()
     finally:
         loaded.unregister()
+
+
+def test_a_video_that_does_not_hold_the_recorded_frames_diverges(hub_module, reach_video, tmp_path):
+    """The recorded sha256 says what the env rendered; the video must still show it: a dataset whose MP4 holds
+    other pictures (the same episodes' frames, colours inverted) beside the genuine sha256 diverges at frame 0."""
+    from hub_envs.dataset.reader import read_episode_meta
+    from hub_envs.harness.replay import replay_dataset
+
+    _, pushed = reach_video
+    loaded = load_env(f"alice/reach-video@{pushed.sha}", trust_remote_code=True)
+    try:
+        root = loaded.dataset_root
+        info = read_info(root)
+        features = {
+            k: v
+            for k, v in info["features"].items()
+            if k not in ("timestamp", "frame_index", "episode_index", "index", "task_index")
+        }
+        inverted = [
+            EpisodeFrames(
+                m["episode_index"],
+                m["seed"],
+                {k: v for k, v in read_episode_frames(root, m["episode_index"]).items() if k in features},
+            )
+            for m in read_episode_meta(root)
+        ]
+        for ep in inverted:
+            ep.frames["observation.image"] = 255 - ep.frames["observation.image"]
+        other = tmp_path / "inverted"
+        write_lerobot_dataset(
+            other, repo_id="x/y", fps=info["fps"], features=features, episodes=inverted, task="t", progress=False
+        )
+        swapped = tmp_path / "swapped"
+        shutil.copytree(root, swapped)
+        shutil.rmtree(swapped / "videos")
+        shutil.copytree(other / "videos", swapped / "videos")
+        replay = replay_dataset(loaded.make, swapped, loaded.config.features_map, progress=False)
+    finally:
+        loaded.unregister()
+    assert not replay.ok
+    first = replay.first_divergence
+    assert (first.episode, first.step, first.feature) == (0, 0, "observation.image"), replay.summary()
+    assert first.max_abs_diff > VIDEO_TOLERANCE.max_mean_abs_error and "video frame" in first.note
+    assert replay.video["bit_exact"]  # the env does render the recorded frames: the video is what is wrong
 
 
 def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach_video):

@@ -340,7 +340,7 @@ class DatasetFrames:
         self.video_keys = [k for k in keys if features[k].get("dtype") == "video"]
         keys = [k for k in keys if k not in self.video_keys]
         self.metas = {m["episode_index"]: m for m in metas}
-        self._videos: dict[Path, Any] = {}  # MP4 -> its EpisodeVideoReader
+        self._videos: dict[tuple[Path, bool], Any] = {}  # (MP4, keyframes only) -> its EpisodeVideoReader
         self._videos_lock = threading.Lock()
         self.numeric: dict[int, dict[str, np.ndarray]] = {}
         self.images: dict[int, dict[str, Any]] = {}
@@ -388,16 +388,24 @@ class DatasetFrames:
                 out[key] = self._video(key, self.metas[ep])
         return out
 
-    def _video(self, key: str, meta: Mapping) -> np.ndarray:
+    def video_keyframes(self, ep: int, key: str) -> tuple[np.ndarray, np.ndarray]:
+        """Episode ``ep``'s keyframes of video feature ``key``: ``(indices in the episode, uint8 (K, H, W, C))``
+        (:meth:`hub_envs.dataset.video.EpisodeVideoReader.keyframes`)."""
+        return self._video(key, self.metas[ep], keyframes=True)
+
+    def _video(self, key: str, meta: Mapping, keyframes: bool = False) -> Any:
         from hub_envs.dataset.video import EpisodeVideoReader
 
         path, start, where = _video_span(self.root, self.info, key, meta)
-        with self._videos_lock:  # one decoder per file, one episode at a time
-            reader = self._videos.get(path)
+        with self._videos_lock:  # one decoder per file and kind, one episode at a time
+            reader = self._videos.get((path, keyframes))
             if reader is None:
                 shape = tuple(self.features[key]["shape"])
-                reader = self._videos[path] = EpisodeVideoReader(path, fps=int(self.info["fps"]), shape=shape, threads=1)
-            return reader.episode(start, int(meta["length"]), where=where)
+                reader = self._videos[(path, keyframes)] = EpisodeVideoReader(
+                    path, fps=int(self.info["fps"]), shape=shape, threads=1, keyframes_only=keyframes
+                )
+            read = reader.keyframes if keyframes else reader.episode
+            return read(start, int(meta["length"]), where=where)
 
     def close(self) -> None:
         """Free the open video decoders (reading again reopens them)."""

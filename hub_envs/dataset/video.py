@@ -264,16 +264,20 @@ class EpisodeVideoReader:
     episode is sought as :func:`decode_episode` does. Not thread-safe; :meth:`close` (or ``with``) frees it.
 
     ``threads``: decoder threads (0: FFmpeg's choice; 1 costs the least CPU, for a reader that runs beside
-    other work, as replay's background reader does).
+    other work, as replay's background reader does). ``keyframes_only``: the reader serves :meth:`keyframes`
+    (the packets are read, only the keyframes decoded: a tenth of the decoding at push's GOP 10) instead of
+    :meth:`episode`.
     """
 
-    def __init__(self, path: Path, *, fps: int, shape: tuple[int, ...], threads: int = 1):
+    def __init__(self, path: Path, *, fps: int, shape: tuple[int, ...], threads: int = 1, keyframes_only: bool = False):
         self.path, self.fps, self.shape, self.threads = Path(path), int(fps), tuple(shape), int(threads)
+        self.keyframes_only = keyframes_only
         self._container: Any = None
-        self._frames: Any = None  # the decoder's frame iterator
+        self._codec: Any = None
+        self._items: Any = None  # the decoder's frames, or the demuxer's packets (keyframes_only)
         self._tb = 0.0
-        self._pending: Any = None  # a decoded frame beyond the last episode's end: the next episode's first
-        self._next = None  # the timestamp at which the next sequential episode starts
+        self._pending: Any = None  # a frame (packet) beyond the last episode's end: the next episode's first
+        self._next: float | None = None  # the timestamp at which the next sequential episode starts
 
     def __enter__(self) -> EpisodeVideoReader:
         return self
@@ -287,7 +291,7 @@ class EpisodeVideoReader:
                 self._container.close()
             except Exception:  # noqa: BLE001 - closing a reader must not mask a result or an error
                 pass
-        self._container = self._frames = self._pending = self._next = None
+        self._container = self._codec = self._items = self._pending = self._next = None
 
     def _open(self, from_timestamp: float) -> None:
         import av
@@ -301,50 +305,41 @@ class EpisodeVideoReader:
             self._tb = float(stream.time_base)
             if from_timestamp > 0:
                 container.seek(int(from_timestamp / self._tb), stream=stream, backward=True, any_frame=False)
-            self._frames = container.decode(stream)
+            self._codec = stream.codec_context
+            self._items = container.demux(stream) if self.keyframes_only else container.decode(stream)
         except BaseException:
             container.close()
             raise
         self._container = container
 
-    def episode(self, from_timestamp: float, length: int, *, where: str) -> np.ndarray:
-        """The ``length`` frames from ``from_timestamp`` (seconds into the file): uint8 ``(T, H, W, C)``.
-
-        Raises:
-            IntegrityError: the file cannot be opened or decoded, holds frames of another size, or fewer frames
-                than asked for from there (truncated).
-        """
+    def _span(self, from_timestamp: float, length: int, where: str):
+        """Yield ``(index in the episode, frame or packet)`` for the episode's span, in stream order; checks that
+        every one of its ``length`` frames is there (a packet per frame when ``keyframes_only``)."""
         import av
 
         fps, path = self.fps, self.path
-        out = np.empty((length, *self.shape), dtype=np.uint8)
         seen = np.zeros(length, dtype=bool)
         end = from_timestamp + (length - 0.5) / fps
         try:
             if self._next is None or abs(from_timestamp - self._next) > 0.5 / fps:
                 self._open(from_timestamp)  # not where the last episode ended: seek
             self._next = None
-            frame, self._pending = self._pending, None
+            item, self._pending = self._pending, None
             while True:
-                if frame is None:
-                    frame = next(self._frames, None)
-                    if frame is None:
+                if item is None:
+                    item = next(self._items, None)
+                    if item is None:
                         break
-                if frame.pts is not None:
-                    t = frame.pts * self._tb
+                if item.pts is not None and (not self.keyframes_only or item.size):
+                    t = item.pts * self._tb
                     if t > end:
-                        self._pending = frame  # the next episode's first frame, when it is read next
+                        self._pending = item  # the next episode's first, when it is read next
                         break
                     i = round((t - from_timestamp) * fps)
                     if 0 <= i < length and abs(t - from_timestamp - i / fps) <= 0.5 / fps:
-                        img = frame.to_ndarray(format="rgb24")
-                        if img.shape != self.shape:
-                            raise IntegrityError(
-                                f"{path} ({where}): frames are {img.shape}, the dataset declares {self.shape}. {_DECODE_FIX}"
-                            )
-                        out[i] = img
+                        yield i, item
                         seen[i] = True
-                frame = None
+                item = None
         except IntegrityError:
             self.close()
             raise
@@ -357,4 +352,61 @@ class EpisodeVideoReader:
                 f"{path} ({where}) holds {int(seen.sum())} of the episode's {length} frames from {from_timestamp:.4f} s. {_DECODE_FIX}"
             )
         self._next = from_timestamp + length / fps
+
+    def _array(self, frame: Any, where: str) -> np.ndarray:
+        img = frame.to_ndarray(format="rgb24")
+        if img.shape != self.shape:
+            self.close()
+            raise IntegrityError(
+                f"{self.path} ({where}): frames are {img.shape}, the dataset declares {self.shape}. {_DECODE_FIX}"
+            )
+        return img
+
+    def episode(self, from_timestamp: float, length: int, *, where: str) -> np.ndarray:
+        """The ``length`` frames from ``from_timestamp`` (seconds into the file): uint8 ``(T, H, W, C)``.
+
+        Raises:
+            IntegrityError: the file cannot be opened or decoded, holds frames of another size, or fewer frames
+                than asked for from there (truncated).
+        """
+        if self.keyframes_only:
+            raise ValueError("this reader decodes keyframes only: use keyframes()")
+        out = np.empty((length, *self.shape), dtype=np.uint8)
+        for i, frame in self._span(from_timestamp, length, where):
+            out[i] = self._array(frame, where)
         return out
+
+    def keyframes(self, from_timestamp: float, length: int, *, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(indices, frames)``: the episode's keyframes (its first frame and every GOP-th one, as push and LeRobot
+        encode), decoded on their own: their indices in the episode and uint8 ``(K, H, W, C)``.
+
+        Raises:
+            IntegrityError: as :meth:`episode` (a packet missing for any frame of the episode counts as truncated).
+        """
+        import av
+
+        if not self.keyframes_only:
+            raise ValueError("this reader decodes every frame: use episode()")
+        wanted: dict[int, int] = {}  # pts -> index
+        frames: dict[int, np.ndarray] = {}
+        try:
+            for i, packet in self._span(from_timestamp, length, where):
+                if packet.is_keyframe:
+                    wanted[packet.pts] = i
+                    for frame in self._codec.decode(packet):  # a keyframe decodes on its own
+                        if frame.pts in wanted:
+                            frames[wanted[frame.pts]] = self._array(frame, where)
+            if len(frames) < len(wanted):  # a decoder that holds frames back: drain it (and start afresh next time)
+                for frame in self._codec.decode(None):
+                    if frame.pts in wanted:
+                        frames[wanted[frame.pts]] = self._array(frame, where)
+                self.close()
+        except (OSError, ValueError, IndexError, av.FFmpegError) as exc:
+            self.close()
+            raise IntegrityError(f"{self.path} ({where}) cannot be decoded: {type(exc).__name__}: {exc}. {_DECODE_FIX}") from None
+        if len(frames) < len(wanted):
+            raise IntegrityError(
+                f"{self.path} ({where}): {len(wanted) - len(frames)} keyframes of the episode do not decode. {_DECODE_FIX}"
+            )
+        index = np.array(sorted(frames), dtype=np.int64)
+        return index, (np.stack([frames[i] for i in index]) if len(index) else np.zeros((0, *self.shape), np.uint8))

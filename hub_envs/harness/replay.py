@@ -105,6 +105,9 @@ class EpisodeReplay:
     #: (deterministic) encoder they decode to exactly the dataset's frames
     video_exact: dict[str, bool] = field(default_factory=dict)
     video_exact_by: dict[str, str] = field(default_factory=dict)  # per video feature: "frames_sha256" or "reencode"
+    #: per video feature: the frames decoded and compared within the tolerance (all of them, or the keyframes of
+    #: an episode rendered bit for bit)
+    video_checked: dict[str, int] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -155,14 +158,12 @@ class ReplayResult:
             exact = ", ".join(k for k in self.features if k not in videos)
             text = f"replay: all {n} episodes ({frames} frames) reproduce {how} ({exact})"
             if self.video:
+                v = self.video
                 text += (
-                    f", video {', '.join(self.video['keys'])} within mean abs error "
-                    f"{self.video['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {self.video['worst']:.3g}"
-                    + (
-                        _BIT_EXACT_TEXT.get(self.video.get("bit_exact_by"), "; bit for bit")
-                        if self.video.get("bit_exact")
-                        else ""
-                    )
+                    f", video {', '.join(v['keys'])} within mean abs error "
+                    f"{v['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {v['worst']:.3g}"
+                    + (f" of {v['frames_checked']} frames decoded, the keyframes" if v["frames_checked"] < v["frames"] else "")
+                    + (_BIT_EXACT_TEXT.get(v["bit_exact_by"], "; bit for bit") if v["bit_exact"] else "")
                     + ")"
                 )
             return text
@@ -375,12 +376,17 @@ def _compare_episode(
     features_map: Mapping[str, str],
     tolerance: float,
     keep_curves: bool,
+    keyframes: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> EpisodeReplay:
+    """Compare one episode's rollout with its dataset frames ``data``. A video feature missing from ``data`` has its
+    ``keyframes`` (:meth:`DatasetFrames.video_keyframes`) there instead: when the rendered frames' sha256 is the
+    recorded one, those are decoded frames enough (each within the tolerance); otherwise every frame is decoded."""
     meta = plan.metas[pos]
     ep, seed, length = meta["episode_index"], plan.seeds[pos], int(meta["length"])
     replay = rollout_to_frames(rollout, features_map)
     result = EpisodeReplay(episode=ep, seed=seed, length=length, replay_length=rollout.length)
-    pairs: list[tuple[str, np.ndarray | None, np.ndarray]] = [(k, replay.get(k), data[k]) for k in plan.features]
+    keyframes = keyframes or {}
+    pairs: list[tuple[str, np.ndarray | None, np.ndarray | None]] = [(k, replay.get(k), data.get(k)) for k in plan.features]
     if plan.states is not None:
         pairs.append((STATE_FEATURE, rollout.states, plan.states[ep]))
     curves: dict[str, np.ndarray] = {}
@@ -392,6 +398,17 @@ def _compare_episode(
         )
 
     for key, rep, dat in pairs:
+        video = key in plan.video_keys
+        limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
+        if (
+            video
+            and rep is not None
+            and dat is None
+            and _video_by_keyframes(plan, meta, key, rep, keyframes.get(key), limit, result)
+        ):
+            continue  # rendered bit for bit, and the video holds those frames at its keyframes
+        if dat is None:  # a video whose every frame is needed after all
+            dat = plan.frames.episode(ep, [key])[key]
         if rep is None:
             if key == STATE_FEATURE:
                 continue  # the env has no get_state any more: nothing to compare the states with
@@ -404,8 +421,9 @@ def _compare_episode(
         if rep.shape[1:] != dat.shape[1:]:
             whole(key, f"shape {dat.shape[1:]}", f"shape {rep.shape[1:]}", "the feature's shape changed")
             continue
-        video = key in plan.video_keys
         errors = frame_errors(rep[:n], dat[:n]) if video else _step_errors(rep[:n], dat[:n])
+        if video:
+            result.video_checked[key] = n
         if video and len(rep) == len(dat):
             recorded = meta.get(FRAMES_SHA256_COLUMN.format(key=key))
             if isinstance(recorded, str):  # push recorded the rendered frames' sha256: no second encoder pass
@@ -415,7 +433,6 @@ def _compare_episode(
                 result.video_exact_by[key] = "reencode"
         curves[key] = errors
         result.max_abs_diff[key] = float(errors.max()) if len(errors) else 0.0
-        limit = max(tolerance, VIDEO_TOLERANCE.max_mean_abs_error) if video else tolerance
         bad = np.flatnonzero(errors > limit) if dat.dtype.kind != "b" else np.flatnonzero(errors > 0)
         if len(bad):
             t = int(bad[0])
@@ -448,6 +465,35 @@ def _compare_episode(
     if result.divergences and keep_curves:
         result.error_curve = {k: [float(x) for x in v] for k, v in curves.items()}
     return result
+
+
+def _video_by_keyframes(
+    plan: _Plan,
+    meta: Mapping[str, Any],
+    key: str,
+    rep: np.ndarray,
+    keyframes: tuple[np.ndarray, np.ndarray] | None,
+    limit: float,
+    result: EpisodeReplay,
+) -> bool:
+    """Whether video ``key`` of this episode is settled without decoding every frame: the rendered frames are the
+    recorded ones bit for bit (their sha256 is the one push recorded) and each decoded keyframe is within ``limit``
+    of its rendered frame, so the file holds them. Records the evidence in ``result`` when it is."""
+    recorded = meta.get(FRAMES_SHA256_COLUMN.format(key=key))
+    length = int(meta["length"])
+    if keyframes is None or not isinstance(recorded, str) or not len(keyframes[0]):
+        return False
+    index, frames = keyframes
+    rep = _as_dataset_layout(np.asarray(rep), frames, True)
+    if len(rep) != length or rep.shape[1:] != frames.shape[1:] or frames_sha256(rep) != recorded:
+        return False
+    errors = frame_errors(rep[index], frames)
+    if not (errors <= limit).all():
+        return False  # the video does not hold the recorded frames there: every frame is compared, and named
+    result.video_exact[key], result.video_exact_by[key] = True, "frames_sha256"
+    result.video_checked[key] = len(index)
+    result.max_abs_diff[key] = float(errors.max())
+    return True
 
 
 #: how the summary says a video was reproduced bit for bit, by ``video["bit_exact_by"]``
@@ -700,11 +746,21 @@ class Replay:
             self.probe = None
 
     def _fetch(self, pos: int) -> Any:
-        """The dataset frames of episode ``pos``: images decoded a couple of episodes ahead in a thread."""
-        ep = self.plan.metas[pos]["episode_index"]
+        """``(dataset frames, video keyframes)`` of episode ``pos``: images decoded a couple of episodes ahead in a
+        thread; of a video whose rendered frames' sha256 is recorded only the keyframes (:func:`_compare_episode`
+        decodes the rest only if the replay's frames turn out not to be the recorded ones)."""
+        meta = self.plan.metas[pos]
+        ep = meta["episode_index"]
         if not self.plan.image_keys:  # numeric columns are already in memory
-            return _Done(self.plan.frames.episode(ep, self._keys))
-        return self._reader.submit(self.plan.frames.episode, ep, self._keys)
+            return _Done((self.plan.frames.episode(ep, self._keys), {}))
+        by_keyframes = [k for k in self.plan.video_keys if isinstance(meta.get(FRAMES_SHA256_COLUMN.format(key=k)), str)]
+
+        def read() -> tuple[dict[str, np.ndarray], dict[str, tuple[np.ndarray, np.ndarray]]]:
+            frames = self.plan.frames
+            data = frames.episode(ep, [k for k in self._keys if k not in by_keyframes])
+            return data, {k: frames.video_keyframes(ep, k) for k in by_keyframes}
+
+        return self._reader.submit(read)
 
     def consume(self, rollout: Any) -> EpisodeReplay:
         """Compare the next episode's rollout (rollouts must come in episode order)."""
@@ -713,9 +769,11 @@ class Replay:
         n = len(self.plan.metas)
         if pos + 2 < n:
             self._ahead[pos + 2] = self._fetch(pos + 2)
-        data = self._ahead.pop(pos).result()
+        data, keyframes = self._ahead.pop(pos).result()
         self.steps += rollout.length
-        result = _compare_episode(self.plan, pos, rollout, data, self.features_map, self.tolerance, keep_curves=True)
+        result = _compare_episode(
+            self.plan, pos, rollout, data, self.features_map, self.tolerance, keep_curves=True, keyframes=keyframes
+        )
         self.results.append(result)
         self._seconds += time.perf_counter() - t
         return result
@@ -760,12 +818,15 @@ class Replay:
             worst = max((e.max_abs_diff.get(k, 0.0) for e in results for k in plan.video_keys), default=0.0)
             exact = all(e.video_exact.get(k, False) for e in results for k in plan.video_keys)
             by = sorted({how for e in results for how in e.video_exact_by.values()})
+            checked = sum(e.video_checked.get(k, 0) for e in results for k in plan.video_keys)
             video = {
                 "keys": sorted(plan.video_keys),
                 "tolerance": VIDEO_TOLERANCE.to_dict(),
                 "worst": worst,
                 "bit_exact": exact,
                 "bit_exact_by": ", ".join(by) or None,
+                "frames": sum(e.length for e in results) * len(plan.video_keys),
+                "frames_checked": checked,  # decoded and compared within the tolerance
             }
         if plan.states is not None and self.record_states:
             features[STATE_FEATURE] = None

@@ -296,14 +296,17 @@ class _Runner:
             raise ConfigError(f"{where}: no actions to replay (the action array for this episode is empty).")
 
         layout = _layout(obs)
-        # how to fetch each leaf: None = the whole obs, str = obs[key], tuple = nested path
-        flat_keys = [(k, None if not p else p[0] if len(p) == 1 else p) for k, p in layout]
         try:
             obs_bufs = {k: _Buffer(_get(obs, p), max_steps) for k, p in layout}
         except Exception as exc:
             raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {exception_text(exc)}.") from exc
+        # how to record each leaf at step t: (buffer rows, path); path None = the whole obs, str = obs[key],
+        # tuple = nested. Rows are written in place (one row per step) while the buffers hold max_steps rows.
+        record = [(obs_bufs[k].data, None if not p else p[0] if len(p) == 1 else p) for k, p in layout]
+        in_place = all(b.data.shape[0] >= max_steps for b in obs_bufs.values())
         get_state = self.get_state
         state_buf: _Buffer | None = None
+        state_rows: np.ndarray | None = None
         states_problem: str | None = None
         act_buf: _Buffer | None = None
         rewards: list[float] = []
@@ -312,16 +315,17 @@ class _Runner:
         succ: list[bool] = []
         policy_fn = self.policy_fn
         sample = episode_run.sample
-        step = episode_run.step
+        env_step = env.step  # not episode_run.step: its bookkeeping is a quarter of this loop's own time
+        actions = list(fixed[:max_steps]) if fixed is not None else None  # one row view each, made up front
+        t = 0
         for t in range(max_steps):
             # record the observation before action t
             try:
-                for k, p in flat_keys:
-                    if p is None:
-                        obs_bufs[k].append(obs)
-                    elif type(p) is str:
-                        obs_bufs[k].append(obs[p])
-                    else:
+                if in_place:
+                    for rows, p in record:
+                        rows[t] = obs if p is None else obs[p] if type(p) is str else _get(obs, p)
+                else:
+                    for k, p in layout:
                         obs_bufs[k].append(_get(obs, p))
             except Exception as exc:
                 what = "reset" if t == 0 else f"step {t - 1}"
@@ -335,21 +339,29 @@ class _Runner:
                 except Exception as exc:
                     raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {exception_text(exc)}.") from exc
                 try:
-                    if state_buf is None:
+                    if state_rows is not None:
+                        state_rows[t] = state
+                    elif state_buf is None:
                         state_buf = _Buffer(state, max_steps)
-                    state_buf.append(state)
+                        state_buf.append(state)
+                        state_rows = state_buf.data if state_buf.data.shape[0] >= max_steps else None
+                    else:
+                        state_buf.append(state)
                 except (TypeError, ValueError) as exc:  # a state of another shape or kind than the first
                     states_problem = f"get_state() at step {t} returned a value unlike step 0's ({exception_text(exc)})"
-                    get_state, state_buf = None, None
+                    get_state, state_buf, state_rows = None, None, None
 
-            if fixed is not None:
-                action = fixed[t]
+            if actions is not None:
+                action = actions[t]
             elif policy_fn is not None:
                 action = policy_fn(obs, t)
             else:
                 action = sample()
-            obs, reward, terminated, truncated, info = step(action)
-            if fixed is None:  # replayed actions are copied once at the end
+            try:
+                obs, reward, terminated, truncated, info = env_step(action)
+            except Exception as exc:
+                raise episode_run.step_error(exc, t) from exc
+            if actions is None:  # replayed actions are copied once at the end
                 if act_buf is None:
                     act_buf = _Buffer(action, max_steps)
                 act_buf.append(action)
@@ -359,6 +371,11 @@ class _Runner:
             succ.append(bool(info.get("is_success", False)) if info else False)
             if terminated or truncated:
                 break
+        if in_place:
+            for b in obs_bufs.values():
+                b.n = t + 1
+        if state_rows is not None and state_buf is not None:
+            state_buf.n = t + 1
         if not terms[-1] and not truncs[-1]:
             truncs[-1] = True  # cut by max_steps: a time-limit truncation
 
