@@ -162,7 +162,7 @@ class ReplayResult:
                 text += (
                     f", video {', '.join(v['keys'])} within mean abs error "
                     f"{v['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {v['worst']:.3g}"
-                    + (f" of {v['frames_checked']} frames decoded, the keyframes" if v["frames_checked"] < v["frames"] else "")
+                    + (f" in the {v['frames_checked']} of {v['frames']} frames decoded" if v["frames_checked"] < v["frames"] else "")
                     + (_BIT_EXACT_TEXT.get(v["bit_exact_by"], "; bit for bit") if v["bit_exact"] else "")
                     + ")"
                 )
