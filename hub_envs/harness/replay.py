@@ -7,9 +7,11 @@ compares what comes out with what the dataset holds, frame by frame: every obser
 ``next.success`` and, when push_env recorded them (:mod:`hub_envs.dataset.states`), the simulator states.
 Exactly by default; within an absolute ``tolerance`` if one is given (booleans are always exact).
 Video features (dtype ``"video"``, lossy-encoded) are the one exception: a frame matches when its mean
-absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`; the
-videos are decoded front to back in a background thread while the env steps, and the rendered frames are
-also checked bit for bit against the sha256 push recorded of them (``EpisodeReplay.video_exact``).
+absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`. The
+rendered frames are also checked bit for bit against the sha256 push recorded of them
+(``EpisodeReplay.video_exact``): when they are the recorded ones, the video's keyframes (decoded in a
+background thread while the env steps) are compared within the tolerance, which shows the file holds those
+frames; otherwise every frame is decoded and compared.
 
 A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
 so a changed transition at step ``t`` shows in ``next.*`` at frame ``t`` and in the observations at
