@@ -9,9 +9,8 @@ Exactly by default; within an absolute ``tolerance`` if one is given (booleans a
 Video features (dtype ``"video"``, lossy-encoded) are the one exception: a frame matches when its mean
 absolute difference from the decoded frame is within :data:`hub_envs.dataset.video.VIDEO_TOLERANCE`. The
 rendered frames are also checked bit for bit against the sha256 push recorded of them
-(``EpisodeReplay.video_exact``): when they are the recorded ones, the video's keyframes (decoded in a
-background thread while the env steps) are compared within the tolerance, which shows the file holds those
-frames; otherwise every frame is decoded and compared.
+(``EpisodeReplay.video_exact``): when they are the recorded ones, only the video's keyframes are decoded and
+compared within the tolerance, which shows the file holds those frames; otherwise every frame is.
 
 A frame ``t`` holds the observation *before* action ``t`` and the reward/done/success *after* it,
 so a changed transition at step ``t`` shows in ``next.*`` at frame ``t`` and in the observations at
@@ -164,7 +163,11 @@ class ReplayResult:
                 text += (
                     f", video {', '.join(v['keys'])} within mean abs error "
                     f"{v['tolerance']['max_mean_abs_error']:g}/255 per frame (worst {v['worst']:.3g}"
-                    + (f" in the {v['frames_checked']} of {v['frames']} frames decoded" if v["frames_checked"] < v["frames"] else "")
+                    + (
+                        f" in the {v['frames_checked']} of {v['frames']} frames decoded"
+                        if v["frames_checked"] < v["frames"]
+                        else ""
+                    )
                     + (_BIT_EXACT_TEXT.get(v["bit_exact_by"], "; bit for bit") if v["bit_exact"] else "")
                     + ")"
                 )
@@ -748,9 +751,10 @@ class Replay:
             self.probe = None
 
     def _fetch(self, pos: int) -> Any:
-        """``(dataset frames, video keyframes)`` of episode ``pos``: images decoded a couple of episodes ahead in a
-        thread; of a video whose rendered frames' sha256 is recorded only the keyframes (:func:`_compare_episode`
-        decodes the rest only if the replay's frames turn out not to be the recorded ones)."""
+        """``(dataset frames, video keyframes)`` of episode ``pos``, a couple of episodes ahead: PNG images and videos
+        without a recorded sha256 decoded in a thread; of a video whose rendered frames' sha256 is recorded only the
+        keyframes, here (:func:`_compare_episode` decodes the rest only if the replay's frames turn out not to be the
+        recorded ones)."""
         meta = self.plan.metas[pos]
         ep = meta["episode_index"]
         if not self.plan.image_keys:  # numeric columns are already in memory
@@ -762,6 +766,10 @@ class Replay:
             data = frames.episode(ep, [k for k in self._keys if k not in by_keyframes])
             return data, {k: frames.video_keyframes(ep, k) for k in by_keyframes}
 
+        if set(by_keyframes) == self.plan.image_keys:
+            # keyframes only (a tenth of the frames): read here. In a thread, every packet's read gives the GIL up and
+            # waits to get it back from the stepping env (the switch interval, 5 ms), so the env would wait for it
+            return _Done(read())
         return self._reader.submit(read)
 
     def consume(self, rollout: Any) -> EpisodeReplay:
