@@ -24,7 +24,7 @@ Figures (medians of the per-repeat ratios):
 * ``eval_vs_lerobot_eval_batch10`` (info, one run): against ``--eval.batch_size=10``, LeRobot's batched
   inference (its episodes differ slightly: a batch of 10 changes the float arithmetic of the network).
 
-Run: ``python -m benchmarks.bench_eval [--repeats 3] [--episodes 50]``; ``run()`` returns the dict.
+Run: ``python -m benchmarks.bench_eval [--repeats 3] [--episodes 100]``; ``run()`` returns the dict.
 """
 
 from __future__ import annotations
@@ -125,7 +125,7 @@ def _lerobot_eval(env: dict, name: str, sha: str, policy_dir: Path, episodes: in
     return seconds, {"returns": metrics["sum_rewards"], "successes": metrics["successes"]}
 
 
-def run(repeats: int = 3, episodes: int = 50, batch10: bool = True, verbose: bool = True) -> dict:
+def run(repeats: int = 3, episodes: int = 100, batch10: bool = True, verbose: bool = True) -> dict:
     """Push the env and the policy to a loopback Hub, then time both evaluations; return the figures."""
     from huggingface_hub import HfApi
 
@@ -221,7 +221,7 @@ def print_table(results: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--no-batch10", action="store_true", help="skip the lerobot-eval --eval.batch_size=10 run")
     args = parser.parse_args()
     run(repeats=args.repeats, episodes=args.episodes, batch10=not args.no_batch10)
