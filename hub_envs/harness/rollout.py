@@ -479,9 +479,10 @@ def _to_file(arr: np.ndarray, path: str) -> Any:
         return arr
     arr = np.ascontiguousarray(arr)
     try:
-        with open(path, "xb", buffering=0) as f:
-            os.fchmod(f.fileno(), 0o600)
-            f.write(memoryview(arr.reshape(-1)).cast("B"))
+        with open(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "wb", buffering=0) as f:  # this user only
+            view = memoryview(arr.reshape(-1)).cast("B")
+            while view:
+                view = view[f.write(view) :]
     except OSError:  # /dev/shm full (a container's is small): the pipe
         with contextlib.suppress(OSError):
             os.unlink(path)
