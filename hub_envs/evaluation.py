@@ -13,8 +13,9 @@ no state across episodes (on Ray it is pickled to each worker once, so it must b
 
     hub-envs evaluate --repo_id=user/hover@<sha> --trust_remote_code=true --episodes=500 --backend=ray
 
-This is not LeRobot's ``lerobot-eval`` (``hub-envs eval``), which steps a batch of envs in one process with
-its own seeding: the same seeds give other episodes there.
+LeRobot's ``lerobot-eval`` (``hub-envs eval``) resets its episode ``i`` with seed ``--seed + i`` too: with
+``--eval.batch_size=1`` it runs the same episodes (``benchmarks/bench_eval.py`` checks that the returns and successes
+agree); a batch of envs steps in one process and changes the policy's float arithmetic, so episodes can drift apart.
 
 Example:
     >>> from hub_envs import evaluate                                                  # doctest: +SKIP

@@ -629,11 +629,7 @@ class Manifest:
             safe_relpath(data["dataset"]["path"], where=f"{where} dataset.path")
         record = data.get("dataset", {}).get("dataset_repo", {})  # the dataset repo commit holding the same dataset
         if not isinstance(record, dict) or (
-            record
-            and not (
-                repo_id_problem(record.get("repo_id")) is None
-                and is_commit_sha(record.get("revision"))
-            )
+            record and not (repo_id_problem(record.get("repo_id")) is None and is_commit_sha(record.get("revision")))
         ):
             raise ManifestError(
                 f"{where}: dataset.dataset_repo {safe_text(repr(record))[:200]} must name a dataset repo ('user/name') and a "

@@ -659,6 +659,29 @@ def test_without_recorded_states_the_replay_state_localizes_the_divergence(hub):
     assert "reproduces the diverging step" in loc["message"]
 
 
+def test_the_fingerprint_comes_from_random_episodes_that_ran_already():
+    """reproduce takes the golden-rollout fingerprint from the benchmark's random-policy episodes (longer, or ended
+    by the env before the fingerprint's steps) instead of running its seeds again: the same digests."""
+    import gymnasium as gym
+
+    from hub_envs.harness.checks import golden_fingerprint, verify_fingerprint
+    from hub_envs.harness.rollout import run_episodes
+
+    def unused():
+        raise AssertionError("the fingerprint ran the env again")
+
+    for env_id in ("Pendulum-v1", "CartPole-v1"):  # CartPole's random episodes end before 32 steps (seed 0: 13)
+        make = lambda env_id=env_id: gym.make(env_id)  # noqa: E731
+        recorded = golden_fingerprint(make, seeds=[0, 1, 2], steps=32)
+        ran = run_episodes(make, [0, 1, 2], max_steps=100, progress=False)
+        assert verify_fingerprint(unused, recorded, where="x", episodes=ran) == recorded
+        other = {**recorded, "digest": "0" * 64}
+        with pytest.raises(errors.FingerprintMismatchError):
+            verify_fingerprint(unused, other, where="x", episodes=ran)
+    # rollouts of other seeds are not taken for them
+    assert verify_fingerprint(make, recorded, where="x", episodes=ran[::-1]) == recorded
+
+
 def test_the_engine_runs_replayed_and_random_episodes_in_one_pass():
     """What reproduce relies on to share one worker pool: per-episode None = the seeded random policy."""
     import gymnasium as gym

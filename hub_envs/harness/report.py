@@ -208,12 +208,12 @@ class ReproduceReport(ReportFiles):
                 out += [
                     f"Video {', '.join(f'`{k}`' for k in r.video['keys'])} (lossy): a frame matches when its mean absolute "
                     f"error from the decoded video is at most {limit:g} (0-255); worst frame {_fmt(r.video['worst'], 3)}, "
-                    f"mean {_fmt(r.video.get('mean'), 3)}"
-                    + (
-                        "; the replayed frames, re-encoded, give the dataset's video bit for bit"
-                        if r.video.get("bit_exact_after_reencode")
-                        else ""
-                    )
+                    f"mean {_fmt(r.video.get('mean'), 3)}, over the {r.video.get('frames_checked')} of "
+                    f"{r.video.get('frames')} frames decoded"
+                    + {
+                        "frames_sha256": "; the replayed frames are the rendered ones bit for bit (their recorded sha256)",
+                        "reencode": "; the replayed frames, re-encoded, give the dataset's video bit for bit",
+                    }.get((r.video.get("bit_exact_by") or "") if r.video.get("bit_exact") else "", "")
                     + ".",
                     "",
                 ]
@@ -367,19 +367,31 @@ class ReproduceReport(ReportFiles):
         episodes = [e for e in replay.episodes if key in e.video_errors]
         errors = np.concatenate([e.video_errors[key] for e in episodes]) if episodes else np.zeros(0)
         limit = max(replay.tolerance, float(replay.video["tolerance"]["max_mean_abs_error"]))
-        ax.plot(np.arange(len(errors)), errors, lw=0.8, color="tab:blue", label="replay vs dataset video, per frame")
+        decoded = errors[~np.isnan(errors)]
+        sparse = len(decoded) < len(errors)  # keyframes only (rendered bit for bit): points, not a line through gaps
+        ax.plot(
+            np.arange(len(errors)),
+            errors,
+            ".-" if sparse else "-",
+            ms=3,
+            lw=0.8,
+            color="tab:blue",
+            label="replay vs dataset video, per frame" + (" (keyframes decoded)" if sparse else ""),
+        )
         ax.axhline(limit, color="red", ls="--", lw=1, label=f"tolerance: {limit:g}")
         if len(episodes) <= 50:  # episode boundaries, while they can be told apart
             for start in np.cumsum([len(e.video_errors[key]) for e in episodes])[:-1]:
                 ax.axvline(start - 0.5, color="grey", lw=0.5, ls=":")
-        ax.set_ylim(0, 1.15 * max(limit, float(errors.max()) if len(errors) else 0.0))
+        worst = float(decoded.max()) if len(decoded) else 0.0
+        ax.set_ylim(0, 1.15 * max(limit, worst))
         ax.set_xlim(-0.5, max(len(errors) - 0.5, 0.5))
         ax.set_xlabel(f"frame of the replay ({len(episodes)} episodes in order)")
         ax.set_ylabel("mean |replay - decoded| (0-255)")
-        worst = float(errors.max()) if len(errors) else 0.0
-        exact = ", re-encoded: bit for bit" if replay.video.get("bit_exact_after_reencode") else ""
+        how = replay.video.get("bit_exact_by") if replay.video.get("bit_exact") else None
+        exact = {"frames_sha256": ", rendered bit for bit", "reencode": ", re-encoded: bit for bit"}.get(how or "", "")
         ax.set_title(
-            f"video {key}: worst frame {worst:.3g}, mean {float(errors.mean()) if len(errors) else 0.0:.3g}{exact}", fontsize=10
+            f"video {key}: worst decoded frame {worst:.3g}, mean {float(decoded.mean()) if len(decoded) else 0.0:.3g}{exact}",
+            fontsize=10,
         )
         ax.legend(loc="lower right", fontsize=8)
 
