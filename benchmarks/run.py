@@ -1,10 +1,14 @@
-"""``make bench``: run every benchmark, print one table of figures against their goals, write JSON.
+"""``make bench``: run every benchmark, print one table of figures against their goals, write JSON and the README.
 
 Each figure is a ratio measured side by side in one run (medians of several repeats: the machine
-may be shared and noisy). The figures and every module's details go to ``benchmarks/out/latest.json``.
+may be shared and noisy). The figures and every module's details go to ``benchmarks/out/latest.json``; a run of
+some modules (``--only``) replaces theirs there and keeps the others'. ``benchmarks/README.md`` (each figure,
+its goal, the last value and when it was measured) is generated from that file, at the end of every full run
+or on demand:
 
-    python -m benchmarks.run            # all of them (a few minutes)
-    python -m benchmarks.run --only load download
+    python -m benchmarks.run                         # all of them (several minutes); writes the README too
+    python -m benchmarks.run --only load download    # some; --write-readme to update the README from them too
+    python -m benchmarks.run --write-readme          # run nothing: the README from benchmarks/out/latest.json
 
 The modules run in this order, ``bench_load`` first: it forks its "fresh process" for warm loads
 before anything imports env code or a simulator. A module that is missing (``bench_replay`` may not
@@ -26,14 +30,16 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 OUT = Path(__file__).resolve().parent / "out" / "latest.json"
+README = Path(__file__).resolve().parent / "README.md"
 
 #: module -> keyword arguments of its run()
 MODULES: dict[str, dict] = {
     "bench_load": {"repeats": 9},
     "bench_startup": {"repeats": 7},
     "bench_download": {"clients": 8, "size_mb": 32, "repeats": 3},
-    "bench_datagen": {"repeats": 3},
-    "bench_replay": {"repeats": 3},
+    "bench_datagen": {"repeats": 5},
+    "bench_replay": {"repeats": 5},
+    "bench_eval": {"repeats": 3, "episodes": 100},
     "bench_server": {"repeats": 3, "n_files": 100, "size_mb": 16},
     "bench_push": {"repeats": 3},
     "bench_pages": {"rounds": 5, "requests_per_round": 100},
@@ -58,9 +64,30 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "cold_load_vs_snapshot_hover": ("bench_load", (LE, 1.2), "  hover"),
     "first_files_direct_vs_hf": ("bench_load", None, "a cold load's first files: one GET each ÷ hf_hub_download (worst env)"),
     "datagen_vs_lerobot": ("bench_datagen", (GE, 3.0), "dataset frames/s ÷ LeRobot add_frame/save_episode"),
-    "datagen_vs_raw": ("bench_datagen", (GE, 0.33), "dataset frames/s ÷ raw env stepping"),
+    "datagen_vs_raw": ("bench_datagen", (GE, 0.6), "dataset frames/s ÷ raw env stepping (worst variant: state, image)"),
     "replay_vs_raw": ("bench_replay", (GE, 0.8), "replay-verify steps/s ÷ raw env stepping"),
-    "reproduce_speedup_2workers": ("bench_replay", (GE, 1.6), "reproduce on 1 worker ÷ on 2 (time)"),
+    "reproduce_parallel_efficiency": (
+        "bench_replay",
+        (GE, 0.95),
+        "reproduce's 2-worker speedup ÷ pure CPU work's on 2 processes, measured right after it (the host's ceiling)",
+    ),
+    "reproduce_speedup_2workers": ("bench_replay", None, "  reproduce on 1 worker ÷ on 2 (time)"),
+    "eval_vs_lerobot_eval": (
+        "bench_eval",
+        (GE, 1.5),
+        "episodes/s: hub-envs evaluate ÷ lerobot-eval at batch 1 (the same episodes), tiny TD-MPC checkpoint, pendulum, 100 seeds",
+    ),
+    "eval_success_rate_difference": ("bench_eval", (EQ, 0), "  largest success rate difference among the three, same seeds"),
+    "eval_return_max_abs_difference": (
+        "bench_eval",
+        None,
+        "  largest per-episode return difference to lerobot-eval at batch 1 (float summation order)",
+    ),
+    "eval_vs_lerobot_eval_batch10": (
+        "bench_eval",
+        None,
+        "  same ÷ lerobot-eval --eval.batch_size=10 (batched inference: other float arithmetic, so not quite the same episodes)",
+    ),
     "cli_help_s": ("bench_startup", (LE, 0.5), "seconds: hub-envs --help (no torch, no lerobot)"),
     "cli_trust_s": ("bench_startup", (LE, 0.5), "seconds: hub-envs trust user/name@<sha>"),
     "push_env_help_s": ("bench_startup", (LE, 0.5), "seconds: push_env --help"),
@@ -78,22 +105,29 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "repo_page_rps": ("bench_pages", None, "requests/s: an env's web page (one client, keep-alive)"),
     "api_info_rps": ("bench_pages", None, "requests/s: GET /api/models/{repo} beside it (the same client)"),
     "repo_page_vs_api": ("bench_pages", None, "repo page ÷ API request (requests/s)"),
-    "isolated_step_hover": ("bench_isolation", (GE, 0.85), "steps/s of hover in a worker process ÷ in-process"),
+    "isolated_overhead_vs_gym_async": (
+        "bench_isolation",
+        (LE, 0.5),
+        "isolated step's cost over in-process ÷ gymnasium AsyncVectorEnv(1, shared memory)'s (worse of pendulum, hover)",
+    ),
+    "isolated_overhead_vs_gym_async_busy": (
+        "bench_isolation",
+        (LE, 1.0),
+        "  same, every other CPU kept busy (a python -c 'while True: pass' per CPU but one)",
+    ),
+    "isolated_step_hover": ("bench_isolation", None, "steps/s of hover in a worker process ÷ in-process"),
+    "isolated_step_hover_busy": ("bench_isolation", None, "  same, every other CPU kept busy"),
     "isolated_vec8_pendulum": ("bench_isolation", (GE, 0.7), "8 pendulums in isolated workers ÷ in-process SyncVectorEnv of 8"),
+    "isolated_vec8_pendulum_busy": ("bench_isolation", (GE, 0.7), "  same, every other CPU kept busy"),
     "isolated_warm_load": (
         "bench_isolation",
         (LE, 2.0),
         "load_env(isolation='venv') cached + make + reset ÷ python -c 'import numpy, gymnasium'",
     ),
-    "isolated_step_hover_best_turn": (
-        "bench_isolation",
-        None,
-        "  same, from each side's fastest 50-step turn (where the host's other tenants did not reach)",
-    ),
     "isolated_step_hover_sleeping": (
         "bench_isolation",
         None,
-        "  same, both sides sleeping in the socket (hub_envs.isolation.doorbell off)",
+        "  hover in a worker, both sides sleeping in the socket (hub_envs.isolation.doorbell off) ÷ in-process",
     ),
     "sandboxed_step_hover": ("bench_isolation", None, "steps/s of hover in a sandboxed worker ÷ in-process"),
     "worker_start_s": ("bench_isolation", None, "seconds: start a worker and import hover's code"),
@@ -146,6 +180,7 @@ def run(only: list[str] | None = None) -> dict:
             out["skipped"][name] = f"not present ({e})"
             print(f"{name}: skipped, {out['skipped'][name]}", file=sys.stderr)
             continue
+        when, load = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), os.getloadavg()
         try:
             out["details"][name] = module.run(**kwargs)
         except Exception as e:  # noqa: BLE001 - one failing benchmark must not hide the others
@@ -153,14 +188,31 @@ def run(only: list[str] | None = None) -> dict:
             traceback.print_exc()
             continue
         out["details"][name]["seconds"] = round(time.perf_counter() - t, 1)
+        out["details"][name]["measured"] = {"date": when, "load_average_before": load}
+    _collect(out)
+    out["machine"]["load_average_after"] = os.getloadavg()
+    out["seconds"] = round(time.perf_counter() - started, 1)
+    return out
+
+
+def _collect(out: dict) -> None:
+    """The figures and their verdicts, from the modules' details."""
     for figure, (module, _goal, _) in FIGURES.items():
         value = out["details"].get(module, {}).get(figure)
         if value is not None:
             out[figure] = value
     out["goals_met"] = {f: _verdict(out.get(f), FIGURES[f][1]) for f in FIGURES if FIGURES[f][1] and f in out}
-    out["machine"]["load_average_after"] = os.getloadavg()
-    out["seconds"] = round(time.perf_counter() - started, 1)
-    return out
+
+
+def merge(previous: dict, new: dict) -> dict:
+    """``new`` (a run of some modules) over ``previous`` (the last results): the modules ``new`` ran replace theirs,
+    the others' details, figures and failures are kept."""
+    merged = {**new, "details": {**previous.get("details", {}), **new["details"]}}
+    merged["skipped"] = {k: v for k, v in previous.get("skipped", {}).items() if k not in new["details"]} | new["skipped"]
+    for figure in FIGURES:
+        merged.pop(figure, None)
+    _collect(merged)
+    return merged
 
 
 def _verdict(value, goal) -> bool | None:
@@ -198,12 +250,63 @@ def table(out: dict) -> str:
     return "\n".join(rows)
 
 
+def readme(out: dict) -> str:
+    """``benchmarks/README.md``: every figure with its goal, the last value measured and when (from ``out``)."""
+    runs = []
+    for module in MODULES:
+        measured = out.get("details", {}).get(module, {}).get("measured")
+        if measured:
+            la = measured.get("load_average_before") or [float("nan")]
+            runs.append(f"`{module}` {measured['date']} (load average {la[0]:.2f} before)")
+        elif module in out.get("skipped", {}):
+            runs.append(f"`{module}` {out['skipped'][module][:80]}")
+    machine = out.get("machine", {})
+    return "\n".join(
+        [
+            "# Benchmarks",
+            "",
+            "<!-- Generated by `python -m benchmarks.run` (every full run, or `--write-readme`) from",
+            "     benchmarks/out/latest.json. Do not edit by hand: the history of these values is in git. -->",
+            "",
+            "`make bench` runs every module of [`run.py`](run.py) (several minutes); `python -m benchmarks.run --only "
+            "replay datagen` runs some (their results replace theirs in `benchmarks/out/latest.json`, the others' are "
+            "kept) and `--write-readme` regenerates this page from that file. Each figure is a ratio of two things "
+            "measured side by side in the same run, the median of several repeats: the machine is shared and noisy. "
+            "What each module measures, and how, is in its docstring; the per-repeat values and every detail are in "
+            "`benchmarks/out/latest.json`.",
+            "",
+            f"Last values on a {machine.get('cpu_count', '?')}-CPU machine, Python {machine.get('python', '?')}; measured: "
+            + "; ".join(runs)
+            + ".",
+            "",
+            table(out),
+            "",
+        ]
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", nargs="*", help="module names (load, startup, download, datagen, replay, server, pages)")
+    parser.add_argument(
+        "--only", nargs="*", help="module names (load, startup, download, datagen, replay, eval, server, pages, ...)"
+    )
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument(
+        "--write-readme",
+        action="store_true",
+        help=f"write {README.relative_to(README.parent.parent)} from the results (alone: from --out, running nothing)",
+    )
     args = parser.parse_args()
+    previous = json.loads(args.out.read_text()) if args.out.is_file() else {}
+    if args.write_readme and args.only is None:
+        if not previous:
+            raise SystemExit(f"{args.out} does not exist: run the benchmarks first (python -m benchmarks.run).")
+        README.write_text(readme(previous))
+        print(f"Written {README} from {args.out}")
+        return
     out = run(args.only)
+    if args.only:
+        out = merge(previous, out)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2, default=str) + "\n")
     la = out["machine"]["load_average_before"]
@@ -213,6 +316,9 @@ def main() -> None:
     )
     print(table(out))
     print(f"\nWritten to {args.out}")
+    if args.write_readme or not args.only:
+        README.write_text(readme(out))
+        print(f"Written {README}")
 
 
 if __name__ == "__main__":

@@ -56,6 +56,19 @@ def republish(
     return info.oid
 
 
+def saved_figures(monkeypatch, module) -> list:
+    """The matplotlib figures ``module`` saves as report PNGs from now on (its ``save_figure``, still called: the
+    PNGs are written as always), to assert on what the plot draws rather than on pixels."""
+    figures, save = [], module.save_figure
+
+    def spy(fig, path, **kw):
+        figures.append(fig)
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(module, "save_figure", spy)
+    return figures
+
+
 def comparable_report(report) -> dict:
     """A reproduction report as a dict, minus what differs between identical runs (wall-clock times, settings)."""
     d = report.to_dict()

@@ -10,11 +10,12 @@ import json
 from pathlib import Path
 
 import pytest
-from helpers import copy_env
+from helpers import copy_env, saved_figures
 from test_lerobot import EVAL_FREQ, TINY_ACT
 
 from hub_envs import compare, errors, push_env
 from hub_envs.cli import main as cli_main
+from hub_envs.operations.compare import CompareReport, Estimate, PolicyResult, _paired, episodes_for_half_width
 
 ENVS = Path(__file__).resolve().parent.parent / "envs"
 
@@ -137,3 +138,84 @@ def test_an_isolated_env_compares_to_the_same_numbers(hub_module, reach, act_che
     assert isolated.differences == here.differences and here.differences[0].returns.values != (0.0, 0.0)
     with pytest.raises(errors.ConfigError, match="isolaton="):
         compare(f"alice/reach-compare@{reach.sha}", ["random", "random"], isolaton="process", **kw)
+
+
+# --- the plot -------------------------------------------------------------------------------------
+
+
+def _report(names: list[str], successes: list[list[float]]) -> CompareReport:
+    """A report of ``names`` with these per-seed successes (returns follow them), as compare() builds it."""
+    stats = dict(resamples=200, confidence=0.95, seed=0)
+    results = [
+        PolicyResult(
+            label=name,
+            spec={"type": "lerobot", "path": name},
+            returns=Estimate.of([10.0 * s - i for i, s in enumerate(succ)], **stats),
+            successes=Estimate.of(succ, **stats),
+            episodes_for_5_points=episodes_for_half_width(succ),
+            seconds=1.0,
+        )
+        for i, (name, succ) in enumerate(zip(names, successes))
+    ]
+    diffs = [_paired(results[0], results[1], **stats)]
+    provenance = {"repo_id": "alice/reach", "sha": "0" * 40, "seeds": list(range(len(successes[0])))}
+    return CompareReport(
+        policies=results, differences=diffs, provenance=provenance, settings={"confidence": 0.95, "resamples": 200}
+    )
+
+
+def plotted(report: CompareReport, tmp_path: Path, monkeypatch):
+    """The matplotlib figure report.png is saved from (the one report.write() builds)."""
+    import hub_envs.operations.compare as policy_compare
+
+    figures = saved_figures(monkeypatch, policy_compare)
+    report.write(tmp_path)
+    (fig,) = figures
+    assert (tmp_path / "report.png").stat().st_size > 0
+    return fig
+
+
+@pytest.mark.parametrize("rates", [(0.0, 0.0), (1.0, 1.0), (0.25, 0.75)])
+def test_the_plot_tells_two_checkpoints_apart_and_draws_success_rates_on_0_to_100(rates, tmp_path, monkeypatch):
+    """Two checkpoints named alike get labels that differ, each mapped to its full name in a legend; the success-rate
+    axis is 0-100 % whatever the rates (both 0 drew an axis of negative percentages)."""
+    names = ["a/last/pretrained_model", "b/last/pretrained_model"]
+    seeds = 4
+    successes = [[1.0] * round(seeds * r) + [0.0] * (seeds - round(seeds * r)) for r in rates]
+    fig = plotted(_report(names, successes), tmp_path, monkeypatch)
+    success_ax, return_ax, diff_ax = fig.axes
+    for ax in (success_ax, return_ax):
+        ticks = [t.get_text() for t in ax.get_xticklabels()]
+        assert len(ticks) == 2 and ticks[0] != ticks[1], ticks
+    assert success_ax.get_title() == "success rate (%)"
+    assert success_ax.get_ylim() == (0.0, 100.0)
+    assert [b.get_height() for b in success_ax.patches] == pytest.approx([100 * r for r in rates])
+    # every shortened label is explained: "short  =  full name", in the figure's legend
+    (legend,) = fig.legends
+    explained = dict(t.get_text().split("  =  ") for t in legend.get_texts())
+    assert {explained.get(t, t) for t in ticks} == set(names), (ticks, explained)
+    assert ticks[0] in diff_ax.get_title() and ticks[1] in diff_ax.get_title()
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        ["a/last/pretrained_model", "b/last/pretrained_model"],
+        ["random", "outputs/train/act/checkpoints/last/pretrained_model"],
+        ["out/act_1/checkpoints/last/pretrained_model", "out/act_2/checkpoints/last/pretrained_model", "random"],
+        ["/home/u/outputs/train/run_with_a_really_long_name_1/x", "/home/u/outputs/train/run_with_a_really_long_name_2/x"],
+        ["alice/act@0123456789abcdef0123456789abcdef01234567", "alice/act@0123456789abcdef0123456789abcdef01234568"],
+        ["random", "random (2)"],
+    ],
+)
+def test_the_plots_policy_labels_are_never_ambiguous(names, tmp_path, monkeypatch):
+    """Whatever the names, the bars' labels differ, each is a shortening of its own name, and the legend (when a
+    label is not the whole name) gives the full name."""
+    fig = plotted(_report(names, [[0.0, 1.0, 0.0]] * len(names)), tmp_path, monkeypatch)
+    labels = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert len(set(labels)) == len(names), (names, labels)
+    explained = dict(t.get_text().split("  =  ") for legend in fig.legends for t in legend.get_texts())
+    for label, name in zip(labels, names):
+        assert explained.get(label, label) == name, (label, explained)
+        assert all(part.strip("/") in name for part in label.split("…") if part.strip("/")), (label, name)
+        assert len(label) <= 32 or label == name, label

@@ -397,6 +397,29 @@ def test_same_inputs_give_byte_identical_folders(tmp_path, image_rollouts):
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
 
 
+def test_camera_frames_from_worker_processes_are_the_same_and_leave_no_files(monkeypatch):
+    """Worker processes hand big observations to the parent through files in /dev/shm, not the result pipe: the
+    episodes are exactly those one process gives, and no file is left behind, also when the caller stops early."""
+    import glob
+    import os
+
+    from hub_envs.harness import rollout
+
+    monkeypatch.setattr(rollout, "_FILE_MIN_BYTES", 1)  # every observation through a file (the workers inherit it)
+
+    def leftovers() -> list[str]:
+        return glob.glob(f"/dev/shm/hub-envs-rollout-{os.getpid()}-*")
+
+    make = lambda: DictPendulum(image=True)  # noqa: E731
+    one = run_episodes(make, SEEDS, max_steps=100, record_states=True, workers=1, progress=False)
+    two = run_episodes(make, SEEDS, max_steps=100, record_states=True, workers=2, progress=False)
+    assert two == one and not leftovers()
+    stopped = iter_episodes(make, SEEDS * 3, max_steps=100, record_states=True, workers=2, progress=False)
+    assert next(stopped) == one[0]
+    stopped.close()  # episodes written by the workers and never read
+    assert not leftovers()
+
+
 def test_failure_mid_write_leaves_nothing(tmp_path, state_rollouts):
     feats, fmap = features(False)
 

@@ -12,6 +12,7 @@ import dataclasses
 import hashlib
 import inspect
 import json
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -469,6 +470,129 @@ def test_hover_one_d_rpm_can_take_off_and_hover(closing):
         successes.append(info["is_success"])
     assert all(successes[-cfg.fps :]), "hovering at the target for the last second"
     assert not any(successes[:10])
+
+
+# --- hover: the card's picture is framed on the drone ----------------------------------------------------
+#
+# Measured on the rendered pixels: the drone is the only dark or saturated thing in hover's pictures (the floor's
+# checks and the sky are light; the target sphere, green, is left out), so the bounding box of those pixels is the
+# drone's. Before the card had its own camera the drone was ~30 px wide of 256 and 16 px from the bottom edge.
+
+FRAME = 256
+MIN_DRONE_WIDTH = 48  # px of FRAME: rotors and arms visible
+MIN_MARGIN = FRAME // 8  # px between the drone and every edge of the frame
+
+
+def drone_box(frame: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) of the drone's pixels, or None when none is in the frame."""
+    f = frame[..., :3].astype(int)
+    r, g, b = f[..., 0], f[..., 1], f[..., 2]
+    green = (g > r + 40) & (g > b + 40)  # the target sphere
+    ys, xs = np.nonzero((f.min(axis=-1) < 110) & ~green)
+    return None if len(xs) == 0 else (int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max()))
+
+
+def assert_framed(frames, what: str) -> None:
+    for i, frame in enumerate(frames):
+        assert frame.shape[:2] == (FRAME, FRAME), (what, frame.shape)
+        box = drone_box(frame)
+        assert box is not None, f"{what}, frame {i}: no drone in the picture"
+        x0, y0, x1, y1 = box
+        assert x1 - x0 + 1 >= MIN_DRONE_WIDTH, f"{what}, frame {i}: the drone is {x1 - x0 + 1} px wide ({box})"
+        assert min(x0, y0, FRAME - 1 - x1, FRAME - 1 - y1) >= MIN_MARGIN, f"{what}, frame {i}: at the edge ({box})"
+
+
+def card_media_env(extra: dict | None = None):
+    """hover as push_env makes it for the card: its pyproject's [tool.hub-envs.media] gym_kwargs, at 256 px."""
+    env_cls, cfg_cls, _ = load("hover")
+    media = manifest("hover")["tool"]["hub-envs"].get("media", {}).get("gym_kwargs", {})
+    return env_cls(**{**cfg_cls().gym_kwargs, **media, "render_width": FRAME, "render_height": FRAME, **(extra or {})})
+
+
+def test_hovers_card_camera_keeps_the_drone_framed_wherever_it_flies(closing):
+    """Over a random-action episode that climbs to the ceiling and at the corners of the flight volume (where the
+    episode is truncated), the card's camera shows the drone big and away from the frame's edges."""
+    env = card_media_env()
+    closing(env)
+    env.action_space.seed(4)
+    env.reset(seed=4)
+    frames, top = [env.render()], 0.0
+    for t in range(240):
+        _, _, _, truncated, _ = env.step(env.action_space.sample())
+        top = max(top, float(env.get_state()[2]))
+        if t % 6 == 0:
+            frames.append(env.render())
+        if truncated:
+            break
+    assert top > 1.5, "seed 4's random actions fly the drone above 1.5 m (the ceiling is 2 m)"
+    assert_framed(frames, "seed 4")
+    corners = [(x, y, z) for x in (-1.45, 1.45) for y in (-1.45, 1.45) for z in (0.02, 1.95)]
+    for pos in corners:
+        env.reset_to(hover_state(env, pos, (0.35, -0.35, 0.0)))
+        assert_framed([env.render()], f"at {pos}")
+
+
+def test_hover_render_camera_is_checked_and_its_default_views_the_flight_volume(closing):
+    """render()'s default camera (no card settings) sees the drone on the ground and at the target; a malformed
+    render_camera is a ValueError naming the entry."""
+    env_cls, cfg_cls, _ = load("hover")
+    env = env_cls(**{**cfg_cls().gym_kwargs, "render_width": FRAME, "render_height": FRAME})
+    closing(env)
+    for z in (0.02, 1.0):
+        env.reset_to(hover_state(env, (0.0, 0.0, z)))
+        box = drone_box(env.render())
+        assert box is not None and min(box[0], box[1], FRAME - 1 - box[2], FRAME - 1 - box[3]) >= 8, (z, box)
+    for camera, match in [
+        ({"target": "moon"}, "target"),
+        ({"zoom": 2.0}, "unknown entries"),
+        ({"distance": 0}, "distance"),
+        ("drone", "must be a dict"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            env_cls(render_camera=camera)
+
+
+def test_hovers_card_gif_is_framed_on_the_drone_and_says_how_it_was_rendered(hub):
+    """push_env renders the card's GIF with the camera the author set in pyproject.toml; the card states it."""
+    import imageio.v3 as iio
+
+    from hub_envs import push_env
+
+    pushed = push_env(ENVS_DIR / "hover", "alice/hover-card", episodes=3, progress=False)
+    gif = hub.api.hf_hub_download("alice/hover-card", "media/rollout.gif", revision=pushed.sha)
+    frames = iio.imread(gif, index=None)
+    assert len(frames) == 3 * 60 // 2  # 3 episodes, 60 steps, every 2nd (15 frames a second at 30 fps)
+    assert_framed(frames, "the card's GIF")
+    card = Path(hub.api.hf_hub_download("alice/hover-card", "README.md", revision=pushed.sha)).read_text()
+    (note,) = [line for line in card.splitlines() if line.startswith("*Random-action rollouts")]
+    assert "seeds 0, 1, 2" in note and "real time (30 fps)" in note
+    assert "make(render_camera={'target': 'drone'" in note and "render_width=256, render_height=256)" in note
+
+
+def test_a_media_table_the_env_refuses_is_named_before_the_dataset_is_built(hub, tmp_path, capsys):
+    from hub_envs import errors, push_env
+
+    def with_media(table: str) -> Path:
+        folder = tmp_path / f"hover-{len(list(tmp_path.iterdir()))}"
+        shutil.copytree(ENVS_DIR / "hover", folder, ignore=shutil.ignore_patterns("__pycache__"))
+        text = (folder / "pyproject.toml").read_text().split("[tool.hub-envs.media]")[0]
+        (folder / "pyproject.toml").write_text(text + table)
+        return folder
+
+    cases = [
+        ('[tool.hub-envs.media]\ngym_kwargs = { render_camera = { target = "moon" } }\n', "target"),
+        ("[tool.hub-envs.media]\ngym_kwargs = { camera_zoom = 2.0 }\n", "camera_zoom"),
+        ("[tool.hub-envs.media]\ncamera = { target = [0, 0, 1] }\n", "unknown keys"),
+        ("[tool.hub-envs.media]\ngym_kwargs = { when = 1979-05-27 }\n", "not a string, number"),
+        ("media = 3\n", "must be a table"),  # under [tool.hub-envs]
+    ]
+    for table, match in cases:
+        folder = with_media(table)
+        with pytest.raises(errors.EnvFolderError, match=match) as e:
+            push_env(folder, "alice/hover-bad-media", episodes=1)
+        assert "pyproject.toml" in str(e.value) and "media" in str(e.value), str(e.value)
+        assert "Generating the random-action dataset" not in capsys.readouterr().err
+    assert not hub.api.repo_exists("alice/hover-bad-media")
 
 
 # --- reach --------------------------------------------------------------------------------------------

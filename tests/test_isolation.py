@@ -114,6 +114,7 @@ def test_an_isolated_env_steps_bit_identically_to_the_in_process_env(published, 
         assert _same(ra, rb)
         assert any(step[3] for step in rb[1:-1] if len(step) == 5)
         # get_state / reset_to through the proxy restore a step exactly, as in-process
+        assert hasattr(b.unwrapped, "get_state") and hasattr(b.unwrapped, "reset_to")
         state = b.unwrapped.get_state()
         assert _same(state, a.unwrapped.get_state())
         action = np.asarray(b.action_space.sample())
@@ -172,6 +173,7 @@ def hostile(published):
 def test_the_envs_own_error_comes_back_with_its_remote_traceback(hostile):
     env = hostile.make()
     try:
+        assert not hasattr(env.unwrapped, "get_state") and not hasattr(env.unwrapped, "reset_to")  # as the env itself
         env.reset(seed=0, options={"mode": "raise"})
         with pytest.raises(ValueError, match="refuses this action") as info:
             env.step(env.action_space.sample())
@@ -302,13 +304,13 @@ def test_shared_observation_buffers_give_back_exactly_what_was_written():
     dict keys keep their order; anything else (another order, dtype or shape) is refused, to travel in the answer."""
     from gymnasium import spaces
 
-    from hub_envs.isolation.vector import _box_leaves, _Buffers
+    from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
 
-    scalar = _Buffers(_box_leaves(spaces.Box(0.0, 1.0, (), np.float32)), 1)
+    scalar = ObservationBuffers(box_leaves(spaces.Box(0.0, 1.0, (), np.float32)), 1)
     nested_space = spaces.Dict(
         {"a": spaces.Box(0, 1, (2,), np.float32), "b": spaces.Dict({"c": spaces.Box(0, 9, (3,), np.int64)})}
     )
-    nested = _Buffers(_box_leaves(nested_space), 1)
+    nested = ObservationBuffers(box_leaves(nested_space), 1)
     try:
         assert scalar.write_exact(0, np.array(0.5, np.float32))
         back = scalar.read_one()
@@ -506,6 +508,41 @@ def test_busy_waiting_and_sleeping_give_the_same_steps(published, spin):
         b.close()
         here.unregister()
         isolated.unregister()
+
+
+def test_the_parent_switches_its_way_of_waiting_and_every_way_gives_the_same_steps(published):
+    """The parent chooses, step by step, how to wait for its worker (busy-wait, sleep on its CPU, sleep wherever the
+    scheduler puts it: hub_envs.isolation.doorbell.WaitChooser) by what each way costs on this machine now, and tries
+    the others now and then: a rollout that goes through the ways gives the in-process env's steps exactly."""
+    here = load_env(published["pendulum"], trust_remote_code=True)
+    isolated = load_env(published["pendulum"], trust_remote_code=True, isolation="process", check=False)
+    a, b = here.make(), isolated.make()
+    try:
+        assert _same(_rollout(a, 7, 90), _rollout(b, 7, 90))
+        tried = {way for way, usual in _inner(b)._waits.usual.items() if usual is not None}
+        # the busy-wait is only possible while steps are short on a machine with CPUs to spare; the two ways of
+        # sleeping always are (the first steps sleep, the pinned sleep is tried from the 32nd)
+        assert {"pin", "sleep"} <= tried, tried
+    finally:
+        a.close()
+        b.close()
+        here.unregister()
+        isolated.unregister()
+
+
+def test_a_worker_has_its_own_process_group_in_its_parents_session_unless_sandboxed(hostile, sandboxed):
+    """A worker is the leader of its own process group (killed whole; the terminal's Ctrl-C goes to the parent's
+    group only) in the parent's session: a session is an autogroup of the scheduler, and a worker alone in one
+    waits far longer for a CPU on a busy machine. A sandboxed worker gets a session of its own: no controlling
+    terminal its code could write escape sequences to or push input into."""
+    env, boxed = hostile.make(), sandboxed.make()
+    try:
+        pid, boxed_pid = _inner(env).worker.pid, _inner(boxed).worker.pid
+        assert os.getpgid(pid) == pid != os.getpgrp() and os.getsid(pid) == os.getsid(0)
+        assert os.getsid(boxed_pid) == boxed_pid != os.getsid(0)
+    finally:
+        env.close()
+        boxed.close()
 
 
 def test_no_worker_outlives_its_parent(hostile, tmp_path):
@@ -860,13 +897,14 @@ def _affinity_becomes(pid: int, want, seconds: float = 10.0) -> set[int]:
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: there is nothing to place")
 def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(hostile):
-    """The wake-up placement (hub_envs.isolation.affinity): between steps the worker waits pinned to the CPU the
-    stepping thread waited on; the env's step itself runs with the worker's whole CPU set; the calling thread
-    gets its own CPU set back after every step; with affinity off nothing is pinned."""
+    """The wake-up placement (hub_envs.isolation.affinity), when the parent sleeps on its CPU (the way of waiting
+    it picks where waking an idle CPU is costly; here the only one it may pick): between steps the worker waits
+    pinned to the CPU the stepping thread waited on; the env's step itself runs with the worker's whole CPU set;
+    the calling thread gets its own CPU set back after every step; with affinity off nothing is pinned."""
     from hub_envs.isolation import affinity, doorbell
 
-    doorbell.enabled = False  # a busy-waiting worker does not sleep at all (see doorbell)
     env = hostile.make()
+    _inner(env)._waits = doorbell.WaitChooser((doorbell.PIN,))
     mine = os.sched_getaffinity(0)
     try:
         pid = _inner(env).worker.pid
@@ -882,7 +920,6 @@ def test_a_worker_sleeps_on_its_callers_cpu_but_runs_the_env_on_all_of_its_own(h
         assert _affinity_becomes(pid, mine) == mine
     finally:
         affinity.enabled = True
-        doorbell.enabled = True
         env.close()
 
 

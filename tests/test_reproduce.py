@@ -75,11 +75,16 @@ def _reach_small(tmp_path: Path) -> Path:
 
 
 @pytest.mark.parametrize("name", ["pendulum", "hover", "reach"])
-def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name):
+def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_path, name, monkeypatch):
+    from helpers import saved_figures
+
+    import hub_envs.harness.report
+
     if not (ENVS / name).is_dir():
         pytest.skip(f"envs/{name} is not there")
     folder = _reach_small(tmp_path) if name == "reach" else ENVS / name
     pushed = _push(folder, f"alice/{name}", video=False)  # PNG images: exact (tests/test_video.py: the video default)
+    figures = saved_figures(monkeypatch, hub_envs.harness.report)
     before = snapshot_registries()
     report = reproduce(
         f"alice/{name}", revision=pushed.sha, trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False
@@ -117,6 +122,10 @@ def test_each_example_env_reproduces_its_own_pushed_dataset_exactly(hub, tmp_pat
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert "**REPRODUCED**" in markdown and pushed.sha in markdown
     assert (tmp_path / "out" / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # no video feature (reach's camera is stored as PNG images here): no video panel, no tolerance line
+    (fig,) = figures
+    assert replay.video is None and [ax.get_title() for ax in fig.axes] == ["benchmark random-policy: per-episode returns (pass)"]
+    assert not any(line.get_label().startswith("tolerance") for ax in fig.axes for line in ax.get_lines())
 
 
 # --- a perturbed env --------------------------------------------------------------------------
@@ -648,6 +657,29 @@ def test_without_recorded_states_the_replay_state_localizes_the_divergence(hub):
     loc = replay.episodes[0].localization
     assert loc["method"].startswith("replay state") and loc["first_step"] == 0
     assert "reproduces the diverging step" in loc["message"]
+
+
+def test_the_fingerprint_comes_from_random_episodes_that_ran_already():
+    """reproduce takes the golden-rollout fingerprint from the benchmark's random-policy episodes (longer, or ended
+    by the env before the fingerprint's steps) instead of running its seeds again: the same digests."""
+    import gymnasium as gym
+
+    from hub_envs.harness.checks import golden_fingerprint, verify_fingerprint
+    from hub_envs.harness.rollout import run_episodes
+
+    def unused():
+        raise AssertionError("the fingerprint ran the env again")
+
+    for env_id in ("Pendulum-v1", "CartPole-v1"):  # CartPole's random episodes end before 32 steps (seed 0: 13)
+        make = lambda env_id=env_id: gym.make(env_id)  # noqa: E731
+        recorded = golden_fingerprint(make, seeds=[0, 1, 2], steps=32)
+        ran = run_episodes(make, [0, 1, 2], max_steps=100, progress=False)
+        assert verify_fingerprint(unused, recorded, where="x", episodes=ran) == recorded
+        other = {**recorded, "digest": "0" * 64}
+        with pytest.raises(errors.FingerprintMismatchError):
+            verify_fingerprint(unused, other, where="x", episodes=ran)
+    # rollouts of other seeds are not taken for them
+    assert verify_fingerprint(make, recorded, where="x", episodes=ran[::-1]) == recorded
 
 
 def test_the_engine_runs_replayed_and_random_episodes_in_one_pass():

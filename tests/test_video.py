@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import copy_env
+from helpers import copy_env, saved_figures
 
 from hub_envs import errors, load_env, push_env, reproduce
 from hub_envs.dataset.reader import dataset_fingerprint, read_episode_frames, read_info
@@ -100,6 +100,47 @@ def test_reader_decodes_each_episode_within_the_tolerance(video_ds):
         np.testing.assert_array_equal(got["action"][:, 0], np.arange(n))
 
 
+@pytest.mark.parametrize("order", [[0, 1, 2], [2, 0, 1], [1, 1, 0, 2, 2]], ids=["in-order", "shuffled", "repeats"])
+def test_one_open_reader_decodes_episodes_in_any_order(video_ds, order):
+    """Replay's reader keeps one decoder per file: episodes read front to back continue where the last ended,
+    any other order seeks; every episode is exactly what a fresh decode of it gives."""
+    from hub_envs.dataset.reader import DatasetFrames, read_episode_meta
+
+    root, _ = video_ds
+    info, metas = read_info(root), read_episode_meta(root)
+    alone = [read_episode_frames(root, i)["observation.image"] for i in range(len(LENGTHS))]
+    frames = DatasetFrames(root, info, metas, ["observation.image"])
+    try:
+        for i in order:
+            np.testing.assert_array_equal(frames.episode(i)["observation.image"], alone[i], err_msg=f"episode {i}")
+    finally:
+        frames.close()
+    np.testing.assert_array_equal(frames.episode(1)["observation.image"], alone[1])  # closed readers reopen
+    frames.close()
+
+
+def test_frame_errors_are_the_mean_absolute_difference():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, (5, 7, 9, 3), dtype=np.uint8)
+    b = rng.integers(0, 256, (5, 7, 9, 3), dtype=np.uint8)
+    expected = np.abs(a.astype(np.int64) - b).reshape(5, -1).mean(axis=1)
+    np.testing.assert_array_equal(frame_errors(a, b), expected)
+    np.testing.assert_array_equal(frame_errors(a[:, ::-1], b[:, ::-1]), expected)  # not contiguous
+    np.testing.assert_array_equal(frame_errors(a, b[:3]), expected[:3])
+    assert frame_errors(a, a).tolist() == [0.0] * 5
+
+
+def test_the_writer_records_each_episodes_rendered_frames_sha256(video_ds):
+    import pyarrow.parquet as pq
+
+    from hub_envs.dataset.video import frames_sha256
+
+    root, _ = video_ds
+    meta = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    assert meta["frames_sha256/observation.image"] == [frames_sha256(_frames(i, n)) for i, n in enumerate(LENGTHS)]
+    assert len(set(meta["frames_sha256/observation.image"])) == len(LENGTHS)
+
+
 def _packets(path: Path) -> list[tuple[int | None, bool, bytes]]:
     import av
 
@@ -172,7 +213,7 @@ def test_video_dataset_matches_lerobot_own_writer(tmp_path, gop):
     assert info_a["video_path"] == info_b["video_path"]
     ma = pq.read_schema(ours / "meta/episodes/chunk-000/file-000.parquet")
     mb = pq.read_schema(theirs / "meta/episodes/chunk-000/file-000.parquet")
-    assert [n for n in ma.names if n != "seed"] == mb.names
+    assert [n for n in ma.names if n != "seed" and not n.startswith("frames_sha256/")] == mb.names  # hub-envs' columns
     ta = pq.read_table(ours / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
     tb = pq.read_table(theirs / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
     for col in (c for c in mb.names if c.startswith("videos/")):
@@ -292,9 +333,146 @@ def test_reproduce_reach_video_within_the_tolerance(hub_module, reach_video, tmp
         assert all(v == 0.0 for k, v in e.max_abs_diff.items() if k != "observation.image"), e.max_abs_diff
     assert "env_state" in replay.features
     assert "within mean abs error" in replay.summary()
-    # and beyond the tolerance: the replayed frames, re-encoded with the same encoder, decode bit for bit
-    assert replay.video["bit_exact_after_reencode"] and all(e.video_exact == {"observation.image": True} for e in replay.episodes)
-    assert "re-encoded, bit for bit" in replay.summary()
+    # and beyond the tolerance: the env renders the recorded frames bit for bit (the sha256 push recorded of them)
+    assert replay.video["bit_exact"] and all(e.video_exact == {"observation.image": True} for e in replay.episodes)
+    assert "rendered bit for bit as recorded" in replay.summary()
+
+
+def _strip_frames_sha256(dataset: Path, dest: Path) -> Path:
+    """A copy of ``dataset`` as a push before the frames' sha256 were recorded wrote it (or with them edited)."""
+    import pyarrow.parquet as pq
+
+    shutil.copytree(dataset, dest)
+    for path in (dest / "meta/episodes").rglob("*.parquet"):
+        table = pq.read_table(path)
+        pq.write_table(table.drop_columns([n for n in table.column_names if n.startswith("frames_sha256/")]), path)
+    return dest
+
+
+def test_replay_checks_the_rendered_frames_against_their_recorded_sha256(hub_module, reach_video, tmp_path):
+    """The env renders the recorded frames bit for bit: the sha256 push recorded says so without a second
+    encoder pass, and the video's keyframes, decoded, are within the tolerance of them (the file holds them);
+    a camera off by one level in one pixel (far inside the codec's tolerance) still reproduces within the
+    tolerance, every frame decoded, but not bit for bit; so does an edited sha256."""
+    import gymnasium as gym
+    import pyarrow.parquet as pq
+
+    from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
+    from hub_envs.harness.replay import replay_dataset
+
+    _, pushed = reach_video
+    loaded = load_env(f"alice/reach-video@{pushed.sha}", trust_remote_code=True)
+    try:
+        root, fmap = loaded.dataset_root, loaded.config.features_map
+        same = replay_dataset(loaded.make, root, fmap, progress=False)
+        assert same.ok and same.video["bit_exact"] and same.video["bit_exact_by"] == "frames_sha256", same.summary()
+        assert all(e.video_exact_by == {"observation.image": "frames_sha256"} for e in same.episodes)
+        keyframes = [-(-e.length // DEFAULT_VIDEO_GOP) for e in same.episodes]  # the first frame, then every GOP-th
+        assert [e.video_checked["observation.image"] for e in same.episodes] == keyframes
+        assert same.video["frames_checked"] == sum(keyframes) < same.video["frames"] == sum(e.length for e in same.episodes)
+        assert 0 < same.video["worst"] <= VIDEO_TOLERANCE.max_mean_abs_error
+
+        class OneLevelOff(gym.ObservationWrapper):
+            def observation(self, obs):
+                pixels = obs["pixels"].copy()
+                pixels[0, 0, 0] ^= 1
+                return {**obs, "pixels": pixels}
+
+        off = replay_dataset(lambda: OneLevelOff(loaded.make()), root, fmap, progress=False)
+        assert off.ok, off.summary()  # within the tolerance
+        assert not off.video["bit_exact"] and all(e.video_exact == {"observation.image": False} for e in off.episodes)
+        assert off.video["frames_checked"] == off.video["frames"]  # not the recorded frames: every one is decoded
+        assert "bit for bit" not in off.summary() and "within mean abs error" in off.summary()
+
+        edited = tmp_path / "edited"
+        shutil.copytree(root, edited)
+        path = next((edited / "meta/episodes").rglob("*.parquet"))
+        table = pq.read_table(path)
+        column = table.column_names.index("frames_sha256/observation.image")
+        table = table.set_column(column, "frames_sha256/observation.image", [["0" * 64] * table.num_rows])
+        pq.write_table(table, path)
+        lied = replay_dataset(loaded.make, edited, fmap, progress=False)
+        assert lied.ok and not lied.video["bit_exact"], lied.summary()
+    finally:
+        loaded.unregister()
+
+
+def test_a_video_that_does_not_hold_the_recorded_frames_diverges(hub_module, reach_video, tmp_path):
+    """The recorded sha256 says what the env rendered; the video must still show it: a dataset whose MP4 holds
+    other pictures (the same episodes' frames, colours inverted) beside the genuine sha256 diverges at frame 0."""
+    from hub_envs.dataset.reader import read_episode_meta
+    from hub_envs.harness.replay import replay_dataset
+
+    _, pushed = reach_video
+    loaded = load_env(f"alice/reach-video@{pushed.sha}", trust_remote_code=True)
+    try:
+        root = loaded.dataset_root
+        info = read_info(root)
+        features = {
+            k: v
+            for k, v in info["features"].items()
+            if k not in ("timestamp", "frame_index", "episode_index", "index", "task_index")
+        }
+        inverted = [
+            EpisodeFrames(
+                m["episode_index"],
+                m["seed"],
+                {k: v for k, v in read_episode_frames(root, m["episode_index"]).items() if k in features},
+            )
+            for m in read_episode_meta(root)
+        ]
+        for ep in inverted:
+            ep.frames["observation.image"] = 255 - ep.frames["observation.image"]
+        other = tmp_path / "inverted"
+        write_lerobot_dataset(
+            other, repo_id="x/y", fps=info["fps"], features=features, episodes=inverted, task="t", progress=False
+        )
+        swapped = tmp_path / "swapped"
+        shutil.copytree(root, swapped)
+        shutil.rmtree(swapped / "videos")
+        shutil.copytree(other / "videos", swapped / "videos")
+        replay = replay_dataset(loaded.make, swapped, loaded.config.features_map, progress=False)
+    finally:
+        loaded.unregister()
+    assert not replay.ok
+    first = replay.first_divergence
+    assert (first.episode, first.step, first.feature) == (0, 0, "observation.image"), replay.summary()
+    assert first.max_abs_diff > VIDEO_TOLERANCE.max_mean_abs_error and "video frame" in first.note
+    assert replay.video["bit_exact"]  # the env does render the recorded frames: the video is what is wrong
+
+
+def video_panels(fig) -> list:
+    """The axes of a reproduce figure that plot the video error: those with a tolerance line."""
+    return [ax for ax in fig.axes if any(line.get_label().startswith("tolerance") for line in ax.get_lines())]
+
+
+def test_the_reproduce_plot_shows_each_frames_video_error_against_the_tolerance(hub_module, reach_video, tmp_path, monkeypatch):
+    """The one figure of a reproduction that is not exact, plotted: every replayed frame's mean abs error against
+    the decoded video, over the whole replay, under the tolerance line; the Markdown states the numbers."""
+    import hub_envs.harness.report
+
+    _, pushed = reach_video
+    figures = saved_figures(monkeypatch, hub_envs.harness.report)
+    report = reproduce(f"alice/reach-video@{pushed.sha}", trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False)
+    assert report.reproduced, report.summary()
+    (fig,) = figures  # what report.png was drawn from
+    (ax,) = video_panels(fig)
+    assert "observation.image" in ax.get_title()
+    (tolerance,) = [line for line in ax.get_lines() if line.get_label().startswith("tolerance")]
+    assert list(tolerance.get_ydata()) == [VIDEO_TOLERANCE.max_mean_abs_error] * 2
+    (curve,) = [line for line in ax.get_lines() if len(line.get_ydata()) > 2]
+    errors = np.asarray(curve.get_ydata(), dtype=float)
+    assert len(errors) == sum(e.length for e in report.replay.episodes) == pushed.manifest.dataset["frames"]
+    decoded = errors[~np.isnan(errors)]  # frames rendered bit for bit are not decoded: keyframes only, gaps elsewhere
+    assert len(decoded) == report.replay.video["frames_checked"] and 0 < len(decoded) <= len(errors)
+    worst = max(e.max_abs_diff["observation.image"] for e in report.replay.episodes)
+    assert decoded.max() == pytest.approx(worst, rel=1e-6) and 0 < worst <= VIDEO_TOLERANCE.max_mean_abs_error
+    assert ax.get_ylim()[0] == 0 and ax.get_ylim()[1] > VIDEO_TOLERANCE.max_mean_abs_error  # the line is in view
+    assert report.replay.video["mean"] == pytest.approx(float(decoded.mean()), rel=1e-6)
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "Video `observation.image` (lossy)" in markdown and f"at most {VIDEO_TOLERANCE.max_mean_abs_error:g}" in markdown
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert "video_errors" not in data["replay"]["episodes"][0]  # per-frame errors stay out of the JSON: bounded size
 
 
 def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach_video):
@@ -308,10 +486,12 @@ def test_push_video_false_stores_pngs_and_re_push_is_unchanged(hub_module, reach
 
 def test_the_videos_gop_is_recorded_and_replay_re_encodes_with_it(hub_module, reach_video, tmp_path):
     """push_env's keyframe interval (default DEFAULT_VIDEO_GOP, ``video_gop=2`` for LeRobot's) is in the manifest
-    and in info.json as LeRobot reads it (``video.g``); a re-push with another GOP is a new commit, and replay
-    re-encodes with the dataset's own GOP (else the bit-exact re-encode check could not hold)."""
+    and in info.json as LeRobot reads it (``video.g``); a re-push with another GOP is a new commit, and replay of a
+    dataset without the frames' sha256 (pushed before they were recorded) re-encodes with the dataset's own GOP
+    (else the bit-exact re-encode check could not hold)."""
     from hub_envs._compat import video_gop
     from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
+    from hub_envs.harness.replay import replay_dataset
 
     folder, pushed = reach_video
     api = hub_module.api
@@ -326,7 +506,15 @@ def test_the_videos_gop_is_recorded_and_replay_re_encodes_with_it(hub_module, re
     report = reproduce(
         f"alice/reach-gop2@{lerobots.sha}", trust_remote_code=True, workers=1, out=tmp_path / "out", progress=False
     )
-    assert report.reproduced and report.replay.video["bit_exact_after_reencode"], report.summary()
+    assert report.reproduced and report.replay.video["bit_exact"], report.summary()
+    loaded = load_env(f"alice/reach-gop2@{lerobots.sha}", trust_remote_code=True)
+    try:
+        older = _strip_frames_sha256(loaded.dataset_root, tmp_path / "no-sha256")
+        replay = replay_dataset(loaded.make, older, loaded.config.features_map, progress=False)
+    finally:
+        loaded.unregister()
+    assert replay.ok and replay.video["bit_exact"] and replay.video["bit_exact_by"] == "reencode", replay.summary()
+    assert "re-encoded, bit for bit" in replay.summary()
     again = push_env(folder, "alice/reach-gop2", episodes=2, progress=False)  # the default GOP: not what main holds
     assert again.created_commit and again.manifest.dataset["video_gop"] == DEFAULT_VIDEO_GOP
     with pytest.raises(errors.ConfigError, match="video_gop"):

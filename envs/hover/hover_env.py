@@ -30,9 +30,14 @@ mode, headless) with this repo's own URDF (``assets/quadrotor_x.urdf``).
 * **Start** level, at rest, at ``x, y ~ U(-0.025, 0.025)`` m and ``z ~ U(0.1, 0.2)`` m, i.e. just
   above the ground plane and nearly under the target, so that ``one_d_rpm`` (which cannot move
   sideways) can still succeed. The drone can land on the ground and take off again.
-* **Rendering** ``render()``: an RGB frame from a fixed pybullet camera (ER_TINY_RENDERER) looking
-  at the flight volume, ``(render_height, render_width, 3)`` uint8. The front rotors are red, the
-  back ones blue.
+* **Rendering** ``render()``: an RGB frame from a pybullet camera (ER_TINY_RENDERER),
+  ``(render_height, render_width, 3)`` uint8. The front rotors are red, the back ones blue.
+  ``render_camera`` sets it the way pybullet's debug camera is set (``resetDebugVisualizerCamera``):
+  ``{"target": [x, y, z] or "drone", "distance": m, "yaw": deg, "pitch": deg}``, any subset of
+  :data:`DEFAULT_CAMERA`, which looks at the whole flight volume (the ground up to above the target).
+  ``"target": "drone"`` follows the drone (the card's GIF does: ``[tool.hub-envs.media]`` in
+  pyproject.toml), so it stays framed wherever it flies. The camera changes the picture only:
+  observations, rewards and states do not depend on it.
 * **State** ``get_state()`` = ``[position(3), quaternion xyzw(4), linear velocity(3),
   angular velocity(3), action buffer (fps//2 * A)]`` float64. ``reset_to(state)`` restores it
   exactly: after every control step the env reads the body state and writes it back, so the
@@ -47,6 +52,8 @@ mode, headless) with this repo's own URDF (``assets/quadrotor_x.urdf``).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping, Sequence
+from numbers import Real
 from typing import Any
 
 import gymnasium as gym
@@ -76,6 +83,11 @@ SUCCESS_MAX_SPEED = 0.1  # m/s
 XY_LIMIT, Z_LIMIT, TILT_LIMIT = 1.5, 2.0, 0.4  # truncation bounds (m, m, rad)
 POS_BOUND, VEL_BOUND, ANG_VEL_BOUND = 10.0, 20.0, 100.0  # observation clipping
 START_XY, START_Z = 0.025, (0.1, 0.2)  # |x|, |y| <= 0.025 keeps the target reachable with one_d_rpm
+#: render()'s camera, pybullet's debug-camera terms: it looks at ``target`` ("drone": the drone's position, followed)
+#: from ``distance`` m, turned ``yaw`` degrees about z (0: from -y, 90: from +x) and ``pitch`` degrees (< 0: from above).
+#: The default frames the flight volume, the ground to above the target at (0, 0, 1).
+DEFAULT_CAMERA = {"target": (0.0, 0.0, 0.58), "distance": 1.5, "yaw": 61.4, "pitch": -6.0}
+CAMERA_FOV = 45.0  # degrees, vertical
 
 
 def check_act_type(act_type: str) -> int:
@@ -91,6 +103,35 @@ def check_fps(fps: int) -> int:
         divisors = [f for f in range(2, PYB_FREQ + 1) if PYB_FREQ % f == 0]
         raise ValueError(f"fps={fps!r} is not supported: the physics runs at {PYB_FREQ} Hz, so fps must be one of {divisors}.")
     return PYB_FREQ // int(fps)
+
+
+def check_camera(camera: Mapping[str, Any] | None) -> dict[str, Any]:
+    """:data:`DEFAULT_CAMERA` with ``camera``'s entries, or a ValueError naming the entry and what it takes."""
+    if camera is None:
+        return dict(DEFAULT_CAMERA)
+    if not isinstance(camera, Mapping):
+        raise ValueError(f"render_camera={camera!r} must be a dict with some of {sorted(DEFAULT_CAMERA)}, e.g. {DEFAULT_CAMERA}.")
+    unknown = sorted(set(camera) - set(DEFAULT_CAMERA))
+    if unknown:
+        raise ValueError(f"render_camera has unknown entries {unknown}; it takes {sorted(DEFAULT_CAMERA)}.")
+    out = {**DEFAULT_CAMERA, **camera}
+
+    def number(v: Any) -> bool:
+        return isinstance(v, Real) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+    target = out["target"]
+    if isinstance(target, str) and target == "drone":
+        pass
+    elif isinstance(target, str) or not (isinstance(target, Sequence) and len(target) == 3 and all(map(number, target))):
+        raise ValueError(f'render_camera target={target!r}: give "drone" (follow it) or a point [x, y, z] in metres.')
+    else:
+        out["target"] = tuple(float(v) for v in target)
+    for key in ("distance", "yaw", "pitch"):
+        if not number(out[key]):
+            raise ValueError(f"render_camera {key}={out[key]!r} must be a number.")
+    if out["distance"] <= 0:
+        raise ValueError(f"render_camera distance={out['distance']!r} must be > 0 (metres from the target).")
+    return out
 
 
 def observation_size(act_type: str, fps: int) -> int:
@@ -110,8 +151,10 @@ class HoverEnv(gym.Env):
         render_height: int = 128,
         render_width: int = 128,
         render_mode: str | None = "rgb_array",
+        render_camera: Mapping[str, Any] | None = None,
     ):
         self.act_dim = check_act_type(act_type)
+        self.camera = check_camera(render_camera)
         self.physics_steps_per_control = check_fps(fps)
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r} is not supported; use 'rgb_array' (or None).")
@@ -133,11 +176,8 @@ class HoverEnv(gym.Env):
         self._drone = p.loadURDF(str(URDF_PATH), [0, 0, START_Z[0]], flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
         marker = p.createVisualShape(p.GEOM_SPHERE, radius=0.02, rgbaColor=[0.1, 0.8, 0.2, 1.0], physicsClientId=c)
         p.createMultiBody(baseMass=0, baseVisualShapeIndex=marker, basePosition=TARGET_POS.tolist(), physicsClientId=c)
-        self._view = p.computeViewMatrix(
-            cameraEyePosition=[1.1, -0.6, 0.7], cameraTargetPosition=[0.0, 0.0, 0.55], cameraUpVector=[0, 0, 1], physicsClientId=c
-        )
         self._proj = p.computeProjectionMatrixFOV(
-            fov=45, aspect=self.render_width / self.render_height, nearVal=0.05, farVal=10.0, physicsClientId=c
+            fov=CAMERA_FOV, aspect=self.render_width / self.render_height, nearVal=0.02, farVal=20.0, physicsClientId=c
         )
 
         lo_kin = np.array([-POS_BOUND] * 3 + [-np.pi] * 3 + [-VEL_BOUND] * 3 + [-ANG_VEL_BOUND] * 3)
@@ -186,11 +226,25 @@ class HoverEnv(gym.Env):
         )
         return self._get_obs(), float(reward), False, truncated, self._get_info()
 
+    def view_matrix(self) -> tuple[float, ...]:
+        """The camera's view matrix now (pybullet's, column-major): it moves with the drone when it follows it."""
+        cam = self.camera
+        target = self._body_state[0:3].tolist() if cam["target"] == "drone" else list(cam["target"])
+        return p.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=target,
+            distance=float(cam["distance"]),
+            yaw=float(cam["yaw"]),
+            pitch=float(cam["pitch"]),
+            roll=0.0,
+            upAxisIndex=2,
+            physicsClientId=self._client,
+        )
+
     def render(self) -> np.ndarray:
         _, _, rgba, _, _ = p.getCameraImage(
             self.render_width,
             self.render_height,
-            viewMatrix=self._view,
+            viewMatrix=self.view_matrix(),
             projectionMatrix=self._proj,
             renderer=p.ER_TINY_RENDERER,
             flags=p.ER_NO_SEGMENTATION_MASK,

@@ -54,3 +54,7 @@ STATES_PATH = "meta/env_states.parquet"
 HUB_ENVS_META_PATH = "meta/hub_envs.json"
 #: Where datasets written before :data:`HUB_ENVS_META_PATH` existed keep the same metadata: a key of ``meta/info.json``.
 LEGACY_INFO_KEY = "hub_envs"
+#: The episodes-metadata column, one per video feature, holding ``hub_envs.dataset.video.frames_sha256`` of the
+#: episode's frames as the env rendered them (before the lossy encoder): replay checks the frames it renders
+#: against it. LeRobot's reader ignores it, as it ignores the ``seed`` column.
+FRAMES_SHA256_COLUMN = "frames_sha256/{key}"

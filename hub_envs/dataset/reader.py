@@ -12,6 +12,7 @@ import json
 import os
 import re
 import string
+import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -218,6 +219,20 @@ def read_episode_video(root: str | os.PathLike, info: Mapping, key: str, meta: M
     """The decoded frames (uint8 ``(T, H, W, 3)``) of video feature ``key`` for the episode ``meta``.
 
     Raises :class:`hub_envs.errors.IntegrityError` for a missing, truncated or undecodable file."""
+    path, start, where = _video_span(root, info, key, meta)
+    return decode_episode(
+        path,
+        from_timestamp=start,
+        length=int(meta["length"]),
+        fps=int(info["fps"]),
+        shape=tuple(info["features"][key]["shape"]),
+        where=where,
+    )
+
+
+def _video_span(root: str | os.PathLike, info: Mapping, key: str, meta: Mapping) -> tuple[Path, float, str]:
+    """(the MP4 of ``key`` holding episode ``meta``, the episode's start in it in seconds, a name for messages)."""
+
     path = video_file(root, info, key, meta)
     where = f"episode {meta['episode_index']}, {key}"
     if not path.is_file():
@@ -227,16 +242,9 @@ def read_episode_video(root: str | os.PathLike, info: Mapping, key: str, meta: M
     start = meta.get(f"videos/{key}/from_timestamp")
     if not isinstance(start, (int, float)) or isinstance(start, bool) or not np.isfinite(start) or start < 0:
         raise DatasetError(
-            f"{root / EPISODES_DIR}: videos/{key}/from_timestamp of {where} is {start!r}. Re-publish with push_env."
+            f"{Path(root) / EPISODES_DIR}: videos/{key}/from_timestamp of {where} is {start!r}. Re-publish with push_env."
         )
-    return decode_episode(
-        path,
-        from_timestamp=float(start),
-        length=int(meta["length"]),
-        fps=int(info["fps"]),
-        shape=tuple(info["features"][key]["shape"]),
-        where=where,
-    )
+    return path, float(start), where
 
 
 def check_videos(root: str | os.PathLike) -> int:
@@ -273,8 +281,9 @@ def read_episode_meta(root: str | os.PathLike) -> list[dict]:
     rows: list[dict] = []
     try:
         for path in paths:
-            names = pq.read_schema(path).names
-            table = pq.read_table(path, columns=[n for n in names if not n.startswith("stats/")])
+            with pq.ParquetFile(path) as f:  # small files: no dataset API, no thread pool
+                names = f.schema_arrow.names
+                table = f.read(columns=[n for n in names if not n.startswith("stats/")], use_threads=False)
             rows.extend(table.to_pylist())
     except (OSError, ValueError) as exc:
         raise DatasetError(f"Cannot read episode metadata in {meta_dir}: {exc}. Regenerate the dataset.") from exc
@@ -340,7 +349,8 @@ def read_episode_frames(root: str | os.PathLike, episode_index: int, keys: Itera
 class DatasetFrames:
     """Many episodes' frames of some keys: each data file read once, numeric columns decoded up front,
     images kept as PNG bytes and decoded per episode by :meth:`episode`, videos decoded per episode from
-    their MP4 (thread-safe, read only).
+    their MP4 (thread-safe, read only; episodes asked for in order are decoded front to back by one open
+    decoder per file, :class:`hub_envs.dataset.video.EpisodeVideoReader`, freed by :meth:`close`).
 
     ``metas`` are :func:`read_episode_meta` rows of the episodes wanted; every episode must have exactly the
     rows its metadata says, in its data file.
@@ -356,6 +366,8 @@ class DatasetFrames:
         self.video_keys = [k for k in keys if features[k].get("dtype") == "video"]
         keys = [k for k in keys if k not in self.video_keys]
         self.metas = {m["episode_index"]: m for m in metas}
+        self._videos: dict[tuple[Path, bool], Any] = {}  # (MP4, keyframes only) -> its EpisodeVideoReader
+        self._videos_lock = threading.Lock()
         self.numeric: dict[int, dict[str, np.ndarray]] = {}
         self.images: dict[int, dict[str, Any]] = {}
         by_file: dict[tuple[int, int], list[int]] = {}
@@ -365,7 +377,8 @@ class DatasetFrames:
         for (chunk, file), episodes in by_file.items():
             path = data_file(root, info, chunk, file)  # info.json's data_path, checked to stay inside root
             try:
-                table = pq.read_table(path, columns=[*keys, "episode_index", "frame_index"])
+                with pq.ParquetFile(path) as f:
+                    table = f.read(columns=[*keys, "episode_index", "frame_index"])
             except (OSError, ValueError, KeyError) as exc:
                 raise DatasetError(f"Cannot read {path}: {exc}. Re-download or regenerate the dataset.") from exc
             ep_col = table.column("episode_index").to_numpy()
@@ -398,5 +411,31 @@ class DatasetFrames:
                 out[key] = decode_pngs(col.to_pylist(), tuple(self.features[key]["shape"]))
         for key in self.video_keys:
             if keys is None or key in keys:
-                out[key] = read_episode_video(self.root, self.info, key, self.metas[ep])
+                out[key] = self._video(key, self.metas[ep])
         return out
+
+    def video_keyframes(self, ep: int, key: str) -> tuple[np.ndarray, np.ndarray]:
+        """Episode ``ep``'s keyframes of video feature ``key``: ``(indices in the episode, uint8 (K, H, W, C))``
+        (:meth:`hub_envs.dataset.video.EpisodeVideoReader.keyframes`)."""
+        return self._video(key, self.metas[ep], keyframes=True)
+
+    def _video(self, key: str, meta: Mapping, keyframes: bool = False) -> Any:
+        from hub_envs.dataset.video import EpisodeVideoReader
+
+        path, start, where = _video_span(self.root, self.info, key, meta)
+        with self._videos_lock:  # one decoder per file and kind, one episode at a time
+            reader = self._videos.get((path, keyframes))
+            if reader is None:
+                shape = tuple(self.features[key]["shape"])
+                reader = self._videos[(path, keyframes)] = EpisodeVideoReader(
+                    path, fps=int(self.info["fps"]), shape=shape, threads=1, keyframes_only=keyframes
+                )
+            read = reader.keyframes if keyframes else reader.episode
+            return read(start, int(meta["length"]), where=where)
+
+    def close(self) -> None:
+        """Free the open video decoders (reading again reopens them)."""
+        with self._videos_lock:
+            for reader in self._videos.values():
+                reader.close()
+            self._videos.clear()

@@ -245,7 +245,8 @@ def read_env_states(root: str | os.PathLike) -> dict[int, np.ndarray] | None:
     if not path.is_file():
         return None
     try:
-        table = pq.read_table(path)
+        with pq.ParquetFile(path) as f:  # one small file: no dataset API, no thread pool
+            table = f.read(use_threads=False)
         meta = json.loads((table.schema.metadata or {}).get(b"hub_envs", b"{}"))
         shape = tuple(int(d) for d in meta.get("shape", []))
         dtype = np.dtype(meta.get("dtype", "float64"))

@@ -15,6 +15,10 @@ The codec is lossy, so a replayed camera frame cannot equal the stored one bit f
 video feature frame by frame with :func:`frame_errors` (mean absolute difference over the frame's pixels, in
 0-255 units) and accepts up to :data:`VIDEO_TOLERANCE`; everything else (states, actions, rewards, simulator
 states, PNG images) stays exact. A frame that is a different picture (an object moved) differs by far more.
+On top of the tolerance, the writer records each episode's :func:`frames_sha256` (of the frames as rendered,
+before encoding) in the episodes metadata (:data:`hub_envs.dataset.layout.FRAMES_SHA256_COLUMN`), so replay can also tell that the env
+renders exactly the recorded frames without a second encoder pass. :class:`EpisodeVideoReader` decodes a
+file's episodes front to back with one open decoder, as replay reads them.
 
     >>> VIDEO_TOLERANCE.max_mean_abs_error
     8.0
@@ -27,10 +31,12 @@ states, PNG images) stays exact. A frame that is a different picture (an object 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,10 +54,12 @@ __all__ = [
     "DEFAULT_VIDEO_GOP",
     "check_video_gop",
     "frame_errors",
+    "frames_sha256",
     "psnr",
     "encode_episode",
     "join_videos",
     "decode_episode",
+    "EpisodeVideoReader",
 ]
 
 
@@ -120,8 +128,35 @@ def frame_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
     n = min(len(replay), len(data))
     if n == 0:
         return np.zeros(0)
-    diff = np.abs(replay[:n].astype(np.int16) - data[:n].astype(np.int16))
-    return diff.reshape(n, -1).mean(axis=1, dtype=np.float64)
+    a = np.ascontiguousarray(replay[:n]).reshape(n, -1)
+    b = np.ascontiguousarray(data[:n]).reshape(n, -1)
+    if a.dtype == b.dtype == np.uint8:  # |a - b| without widening: OpenCV's absdiff (LeRobot's dependency), else max - min
+        absdiff = _cv2_absdiff()
+        diff = absdiff(a, b) if absdiff is not None else np.maximum(a, b) - np.minimum(a, b)
+        return diff.sum(axis=1, dtype=np.uint64) / diff.shape[1]  # exact integer sums: the same means as float64
+    diff = np.abs(a.astype(np.int16) - b.astype(np.int16))
+    return diff.mean(axis=1, dtype=np.float64)
+
+
+def _cv2_absdiff() -> Any:
+    try:
+        import cv2  # heavy: opencv
+    except ImportError:  # pragma: no cover - LeRobot depends on opencv
+        return None
+    return cv2.absdiff
+
+
+def frames_sha256(frames: np.ndarray) -> str:
+    """sha256 (hex) of one episode's uint8 ``(T, H, W, C)`` frames: their shape, then their bytes in C order.
+
+    >>> a = np.zeros((2, 4, 4, 3), np.uint8)
+    >>> frames_sha256(a) == frames_sha256(a.copy()), frames_sha256(a) == frames_sha256(a[:1])
+    (True, False)
+    """
+    frames = np.ascontiguousarray(frames)
+    h = hashlib.sha256(f"{frames.dtype.str}{tuple(frames.shape)}\0".encode())
+    h.update(memoryview(frames).cast("B"))  # hashlib releases the GIL on large buffers
+    return h.hexdigest()
 
 
 def psnr(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
@@ -207,41 +242,165 @@ def decode_episode(path: Path, *, from_timestamp: float, length: int, fps: int, 
     frame). A file that cannot be opened or decoded, or that holds fewer frames than the metadata says
     (truncated), raises :class:`IntegrityError` naming the file.
     """
-    import av  # heavy: pyav
+    with EpisodeVideoReader(path, fps=fps, shape=shape, threads=0) as reader:
+        return reader.episode(from_timestamp, length, where=where)
 
-    fix = (
-        "The video file is truncated or corrupt: delete it and fetch the dataset again (LoadedEnv.fetch_dataset() "
-        "checks every file against the manifest), or re-publish the env with push_env."
-    )
-    out = np.empty((length, *shape), dtype=np.uint8)
-    seen = np.zeros(length, dtype=bool)
-    try:
-        with av.open(str(path), "r") as container:
+
+_DECODE_FIX = (
+    "The video file is truncated or corrupt: delete it and fetch the dataset again (LoadedEnv.fetch_dataset() "
+    "checks every file against the manifest), or re-publish the env with push_env."
+)
+
+
+class EpisodeVideoReader:
+    """The episodes of one MP4, decoded front to back by one open decoder: reading the episode that starts
+    where the last one ended continues decoding there (no re-open, no seek back to a keyframe); any other
+    episode is sought as :func:`decode_episode` does. Not thread-safe; :meth:`close` (or ``with``) frees it.
+
+    ``threads``: decoder threads (0: FFmpeg's choice; 1 costs the least CPU, for a reader that runs beside
+    other work, as replay's background reader does). ``keyframes_only``: the reader serves :meth:`keyframes`
+    (the packets are read, only the keyframes decoded: a tenth of the decoding at push's GOP 10) instead of
+    :meth:`episode`.
+    """
+
+    def __init__(self, path: Path, *, fps: int, shape: tuple[int, ...], threads: int = 1, keyframes_only: bool = False):
+        self.path, self.fps, self.shape, self.threads = Path(path), int(fps), tuple(shape), int(threads)
+        self.keyframes_only = keyframes_only
+        self._container: Any = None
+        self._codec: Any = None
+        self._items: Any = None  # the decoder's frames, or the demuxer's packets (keyframes_only)
+        self._tb = 0.0
+        self._pending: Any = None  # a frame (packet) beyond the last episode's end: the next episode's first
+        self._next: float | None = None  # the timestamp at which the next sequential episode starts
+
+    def __enter__(self) -> EpisodeVideoReader:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._container is not None:
+            try:
+                self._container.close()
+            except Exception:  # noqa: BLE001 - closing a reader must not mask a result or an error
+                pass
+        self._container = self._codec = self._items = self._pending = self._next = None
+
+    def _open(self, from_timestamp: float) -> None:
+        import av  # heavy: pyav
+
+        self.close()
+        container = av.open(str(self.path), "r")
+        try:
             stream = container.streams.video[0]
-            tb = float(stream.time_base)
+            if self.threads:
+                stream.codec_context.thread_count = self.threads
+            self._tb = float(stream.time_base)
             if from_timestamp > 0:
-                container.seek(int(from_timestamp / tb), stream=stream, backward=True, any_frame=False)
-            end = from_timestamp + (length - 0.5) / fps
-            for frame in container.decode(stream):
-                if frame.pts is None:
-                    continue
-                t = frame.pts * tb
-                if t > end:
-                    break
-                i = round((t - from_timestamp) * fps)
-                if i < 0 or i >= length or abs(t - from_timestamp - i / fps) > 0.5 / fps:
-                    continue
-                img = frame.to_ndarray(format="rgb24")
-                if img.shape != tuple(shape):
-                    raise IntegrityError(f"{path} ({where}): frames are {img.shape}, the dataset declares {tuple(shape)}. {fix}")
-                out[i] = img
-                seen[i] = True
-    except IntegrityError:
-        raise
-    except (OSError, ValueError, IndexError, av.FFmpegError) as exc:
-        raise IntegrityError(f"{path} ({where}) cannot be decoded: {type(exc).__name__}: {exc}. {fix}") from None
-    if not seen.all():
-        raise IntegrityError(
-            f"{path} ({where}) holds {int(seen.sum())} of the episode's {length} frames from {from_timestamp:.4f} s. {fix}"
-        )
-    return out
+                container.seek(int(from_timestamp / self._tb), stream=stream, backward=True, any_frame=False)
+            self._codec = stream.codec_context
+            self._items = container.demux(stream) if self.keyframes_only else container.decode(stream)
+        except BaseException:
+            container.close()
+            raise
+        self._container = container
+
+    def _span(self, from_timestamp: float, length: int, where: str):
+        """Yield ``(index in the episode, frame or packet)`` for the episode's span, in stream order; checks that
+        every one of its ``length`` frames is there (a packet per frame when ``keyframes_only``)."""
+        import av  # heavy: pyav
+
+        fps, path = self.fps, self.path
+        seen = np.zeros(length, dtype=bool)
+        end = from_timestamp + (length - 0.5) / fps
+        try:
+            if self._next is None or abs(from_timestamp - self._next) > 0.5 / fps:
+                self._open(from_timestamp)  # not where the last episode ended: seek
+            self._next = None
+            item, self._pending = self._pending, None
+            while True:
+                if item is None:
+                    item = next(self._items, None)
+                    if item is None:
+                        break
+                if item.pts is not None and (not self.keyframes_only or item.size):
+                    t = item.pts * self._tb
+                    if t > end:
+                        self._pending = item  # the next episode's first, when it is read next
+                        break
+                    i = round((t - from_timestamp) * fps)
+                    if 0 <= i < length and abs(t - from_timestamp - i / fps) <= 0.5 / fps:
+                        yield i, item
+                        seen[i] = True
+                item = None
+        except IntegrityError:
+            self.close()
+            raise
+        except (OSError, ValueError, IndexError, av.FFmpegError) as exc:
+            self.close()
+            raise IntegrityError(f"{path} ({where}) cannot be decoded: {type(exc).__name__}: {exc}. {_DECODE_FIX}") from None
+        if not seen.all():
+            self.close()
+            raise IntegrityError(
+                f"{path} ({where}) holds {int(seen.sum())} of the episode's {length} frames from {from_timestamp:.4f} s. {_DECODE_FIX}"
+            )
+        self._next = from_timestamp + length / fps
+
+    def _array(self, frame: Any, where: str) -> np.ndarray:
+        img = frame.to_ndarray(format="rgb24")
+        if img.shape != self.shape:
+            self.close()
+            raise IntegrityError(
+                f"{self.path} ({where}): frames are {img.shape}, the dataset declares {self.shape}. {_DECODE_FIX}"
+            )
+        return img
+
+    def episode(self, from_timestamp: float, length: int, *, where: str) -> np.ndarray:
+        """The ``length`` frames from ``from_timestamp`` (seconds into the file): uint8 ``(T, H, W, C)``.
+
+        Raises:
+            IntegrityError: the file cannot be opened or decoded, holds frames of another size, or fewer frames
+                than asked for from there (truncated).
+        """
+        if self.keyframes_only:
+            raise ValueError("this reader decodes keyframes only: use keyframes()")
+        out = np.empty((length, *self.shape), dtype=np.uint8)
+        for i, frame in self._span(from_timestamp, length, where):
+            out[i] = self._array(frame, where)
+        return out
+
+    def keyframes(self, from_timestamp: float, length: int, *, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(indices, frames)``: the episode's keyframes (its first frame and every GOP-th one, as push and LeRobot
+        encode), decoded on their own: their indices in the episode and uint8 ``(K, H, W, C)``.
+
+        Raises:
+            IntegrityError: as :meth:`episode` (a packet missing for any frame of the episode counts as truncated).
+        """
+        import av  # heavy: pyav
+
+        if not self.keyframes_only:
+            raise ValueError("this reader decodes every frame: use episode()")
+        wanted: dict[int, int] = {}  # pts -> index
+        frames: dict[int, np.ndarray] = {}
+        try:
+            for i, packet in self._span(from_timestamp, length, where):
+                if packet.is_keyframe:
+                    wanted[packet.pts] = i
+                    for frame in self._codec.decode(packet):  # a keyframe decodes on its own
+                        if frame.pts in wanted:
+                            frames[wanted[frame.pts]] = self._array(frame, where)
+            if len(frames) < len(wanted):  # a decoder that holds frames back: drain it (and start afresh next time)
+                for frame in self._codec.decode(None):
+                    if frame.pts in wanted:
+                        frames[wanted[frame.pts]] = self._array(frame, where)
+                self.close()
+        except (OSError, ValueError, IndexError, av.FFmpegError) as exc:
+            self.close()
+            raise IntegrityError(f"{self.path} ({where}) cannot be decoded: {type(exc).__name__}: {exc}. {_DECODE_FIX}") from None
+        if len(frames) < len(wanted):
+            raise IntegrityError(
+                f"{self.path} ({where}): {len(wanted) - len(frames)} keyframes of the episode do not decode. {_DECODE_FIX}"
+            )
+        index = np.array(sorted(frames), dtype=np.int64)
+        return index, (np.stack([frames[i] for i in index]) if len(index) else np.zeros((0, *self.shape), np.uint8))

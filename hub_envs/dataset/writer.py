@@ -27,7 +27,8 @@ by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at lev
   Global stats aggregate the episode stats with LeRobot's formula (1000 episodes at a time).
 * Several episodes share one parquet row group; files roll over by the same size rule, measured on
   the Arrow bytes written rather than the file size on disk.
-* Extra: a ``seed`` column in the episodes metadata and ``meta/hub_envs.json`` =
+* Extra: a ``seed`` column in the episodes metadata (and ``frames_sha256/<key>`` per video feature: the
+  rendered frames' sha256, which replay checks) and ``meta/hub_envs.json`` =
   ``{"seeds": [...], "stats": STATS_NOTE, **extra_info}`` (a file LeRobot does not read; ``info.json`` holds
   exactly the keys LeRobot's own writer puts there, so LeRobot >= 0.5 logs no "Unknown fields").
 * Byte-deterministic: no timestamps or random fingerprints in any file, fixed writer options.
@@ -49,6 +50,7 @@ Example:
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -73,6 +75,7 @@ from hub_envs.dataset.layout import (
     DEFAULT_FEATURES,
     DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     EPISODES_PATH,
+    FRAMES_SHA256_COLUMN,
     HUB_ENVS_META_PATH,
     INFO_PATH,
     NEXT_FEATURES,
@@ -82,7 +85,7 @@ from hub_envs.dataset.layout import (
 )
 from hub_envs.dataset.reader import dataset_fingerprint
 from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats
-from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop, encode_episode, join_videos
+from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop, encode_episode, frames_sha256, join_videos
 from hub_envs.errors import ConfigError, DatasetError, HubEnvsError
 
 _NUMERIC_DTYPES = {
@@ -334,7 +337,18 @@ class _Episode:
     columns: dict[str, np.ndarray]  # numeric columns, cast; images as uint8 (T, H, W, C)
     pngs: dict[str, list[bytes]] = field(default_factory=dict)
     videos: dict[str, tuple[Path, float, int]] = field(default_factory=dict)  # key -> (mp4, duration s, bytes)
+    digests: dict[str, str] = field(default_factory=dict)  # video key -> frames_sha256 of the frames before encoding
     stats: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    table: Any = None  # the rows, as an Arrow table of the data files' schema (made by _Writer.encode)
+
+
+@functools.lru_cache(maxsize=8)
+def _frame_paths(n: int) -> Any:
+    """The ``path`` field of an episode's image structs (LeRobot's ``embed_images`` names): the same for every
+    episode of ``n`` frames, so made once."""
+    import pyarrow as pa
+
+    return pa.array([f"frame-{i:06d}.png" for i in range(n)], type=pa.string())
 
 
 class _Writer:
@@ -493,14 +507,15 @@ class _Writer:
         for key in self.video_keys:
             part = self.tmp / ".video-parts" / key / f"episode-{ep.index:06d}.mp4"
             ep.videos[key] = encode_episode(ep.columns[key], part, self.fps, self.video_gop)
+            ep.digests[key] = frames_sha256(ep.columns[key])  # what replay checks the rendered frames against
         for key, ft in self.features.items():
             col = ep.columns[key]
             ep.stats[key] = image_stats(col) if ft["dtype"] in ("image", "video") else vector_stats(col)
+        ep.table = self._table(ep)
         return ep
 
-    # -- sequential part: write --
-
-    def write(self, ep: _Episode) -> None:
+    def _table(self, ep: _Episode) -> Any:
+        """The episode's rows as an Arrow table of the data files' schema (thread-safe, no shared state)."""
         pa = self.pa
         n = ep.length
         arrays = []
@@ -510,8 +525,9 @@ class _Writer:
             col = ep.columns[key]
             typ = self.schema.field(key).type
             if ft["dtype"] == "image":
-                paths = pa.array([f"frame-{i:06d}.png" for i in range(n)], type=pa.string())
-                arrays.append(pa.StructArray.from_arrays([pa.array(ep.pngs[key], type=pa.binary()), paths], fields=list(typ)))
+                arrays.append(
+                    pa.StructArray.from_arrays([pa.array(ep.pngs[key], type=pa.binary()), _frame_paths(n)], fields=list(typ))
+                )
             elif key == "timestamp":
                 arrays.append(pa.array(col.astype(np.float32)))
             elif tuple(ft["shape"]) == (1,):
@@ -521,7 +537,13 @@ class _Writer:
             else:
                 storage = _nested_list_array(col, tuple(ft["shape"]), n, typ.storage_type)
                 arrays.append(pa.ExtensionArray.from_storage(typ, storage))
-        table = pa.Table.from_arrays(arrays, schema=self.schema)
+        return pa.Table.from_arrays(arrays, schema=self.schema)
+
+    # -- sequential part: write --
+
+    def write(self, ep: _Episode) -> None:
+        n = ep.length
+        table = ep.table
         nbytes = table.nbytes
         if self.data_file_rows > 0 and self.data_file_bytes + nbytes >= self.file_bytes_limit:
             self._close_data_file()
@@ -546,6 +568,7 @@ class _Writer:
         }
         for key in self.video_keys:
             row.update(self._place_video(key, ep.videos[key]))
+            row[FRAMES_SHA256_COLUMN.format(key=key)] = ep.digests[key]
         for key in self.features:
             for stat, value in ep.stats[key].items():
                 row[f"stats/{key}/{stat}"] = value.tolist()
@@ -654,7 +677,6 @@ class _Writer:
         self.meta_rows = []
 
     def finish(self, *, robot_type: str | None, extra_info: Mapping | None) -> None:
-        import pandas as pd  # heavy: pandas
 
         self._close_data_file()
         for key in self.video_keys:
@@ -670,8 +692,7 @@ class _Writer:
             self.meta_writer = None
         tasks_path = self.tmp / TASKS_PATH
         tasks_path.parent.mkdir(parents=True, exist_ok=True)
-        # the layout the installed LeRobot's own writer gives (its index name changed in 0.5)
-        pd.DataFrame({"task_index": [0]}, index=pd.Index([self.task], name=tasks_index_name())).to_parquet(tasks_path)
+        tasks_path.write_bytes(_tasks_parquet(self.task))
         stats = {key: {stat: value.tolist() for stat, value in st.items()} for key, st in (self.stats or {}).items()}
         _write_json(self.tmp / STATS_PATH, stats)
         hub_envs_info: dict[str, Any] = {"seeds": list(self.seeds), "stats": STATS_NOTE}
@@ -707,6 +728,20 @@ class _Writer:
                     w.close()
                 except Exception:  # noqa: BLE001
                     pass
+
+
+@functools.lru_cache(maxsize=16)
+def _tasks_parquet(task: str) -> bytes:
+    """``meta/tasks.parquet`` of a one-task dataset, in the layout the installed LeRobot's own writer gives (pandas;
+    its index name changed in 0.5). The same bytes for the same task: made once per task (pandas' writer costs
+    more than a small dataset's other metadata)."""
+    import io
+
+    import pandas as pd
+
+    buffer = io.BytesIO()
+    pd.DataFrame({"task_index": [0]}, index=pd.Index([task], name=tasks_index_name())).to_parquet(buffer)
+    return buffer.getvalue()
 
 
 def _next_file(chunk: int, file: int, chunks_size: int) -> tuple[int, int]:

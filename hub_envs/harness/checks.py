@@ -170,7 +170,12 @@ def golden_fingerprint(make_env: Callable[[], Any], *, seeds: list[int], steps: 
 
 
 def verify_fingerprint(
-    make_env: Callable[[], Any], recorded: dict[str, Any], *, where: str, versions_note: str | Callable[[], str] = ""
+    make_env: Callable[[], Any],
+    recorded: dict[str, Any],
+    *,
+    where: str,
+    versions_note: str | Callable[[], str] = "",
+    episodes: Sequence[EpisodeRollout] | None = None,
 ) -> dict[str, Any]:
     """Recompute a recorded fingerprint.
 
@@ -179,6 +184,9 @@ def verify_fingerprint(
         recorded: the manifest's ``fingerprint``.
         where: names the env in messages.
         versions_note: what ends a mismatch's message (or a callable returning it, called only on a mismatch).
+        episodes: seeded random-action rollouts of the recorded seeds, in their order, run already with
+            ``max_steps`` of at least the recorded steps (a benchmark's random-policy episodes): the fingerprint
+            comes from them (:func:`fingerprint_of`) instead of running the seeds again.
 
     Returns:
         The fresh fingerprint.
@@ -186,7 +194,11 @@ def verify_fingerprint(
     Raises:
         FingerprintMismatchError: naming the seeds that drifted.
     """
-    fresh = golden_fingerprint(make_env, seeds=list(recorded["seeds"]), steps=int(recorded["steps"]))
+    steps = int(recorded["steps"])
+    if episodes is not None and [ep.seed for ep in episodes] == list(recorded["seeds"]):
+        fresh = fingerprint_of(episodes, steps=steps)
+    else:
+        fresh = golden_fingerprint(make_env, seeds=list(recorded["seeds"]), steps=steps)
     if fresh["digest"] != recorded["digest"]:
         if callable(versions_note):
             versions_note = versions_note()

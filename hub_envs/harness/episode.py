@@ -93,10 +93,14 @@ class SeededEpisode:
         try:
             result = obs, _reward, terminated, truncated, info = self._step(action)
         except Exception as exc:
-            raise EnvCodeError(
-                f"{self.where}, step {self.t}: env.step(action) raised {exception_text(exc)}. Fix the env's step "
-                f"(reproduce with env.reset(seed={self.seed}) and the same actions) and publish it again with push_env."
-            ) from exc
+            raise self.step_error(exc, self.t) from exc
         self.obs, self.info, self.terminated, self.truncated = obs, info, terminated, truncated
         self.t += 1
         return result
+
+    def step_error(self, exc: BaseException, t: int) -> EnvCodeError:
+        """The error for ``exc`` raised by ``env.step`` at step ``t`` (for a loop that calls ``env.step`` itself)."""
+        return EnvCodeError(
+            f"{self.where}, step {t}: env.step(action) raised {exception_text(exc)}. Fix the env's step "
+            f"(reproduce with env.reset(seed={self.seed}) and the same actions) and publish it again with push_env."
+        )

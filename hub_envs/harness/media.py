@@ -8,11 +8,18 @@ itself, not upscaled. :func:`render_size_overrides` finds the env's render-size 
 :data:`MIN_WIDTH` are enlarged by whole-pixel repetition (crisp pixels, no interpolation). The GIF plays
 at the env's real fps (frames subsampled to at most ~15 per second, each shown for its sim time).
 
+What the picture shows is the env's ``render()``: its author frames it for the card with keyword arguments in
+``pyproject.toml`` (``[tool.hub-envs.media] gym_kwargs``, e.g. a camera that follows the robot, as gymnasium's
+MuJoCo envs take ``default_camera_config``); :func:`card_media_kwargs` adds the render size to them, and the card
+states the result, so the media can be rendered again from the repo alone.
+
 Example:
     >>> render_size_overrides({"fps": 20, "observation_height": 96, "observation_width": 96})
     {'observation_width': 256, 'observation_height': 256}
     >>> render_size_overrides({"render_width": 640, "render_height": 480})
     {}
+    >>> card_media_kwargs({"render_width": 128, "render_height": 128}, {"render_camera": {"target": "drone"}})
+    {'render_camera': {'target': 'drone'}, 'render_width': 256, 'render_height': 256}
     >>> from hub_envs.harness.media import write_rollout_media
     >>> write_rollout_media(loaded.make, "media/rollout.gif", seeds=[0, 1, 2], fps=30)   # doctest: +SKIP
 """
@@ -32,6 +39,7 @@ from hub_envs.harness.episode import SeededEpisode
 MIN_WIDTH = 256  # px: visible on a Hub page
 MAX_SIDE = 512  # px: larger renders are subsampled, so GIFs stay a few MB
 GIF_MAX_FPS = 15  # frames per second of the GIF (the env's time is kept: each frame lasts its sim time)
+MEDIA_EPISODES, MEDIA_STEPS = 3, 60  # the card's media: the first 3 dataset episodes, up to 60 steps each
 #: gym kwargs that set what ``render()`` returns, in the order they are looked for
 RENDER_SIZE_KNOBS = (
     ("visualization_width", "visualization_height"),  # LeRobot's PushT / gym-pusht
@@ -49,6 +57,14 @@ def render_size_overrides(gym_kwargs: Mapping[str, Any], min_width: int = MIN_WI
                 return {}
             return {wk: int(min_width), hk: int(round(h * min_width / w))}
     return {}
+
+
+def card_media_kwargs(gym_kwargs: Mapping[str, Any], media_gym_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The keyword arguments the card's media are rendered with: the author's ``[tool.hub-envs.media] gym_kwargs``
+    (``media_gym_kwargs``), then the render size :func:`render_size_overrides` asks for (at least :data:`MIN_WIDTH`
+    px wide, the author's own size knob taken into account). ``{}`` means the env as its config makes it."""
+    author = dict(media_gym_kwargs or {})
+    return {**author, **render_size_overrides({**gym_kwargs, **author})}
 
 
 def _fit(frame: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """The reproduction report (:class:`ReproduceReport`): the replay, the benchmarks, the fingerprint and the provenance,
-written as ``report.json``, ``report.md`` and ``report.png``.
+written as ``report.json``, ``report.md`` and ``report.png`` (returns, divergence, each frame's video error).
 
 Example:
     >>> from hub_envs.harness.report import ReproduceReport
@@ -206,6 +206,20 @@ class ReproduceReport(ReportFiles):
             ]
             if r.skipped:
                 out += ["Not compared: " + "; ".join(f"`{k}` ({why})" for k, why in r.skipped.items()), ""]
+            if r.video:
+                limit = max(r.tolerance, float(r.video["tolerance"]["max_mean_abs_error"]))
+                out += [
+                    f"Video {', '.join(f'`{k}`' for k in r.video['keys'])} (lossy): a frame matches when its mean absolute "
+                    f"error from the decoded video is at most {limit:g} (0-255); worst frame {_fmt(r.video['worst'], 3)}, "
+                    f"mean {_fmt(r.video.get('mean'), 3)}, over the {r.video.get('frames_checked')} of "
+                    f"{r.video.get('frames')} frames decoded"
+                    + {
+                        "frames_sha256": "; the replayed frames are the rendered ones bit for bit (their recorded sha256)",
+                        "reencode": "; the replayed frames, re-encoded, give the dataset's video bit for bit",
+                    }.get((r.video.get("bit_exact_by") or "") if r.video.get("bit_exact") else "", "")
+                    + ".",
+                    "",
+                ]
             out += ["| episode | seed | frames | result | first divergence |", "|---|---|---|---|---|"]
             for e in r.episodes:
                 first = e.first
@@ -303,19 +317,31 @@ class ReproduceReport(ReportFiles):
             out.append(f"| {name} | {a} | {b} | {'**differs**' if name in self.version_differences else ''} |")
         out.append("")
         if self.paths.get("png"):
-            out += [f"![per-episode returns and divergence]({Path(self.paths['png']).name})", ""]
+            out += [f"![per-episode returns, divergence and video error]({Path(self.paths['png']).name})", ""]
         return "\n".join(out)
 
     # -- files --
 
     def plot(self, path: str | Path) -> Path | None:
-        """Per-episode returns published vs reproduced; the divergence over steps when there is one.
+        """Write :meth:`figure` as a PNG.
 
         Args:
             path: the PNG to write.
 
         Returns:
-            ``path``; None (and no file) without matplotlib: it is the ``plots`` extra (``pip install 'hub-envs[plots]'``).
+            ``path``; None (and no file) when there is nothing to plot or without matplotlib: it is the ``plots``
+            extra (``pip install 'hub-envs[plots]'``).
+        """
+        fig = self.figure()
+        return None if fig is None else save_figure(fig, path)
+
+    def figure(self):
+        """The report's plot as a matplotlib ``Figure``, one panel each (None when there is none, or no matplotlib):
+
+        * per benchmark: the per-episode returns, published vs reproduced;
+        * when the replay diverged: the divergence over steps of the first diverged episode;
+        * when the dataset has video features: each frame's mean absolute error (replay vs decoded video) over the
+          whole replay, with the tolerance it is held to: the one figure of a reproduction that is not exact.
         """
         try:
             import matplotlib  # heavy: matplotlib
@@ -325,44 +351,89 @@ class ReproduceReport(ReportFiles):
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt  # heavy: matplotlib
 
-        panels = []
+        panels: list[tuple[str, Any]] = []
         for b in self.benchmarks:
             if b.reproduced_per_episode.get("return"):
                 panels.append(("returns", b))
         diverged = self.replay.diverged if self.replay is not None else []
         if diverged and diverged[0].error_curve:
             panels.append(("divergence", diverged[0]))
+        if self.replay is not None and self.replay.video:
+            panels += [("video", key) for key in self.replay.video["keys"]]
         if not panels:
             return None
         fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * len(panels)), squeeze=False)
+        draw = {"returns": _returns_panel, "divergence": _divergence_panel, "video": self._video_panel}
         for ax, (kind, item) in zip(axes[:, 0], panels):
-            if kind == "returns":
-                rep = np.asarray(item.reproduced_per_episode["return"], dtype=float)
-                pub = np.asarray(item.published_per_episode.get("return", []), dtype=float)
-                x = np.arange(len(rep))
-                if len(pub):
-                    ax.plot(np.arange(len(pub)), pub, "o", mfc="none", ms=9, label="published")
-                ax.plot(x, rep, "x", ms=7, label="reproduced")
-                ax.set_xlabel("episode")
-                ax.set_ylabel("return")
-                ax.set_title(f"benchmark {item.name}: per-episode returns ({'pass' if item.passed else 'FAIL'})")
-                ax.legend(loc="best")
-            else:
-                for feature, curve in item.error_curve.items():
-                    c = np.asarray(curve, dtype=float)
-                    if np.any(c > 0):
-                        ax.plot(np.arange(len(c)), c, label=feature)
-                loc = item.localization or {}
-                if loc.get("one_step_error"):
-                    ax.plot(loc["one_step_error"], "--", color="black", lw=1, label="one step from recorded state")
-                first = item.first
-                if first is not None:
-                    ax.axvline(first.step, color="red", lw=0.8, ls=":")
-                ax.set_yscale("symlog", linthresh=1e-9)
-                ax.set_ylim(bottom=0)
-                ax.set_xlabel("step")
-                ax.set_ylabel("max |replay - dataset|")
-                ax.set_title(f"replay divergence, episode {item.episode} (first at step {first.step if first else '-'})")
-                ax.legend(loc="best", fontsize=8)
+            draw[kind](ax, item)
         fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {self.verdict()}", fontsize=10)
-        return save_figure(fig, path)
+        return fig
+
+    def _video_panel(self, ax, key: str) -> None:
+        """Per-frame mean |replay - decoded video| of ``key`` over the replay (episodes in order), and the tolerance."""
+
+        replay = self.replay
+        episodes = [e for e in replay.episodes if key in e.video_errors]
+        errors = np.concatenate([e.video_errors[key] for e in episodes]) if episodes else np.zeros(0)
+        limit = max(replay.tolerance, float(replay.video["tolerance"]["max_mean_abs_error"]))
+        decoded = errors[~np.isnan(errors)]
+        sparse = len(decoded) < len(errors)  # keyframes only (rendered bit for bit): points, not a line through gaps
+        ax.plot(
+            np.arange(len(errors)),
+            errors,
+            ".-" if sparse else "-",
+            ms=3,
+            lw=0.8,
+            color="tab:blue",
+            label="replay vs dataset video, per frame" + (" (keyframes decoded)" if sparse else ""),
+        )
+        ax.axhline(limit, color="red", ls="--", lw=1, label=f"tolerance: {limit:g}")
+        if len(episodes) <= 50:  # episode boundaries, while they can be told apart
+            for start in np.cumsum([len(e.video_errors[key]) for e in episodes])[:-1]:
+                ax.axvline(start - 0.5, color="grey", lw=0.5, ls=":")
+        worst = float(decoded.max()) if len(decoded) else 0.0
+        ax.set_ylim(0, 1.15 * max(limit, worst))
+        ax.set_xlim(-0.5, max(len(errors) - 0.5, 0.5))
+        ax.set_xlabel(f"frame of the replay ({len(episodes)} episodes in order)")
+        ax.set_ylabel("mean |replay - decoded| (0-255)")
+        how = replay.video.get("bit_exact_by") if replay.video.get("bit_exact") else None
+        exact = {"frames_sha256": ", rendered bit for bit", "reencode": ", re-encoded: bit for bit"}.get(how or "", "")
+        ax.set_title(
+            f"video {key}: worst decoded frame {worst:.3g}, mean {float(decoded.mean()) if len(decoded) else 0.0:.3g}{exact}",
+            fontsize=10,
+        )
+        ax.legend(loc="lower right", fontsize=8)
+
+
+def _returns_panel(ax, item: BenchmarkResult) -> None:
+
+    rep = np.asarray(item.reproduced_per_episode["return"], dtype=float)
+    pub = np.asarray(item.published_per_episode.get("return", []), dtype=float)
+    x = np.arange(len(rep))
+    if len(pub):
+        ax.plot(np.arange(len(pub)), pub, "o", mfc="none", ms=9, label="published")
+    ax.plot(x, rep, "x", ms=7, label="reproduced")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("return")
+    ax.set_title(f"benchmark {item.name}: per-episode returns ({'pass' if item.passed else 'FAIL'})")
+    ax.legend(loc="best")
+
+
+def _divergence_panel(ax, item) -> None:
+
+    for feature, curve in item.error_curve.items():
+        c = np.asarray(curve, dtype=float)
+        if np.any(c > 0):
+            ax.plot(np.arange(len(c)), c, label=feature)
+    loc = item.localization or {}
+    if loc.get("one_step_error"):
+        ax.plot(loc["one_step_error"], "--", color="black", lw=1, label="one step from recorded state")
+    first = item.first
+    if first is not None:
+        ax.axvline(first.step, color="red", lw=0.8, ls=":")
+    ax.set_yscale("symlog", linthresh=1e-9)
+    ax.set_ylim(bottom=0)
+    ax.set_xlabel("step")
+    ax.set_ylabel("max |replay - dataset|")
+    ax.set_title(f"replay divergence, episode {item.episode} (first at step {first.step if first else '-'})")
+    ax.legend(loc="best", fontsize=8)

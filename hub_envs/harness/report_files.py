@@ -87,10 +87,11 @@ def seeds_text(seeds: list) -> str:
 
 
 def save_figure(fig, path: str | Path, *, dpi: int = 100) -> Path:
-    """Save a matplotlib figure as a report's PNG (laid out tight) and close it; its path."""
+    """Save a matplotlib figure as a report's PNG (laid out tight, unless it has its own layout) and close it; its path."""
     import matplotlib.pyplot as plt  # heavy: matplotlib
 
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

@@ -15,9 +15,12 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import hashlib
 import itertools
 import multiprocessing
+import os
 import sys
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -284,14 +287,17 @@ class EpisodeRunner:
             raise ConfigError(f"{where}: no actions to replay (the action array for this episode is empty).")
 
         layout = _layout(obs)
-        # how to fetch each leaf: None = the whole obs, str = obs[key], tuple = nested path
-        flat_keys = [(k, None if not p else p[0] if len(p) == 1 else p) for k, p in layout]
         try:
             obs_bufs = {k: _Buffer(_get(obs, p), max_steps) for k, p in layout}
         except Exception as exc:
             raise EnvCodeError(f"{where}: the reset observation is not made of arrays: {exception_text(exc)}.") from exc
+        # how to record each leaf at step t: (buffer rows, path); path None = the whole obs, str = obs[key],
+        # tuple = nested. Rows are written in place (one row per step) while the buffers hold max_steps rows.
+        record = [(obs_bufs[k].data, None if not p else p[0] if len(p) == 1 else p) for k, p in layout]
+        in_place = all(b.data.shape[0] >= max_steps for b in obs_bufs.values())
         get_state = self.get_state
         state_buf: _Buffer | None = None
+        state_rows: np.ndarray | None = None
         states_problem: str | None = None
         act_buf: _Buffer | None = None
         rewards: list[float] = []
@@ -300,16 +306,17 @@ class EpisodeRunner:
         succ: list[bool] = []
         policy_fn = self.policy_fn
         sample = episode_run.sample
-        step = episode_run.step
+        env_step = env.step  # not episode_run.step: its bookkeeping is a quarter of this loop's own time
+        actions = list(fixed[:max_steps]) if fixed is not None else None  # one row view each, made up front
+        t = 0
         for t in range(max_steps):
             # record the observation before action t
             try:
-                for k, p in flat_keys:
-                    if p is None:
-                        obs_bufs[k].append(obs)
-                    elif type(p) is str:
-                        obs_bufs[k].append(obs[p])
-                    else:
+                if in_place:
+                    for rows, p in record:
+                        rows[t] = obs if p is None else obs[p] if type(p) is str else _get(obs, p)
+                else:
+                    for k, p in layout:
                         obs_bufs[k].append(_get(obs, p))
             except Exception as exc:
                 what = "reset" if t == 0 else f"step {t - 1}"
@@ -323,21 +330,29 @@ class EpisodeRunner:
                 except Exception as exc:
                     raise EnvCodeError(f"{where}, step {t}: env.get_state() raised {exception_text(exc)}.") from exc
                 try:
-                    if state_buf is None:
+                    if state_rows is not None:
+                        state_rows[t] = state
+                    elif state_buf is None:
                         state_buf = _Buffer(state, max_steps)
-                    state_buf.append(state)
+                        state_buf.append(state)
+                        state_rows = state_buf.data if state_buf.data.shape[0] >= max_steps else None
+                    else:
+                        state_buf.append(state)
                 except (TypeError, ValueError) as exc:  # a state of another shape or kind than the first
                     states_problem = f"get_state() at step {t} returned a value unlike step 0's ({exception_text(exc)})"
-                    get_state, state_buf = None, None
+                    get_state, state_buf, state_rows = None, None, None
 
-            if fixed is not None:
-                action = fixed[t]
+            if actions is not None:
+                action = actions[t]
             elif policy_fn is not None:
                 action = policy_fn(obs, t)
             else:
                 action = sample()
-            obs, reward, terminated, truncated, info = step(action)
-            if fixed is None:  # replayed actions are copied once at the end
+            try:
+                obs, reward, terminated, truncated, info = env_step(action)
+            except Exception as exc:
+                raise episode_run.step_error(exc, t) from exc
+            if actions is None:  # replayed actions are copied once at the end
                 if act_buf is None:
                     act_buf = _Buffer(action, max_steps)
                 act_buf.append(action)
@@ -347,6 +362,11 @@ class EpisodeRunner:
             succ.append(bool(info.get("is_success", False)) if info else False)
             if terminated or truncated:
                 break
+        if in_place:
+            for b in obs_bufs.values():
+                b.n = t + 1
+        if state_rows is not None and state_buf is not None:
+            state_buf.n = t + 1
         if not terms[-1] and not truncs[-1]:
             truncs[-1] = True  # cut by max_steps: a time-limit truncation
 
@@ -399,13 +419,71 @@ def _check_finite(where: str, observations: dict[str, np.ndarray], rewards: np.n
 _FORK_STATES: dict[int, tuple] = {}  # token -> runner args, inherited by forked workers
 _TOKENS = itertools.count()
 _WORKER: EpisodeRunner | None = None
+_WORKER_FILES: str | None = None  # in a worker: the path prefix of the files its big observations travel in
+
+#: Observations at least this big go from a worker to the parent through a file in /dev/shm (memory) instead of
+#: the result pipe: pickled through the pipe, an episode of camera frames cost the worker about as much CPU as
+#: stepping the env, and the parent as much again to read it (a few MiB per episode). /dev/shm full or missing:
+#: the pipe, as before.
+_FILE_MIN_BYTES = 256 * 1024
+_SHM = "/dev/shm"
 
 
-def _worker_init(token: int | None, args: tuple | None) -> None:
-    global _WORKER
+@dataclass(frozen=True)
+class _ArrayFile:
+    """An array a worker wrote to ``path`` (raw bytes, C order); :meth:`load` reads it back and removes the file."""
+
+    path: str
+    shape: tuple[int, ...]
+    dtype: str
+
+    def load(self) -> np.ndarray:
+        arr = np.empty(self.shape, dtype=np.dtype(self.dtype))
+        try:
+            with open(self.path, "rb", buffering=0) as f:
+                view, done = memoryview(arr.reshape(-1)).cast("B"), 0
+                while done < len(view):
+                    n = f.readinto(view[done:])
+                    if not n:
+                        raise EnvCodeError(
+                            f"{self.path}: a worker process's observation file was cut short (the worker was stopped "
+                            "while writing it?). Run with workers=1 to run the episodes in this process."
+                        )
+                    done += n
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+        return arr
+
+
+def _files_prefix(token: int) -> str | None:
+    """Where the workers of pool ``token`` write big observations (None: through the pipe)."""
+    return f"{_SHM}/hub-envs-rollout-{os.getpid()}-{token}-" if os.path.isdir(_SHM) and os.access(_SHM, os.W_OK) else None
+
+
+def _to_file(arr: np.ndarray, path: str) -> Any:
+    """``arr`` written to ``path`` (an :class:`_ArrayFile`), or ``arr`` itself when it is small or cannot be written."""
+    if not isinstance(arr, np.ndarray) or arr.nbytes < _FILE_MIN_BYTES or arr.dtype.hasobject:
+        return arr
+    arr = np.ascontiguousarray(arr)
+    try:
+        with open(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "wb", buffering=0) as f:  # this user only
+            view = memoryview(arr.reshape(-1)).cast("B")
+            while view:
+                view = view[f.write(view) :]
+    except OSError:  # /dev/shm full (a container's is small): the pipe
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        return arr
+    return _ArrayFile(path, tuple(arr.shape), arr.dtype.str)
+
+
+def _worker_init(token: int | None, args: tuple | None, files: str | None = None) -> None:
+    global _WORKER, _WORKER_FILES
     if args is None:
         args = _FORK_STATES[token]
     _WORKER = EpisodeRunner(*args)
+    _WORKER_FILES = files
     try:  # close the env when the worker exits (atexit does not run in pool workers)
         Finalize(_WORKER, _WORKER.close, exitpriority=10)
     except Exception:  # noqa: BLE001
@@ -414,7 +492,18 @@ def _worker_init(token: int | None, args: tuple | None) -> None:
 
 def _worker_run(index: int, seed: int) -> EpisodeRollout:
     assert _WORKER is not None
-    return _WORKER.run(index, seed)
+    rollout = _WORKER.run(index, seed)
+    if _WORKER_FILES is not None:
+        prefix = f"{_WORKER_FILES}{os.getpid()}-{index}-"
+        rollout.observations = {k: _to_file(v, f"{prefix}{n}") for n, (k, v) in enumerate(rollout.observations.items())}
+    return rollout
+
+
+def _received(rollout: EpisodeRollout) -> EpisodeRollout:
+    """A worker's rollout with the observations it wrote to files read back (and the files removed)."""
+    if any(isinstance(v, _ArrayFile) for v in rollout.observations.values()):
+        rollout.observations = {k: v.load() if isinstance(v, _ArrayFile) else v for k, v in rollout.observations.items()}
+    return rollout
 
 
 def check_seeds(seeds: Sequence[int]) -> list[int]:
@@ -501,11 +590,13 @@ def _iter(args: tuple, seeds: list[int], workers: int, progress: bool, desc: str
 
 
 def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[EpisodeRollout]:
+    files = None
     if sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods():
         ctx = multiprocessing.get_context("fork")
         token = next(_TOKENS)
         _FORK_STATES[token] = args
-        initargs: tuple = (token, None)
+        files = _files_prefix(token)
+        initargs: tuple = (token, None, files)
     else:  # spawn: make_env and policy must be picklable
         ctx = multiprocessing.get_context("spawn")
         token = None
@@ -522,7 +613,7 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
         while pending:
             i, seed, fut = pending.popleft()
             try:
-                rollout = fut.result()
+                rollout = _received(fut.result())
             except BrokenProcessPool as exc:
                 raise EnvCodeError(
                     f"A worker process died while running episode {i} (seed {seed}) or one near it: the env "
@@ -543,8 +634,16 @@ def _iter_pool(args: tuple, seeds: list[int], workers: int, bar) -> Iterator[Epi
                 fut.cancel()
             pool.shutdown(wait=False, cancel_futures=True)
             terminate_new_children(children_before)
+            if files is not None:  # stopped before the files they may still write are swept
+                for proc in multiprocessing.active_children():
+                    if proc.pid not in children_before:
+                        proc.join(timeout=2)
         if token is not None:
             _FORK_STATES.pop(token, None)
+        if files is not None:  # what no one read: episodes not consumed, a worker that died after writing
+            for path in glob.glob(glob.escape(files) + "*"):
+                with contextlib.suppress(OSError):
+                    os.unlink(path)
 
 
 def run_episodes(make_env: Callable[[], Any], seeds: Sequence[int], **options: Any) -> list[EpisodeRollout]:

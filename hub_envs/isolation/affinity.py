@@ -1,22 +1,7 @@
-"""Keeping a worker on the CPU of the thread that waits for it, where waking it is cheap.
+"""Where a side that sleeps waits for the other: on the CPU of the thread that will wake it, where waking it is cheap.
 
-A step through a worker process is two wake-ups: the parent wakes the worker, the worker wakes the parent.
-Linux puts a woken task on an idle CPU when there is one, and waking an idle CPU costs far more than the
-rest of the round trip on a virtual machine whose idle CPUs halt (measured on the project's 2-CPU VM: a
-round trip between two processes on one CPU 7-14 us, on two CPUs 100-130 us). A single env's parent and worker
-first busy-wait a moment, talking through a shared page (:mod:`~hub_envs.isolation.doorbell`; then nothing is pinned); when they sleep, the fix is
-where they sleep:
-
-* the parent (:func:`pin_here` / :func:`unpin`) pins the *calling thread* to the CPU it is on while it
-  waits for the answer, and puts that CPU in the request; its own CPU set is restored as soon as it is
-  woken (other threads of the process are never touched);
-* the worker (:class:`Follower`) pins itself to that CPU only while it waits for the next request and
-  goes back to its own CPU set the moment it is woken, so the env's code (and any thread it starts) runs
-  with the worker's full CPU set.
-
-Where a CPU cannot be read or pinned (not Linux, a CPU outside the allowed set), nothing is pinned and the
-call goes on as before: this is a placement hint, never a condition. ``affinity.enabled = False`` turns it
-off for the process (the benchmark measures both).
+The parent pins its waiting thread (:func:`pin_here` / :func:`unpin`); the worker sleeps on the parent's CPU and
+runs the env on its own CPU set (:class:`Follower`). A placement hint, never a condition (``docs/isolation.md``).
 
 Example:
     >>> import os
@@ -54,13 +39,13 @@ def _getcpu():
 _GETCPU = _getcpu()
 
 
-def current_cpu() -> int:
-    """The CPU the calling thread runs on, or ``NO_CPU`` (-1) where that cannot be known."""
-    return _GETCPU() if _GETCPU is not None else NO_CPU
-
-
 def pin_here() -> tuple[int, set[int] | None]:
-    """Pin the calling thread to its current CPU: ``(cpu, CPU set to give back to unpin)``, or ``(NO_CPU, None)``."""
+    """Pin the calling thread to the CPU it runs on, while it sleeps waiting for a worker.
+
+    Returns:
+        ``(cpu, the CPU set to give back to unpin)``, or ``(NO_CPU, None)`` where nothing was pinned (off, not
+        Linux, a single CPU).
+    """
     if _GETCPU is None or not enabled:
         return NO_CPU, None
     cpu = _GETCPU()
@@ -76,7 +61,11 @@ def pin_here() -> tuple[int, set[int] | None]:
 
 
 def unpin(saved: set[int] | None) -> None:
-    """Give the calling thread back the CPU set :func:`pin_here` returned."""
+    """Give the calling thread back its CPU set.
+
+    Args:
+        saved: what :func:`pin_here` returned second (None: nothing was pinned, nothing to do).
+    """
     if saved is not None and len(saved) > 1:
         try:
             os.sched_setaffinity(0, saved)
@@ -85,7 +74,7 @@ def unpin(saved: set[int] | None) -> None:
 
 
 class Follower:
-    """The worker's side: sleep on the parent's CPU, run on the worker's own CPU set."""
+    """The worker's side: sleep on the parent's CPU, run the env on the worker's own CPU set (read when made)."""
 
     def __init__(self) -> None:
         try:
@@ -95,7 +84,11 @@ class Follower:
         self.pinned = False
 
     def wait_on(self, cpu: int) -> None:
-        """Before blocking for the next request: sleep on ``cpu`` (the parent's) if it is one of ours."""
+        """Before blocking for the next request: sleep on the parent's CPU if it is one of the worker's.
+
+        Args:
+            cpu: the CPU the parent waits on (from the request), or a negative value: none.
+        """
         own = self.own
         if own is None or len(own) < 2 or cpu not in own:
             return

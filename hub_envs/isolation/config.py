@@ -1,10 +1,5 @@
-"""An isolated env's config, read from its verified manifest instead of from its code.
-
-With isolation the parent never imports a published env's code, so ``loaded.config`` is a
-:class:`ManifestConfig`: the values push_env recorded (``hub_env.json`` ``config``: every field of the
-repo's ``EnvConfig`` and its ``gym_kwargs``), with ``features`` as LeRobot ``PolicyFeature`` objects. It is
-read-only and has what hub-envs uses of a config (``episode_length``, ``gym_kwargs``, ``features``,
-``features_map``, ``fps``, ``task``, ...). A local folder is your own code: its config class is imported.
+"""An isolated env's config (:class:`ManifestConfig`): the values push_env recorded in the verified manifest,
+since the parent never imports the env's code. A local folder is your own code: its config class is imported.
 
 Example:
     >>> from hub_envs.isolation.config import ManifestConfig
@@ -23,7 +18,16 @@ from hub_envs.errors import ManifestError
 
 
 class ManifestConfig:
-    """The manifest's config values as attributes (see the module docstring)."""
+    """The manifest's config values as read-only attributes: what hub-envs uses of a config (``episode_length``,
+    ``gym_kwargs``, ``features`` as LeRobot ``PolicyFeature`` objects, ``features_map``, ``fps``, ``task``, ...).
+
+    Args:
+        values: ``hub_env.json``'s ``config``: every field of the repo's ``EnvConfig`` and its ``gym_kwargs``.
+        where: what to name in an error (the manifest's path or repo@sha).
+
+    Raises:
+        ManifestError: the values lack ``episode_length`` or ``gym_kwargs`` (a manifest older than isolation).
+    """
 
     def __init__(self, values: dict[str, Any], *, where: str = "hub_env.json"):
         if "episode_length" not in values or not isinstance(values.get("gym_kwargs"), dict):

@@ -1,47 +1,7 @@
-"""A shared page beside a worker's socket: a counter of the messages each side sent, a mail slot for short
-messages, and a short, adaptive busy-wait before a side sleeps.
-
-A step through a worker process is two messages, and on the project's 2-CPU VM what a message costs is mostly
-the wake-up at its end: a task sleeping in a socket takes ~100 us to be woken on an idle CPU (see
-:mod:`~hub_envs.isolation.affinity` for the fix used when a side sleeps), and even a task that is awake pays
-for every system call in caches the kernel evicts: the env's own step ran 15-25% slower in a worker that
-polled its socket in a loop. So a single env's parent and worker talk through a page of shared memory (a
-sealed ``memfd``, one per worker):
-
-* **counters**: each side counts the messages it sent; a waiting side reads the other's counter in a loop
-  (no system call) for a short while (:class:`SpinBudget`) and goes to sleep only when nothing came;
-* **mail slots**: a message of up to :data:`MAIL_BYTES` (a step request, a step's answer) is written into
-  the page before its counter moves; a longer one goes through the socket as before (its length slot says
-  -1). Sender and receiver then make no system call at all while both are awake;
-* **sleeping**: a side that stops busy-waiting sets its *asleep* flag, looks at the counter once more and
-  sleeps in ``poll`` on the socket and on its end of a wake-up socketpair; a sender that finds the flag set
-  writes a byte to its end (``MSG_DONTWAIT``: a full buffer means the receiver is awake anyway; nothing the other
-  process sets on its own end can make this side block). Both sides separate the flag (or counter) they write from the one they read next with a full
-  memory fence, so one of them always sees the other (Dekker's handshake: no lost wake-up).
-
-**Memory ordering.** The mail slots rely on the order in which stores become visible: the message, then its
-length, then the counter. x86-64 keeps stores in program order and loads in program order (TSO), so a receiver
-that sees the counter sees the message; the fence is a lock's atomic read-modify-write (``lock cmpxchg``, a
-full barrier on x86-64; Python exposes no other). On any other architecture (:data:`MAIL` is False) messages
-always go through the socket and the counter is only a hint when to read it.
-
-**What a hostile worker can do with the page.** Nothing the parent reads from it is trusted more than an
-answer from the socket: the parent reads the length once, refuses one over :data:`MAIL_BYTES`
-(:class:`Oversized`), copies the message out of the page before decoding it, and decodes it as any answer
-(:mod:`~hub_envs.isolation.wire`: data, never code). So a worker writing the page can only make the parent read its answer early (the answer
-of its choice, which an env can return anyway), or wake it for nothing; a worker that never answers still meets
-the watchdog (the parent sleeps at most until its deadline). The page is sealed (:func:`sealed_memfd`), so it
-cannot be shrunk under the parent's mapping (a SIGBUS).
-
-**Spinning costs a CPU, so it is bounded and adaptive** (:class:`SpinBudget`): each side keeps a moving average
-of how long it waited for the other and spins for at most twice that (plus 20 us), never more than
-:data:`MAX_SPIN_S`, and not at all when the usual wait is longer than that (a wake-up costs well under a
-fifth of such a wait) or when the process may run on one CPU only. Only single envs spin and use the mail
-slots; the workers of a vector env sleep in the socket (they share the CPUs). The worker busy-waits only after a
-step whose parent busy-waited (a flag in the request), and answers in kind (through the page when asked through
-it). ``doorbell.enabled = False`` turns spinning and the mail slots off for the process, on both sides (the
-benchmark measures both). The parent's busy-wait holds the GIL (a Python loop): another thread of the parent
-waits at most :data:`MAX_SPIN_S` for it.
+"""The page a worker shares with its parent beside their socket (message counters, mail slots for short messages,
+a bounded busy-wait before a side sleeps) and the parent's choice of how to wait for each answer
+(:class:`WaitChooser`). The design, its memory ordering and what a hostile worker can do with the page:
+``docs/isolation.md``.
 
 Example:
     >>> import socket
@@ -67,15 +27,18 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import math
 import mmap
 import os
 import platform
 import select
 import socket
+import statistics
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 #: the counters' slots (int64 indices, 128 bytes apart so that each has its cache line): what the parent sent,
 #: what the worker sent. The slot after a counter holds the length of the message in that side's mail slot (-1:
@@ -109,8 +72,18 @@ class Oversized(Exception):
 
 
 def sealed_memfd(name: str, size: int) -> int:
-    """A memfd of ``size`` bytes whose size nobody can change any more (``F_SEAL_SHRINK|GROW|SEAL``): a
-    process it is handed to can write its bytes but never truncate it under another's mapping.
+    """A memfd whose size nobody can change any more (``F_SEAL_SHRINK|GROW|SEAL``): a process it is handed to can
+    write its bytes but never truncate it under another's mapping (the reader would get a SIGBUS).
+
+    Args:
+        name: the memfd's name (``/proc/<pid>/fd`` shows it as ``/memfd:<name>``).
+        size: its size in bytes.
+
+    Returns:
+        The file descriptor (close-on-exec; hand it on with ``pass_fds`` or ``SCM_RIGHTS``).
+
+    Raises:
+        OSError: the kernel refused (no memfd or no sealing: not Linux, or too old).
 
     >>> import os
     >>> fd = sealed_memfd("example", 4096)
@@ -134,6 +107,12 @@ def sealed_memfd(name: str, size: int) -> int:
 def available_cpus(cgroup: str = "/sys/fs/cgroup") -> int:
     """The CPUs this process may run on: its affinity, capped by a cgroup CPU quota (a container started with
     ``--cpus=2`` on a 64-CPU host has 64 in its affinity and 2 CPUs of time: busy-waiting on 63 would burn it).
+
+    Args:
+        cgroup: where the cgroup file system is mounted.
+
+    Returns:
+        At least 1.
 
     >>> import pathlib, tempfile
     >>> root = pathlib.Path(tempfile.mkdtemp())
@@ -169,11 +148,18 @@ def _cgroup_quota(root: str) -> float | None:
 
 
 class Doorbell:
-    """One end of the shared page (see the module docstring): :meth:`send` a message, :meth:`receive` one.
+    """One end of the shared page: :meth:`send` a message, :meth:`receive` one. ``mail`` (attribute): whether
+    :meth:`send` may use the mail slot (the worker answers in kind whatever this says).
 
-    ``fds``: the page and the worker's end of the wake-up socketpair, from the parent's :meth:`fds_for_worker`;
-    None makes them (the parent). ``sock_fd``: the message socket beside it (polled while asleep). ``mail``
-    (attribute): whether :meth:`send` may use the mail slot (the worker answers in kind whatever this says)."""
+    Args:
+        fds: the page and the worker's end of the wake-up socketpair, from the parent's :meth:`fds_for_worker`
+            (the worker); None makes them (the parent).
+        sock_fd: the message socket beside the page (polled while asleep).
+        side: :data:`PARENT` (receives replies) or :data:`WORKER` (receives requests).
+
+    Raises:
+        OSError: the page or the wake-up socketpair could not be made (nothing is left open).
+    """
 
     def __init__(self, fds: tuple[int, int] | None = None, *, sock_fd: int, side: str = PARENT):
         owned: list = []
@@ -225,8 +211,13 @@ class Doorbell:
 
     def send(self, data: bytes, send_socket: Callable[[bytes], object]) -> None:
         """Send one message: into the mail slot when it fits and mail is on (the worker: when the message it
-        answers came that way), else ``send_socket(data)``. The counter moves before a socket message is sent, so
-        a receiver woken by the socket always sees it."""
+        answers came that way), else through the socket.
+
+        Args:
+            data: the message.
+            send_socket: sends a message through the socket (called after the counter moved, so a receiver woken
+                by the socket always sees it).
+        """
         slots, box = self._slots, self.outbox
         mail = (self._mailed_in if self.side == WORKER else self.mail) and enabled and MAIL
         if mail and len(data) <= MAIL_BYTES:
@@ -254,11 +245,23 @@ class Doorbell:
         read_socket: Callable[[float | None], bytes],
         on_sleep: Callable[[], object] | None = None,
     ) -> bytes:
-        """The next message: busy-wait until ``spin_until`` (``time.perf_counter()`` values), then sleep until
-        ``deadline`` (None: for good). ``read_socket(deadline)`` reads a message from the socket (one whose length
-        slot says -1, or bytes that came without a counter: not a message hub-envs sends, read so that the
-        caller finds out, and the other end closing). Raises
-        :class:`PastDeadline` or :class:`Oversized`; ``on_sleep`` runs before each sleep."""
+        """The next message: busy-wait a while, then sleep until it comes or the deadline passes.
+
+        Args:
+            deadline: a ``time.perf_counter()`` value to wait until (None: for good).
+            spin_until: a ``time.perf_counter()`` value to busy-wait until before sleeping (0: sleep at once).
+            read_socket: reads one message from the socket by a deadline: one whose length slot says -1, or bytes
+                that came without a counter (not a message hub-envs sends: read so that the caller finds out, as
+                the other end closing).
+            on_sleep: runs before each sleep.
+
+        Returns:
+            The message (a copy: the sender may write the page again).
+
+        Raises:
+            PastDeadline: nothing came by the deadline.
+            Oversized: the other side announced a message longer than :data:`MAIL_BYTES` in the page.
+        """
         slots, box, clock = self._slots, self.inbox, time.perf_counter
         heard = self.heard
         while slots[box] <= heard and clock() < spin_until:
@@ -291,10 +294,10 @@ class Doorbell:
             for fd, _ in ready:
                 if fd == self._sock_fd:
                     sock_ready = True
-                else:  # woken: empty the wake-up socket (never blocking, whatever the other end did)
+                else:  # woken: take what the wake-up socket holds (one byte a ring), never blocking, whatever the
+                    # other end did (more than this read leaves the next poll ready at once: a wake-up for nothing)
                     try:
-                        while self._wake_sock.recv(4096, socket.MSG_DONTWAIT):
-                            pass
+                        self._wake_sock.recv(4096, socket.MSG_DONTWAIT)
                     except OSError:
                         pass
             if slots[box] > heard:  # a message, even if it came just as the deadline passed
@@ -324,8 +327,12 @@ class Doorbell:
 
 
 class SpinBudget:
-    """How long to busy-wait next (see the module docstring): twice the usual wait plus 20 us, at most
-    :data:`MAX_SPIN_S`; zero when the usual wait is longer, when spinning is off or on a single CPU.
+    """How long to busy-wait next: twice the usual wait plus 20 us, at most :data:`MAX_SPIN_S`; zero when the
+    usual wait is longer, when spinning is off or on a single CPU.
+
+    Args:
+        active: whether this side busy-waits at all.
+        cpus: the CPUs to count on (default :func:`available_cpus`).
 
     >>> budget = SpinBudget(cpus=2)
     >>> for _ in range(200):
@@ -350,5 +357,149 @@ class SpinBudget:
         return min(MAX_SPIN_S, 2 * self.usual + 20e-6)
 
     def observe(self, waited: float) -> None:
-        """A wait that just ended (clipped, so one long pause does not stop spinning for long)."""
+        """Count a wait that just ended into the usual wait.
+
+        Args:
+            waited: its seconds (clipped, so one long pause does not stop spinning for long).
+        """
         self.usual += self.ALPHA * (min(waited, 4 * MAX_SPIN_S) - self.usual)
+
+
+#: how a parent waits for an answer (:class:`WaitChooser`): both sides busy-wait; it sleeps and the worker sleeps on
+#: its CPU (:mod:`~hub_envs.isolation.affinity`); both sleep wherever the scheduler puts them
+SPIN, PIN, SLEEP = "spin", "pin", "sleep"
+
+
+class WaitChooser:
+    """The parent's choice, step by step, of how to wait for the worker: the way whose steps took least time lately.
+
+    Busy-waiting is fastest where each side has a CPU to itself, and the slowest of all where they must share one
+    with other work (a spinning side takes the CPU the other needs); sleeping on the parent's CPU makes wake-ups
+    cheap on a machine whose idle CPUs halt, and costs migrations where that CPU is busy. Which way wins depends on
+    the machine and its load at the time, so the chooser measures each way's cycle (one step's request to the
+    next's: what waiting that way cost the caller, the worker's work and the caller's own included) and uses the way
+    whose last cycles (at most :attr:`KEPT`) took least on average. Every other way is tried for :attr:`TRY` steps now and
+    then: after :attr:`FIRST` steps, then twice as long after each try it lost, at most :attr:`LAST` (a try ends
+    early when it is clearly losing), and soon when the way in use got slower than another way was when last tried
+    (the machine got busy).
+
+    Args:
+        ways: the ways that may be chosen, in order of preference while nothing is known yet.
+
+    >>> chooser = WaitChooser((SPIN, SLEEP))
+    >>> chooser.next(0.0)
+    'spin'
+    >>> t = 0.0
+    >>> for _ in range(500):                  # spinning takes 400 us a step, sleeping 150 us (a busy machine)
+    ...     way = chooser.next(t)
+    ...     t += 400e-6 if way == SPIN else 150e-6
+    >>> chooser.way, round(chooser.usual[SLEEP] * 1e6)   # the way in use (the other one is still tried now and then)
+    ('sleep', 150)
+    """
+
+    #: steps of a try of another way, and how many of its first ones are not counted (the other side is still
+    #: waiting the old way)
+    TRY, SETTLE = 12, 2
+    FIRST, LAST = 64, 4096
+    #: cycles kept per way (their mean is the way's usual cycle; one over :attr:`OUTLIER` times their median is left
+    #: out: the caller paused, or did something else between two steps)
+    KEPT, OUTLIER = 32, 10.0
+    #: how much cheaper another way must be to be chosen (noise must not flip the choice back and forth), and how
+    #: much slower a try must be to end early, lost
+    MARGIN, LOSING = 0.9, 2.0
+
+    def __init__(self, ways: tuple[str, ...]):
+        self.ways = tuple(ways)
+        self.way = self.ways[0]
+        self._cycles: dict[str, collections.deque] = {way: collections.deque(maxlen=self.KEPT) for way in self.ways}
+        self._steps = 0
+        self._last: tuple[str, float] | None = None  # the way and the start of the step before this one
+        self._trying: str | None = None
+        self._tried: list[float] = []  # the counted cycles of the current try
+        self._try_steps = 0
+        self._gap = dict.fromkeys(self.ways, self.FIRST)
+        self._next_try = {way: self.FIRST // 4 * (i + 1) for i, way in enumerate(self.ways)}  # each tried early once
+        self._next_check = self.FIRST
+
+    @property
+    def usual(self) -> dict[str, float | None]:
+        """Each way's usual cycle in seconds (the mean of its last cycles; None: never measured)."""
+        return {way: self._mean(c) if c else None for way, c in self._cycles.items()}
+
+    @classmethod
+    def _mean(cls, cycles: Any) -> float:
+        top = cls.OUTLIER * statistics.median(cycles)
+        kept = [c for c in cycles if c <= top]
+        return sum(kept) / len(kept)
+
+    def next(self, now: float, allowed: tuple[str, ...] | None = None) -> str:
+        """The way to wait for the answer to the step starting now; counts the step before it.
+
+        Args:
+            now: the ``time.perf_counter()`` at which this step's request is sent.
+            allowed: the ways possible for this step (default all); one that is not is skipped.
+
+        Returns:
+            :data:`SPIN`, :data:`PIN` or :data:`SLEEP`.
+        """
+        if self._last is not None:
+            way, started = self._last
+            if self._trying != way or self._try_steps > self.SETTLE:
+                self._cycles[way].append(now - started)
+                if self._trying == way:
+                    self._tried.append(now - started)
+        self._steps += 1
+        way = self._choose(self.ways if allowed is None else allowed)
+        self._last = (way, now)
+        return way
+
+    def forget_last(self) -> None:
+        """The step that was just waited for says nothing of its way (something else ran before the next step)."""
+        self._last = None
+
+    def _choose(self, allowed: tuple[str, ...]) -> str:
+        if self._trying is not None:
+            if self._trying in allowed and self._try_steps < self.TRY and not self._losing():
+                self._try_steps += 1
+                return self._trying
+            self._end_try()
+        if self._steps >= self._next_check:
+            self._check()
+        ways = [way for way in self.ways if way in allowed]
+        if not ways:
+            return SLEEP
+        for way in ways:  # a way whose turn to be tried came
+            if way != self.way and self._steps >= self._next_try[way]:
+                self._trying, self._tried, self._try_steps = way, [], 1
+                return way
+        if self.way not in ways:  # the way in use is not possible now: the best of the others
+            usual = self.usual
+            return min(ways, key=lambda w: (usual[w] is None, usual[w] or 0.0))
+        return self.way
+
+    def _end_try(self) -> None:
+        way, tried, self._trying = self._trying, self._tried, None
+        current = self._cycles[self.way]
+        if tried and (not current or self._mean(tried) < self.MARGIN * self._mean(current)):
+            self._gap[self.way] = self.FIRST  # the way it replaces may win again soon: tried again early
+            self._next_try[self.way] = self._steps + self.FIRST
+            self.way, self._gap[way] = way, self.FIRST
+        else:
+            self._gap[way] = min(2 * self._gap[way], self.LAST)
+        self._next_try[way] = self._steps + self._gap[way]
+
+    def _losing(self) -> bool:
+        """Whether the try so far is so much slower than the way in use that more of it would only cost."""
+        current = self._cycles[self.way]
+        return len(self._tried) >= 2 and bool(current) and min(self._tried) > self.LOSING * self._mean(current)
+
+    def _check(self) -> None:
+        """Every :attr:`FIRST` steps: is the way in use now slower than another way was when last tried? Then that
+        one is tried soon."""
+        self._next_check = self._steps + self.FIRST
+        usual = self.usual
+        if usual[self.way] is None:
+            return
+        for way in self.ways:
+            if way != self.way and usual[way] is not None and self.MARGIN * usual[self.way] > usual[way]:
+                self._gap[way], self._next_try[way] = self.FIRST, min(self._next_try[way], self._steps)

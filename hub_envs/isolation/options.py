@@ -1,5 +1,5 @@
-"""How load_env runs an env's code: the isolation options, on their own so that a load without isolation does
-not import the worker machinery (:mod:`~hub_envs.isolation.proxy` and what it imports cost a warm load ~9 ms).
+"""How load_env runs an env's code (:class:`IsolationOptions`), in a module of its own so that a load without
+isolation does not import the worker machinery.
 
 Example:
     >>> from hub_envs.isolation.options import IsolationOptions

@@ -1,17 +1,5 @@
-"""The wire between a parent and an env worker: framed messages over a socketpair, and what may come back.
-
-* Parent -> worker: ``pickle`` of a tuple ``(op, *args)`` (the parent is trusted by the worker), or, for
-  the step of a Box-action env (the hot path), :data:`FAST_HEADER` (``b"s"``: a single env, ``b"v"``: a
-  vector slice; the CPU the parent waits on, see :mod:`~hub_envs.isolation.affinity`) and the raw action bytes.
-* Worker -> parent: never a pickle (the worker runs the env's code, which is never trusted more than it was
-  in-process): :mod:`~hub_envs.isolation.wire` data (msgpack with a closed set of checked records), ``["ok", value]``,
-  ``["err", ErrorInfo-dict]`` (the env raised: the worker lives on) or ``["fatal", ErrorInfo-dict]`` (the worker
-  cannot go on, e.g. MemoryError: it exits after sending); the answer to a single env's fast step whose observation
-  went through shared memory may instead be a :data:`FAST_ANSWER`.
-
-Exceptions never travel as objects: the worker sends the type's name, its message and the formatted traceback, and
-:func:`rebuild_error` raises a :class:`~hub_envs.errors.RemoteEnvError` (for builtin exception types, a class that
-is both that and the original type, so ``except ValueError`` keeps working).
+"""The messages between a parent and its env worker: pickled requests, answers as :mod:`~hub_envs.isolation.wire`
+data (never a pickle), the fast step layouts, and env errors rebuilt from their text (``docs/isolation.md``).
 
 Example:
     >>> import numpy as np
@@ -48,17 +36,45 @@ _PLAIN = (bool, int, float, str, type(None))
 
 
 def dumps(obj: Any) -> bytes:
+    """A request as the parent sends it (a pickle: the worker trusts its parent).
+
+    Args:
+        obj: ``(op, *args)``, or the init dict.
+
+    Returns:
+        Its bytes.
+    """
     return pickle.dumps(obj, protocol=PROTOCOL)
 
 
 def encode_answer(status: str, value: Any) -> bytes:
-    """A worker's answer on the wire (:mod:`~hub_envs.isolation.wire`): ``status`` is "ok", "err" or "fatal"; raises
-    :class:`~hub_envs.isolation.wire.Unsendable` for a value the wire cannot carry."""
+    """A worker's answer on the wire (:mod:`~hub_envs.isolation.wire`).
+
+    Args:
+        status: "ok", "err" (the env raised; ``value`` is :func:`error_info`'s) or "fatal" (the worker stops).
+        value: what the call returned, or the error.
+
+    Returns:
+        Its bytes.
+
+    Raises:
+        Unsendable: ``value`` holds something the wire cannot carry.
+    """
     return encode([status, value])
 
 
 def decode_answer(data: bytes) -> tuple[str, Any]:
-    """``(status, value)`` of a worker's answer; anything else raises (see :func:`~hub_envs.isolation.wire.decode`).
+    """Read a worker's answer.
+
+    Args:
+        data: the answer's bytes (untrusted: the worker runs the env's code).
+
+    Returns:
+        ``(status, value)`` as :func:`encode_answer` took them.
+
+    Raises:
+        ValueError: the bytes are not an answer (see :func:`~hub_envs.isolation.wire.decode`).
+        AnswerTooLargeError: decoding them would build far more than they weigh.
 
     >>> decode_answer(encode_answer("ok", (1.0, {"is_success": True})))
     ('ok', (1.0, {'is_success': True}))
@@ -78,8 +94,17 @@ def decode_answer(data: bytes) -> tuple[str, Any]:
 
 
 def vector_answer(rewards: Any, terminations: Any, truncations: Any, infos: list) -> bytes:
-    """The :data:`VECTOR_ANSWER` of a vector slice's step whose observations went through shared memory: ``b"V"``,
-    the number of envs, their rewards (float64), terminations and truncations (bool), then the infos encoded."""
+    """The :data:`VECTOR_ANSWER` of a vector slice's step whose observations went through shared memory.
+
+    Args:
+        rewards: float64 array, one per env.
+        terminations: bool array.
+        truncations: bool array.
+        infos: one dict per env.
+
+    Returns:
+        ``b"V"``, the number of envs, the rewards, terminations and truncations as raw bytes, then the infos encoded.
+    """
     n = len(infos)
     return b"".join(
         (VECTOR_ANSWER.pack(b"V", n), rewards.tobytes(), terminations.tobytes(), truncations.tobytes(), encode(infos))
@@ -87,7 +112,17 @@ def vector_answer(rewards: Any, terminations: Any, truncations: Any, infos: list
 
 
 def read_vector_answer(data: bytes, infos_of: InfoDecoder) -> tuple:
-    """``(rewards, terminations, truncations, infos, [])`` from a :data:`VECTOR_ANSWER` (arrays over ``data``).
+    """Read a :data:`VECTOR_ANSWER`.
+
+    Args:
+        data: the answer's bytes (untrusted).
+        infos_of: decodes the infos (it remembers the last ones).
+
+    Returns:
+        ``(rewards, terminations, truncations, infos, [])``, the arrays over ``data``.
+
+    Raises:
+        ValueError: the bytes are shorter than the envs they announce, or the infos are not a list.
 
     >>> import numpy as np
     >>> r, te, tr, infos, _ = read_vector_answer(vector_answer(np.ones(2), np.zeros(2, bool), np.ones(2, bool), [{}, {}]), InfoDecoder())
@@ -110,8 +145,21 @@ def read_vector_answer(data: bytes, infos_of: InfoDecoder) -> tuple:
 
 
 def fast_answer(reward: Any, terminated: Any, truncated: Any, info: Any) -> bytes | None:
-    """The :data:`FAST_ANSWER` of a step whose observation went through shared memory, or None when its values
-    would not come back as exactly these types that way (the caller encodes the whole answer instead)."""
+    """The :data:`FAST_ANSWER` of a single env's step whose observation went through shared memory.
+
+    Args:
+        reward: the step's reward.
+        terminated: its flag.
+        truncated: its flag.
+        info: its info dict.
+
+    Returns:
+        The answer's bytes, or None when these values would not come back as exactly these types that way (a
+        reward that is not a ``float``, flags that are not ``bool``): the caller encodes the whole answer instead.
+
+    Raises:
+        Unsendable: the info holds something the wire cannot carry.
+    """
     if type(reward) is float and type(terminated) is bool and type(truncated) is bool and type(info) is dict:
         return FAST_ANSWER.pack(b"F", reward, terminated, truncated) + encode(info)
     return None
@@ -151,7 +199,14 @@ class InfoDecoder:
 
 
 def error_info(exc: BaseException) -> dict[str, Any]:
-    """What the worker sends for an exception: type, message and formatted traceback (all strings)."""
+    """What the worker sends for an exception.
+
+    Args:
+        exc: the exception the env's code raised.
+
+    Returns:
+        ``module``, ``qualname``, ``message``, ``args`` (plain ones only) and ``traceback``, as strings.
+    """
     import traceback
 
     def text(s: str) -> str:  # lone surrogates (surrogateescape'd paths) are not UTF-8: escaped
@@ -175,7 +230,11 @@ def error_info(exc: BaseException) -> dict[str, Any]:
 
 
 class RemoteTraceback(Exception):
-    """Carries the worker's formatted traceback as the ``__cause__`` of a re-raised env error."""
+    """Carries the worker's formatted traceback as the ``__cause__`` of a re-raised env error.
+
+    Args:
+        tb: the traceback's text.
+    """
 
     def __init__(self, tb: str):
         super().__init__(tb)
@@ -200,7 +259,17 @@ def _remote_class(original: type) -> type:
 
 
 def rebuild_error(info: dict[str, Any], where: str, call: str) -> BaseException:
-    """The exception the parent raises for an env error the worker reported in ``call``."""
+    """The exception the parent raises for an env error its worker reported.
+
+    Args:
+        info: what :func:`error_info` sent (untrusted: its text is escaped).
+        where: repo@sha, to name in the message.
+        call: the call that raised (``step``, ``reset``, ...).
+
+    Returns:
+        A :class:`~hub_envs.errors.RemoteEnvError` (for a builtin exception type, a class that is both that and the
+        original type), with the remote traceback as its ``__cause__``.
+    """
     from hub_envs._text import safe_lines, safe_text
 
     module, qualname, message = str(info.get("module")), str(info.get("qualname")), str(info.get("message"))

@@ -1,23 +1,5 @@
-"""The parent's side of an isolated env: the worker process handle and the ``gym.Env`` proxy.
-
-:class:`Worker` starts one worker process (:mod:`hub_envs.isolation.worker`; spawned, never forked),
-sends it requests and turns every way it can fail into a typed error:
-
-* the env raised: :class:`~hub_envs.errors.RemoteEnvError` (for a builtin type, also that type), with the
-  remote traceback as ``__cause__``; the worker lives on;
-* the worker died (segfault, kill, memory limit): :class:`~hub_envs.errors.EnvCrashedError` naming repo@sha,
-  how it died and the last lines of its stderr;
-* a call took longer than ``step_timeout``: the worker (and everything it started) is killed,
-  :class:`~hub_envs.errors.EnvTimeoutError`.
-
-A worker is killed when its handle is closed or garbage-collected, at interpreter exit, and by the kernel
-when the parent dies (``PR_SET_PDEATHSIG``); it runs in its own process group, so whatever the env's code
-forked goes with it.
-
-:class:`IsolatedEnv` is the ``gym.Env`` that ``loaded.make()`` / ``gym.make(loaded.gym_id)`` wrap (with
-the same TimeLimit and OrderEnforcing as in-process): spaces, ``reset``/``step``/``render``/``close``,
-``get_state``/``reset_to`` when the env has them. With ``restart=True`` the ``reset()`` after a crash or a
-timeout starts a fresh worker.
+"""The parent's side of an isolated env: :class:`Worker` (one worker process; every way it can fail is a typed
+error) and :class:`IsolatedEnv`, the ``gym.Env`` that ``loaded.make()`` wraps (``docs/isolation.md``).
 
 Example:
     >>> loaded = load_env("user/hover@<sha>", trust_remote_code=True, isolation="process")  # doctest: +SKIP
@@ -38,6 +20,7 @@ import sys
 import tempfile
 import time
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,8 +30,22 @@ import numpy as np
 
 from hub_envs._text import safe_lines, safe_text
 from hub_envs.errors import AnswerTooLargeError, EnvCrashedError, EnvTimeoutError, IsolationError
-from hub_envs.isolation.affinity import pin_here, unpin
-from hub_envs.isolation.doorbell import MAIL, SPINNING, Doorbell, Oversized, PastDeadline, SpinBudget
+from hub_envs.isolation import affinity
+from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
+from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
+from hub_envs.isolation.doorbell import (
+    MAIL,
+    PIN,
+    SLEEP,
+    SPIN,
+    SPINNING,
+    Doorbell,
+    Oversized,
+    PastDeadline,
+    SpinBudget,
+    WaitChooser,
+)
+from hub_envs.isolation.lifetime import ENTER_FAILED_EXIT, MEMORY_EXIT
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import (
     FAST_ANSWER,
@@ -62,11 +59,9 @@ from hub_envs.isolation.protocol import (
 )
 
 STDERR_TAIL_LINES = 20
-_MEMORY_EXIT = 72  # hub_envs.isolation.sandbox.MEMORY_EXIT: the sandbox's supervisor stopped it for its memory
 _WORKER_CODE = "from hub_envs.isolation.worker import main; main()"
 #: a sandboxed worker: ``-S``, so that nothing of site-packages (a venv's .pth files) runs before the sandbox is entered
 _SANDBOX_CODE = "from hub_envs.isolation.sandbox import boot; boot()"
-_ENTER_FAILED_EXIT = 71  # hub_envs.isolation.sandbox.ENTER_FAILED_EXIT
 
 
 @dataclass(frozen=True)
@@ -86,12 +81,12 @@ class EnvTarget:
         return f"{self.repo_id}@{self.revision}"
 
 
-def _worker_environ(target: EnvTarget, options: IsolationOptions, scratch: Path | None) -> dict[str, str]:
+def _worker_environ(options: IsolationOptions) -> dict[str, str]:
     paths = [p for p in sys.path if p and os.path.isdir(p)] if options.pythonpath is None else [options.pythonpath]
     if options.sandbox:
         from hub_envs.isolation.sandbox import scrubbed_environ
 
-        env = scrubbed_environ(os.environ, home=scratch)
+        env = scrubbed_environ(os.environ)
     else:
         env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
@@ -122,7 +117,7 @@ def _kill_group(proc: subprocess.Popen, owner: int) -> None:
             pass
 
 
-def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str | None, owner: int, cgroup=None) -> None:
+def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, owner: int, cgroup=None) -> None:
     if os.getpid() != owner:
         return
     for handle in handles:  # the connection, its non-blocking reader, the doorbell
@@ -135,10 +130,6 @@ def _cleanup(proc: subprocess.Popen, handles: tuple, log_path: str, scratch: str
         os.unlink(log_path)
     except OSError:
         pass
-    if scratch:
-        import shutil
-
-        shutil.rmtree(scratch, ignore_errors=True)
     if cgroup is not None:  # the sandbox's memory cgroup, empty once its processes are gone
         cgroup.remove()
 
@@ -198,7 +189,12 @@ def _launch(*args: Any, **kwargs: Any) -> subprocess.Popen:
 
 
 def warn_unsent_metadata(desc: dict, where: str) -> None:
-    """Warn about the env's metadata entries its worker could not send (they are missing from the proxy's)."""
+    """Warn about the env's metadata entries its worker could not send (they are missing from the proxy's).
+
+    Args:
+        desc: the worker's description of the env it made (``metadata_unsent``: the entries' reprs).
+        where: repo@sha, to name in the warning.
+    """
     if desc.get("metadata_unsent"):
         import warnings
 
@@ -209,6 +205,38 @@ def warn_unsent_metadata(desc: dict, where: str) -> None:
         )
 
 
+#: the ways a parent may wait for an answer (:class:`~hub_envs.isolation.doorbell.WaitChooser`), in the order they are
+#: first used: sleeping never costs much, busy-waiting where it does not pay costs a CPU's time slice a step
+WAYS = (SLEEP, SPIN, PIN)
+_ALLOWED = {
+    (True, True): WAYS,
+    (True, False): (SLEEP, SPIN),
+    (False, True): (SLEEP, PIN),
+    (False, False): (SLEEP,),
+}
+
+
+def begin_wait(chooser: WaitChooser, spins: bool) -> tuple[str, int, set[int] | None]:
+    """How to wait for the answer to the step about to be sent (then :func:`~hub_envs.isolation.affinity.unpin`).
+
+    Args:
+        chooser: the env's choice of ways so far.
+        spins: whether busy-waiting is possible for this step (:attr:`Worker.spins`).
+
+    Returns:
+        ``(way, the CPU field of the request, the CPU set to give back to unpin)``: busy-waiting, both sides stay
+        awake and nothing is pinned; sleeping on this CPU (:data:`~hub_envs.isolation.doorbell.PIN`), the calling
+        thread is pinned where it runs and the worker told to sleep there too; sleeping
+        (:data:`~hub_envs.isolation.doorbell.SLEEP`), the scheduler places both.
+    """
+    way = chooser.next(time.perf_counter(), _ALLOWED[spins, affinity.enabled])
+    if way == SPIN:
+        return way, SPINNING, None
+    if way == PIN:
+        return (way, *pin_here())
+    return way, NO_CPU, None
+
+
 def _signal_name(code: int) -> str:
     try:
         return signal.Signals(-code).name
@@ -217,18 +245,29 @@ def _signal_name(code: int) -> str:
 
 
 class Worker:
-    """One worker process: start it, ask it things, know how it died.
+    """One worker process: start it, ask it things, know how it died (``dead``: the error its next call raises).
 
-    ``spin``: both sides busy-wait for each other's answers a short while before sleeping
-    (:mod:`~hub_envs.isolation.doorbell`; a single env's worker does, the workers of a vector env when there are
-    fewer of them than CPUs)."""
+    Args:
+        target: the env's code the worker imports.
+        options: sandbox, interpreter, ``PYTHONPATH``, ``start_timeout``.
+        wait: wait until the worker imported the env's code (False: call :meth:`ready` later; the workers of a vector
+            env start side by side).
+        spin: both sides may busy-wait for each other's answers a short while before sleeping
+            (:mod:`~hub_envs.isolation.doorbell`).
+
+    Raises:
+        SandboxUnavailableError: a sandboxed worker could not be started or is not in its memory cgroup (nothing
+            of the env's code ran).
+        EnvCrashedError: the worker died while it imported the env's code.
+        EnvTimeoutError: it took longer than ``start_timeout``.
+        RemoteEnvError: importing the env's code raised.
+    """
 
     def __init__(self, target: EnvTarget, options: IsolationOptions, *, wait: bool = True, spin: bool = False):
         self.target, self.options = target, options
         self.where = target.where
         self.dead: EnvCrashedError | EnvTimeoutError | None = None
         self._owner = os.getpid()
-        scratch = None  # a sandbox makes its private /tmp itself (hub_envs.isolation.sandbox)
         log = tempfile.NamedTemporaryFile(prefix="hub-envs-worker-", suffix=".log", delete=False)
         self.log_path = log.name
         parent_sock, child_sock = socket.socketpair()
@@ -257,7 +296,7 @@ class Worker:
                 from hub_envs.isolation.sandbox import memory_cgroup_for, sandbox_init, sandbox_preexec
 
                 self.cgroup = memory_cgroup_for(options)  # one memory limit for every process of the sandbox
-                init["sandbox"] = sandbox_init(target, options, scratch, self.cgroup)
+                init["sandbox"] = sandbox_init(target, options, self.cgroup)
                 preexec = sandbox_preexec(self.cgroup)
             self.proc = _launch(
                 [options.python or sys.executable]
@@ -268,8 +307,13 @@ class Worker:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=log,
-                env=_worker_environ(target, options, scratch),
-                start_new_session=True,
+                env=_worker_environ(options),
+                # its own process group (killed whole, never sent the terminal's Ctrl-C); a new session only when
+                # sandboxed (no controlling terminal to write to or push input into, TIOCSTI): a session is also an
+                # autogroup of the scheduler, and a worker in an autogroup of its own waits far longer for a CPU
+                # on a busy machine than one in its parent's
+                start_new_session=options.sandbox,
+                process_group=None if options.sandbox else 0,
                 preexec_fn=preexec,
                 cwd="/" if options.sandbox else None,
             )
@@ -301,7 +345,6 @@ class Worker:
             self.proc,
             (self.conn, self._rsock, self.bell),
             self.log_path,
-            str(scratch) if scratch else None,
             self._owner,
             self.cgroup,
         )
@@ -327,7 +370,11 @@ class Worker:
             self.start_seconds = time.perf_counter() - self._t0
 
     def send_fds(self, fds: list[int]) -> None:
-        """Hand file descriptors to the worker (SCM_RIGHTS), right after a message that tells it to expect them."""
+        """Hand file descriptors to the worker (``SCM_RIGHTS``), right after a message that tells it to expect them.
+
+        Args:
+            fds: the descriptors (the worker gets its own copies).
+        """
         sock = socket.socket(fileno=os.dup(self.conn.fileno()))
         try:
             socket.send_fds(sock, [b"F"], fds)
@@ -336,12 +383,37 @@ class Worker:
 
     # -- requests --
     def request(self, op: str, *args: Any, timeout: float | None = None, raw: bool = False) -> Any:
-        """Send ``(op, *args)`` and return the answer (``raw``: send ``args[0]`` itself, the init message)."""
+        """Send a request and wait for its answer.
+
+        Args:
+            op: the request's name (the worker's ``Server.op_<op>`` answers it).
+            *args: its arguments (pickled).
+            timeout: seconds from the send to the answer (None: no watchdog).
+            raw: send ``args[0]`` itself (the init message).
+
+        Returns:
+            The answer's value.
+
+        Raises:
+            RemoteEnvError: the env raised (the worker lives on).
+            EnvCrashedError: the worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within ``timeout`` (the worker is killed).
+            AnswerTooLargeError: the answer would build far more than it weighs (the worker lives on).
+        """
         self.send(op, *args, raw=raw)
         return self.receive(op, timeout=timeout)
 
     def send(self, op: str, *args: Any, raw: bool = False) -> None:
-        """The first half of :meth:`request` (send to several workers, then :meth:`receive` from each)."""
+        """The first half of :meth:`request` (send to several workers, then :meth:`receive` from each).
+
+        Args:
+            op: the request's name.
+            *args: its arguments.
+            raw: send ``args[0]`` itself.
+
+        Raises:
+            EnvCrashedError: the worker is dead (or died now).
+        """
         if self.dead is not None:
             raise self.dead
         try:
@@ -354,7 +426,14 @@ class Worker:
         self._sent_at = time.perf_counter()
 
     def send_raw(self, data: bytes) -> None:
-        """Send bytes as they are (the fast step path: ``b"s" + action bytes``)."""
+        """Send bytes as they are (the fast step path).
+
+        Args:
+            data: :data:`~hub_envs.isolation.protocol.FAST_HEADER` and the action bytes.
+
+        Raises:
+            EnvCrashedError: the worker is dead (or died now).
+        """
         if self.dead is not None:
             raise self.dead
         try:
@@ -367,8 +446,12 @@ class Worker:
         self._sent_at = time.perf_counter()
 
     def interrupted(self, op: str) -> None:
-        """The caller stopped waiting for the answer to ``op`` (Ctrl-C): stop the worker, since that answer would
-        come back as the answer to the next call."""
+        """The caller stopped waiting for an answer (Ctrl-C): stop the worker, since that answer would come back as
+        the answer to the next call.
+
+        Args:
+            op: the call that was interrupted (named in the error the next call raises).
+        """
         if self.dead is not None:
             return
         self._kill()
@@ -380,21 +463,46 @@ class Worker:
 
     @property
     def spins(self) -> bool:
-        """Whether the next :meth:`receive` busy-waits first (then the caller need not pin, see affinity)."""
+        """Whether busy-waiting is possible for the next step: the answers' usual wait is short, this process may use
+        more than one CPU, busy-waiting is on (``doorbell.enabled``) and the worker was made to (``spin``)."""
         return self._spin.seconds() > 0
 
-    def receive(self, op: str, timeout: float | None = None) -> Any:
-        return self._decode(op, self._wait(op, timeout))
+    def receive(self, op: str, timeout: float | None = None, *, spin: bool = True) -> Any:
+        """The second half of :meth:`request`.
 
-    def receive_step(self, timeout: float | None = None) -> tuple:
-        """The answer to a single env's fast step: ``(reward, terminated, truncated, info, obs, shared)`` (``shared``:
-        the observation is in shared memory, ``obs`` None), from a :data:`~hub_envs.isolation.protocol.FAST_ANSWER`
-        or an encoded answer."""
-        data = self._wait("step", timeout)
+        Args:
+            op: the request's name (in errors).
+            timeout: seconds from the send to the answer (None: no watchdog).
+            spin: busy-wait a while first if :attr:`spins` (False: sleep at once).
+
+        Returns:
+            The answer's value.
+
+        Raises:
+            as :meth:`request`.
+        """
+        return self._decode(op, self._wait(op, timeout, spin))
+
+    def receive_step(self, timeout: float | None = None, *, spin: bool = True) -> tuple:
+        """The answer to a single env's fast step (a :data:`~hub_envs.isolation.protocol.FAST_ANSWER` or an encoded
+        answer).
+
+        Args:
+            timeout: seconds from the send to the answer (None: no watchdog).
+            spin: busy-wait a while first if :attr:`spins` (False: sleep at once).
+
+        Returns:
+            ``(reward, terminated, truncated, info, obs, shared)``; ``shared``: the observation is in shared memory
+            and ``obs`` is None.
+
+        Raises:
+            as :meth:`request`.
+        """
+        data = self._wait("step", timeout, spin)
         if data[:1] != b"F":
             answer = self._decode("step", data)
             if type(answer) is not tuple or len(answer) != 6 or type(answer[5]) is not bool:
-                raise self._garbled("step", ValueError(f"a step answer of type {type(answer).__name__}"))
+                raise self.garbled("step", ValueError(f"a step answer of type {type(answer).__name__}"))
             return answer
         try:
             _, reward, terminated, truncated = FAST_ANSWER.unpack_from(data)
@@ -404,15 +512,15 @@ class Worker:
         except AnswerTooLargeError as e:
             raise AnswerTooLargeError(f"{self.where}: {e} (in step)") from None
         except Exception as e:
-            raise self._garbled("step", e) from None
+            raise self.garbled("step", e) from None
         return reward, terminated, truncated, info, None, True
 
-    def _wait(self, op: str, timeout: float | None) -> bytes:
+    def _wait(self, op: str, timeout: float | None, spin: bool = True) -> bytes:
         """The bytes of the next answer, within ``timeout`` of the last send (the watchdog)."""
         if self.dead is not None:
             raise self.dead
         try:
-            budget = self._spin.seconds()
+            budget = self._spin.seconds() if spin else 0.0
             spin_until = self._sent_at + (min(budget, timeout) if timeout is not None else budget) if budget else 0.0
             # the watchdog holds whatever the worker writes into the shared page (see doorbell)
             data = self.bell.receive(None if timeout is None else self._sent_at + timeout, spin_until, self._recv_by)
@@ -440,8 +548,16 @@ class Worker:
             self._spin.observe(time.perf_counter() - self._sent_at)
         return data
 
-    def _garbled(self, op: str, e: Exception) -> EnvCrashedError:
-        """Stop the worker for an answer that is not one (or carries a forbidden type): the error to raise."""
+    def garbled(self, op: str, e: Exception) -> EnvCrashedError:
+        """Stop the worker for an answer that is not one (or carries a forbidden type).
+
+        Args:
+            op: the call it answered.
+            e: what was wrong with it.
+
+        Returns:
+            The :class:`~hub_envs.errors.EnvCrashedError` to raise (also the worker's ``dead``).
+        """
         self._kill()
         if isinstance(e, IsolationError):
             self.dead = EnvCrashedError(f"{self.where}: {safe_text(e)} (in {op}; the worker was stopped)")
@@ -460,7 +576,7 @@ class Worker:
         except AnswerTooLargeError as e:  # refused before it was built; the worker's stream is in step: it goes on
             raise AnswerTooLargeError(f"{self.where}: {e} (in {op})") from None
         except Exception as e:
-            raise self._garbled(op, e) from None
+            raise self.garbled(op, e) from None
         if status == "ok":
             return value
         if status == "fatal":
@@ -505,7 +621,7 @@ class Worker:
         except subprocess.TimeoutExpired:
             code = None
         self._kill()
-        over = self.cgroup is not None and (code == _MEMORY_EXIT or self.cgroup.breached())
+        over = self.cgroup is not None and (code == MEMORY_EXIT or self.cgroup.breached())
         if over:  # the kernel's count, not a guess from the exit status
             how = (
                 f"went over the sandbox's memory limit of {self.cgroup.limit_mb} MB (all its processes together: the "
@@ -517,7 +633,7 @@ class Worker:
                 if self.options.sandbox and "MemoryError" in reason
                 else ""
             )
-        elif self.options.sandbox and code == _ENTER_FAILED_EXIT:
+        elif self.options.sandbox and code == ENTER_FAILED_EXIT:
             how = "could not enter its sandbox (its stderr says why) and was stopped before any of the env's code ran"
         elif code is None:
             how = "stopped answering"
@@ -535,6 +651,14 @@ class Worker:
         return self.dead
 
     def stderr_tail(self, lines: int = STDERR_TAIL_LINES) -> str:
+        """The last lines the worker wrote to its stderr and stdout (escaped: the env's text).
+
+        Args:
+            lines: how many.
+
+        Returns:
+            The lines, indented, joined ("" when there are none).
+        """
         try:
             with open(self.log_path, "rb") as f:
                 f.seek(0, os.SEEK_END)
@@ -565,7 +689,19 @@ class Worker:
 
 
 class IsolatedEnv(gym.Env):
-    """A ``gym.Env`` whose env runs in a worker process (see the module docstring)."""
+    """A ``gym.Env`` whose env runs in a worker process: spaces, ``reset``/``step``/``render``/``close``, and
+    ``get_state``/``reset_to`` when the env has them (else they are missing, as on the env).
+
+    Args:
+        target: the env's code (repo@sha, verified folder, entry point).
+        options: how it runs (``sandbox``, ``step_timeout``, ``restart``, ...).
+        kwargs: the env's constructor arguments.
+
+    Raises:
+        EnvCrashedError: the worker died while it started or built the env.
+        EnvTimeoutError: building the env took longer than ``start_timeout``.
+        RemoteEnvError: the env's code raised while it was imported or built.
+    """
 
     def __init__(self, target: EnvTarget, options: IsolationOptions, kwargs: dict[str, Any]):
         self._target, self._options, self._kwargs = target, options, dict(kwargs)
@@ -573,6 +709,8 @@ class IsolatedEnv(gym.Env):
         self._fast = None
         self._fast_buffers = None
         self._closed = False
+        self._state_methods: tuple[str, ...] = ()
+        self._waits = WaitChooser(WAYS)
         self._start()
 
     def _start(self) -> None:
@@ -585,10 +723,22 @@ class IsolatedEnv(gym.Env):
         self.render_mode = desc["render_mode"]
         self._state_methods = tuple(desc["state_methods"])
         self._arm_fast_step()
-        if set(self._state_methods) == {"get_state", "reset_to"}:
-            self.__class__ = IsolatedEnvWithState
-        elif "get_state" in self._state_methods:
-            self.__class__ = IsolatedEnvWithGetState
+
+    def _has(self, name: str) -> None:
+        if name not in self._state_methods:  # hasattr(env, name) is False, as on the env itself
+            raise AttributeError(f"{self._target.where}: the env has no {name}")
+
+    @property
+    def get_state(self) -> Callable[[], Any]:
+        """The env's ``get_state()``, run in its worker (an AttributeError when the env has none)."""
+        self._has("get_state")
+        return lambda: self._call("call", "get_state", ())
+
+    @property
+    def reset_to(self) -> Callable[[Any], Any]:
+        """The env's ``reset_to(state)``, run in its worker (an AttributeError when the env has none)."""
+        self._has("reset_to")
+        return lambda state: self._call("call", "reset_to", (state,))
 
     @property
     def worker(self) -> Worker | None:
@@ -601,27 +751,36 @@ class IsolatedEnv(gym.Env):
         return self._worker.request(op, 0, *args, timeout=self._options.call_timeout)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """The env's ``reset`` in its worker (with ``restart=True``, after a crash or a timeout, in a fresh worker).
+
+        Args:
+            seed: as gymnasium's.
+            options: as gymnasium's.
+
+        Returns:
+            ``(observation, info)``.
+
+        Raises:
+            as :meth:`Worker.request`.
+        """
         if self._worker is not None and self._worker.dead is not None and self._options.restart and not self._closed:
             self._worker.close()
             self._start()
+        self._waits.forget_last()  # the time from the last step to the next one holds this reset
         return self._call("reset", seed, options)
 
     def _arm_fast_step(self) -> None:
         """With a Box action space and an observation space of Boxes, ``step`` sends the action as raw bytes
         and the worker writes the observation into shared memory (nothing encoded but the small rest)."""
-        import numpy as np
-
-        from hub_envs.isolation.vector import _box_leaves, _Buffers
-
         self._fast = None
         if self._fast_buffers is not None:
             self._fast_buffers.close()
             self._fast_buffers = None
-        leaves = _box_leaves(self.observation_space)
+        leaves = box_leaves(self.observation_space)
         act = self.action_space
         if leaves is None or not isinstance(act, gym.spaces.Box):
             return
-        buffers = _Buffers(leaves, 1)
+        buffers = ObservationBuffers(leaves, 1)
         try:
             self._worker.send("fast", leaves, np.dtype(act.dtype).str, tuple(act.shape), len(buffers.fds))
             self._worker.send_fds(buffers.fds)
@@ -632,27 +791,40 @@ class IsolatedEnv(gym.Env):
         self._fast_buffers = buffers
         self._fast = (np.dtype(act.dtype), tuple(act.shape))
 
-    def step(self, action):
+    def step(self, action: Any) -> tuple:
+        """The env's ``step`` in its worker (a Box action as raw bytes, the observation through shared memory).
+
+        Args:
+            action: as gymnasium's.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``, exactly as the env returned them.
+
+        Raises:
+            as :meth:`Worker.request`.
+        """
         fast = self._fast
         if fast is not None and type(action) is np.ndarray and action.dtype == fast[0] and action.shape == fast[1]:
             if self._closed:
                 raise IsolationError(f"{self._target.where}: step on a closed isolated env. Make a new one.")
             worker = self._worker
-            # a busy wait keeps both sides awake, each on its CPU; else this thread sleeps on its CPU, and the
-            # worker is told to sleep there too (see affinity)
-            cpu, saved = (SPINNING, None) if worker.spins else pin_here()
+            way, cpu, saved = begin_wait(self._waits, worker.spins)
             try:
                 worker.send_raw(FAST_HEADER.pack(b"s", cpu) + action.tobytes())
-                reward, terminated, truncated, info, obs, shared = worker.receive_step(self._options.call_timeout)
+                reward, terminated, truncated, info, obs, shared = worker.receive_step(
+                    self._options.call_timeout, spin=way == SPIN
+                )
             finally:
                 unpin(saved)
             return (self._fast_buffers.read_one() if shared else obs), reward, terminated, truncated, info
         return self._call("step", action)
 
-    def render(self):
+    def render(self) -> Any:
+        """The env's ``render()``, in its worker."""
         return self._call("render")
 
     def close(self) -> None:
+        """Close the env, then its worker (again: nothing)."""
         if self._closed:
             return
         self._closed = True
@@ -673,18 +845,14 @@ class IsolatedEnv(gym.Env):
         return f"<IsolatedEnv {self._target.where} pid={pid}{' sandboxed' if self._options.sandbox else ''}>"
 
 
-class IsolatedEnvWithGetState(IsolatedEnv):
-    def get_state(self):
-        return self._call("call", "get_state", ())
-
-
-class IsolatedEnvWithState(IsolatedEnvWithGetState):
-    def reset_to(self, state):
-        return self._call("call", "reset_to", (state,))
-
-
 class IsolatedEnvFactory:
-    """The entry point load_env registers with gymnasium for an isolated env: ``factory(**gym_kwargs)``."""
+    """The entry point load_env registers with gymnasium for an isolated env: ``factory(**gym_kwargs)`` is an
+    :class:`IsolatedEnv`.
+
+    Args:
+        target: the env's code.
+        options: how it runs.
+    """
 
     def __init__(self, target: EnvTarget, options: IsolationOptions):
         self.target, self.options = target, options

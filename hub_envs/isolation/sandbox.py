@@ -1,44 +1,10 @@
-"""``sandbox=True``: an isolated env's worker, confined with the kernel's own mechanisms.
-
-What a sandboxed worker gets (each part is checked, and a machine that does not allow one gets a
-:class:`~hub_envs.errors.SandboxUnavailableError` naming it: never a sandbox with a part silently missing):
-
-* **no network**: a new network namespace (only a loopback interface, down): no TCP, not even to 127.0.0.1;
-* **its own process tree**: a new pid namespace whose init is the worker; when it ends (or the parent kills
-  it, or the parent dies: ``PR_SET_PDEATHSIG``) the kernel ends everything the env's code started;
-* **a file system of its own, read-only, holding only what the env needs to run** (a new mount namespace and
-  ``pivot_root`` into a fresh root): the system folders (:data:`SYSTEM_DIRS`: ``/usr``, ``/etc``, ``/lib*``,
-  ``/bin``, ``/sbin``, ``/dev``, ``/sys``), the Python installation, its stdlib and ``site-packages`` (or the
-  env's venv), and, from any other folder on ``sys.path`` (the calling script's folder, the current folder,
-  ``PYTHONPATH``), only the package folders of installed distributions and ``hub_envs``. Nothing else exists
-  in it: not the home folders, not ``/tmp`` or ``/var``, not ``/mnt``, ``/srv``, ``/opt`` or wherever data
-  lives, not ``HF_HOME`` or ``HUB_ENVS_HOME`` (:func:`hidden_paths`: hidden under an empty tmpfs too when
-  they lie inside a folder the sandbox shows). The env's code is a private copy, verified again against the
-  manifest's sha256 and mounted read-only; the only writable place is a private ``/tmp`` (also ``HOME``),
-  which disappears with the worker; a fresh ``/proc`` shows only the sandbox;
-* **no privileges**: it drops to uid/gid 65534 (nobody) with no capabilities and ``PR_SET_NO_NEW_PRIVS``
-  (so it can neither undo the mounts nor regain anything through a setuid binary);
-* **no secrets**: the environment is rebuilt from an allow-list (``PATH``, locale, thread counts):
-  ``HF_TOKEN`` and every other variable is gone, ``HOME`` and ``TMPDIR`` point into the private ``/tmp``;
-* **one memory limit for the whole sandbox** (:class:`MemoryCgroup`): a memory cgroup of its own holds the
-  worker and every process the env starts (and what they write to the private ``/tmp``), swap included; a
-  breach ends the sandbox and is reported as :class:`~hub_envs.errors.EnvCrashedError` naming the limit.
-  Where no memory cgroup can be made, a limit asked for (``sandbox_limits={"memory_mb": ...}``) is refused;
-  the default one then covers each process alone (``RLIMIT_AS``), and a warning says so;
-* **resource limits per process**: ``RLIMIT_AS`` (memory), ``RLIMIT_NOFILE``, ``RLIMIT_NPROC`` (fork bombs:
-  counted for uid 65534, threads included), ``RLIMIT_FSIZE``, no core files;
-* **a watchdog on every call**: ``step_timeout`` (60 s unless given); a call that takes longer kills it.
-
-The namespaces are made with ``unshare(2)`` through ``ctypes`` (Python 3.11 has no ``os.unshare``) in the
-forked child before it executes the worker (which joins its memory cgroup first), and the rest by the worker
-itself before it imports the env's code. This needs root (as here, in a container); without it, the
-unprivileged-user-namespace variant is not implemented yet and ``sandbox=True`` is refused. Seccomp and
-Landlock are not used (the namespaces and the uid drop cover network and files); :func:`sandbox_support`
-reports what this machine allows.
+"""``sandbox=True``: an isolated env's worker confined with the kernel's own mechanisms (namespaces, a fresh
+read-only root, one memory cgroup, no privileges, an allow-listed environment), each part checked, none silently
+missing. What it shows and hides: ``docs/security.md``; how it is built: ``docs/isolation.md``.
 
 Example:
     >>> from hub_envs.isolation.sandbox import scrubbed_environ
-    >>> sorted(scrubbed_environ({"HF_TOKEN": "hf_x", "AWS_SECRET_ACCESS_KEY": "k", "PATH": "/usr/bin"}, home=None))
+    >>> sorted(scrubbed_environ({"HF_TOKEN": "hf_x", "AWS_SECRET_ACCESS_KEY": "k", "PATH": "/usr/bin"}))
     ['HOME', 'PATH', 'TMPDIR']
 """
 
@@ -54,10 +20,13 @@ import re
 import subprocess
 import sys
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hub_envs.errors import HubEnvsWarning, IntegrityError, SandboxUnavailableError
+from hub_envs.isolation.lifetime import ENTER_FAILED_EXIT, MEMORY_EXIT, attach_to_parent, set_parent_death_signal
+from hub_envs.paths import PACKAGE_DIR
 
 CLONE_NEWNS = 0x00020000
 CLONE_NEWPID = 0x20000000
@@ -73,8 +42,6 @@ WORK_DIR = "/tmp/work"
 #: the system folders a sandbox shows (read-only), those of them this machine has; nothing else of the host's
 #: file system is there but the Python folders the env needs (``sandbox_init``)
 SYSTEM_DIRS = ("/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/etc", "/dev", "/sys")
-#: the worker's exit status when its supervisor ended the sandbox for going over its memory limit
-MEMORY_EXIT = 72
 _PIVOT_ROOT = {"x86_64": 155, "aarch64": 41, "riscv64": 41}  # syscall numbers: glibc has no pivot_root()
 
 #: environment variables a sandboxed worker keeps (everything else, every token and key, is dropped)
@@ -102,28 +69,31 @@ def _check(ret: int, what: str) -> None:
         raise OSError(err, f"{what}: {os.strerror(err)}")
 
 
-def unshare(flags: int) -> None:
+def _unshare(flags: int) -> None:
     _check(_libc().unshare(flags), f"unshare({flags:#x})")
 
 
-def mount(source: str | None, target: str, fstype: str | None, flags: int, data: str | None = None) -> None:
+def _mount(source: str | None, target: str, fstype: str | None, flags: int, data: str | None = None) -> None:
     enc = lambda s: s.encode() if s is not None else None  # noqa: E731
     _check(_libc().mount(enc(source), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)), f"mount {target}")
 
 
-def umount(target: str) -> None:
-    _check(_libc().umount2(target.encode(), 2), f"umount {target}")  # MNT_DETACH
-
-
-def pivot_root(new_root: str, put_old: str) -> None:
+def _pivot_root(new_root: str, put_old: str) -> None:
     number = _PIVOT_ROOT.get(platform.machine())
     if number is None:
         raise OSError(38, f"pivot_root: no syscall number known for {platform.machine()}")
     _check(_libc().syscall(ctypes.c_long(number), new_root.encode(), put_old.encode()), f"pivot_root {new_root}")
 
 
-def scrubbed_environ(environ: dict[str, str], *, home: Any) -> dict[str, str]:
-    """The environment of a sandboxed worker: the allow-list only, ``HOME``/``TMPDIR`` in its private /tmp."""
+def scrubbed_environ(environ: dict[str, str]) -> dict[str, str]:
+    """The environment of a sandboxed worker.
+
+    Args:
+        environ: the parent's environment.
+
+    Returns:
+        Its :data:`ALLOWED_ENV` and ``LC_*`` variables only, with ``HOME`` and ``TMPDIR`` in the private /tmp.
+    """
     env = {k: v for k, v in environ.items() if k in ALLOWED_ENV or k.startswith("LC_")}
     env["HOME"] = HOME_DIR
     env["TMPDIR"] = SANDBOX_TMP
@@ -132,12 +102,16 @@ def scrubbed_environ(environ: dict[str, str], *, home: Any) -> dict[str, str]:
 
 def unshare_namespaces() -> None:
     """``preexec_fn`` of a sandboxed worker: new mount, network and pid namespaces (the child, before exec)."""
-    unshare(CLONE_NEWNS | CLONE_NEWNET | CLONE_NEWPID)
+    _unshare(CLONE_NEWNS | CLONE_NEWNET | CLONE_NEWPID)
 
 
-def sandbox_preexec(cgroup: MemoryCgroup | None):
+def sandbox_preexec(cgroup: MemoryCgroup | None) -> Callable[[], None]:
     """The ``preexec_fn`` of a sandboxed worker: join its memory cgroup (so every process it starts is counted
-    there), then :func:`unshare_namespaces`."""
+    there), then :func:`unshare_namespaces`.
+
+    Args:
+        cgroup: the sandbox's memory cgroup, or None (nothing to join).
+    """
     if cgroup is None:
         return unshare_namespaces
 
@@ -198,11 +172,17 @@ _HOME: tuple[str, int] | str | None = None
 
 
 def cgroup_home(refresh: bool = False) -> tuple[str, int] | str:
-    """Where this process can make a sandbox's memory cgroup: ``(folder, cgroup version)``, else why not (text).
+    """Where this process can make a sandbox's memory cgroup.
 
     cgroup v2: the folder of this process's own cgroup when the memory controller is enabled for its children
     (the root cgroup), else its parent's (a sibling of this process's cgroup) when it is enabled there; this
     never enables a controller itself. cgroup v1: a child of this process's cgroup of the memory hierarchy.
+
+    Args:
+        refresh: look again (the answer is kept for the process otherwise).
+
+    Returns:
+        ``(folder, cgroup version)``, else why not (text).
     """
     global _HOME
     if _HOME is not None and not refresh:
@@ -250,7 +230,10 @@ def cgroup_home(refresh: bool = False) -> tuple[str, int] | str:
 
 
 def breached(counters: str) -> bool:
-    """Whether a memory cgroup's OOM counters (v2 ``memory.events``, v1 ``memory.oom_control``) say it ran out.
+    """Whether a memory cgroup's OOM counters say it ran out of memory.
+
+    Args:
+        counters: the text of v2's ``memory.events`` or v1's ``memory.oom_control``.
 
     >>> breached("low 0\\nhigh 0\\nmax 3\\noom 0\\noom_kill 0"), breached("oom_kill_disable 0\\nunder_oom 0\\noom_kill 1")
     (False, True)
@@ -274,6 +257,9 @@ class MemoryCgroup:
     limit (``memory.max`` with no swap and ``memory.oom.group`` on cgroup v2; ``memory.limit_in_bytes`` and
     ``memory.memsw.limit_in_bytes`` on v1). Made by the parent before the worker starts, joined by the worker
     before it executes (:func:`sandbox_preexec`), removed when it ends.
+
+    Args:
+        limit_mb: the limit, in MB, for all the sandbox's processes together.
 
     Raises:
         SandboxUnavailableError: the cgroup could not be made or its limit not set (nothing was started).
@@ -336,6 +322,11 @@ class MemoryCgroup:
         _write(self._file("cgroup.procs"), str(os.getpid()))
 
     def holds(self, pid: int) -> bool:
+        """Whether a process is in the cgroup (a worker outside it is stopped before it runs anything).
+
+        Args:
+            pid: the process.
+        """
         try:
             return str(pid) in _read(self._file("cgroup.procs")).split()
         except OSError:
@@ -365,16 +356,20 @@ class MemoryCgroup:
             except OSError:
                 time.sleep(0.02)
 
-    @staticmethod
-    def from_watch(watch: dict[str, Any]) -> MemoryCgroup:
-        cgroup = MemoryCgroup.__new__(MemoryCgroup)
-        cgroup.path, cgroup.version, cgroup.limit_mb = watch["path"], watch["version"], watch["limit_mb"]
-        return cgroup
 
+def memory_cgroup_for(options: Any) -> MemoryCgroup | None:
+    """The memory cgroup of a sandboxed worker.
 
-def memory_cgroup_for(options) -> MemoryCgroup | None:
-    """The memory cgroup of a sandboxed worker started with ``options``, or None where none can be made and no
-    limit was asked for (:func:`require_sandbox` refused that case and warned about this one)."""
+    Args:
+        options: its :class:`~hub_envs.isolation.options.IsolationOptions`.
+
+    Returns:
+        A new cgroup holding ``options.memory_mb``, or None where none can be made and no limit was asked for
+        (:func:`require_sandbox` refused the other case and warned about this one).
+
+    Raises:
+        SandboxUnavailableError: the cgroup could not be made or its limit not set.
+    """
     if isinstance(cgroup_home(), str) and options.memory_limit_mb is None:
         return None
     return MemoryCgroup(options.memory_mb)
@@ -443,8 +438,15 @@ _WARNED_MEMORY = False
 
 
 def sandbox_support(refresh: bool = False) -> dict[str, Any]:
-    """What this machine allows, probed once per process in a throwaway child: ``{mechanism: True | why not}``
-    (``"memory cgroup"``: whether a sandbox's memory limit can cover all its processes together)."""
+    """What this machine allows a sandbox, probed once per process in a throwaway child.
+
+    Args:
+        refresh: probe again.
+
+    Returns:
+        ``{mechanism: True | why not}`` (``"memory cgroup"``: whether a sandbox's memory limit can cover all its
+        processes together).
+    """
     global _SUPPORT
     if _SUPPORT is None or refresh:
         try:
@@ -509,10 +511,17 @@ def require_sandbox(memory_mb: int | None = None) -> dict[str, Any]:
 # --- what a sandbox shows -------------------------------------------------------------------------
 
 
-def hidden_paths(environ=None) -> list[str]:
+def hidden_paths(environ: dict[str, str] | None = None) -> list[str]:
     """Folders (and files) a sandbox never shows, even inside a folder it does: the home folder, the temp
     folders, the Hugging Face home, cache and token (``HF_HOME``, ``HF_HUB_CACHE``, ``HF_TOKEN_PATH``...) and
-    ``HUB_ENVS_HOME``; each is replaced by an empty tmpfs (a file, by an empty file)."""
+    ``HUB_ENVS_HOME``; each is replaced by an empty tmpfs (a file, by an empty file).
+
+    Args:
+        environ: the environment to read them from (default ``os.environ``).
+
+    Returns:
+        Their real paths, sorted.
+    """
     environ = os.environ if environ is None else environ
     from hub_envs.paths import hub_envs_home
 
@@ -534,9 +543,15 @@ def _module_name(entry: str) -> str:
     return entry.split(".", 1)[0] if entry.endswith((".py", ".so", ".pyd")) else entry
 
 
-def needed_import_names(requirements) -> set[str]:
+def needed_import_names(requirements: Any) -> set[str]:
     """The top-level import names of the installed distributions an env needs: its requirements, what the
     worker imports (numpy, gymnasium, msgpack) and their dependencies, as ``importlib.metadata`` records them.
+
+    Args:
+        requirements: the env's requirement strings (one that is not installed or not valid is skipped).
+
+    Returns:
+        The import names, ``hub_envs`` included.
 
     >>> "numpy" in needed_import_names([]) and "hub_envs" in needed_import_names([])
     True
@@ -593,15 +608,22 @@ def _installation(prefix: str, hidden: list[str]) -> list[str]:
     return [os.path.join(prefix, d) for d in ("bin", "lib", "lib64") if os.path.isdir(os.path.join(prefix, d))]
 
 
-def python_folders(options, requirements=(), hidden=()) -> list[str]:
+def python_folders(options: Any, requirements: Any = (), hidden: Any = ()) -> list[str]:
     """The folders a sandboxed worker needs to import the env: the interpreter's installation (and its stdlib and
     site folders, or the venv and the folder linking ``hub_envs``), and from every other ``sys.path`` folder only
     the package folders the env needs (:func:`needed_import_names`; never the folder itself: the calling script's
-    ``.env``, data or notes stay out), and ``hub_envs``."""
-    import hub_envs
+    ``.env``, data or notes stay out), and ``hub_envs``.
 
+    Args:
+        options: the :class:`~hub_envs.isolation.options.IsolationOptions` (``python``, ``pythonpath``).
+        requirements: the env's requirement strings.
+        hidden: :func:`hidden_paths` (an installation inside one shows only its ``bin`` and ``lib``).
+
+    Returns:
+        Their real paths, sorted.
+    """
     hidden = list(hidden)
-    package = os.path.dirname(os.path.realpath(hub_envs.__file__))
+    package = str(PACKAGE_DIR)
     if options.python:  # isolation="venv": the venv, the interpreter it links to, the folder linking hub_envs
         venv = os.path.dirname(os.path.dirname(options.python))
         base = os.path.dirname(os.path.dirname(os.path.realpath(options.python)))
@@ -630,8 +652,17 @@ def python_folders(options, requirements=(), hidden=()) -> list[str]:
     return sorted(found)
 
 
-def sandbox_init(target, options, scratch, cgroup: MemoryCgroup | None = None) -> dict[str, Any]:
-    """The sandbox part of a worker's init message."""
+def sandbox_init(target: Any, options: Any, cgroup: MemoryCgroup | None = None) -> dict[str, Any]:
+    """The sandbox part of a worker's init message: what :func:`enter_sandbox` builds the sandbox from.
+
+    Args:
+        target: the env's :class:`~hub_envs.isolation.proxy.EnvTarget` (its files' sha256, its requirements).
+        options: the :class:`~hub_envs.isolation.options.IsolationOptions` (interpreter, limits).
+        cgroup: the sandbox's memory cgroup (None: none could be made; ``RLIMIT_AS`` alone limits memory).
+
+    Returns:
+        Plain data: the files to copy and verify, the folders to show and hide, the limits.
+    """
     hide = hidden_paths()
     return {
         "files": [list(f) for f in target.files],
@@ -647,16 +678,6 @@ def sandbox_init(target, options, scratch, cgroup: MemoryCgroup | None = None) -
 
 # --- inside the worker ----------------------------------------------------------------------------
 
-#: the worker's exit status when it could not enter its sandbox (its stderr says why)
-ENTER_FAILED_EXIT = 71
-
-
-def _parent_death_signal() -> None:
-    """``prctl(PR_SET_PDEATHSIG, SIGKILL)``: the kernel kills this process when its parent dies."""
-    import signal
-
-    _libc().prctl(1, int(signal.SIGKILL), 0, 0, 0)
-
 
 def boot(argv: list[str] | None = None) -> None:
     """A sandboxed worker's entry point, run as ``python -S -P -c "...boot()" <fd> <page> <wake>``.
@@ -667,25 +688,12 @@ def boot(argv: list[str] | None = None) -> None:
     packages are the repo's choice) runs as root outside the sandbox. Once inside, ``site.main()`` sets up
     ``site-packages`` (its ``.pth`` files run there, confined) and the worker serves
     (:func:`hub_envs.isolation.worker.serve`). A sandbox that cannot be entered ends the worker with
-    :data:`ENTER_FAILED_EXIT`, the reason on its stderr.
+    :data:`~hub_envs.isolation.lifetime.ENTER_FAILED_EXIT`, the reason on its stderr.
+
+    Args:
+        argv: the arguments after ``-c`` (default ``sys.argv[1:]``).
     """
-    import pickle
-    from multiprocessing.connection import Connection
-
-    from hub_envs.isolation.doorbell import WORKER, Doorbell
-
-    _parent_death_signal()
-    try:  # never real-time (inherited from a parent some library made so): a busy env must not starve its watchdog
-        if os.sched_getscheduler(0) != os.SCHED_OTHER:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
-    argv = sys.argv[1:] if argv is None else argv
-    conn = Connection(int(argv[0]))
-    bell = Doorbell((int(argv[1]), int(argv[2])), sock_fd=conn.fileno(), side=WORKER)
-    if os.getppid() == 1:  # the parent died before the death signal was armed
-        os._exit(0)
-    init = pickle.loads(bell.receive(None, 0.0, lambda _deadline: conn.recv_bytes()))  # plain data from the parent
+    conn, bell, init = attach_to_parent(sys.argv[1:] if argv is None else argv)
     try:
         enter_sandbox(init)  # forks: the code below runs as pid 1 of a new pid namespace
     except BaseException as e:
@@ -717,7 +725,7 @@ def _readonly_everything() -> None:
             continue
         keep = sum(bit for name, bit in flag_bits.items() if name in opts)
         try:
-            mount(None, mp, None, MS_REMOUNT | MS_BIND | MS_RDONLY | keep)
+            _mount(None, mp, None, MS_REMOUNT | MS_BIND | MS_RDONLY | keep)
         except OSError as e:
             if e.errno in (2, 13):  # a mount point this namespace cannot see: nothing to make read-only
                 continue
@@ -805,7 +813,7 @@ def _pid_one(box: dict[str, Any]) -> None:
     if pid == 0:
         for fd in {watch[0], watch[2]} if watch is not None else ():
             os.close(fd)
-        _parent_death_signal()
+        set_parent_death_signal()
         return
     keep = {watch[0], watch[2]} if watch is not None else set()
     for fd in range(3, 1024):  # the outer process keeps nothing open: the parent sees EOF when the inner dies
@@ -836,20 +844,29 @@ def _deepest_is_bind(path: str, binds: list[str], tmpfs: list[str]) -> bool:
 
 
 def enter_sandbox(init: dict[str, Any]) -> None:
-    """Confine this worker (see the module docstring). On return it runs as pid 1 of its pid namespace, uid 65534,
-    and ``init["path"]`` points to the verified read-only copy of the env's code."""
+    """Confine this worker (see ``docs/isolation.md``). On return it runs as pid 1 of its pid namespace, uid 65534,
+    and ``init["path"]`` points to the verified read-only copy of the env's code.
+
+    Args:
+        init: the parent's init message; its ``sandbox`` part is :func:`sandbox_init`'s.
+
+    Raises:
+        IntegrityError: a file of the env's code changed since it was verified.
+        SandboxUnavailableError: the worker still holds privileges after dropping them.
+        OSError: a mount, namespace or limit was refused (the worker then exits, nothing of the env ran).
+    """
     import resource
 
     box = init["sandbox"]
     _pid_one(box)
-    mount("none", "/", None, MS_REC | MS_PRIVATE)
+    _mount("none", "/", None, MS_REC | MS_PRIVATE)
     code = _read_code(Path(init["path"]), box["files"], init["where"])  # verified before anything is hidden
     # what the new root shows, opened now (a needed folder may sit where the new root is built, or be hidden)
     links = {d: os.readlink(d) for d in box["system"] if os.path.islink(d)}
     system = [d for d in box["system"] if d not in links and os.path.isdir(d)]
     fds = {p: os.open(p, os.O_PATH | os.O_DIRECTORY) for p in dict.fromkeys(system + box["needed"]) if os.path.isdir(p)}
     new = os.path.realpath(SANDBOX_TMP)  # the new root is built on a tmpfs mounted here (in this namespace only)
-    mount("tmpfs", new, "tmpfs", MS_NOSUID | MS_NODEV, "size=4m,mode=755")
+    _mount("tmpfs", new, "tmpfs", MS_NOSUID | MS_NODEV, "size=4m,mode=755")
     for d, target in links.items():
         os.symlink(target, new + d)
     # shortest paths first, so each decision sees the mounts above it: a system folder is bound; a hidden path
@@ -862,38 +879,39 @@ def enter_sandbox(init: dict[str, Any]) -> None:
         shown = _deepest_is_bind(path, binds, tmpfs)
         if kind == "system" or (kind == "needed" and path in fds and not shown):
             os.makedirs(new + path, exist_ok=True)  # in a tmpfs: the new root, or one that hides a folder
-            mount(f"/proc/self/fd/{fds[path]}", new + path, None, MS_BIND | MS_REC)
+            _mount(f"/proc/self/fd/{fds[path]}", new + path, None, MS_BIND | MS_REC)
             binds.append(path)
         elif kind == "hide" and path == SANDBOX_TMP:  # the private /tmp, always there
             os.makedirs(new + path, exist_ok=True)
-            mount("tmpfs", new + path, "tmpfs", MS_NOSUID | MS_NODEV, "size=512m,mode=1777")
+            _mount("tmpfs", new + path, "tmpfs", MS_NOSUID | MS_NODEV, "size=512m,mode=1777")
             tmpfs.append(path)
         elif kind == "hide" and shown and os.path.isdir(new + path):
-            mount("tmpfs", new + path, "tmpfs", MS_NOSUID | MS_NODEV, "size=16m,mode=755")
+            _mount("tmpfs", new + path, "tmpfs", MS_NOSUID | MS_NODEV, "size=16m,mode=755")
             tmpfs.append(path)
         elif kind == "hide" and shown and os.path.lexists(new + path):
             empty = new + "/.empty"
             open(empty, "w").close()
-            mount(empty, new + path, None, MS_BIND)
+            _mount(empty, new + path, None, MS_BIND)
     for fd in fds.values():
         os.close(fd)
     os.makedirs(new + "/proc", exist_ok=True)
     os.makedirs(new + "/.old-root", exist_ok=True)
-    pivot_root(new, new + "/.old-root")
+    _pivot_root(new, new + "/.old-root")
     os.chdir("/")
-    umount("/.old-root")  # the host's file system is gone from this namespace
+    # MNT_DETACH: the host's file system is gone from this namespace
+    _check(_libc().umount2(b"/.old-root", 2), "umount /.old-root")
     os.rmdir("/.old-root")
-    mount("proc", "/proc", "proc", MS_NOSUID | MS_NODEV | MS_NOEXEC)  # this pid namespace only
+    _mount("proc", "/proc", "proc", MS_NOSUID | MS_NODEV | MS_NOEXEC)  # this pid namespace only
     for d in (ENV_DIR, HOME_DIR, WORK_DIR):
         os.makedirs(d, exist_ok=True)
     for rel, data in code.items():
         out = Path(ENV_DIR) / rel
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_bytes(data)
-    mount(ENV_DIR, ENV_DIR, None, MS_BIND)
+    _mount(ENV_DIR, ENV_DIR, None, MS_BIND)
     _readonly_everything()  # every mount read-only, the private /tmp excepted (made writable again below)
-    mount(None, SANDBOX_TMP, None, MS_REMOUNT | MS_BIND | MS_NOSUID | MS_NODEV)
-    mount(None, ENV_DIR, None, MS_REMOUNT | MS_BIND | MS_RDONLY | MS_NOSUID | MS_NODEV)
+    _mount(None, SANDBOX_TMP, None, MS_REMOUNT | MS_BIND | MS_NOSUID | MS_NODEV)
+    _mount(None, ENV_DIR, None, MS_REMOUNT | MS_BIND | MS_RDONLY | MS_NOSUID | MS_NODEV)
     for d in (HOME_DIR, WORK_DIR):
         os.chown(d, NOBODY, NOBODY)
     # limits, then drop every privilege for good
@@ -911,6 +929,6 @@ def enter_sandbox(init: dict[str, Any]) -> None:
         caps = next(line for line in f if line.startswith("CapEff:")).split()[1]
     if int(caps, 16) != 0 or os.getuid() != NOBODY:  # fail closed
         raise SandboxUnavailableError(f"the sandboxed worker still holds privileges (uid {os.getuid()}, CapEff {caps}).")
-    _parent_death_signal()  # setuid clears the parent-death signal: arm it again
+    set_parent_death_signal()  # setuid clears the parent-death signal: arm it again
     os.chdir(WORK_DIR)
     init["path"] = ENV_DIR

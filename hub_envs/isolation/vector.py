@@ -1,25 +1,8 @@
-"""``make_vec`` for isolated envs: several envs per worker, one message per vector step, observations
-through shared memory.
+"""``make_vec`` for isolated envs: :class:`IsolatedVectorEnv`, ``n_envs`` copies of an env split over worker processes,
+one message per worker per step, observations through shared memory (:mod:`~hub_envs.isolation.buffers`).
 
-:class:`IsolatedVectorEnv` is a ``gym.vector.VectorEnv`` that behaves as the in-process
-``SyncVectorEnv`` of ``n_envs`` copies (same seeds ``seed + i``, same next-step autoreset, same batched
-observations, rewards, flags and infos), with the envs split over worker processes
-(``envs_per_worker``; default: over all CPUs but one, which stays the caller's). Each step sends every worker
-one message with its envs' actions; the workers step in parallel, write each observation into per-key shared
-buffers (one ``memfd`` per leaf ``Box`` of the observation space, ``(n_envs, *shape)`` of its dtype, handed to
-the workers as file descriptors, so no name in ``/dev/shm`` and nothing for a sandbox to reach) and answer with
-rewards, flags and infos only (a fixed binary layout, :func:`~hub_envs.isolation.protocol.vector_answer`).
-Observation spaces with leaves other than ``Box`` travel in the answers.
-
-**Waiting.** With fewer workers than CPUs, the caller and the workers busy-wait for each other's messages in a
-shared page (:mod:`~hub_envs.isolation.doorbell`, bounded and adaptive as for a single env); else they sleep.
-On a VM a sleeping process woken from another CPU costs ~50-65 us a wake-up: 8 pendulums (~27 us a step each)
-in one busy-waiting worker ran 0.84-0.93 of the in-process SyncVectorEnv's steps/s on 2 CPUs, in two sleeping
-workers 0.64-0.65. An env whose step is long gains more from running in parallel than it loses to wake-ups (8
-hovers, ~150 us a step: one worker 0.85, two 1.09 on 2 CPUs): set ``envs_per_worker`` to split them.
-
-Inside a worker (:class:`WorkerSlice`) every env is built as ``gym.make`` builds it in-process (TimeLimit,
-OrderEnforcing, the env checker as registered).
+It answers exactly as the in-process ``SyncVectorEnv`` of the same envs (seeds ``seed + i``, next-step autoreset,
+batched observations, rewards, flags and infos); see ``docs/isolation.md`` for how its workers wait.
 
 Example:
     >>> vec = loaded.make_vec(8)          # with load_env(..., isolation="process")   # doctest: +SKIP
@@ -29,8 +12,6 @@ Example:
 from __future__ import annotations
 
 import math
-import mmap
-import os
 from copy import deepcopy
 from typing import Any
 
@@ -40,10 +21,12 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from hub_envs.errors import ConfigError
-from hub_envs.isolation.affinity import NO_CPU, pin_here, unpin
-from hub_envs.isolation.doorbell import SPINNING, available_cpus, sealed_memfd
+from hub_envs.isolation.affinity import NO_CPU, unpin
+from hub_envs.isolation.buffers import ObservationBuffers, box_leaves
+from hub_envs.isolation.doorbell import SPIN, WaitChooser, available_cpus
+from hub_envs.isolation.options import IsolationOptions
 from hub_envs.isolation.protocol import FAST_HEADER
-from hub_envs.isolation.proxy import EnvTarget, IsolationOptions, Worker, warn_unsent_metadata
+from hub_envs.isolation.proxy import WAYS, EnvTarget, Worker, begin_wait, warn_unsent_metadata
 
 try:
     from gymnasium.vector import AutoresetMode
@@ -51,221 +34,8 @@ except ImportError:  # pragma: no cover - gymnasium < 1.1
     AutoresetMode = None
 
 
-def _box_leaves(space: spaces.Space, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], spaces.Box]] | None:
-    """``[(key path, Box)]`` for a Box or a (nested) Dict of Boxes; None for any other space."""
-    if isinstance(space, spaces.Box):
-        return [(prefix, space)]
-    if isinstance(space, spaces.Dict):
-        out = []
-        for k, sub in space.spaces.items():
-            leaves = _box_leaves(sub, (*prefix, k))
-            if leaves is None:
-                return None
-            out += leaves
-        return out
-    return None
-
-
-def _get(obs: Any, path: tuple[str, ...]) -> Any:
-    for k in path:
-        obs = obs[k]
-    return obs
-
-
-class _Buffers:
-    """Per-leaf shared arrays ``(n, *shape)`` in memfds (created by the parent, mapped by the workers)."""
-
-    def __init__(self, leaves, n: int, fds: list[int] | None = None):
-        self.leaves = leaves
-        self.fds: list[int] = []
-        self.maps: list[mmap.mmap] = []
-        self.arrays: list[np.ndarray] = []
-        for i, (path, box) in enumerate(leaves):
-            nbytes = max(1, n * int(np.prod(box.shape, dtype=np.int64)) * np.dtype(box.dtype).itemsize)
-            if fds is None:
-                fd = sealed_memfd(f"hub-envs-obs-{'.'.join(path) or 'obs'}", nbytes)  # a worker cannot shrink it
-            else:
-                fd = fds[i]
-            self.fds.append(fd)
-            m = mmap.mmap(fd, nbytes)
-            self.maps.append(m)
-            self.arrays.append(np.ndarray((n, *box.shape), dtype=box.dtype, buffer=m))
-        # what an observation must be to travel here (checked at every step, so precomputed): the whole
-        # observation one array (``_root``), a dict of arrays (``_flat``) or nested dicts (``_tree``), keys in order
-        self._root = len(leaves) == 1 and leaves[0][0] == ()
-        layout = [(path, arr, arr.dtype, arr.shape[1:]) for (path, _), arr in zip(leaves, self.arrays, strict=True)]
-        self._flat = [(p[0], a, d, s) for p, a, d, s in layout] if all(len(p) == 1 for p, *_ in layout) else None
-        self._keys = tuple(k for k, *_ in self._flat) if self._flat is not None else ()
-        self._tree: dict = {}
-        for path, arr, dtype, shape in layout:
-            node = self._tree
-            for k in path[:-1]:
-                node = node.setdefault(k, {})
-            if path:
-                node[path[-1]] = (arr, dtype, shape)
-
-    def write_exact(self, index: int, obs: Any) -> bool:
-        """Write ``obs`` only if reading it back gives exactly it (arrays of exactly these dtypes and shapes; dicts
-        of exactly these keys, in this order); False (nothing written) otherwise."""
-        if self._root:
-            arr = self.arrays[0]
-            if type(obs) is not np.ndarray or obs.dtype != arr.dtype or obs.shape != arr.shape[1:]:
-                return False
-            arr[index] = obs
-            return True
-        flat = self._flat
-        if flat is not None:  # the usual case, kept short: it runs at every step of an isolated env
-            if type(obs) is not dict or tuple(obs) != self._keys:
-                return False
-            for key, _, dtype, shape in flat:
-                v = obs[key]
-                if type(v) is not np.ndarray or v.dtype != dtype or v.shape != shape:
-                    return False
-            for key, arr, _, _ in flat:
-                arr[index] = obs[key]
-            return True
-        if not self._same_layout(obs, self._tree):
-            return False
-        self.write(index, obs)
-        return True
-
-    @classmethod
-    def _same_layout(cls, obs: Any, tree: dict) -> bool:
-        if type(obs) is not dict or tuple(obs) != tuple(tree):
-            return False
-        for k, v in obs.items():
-            node = tree[k]
-            if type(node) is dict:
-                if not cls._same_layout(v, node):
-                    return False
-            elif type(v) is not np.ndarray or v.dtype != node[1] or v.shape != node[2]:
-                return False
-        return True
-
-    def read_one(self, index: int = 0) -> Any:
-        """A copy of one env's observation."""
-        # arr[index, ...]: an array even for a 0-d leaf (arr[index] would be a numpy scalar)
-        if self._root:
-            return self.arrays[0][index, ...].copy()
-        if self._flat is not None:
-            return {key: arr[index, ...].copy() for key, arr, _, _ in self._flat}
-        out: dict = {}
-        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
-            d = out
-            for k in path[:-1]:
-                d = d.setdefault(k, {})
-            d[path[-1]] = arr[index, ...].copy()
-        return out
-
-    def write(self, index: int, obs: Any) -> None:
-        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
-            arr[index] = _get(obs, path)
-
-    def read(self) -> Any:
-        """A copy of the batch, shaped like ``batch_space(single_observation_space)`` (dicts of arrays)."""
-        if self._root:
-            return self.arrays[0].copy()
-        out: dict = {}
-        for (path, _), arr in zip(self.leaves, self.arrays, strict=True):
-            d = out
-            for k in path[:-1]:
-                d = d.setdefault(k, {})
-            d[path[-1]] = arr.copy()
-        return out
-
-    def close(self) -> None:
-        self.arrays.clear()
-        self._flat, self._tree = None, {}  # their views of the maps too
-        for m in self.maps:
-            try:
-                m.close()
-            except BufferError:  # pragma: no cover - an array still views it
-                pass
-        self.maps.clear()
-        for fd in self.fds:
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        self.fds.clear()
-
-
-class WorkerSlice:
-    """The envs ``offset .. offset + count`` of a vector env, inside one worker process."""
-
-    def __init__(self, env_class, spec: dict[str, Any]):
-        from gymnasium.envs.registration import EnvSpec
-
-        env_spec = EnvSpec(
-            id=spec["gym_id"],
-            entry_point=env_class,
-            max_episode_steps=spec["max_episode_steps"],
-            kwargs=dict(spec["kwargs"]),
-            disable_env_checker=spec["disable_env_checker"],
-        )
-        self.envs = [gym.make(env_spec) for _ in range(spec["count"])]
-        self.autoreset = [False] * len(self.envs)
-        self.buffers: _Buffers | None = None
-        self.offset = spec["offset"]
-        space = self.envs[0].action_space
-        self.action_layout = (np.dtype(space.dtype), tuple(space.shape)) if isinstance(space, spaces.Box) else None
-
-    def attach_buffers(self, leaves, n_envs: int, fds: list[int]) -> None:
-        self.buffers = _Buffers(leaves, n_envs, fds=fds)
-
-    def _out(self, i: int, obs: Any, unshared: list) -> None:
-        if self.buffers is not None:
-            self.buffers.write(self.offset + i, obs)
-        else:
-            unshared.append(obs)
-
-    def reset(self, seeds, options):
-        infos, unshared = [], []
-        for i, (env, seed) in enumerate(zip(self.envs, seeds, strict=True)):
-            obs, info = env.reset(seed=seed, options=options)
-            self._out(i, obs, unshared)
-            infos.append(info)
-        self.autoreset = [False] * len(self.envs)
-        return infos, unshared
-
-    def step(self, actions):
-        """``(rewards, terminations, truncations, infos, observations not in shared memory)``: rewards and flags as
-        the float64 and bool arrays ``SyncVectorEnv`` stores them in (assigned item by item, as it does)."""
-        n = len(self.envs)
-        rewards, terms, truncs = np.zeros(n, np.float64), np.zeros(n, np.bool_), np.zeros(n, np.bool_)
-        infos, unshared = [], []
-        for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
-            if self.autoreset[i]:
-                obs, info = env.reset()
-                r, te, tr = 0.0, False, False
-            else:
-                obs, r, te, tr, info = env.step(action)
-            self._out(i, obs, unshared)
-            rewards[i], terms[i], truncs[i] = r, te, tr
-            infos.append(info)
-            self.autoreset[i] = bool(te or tr)
-        return rewards, terms, truncs, infos, unshared
-
-    def step_raw(self, data: bytes):
-        """``step`` of actions sent as raw bytes (:data:`FAST_HEADER` + this slice's rows of the batched actions)."""
-        dtype, shape = self.action_layout
-        actions = np.frombuffer(data, dtype=dtype, offset=FAST_HEADER.size).reshape((len(self.envs), *shape)).copy()
-        return self.step(list(actions))
-
-    def call(self, name: str, args: tuple):
-        if name not in ("render", "get_state", "reset_to"):
-            raise AttributeError(f"{name} cannot be called through an isolated vector env")
-        return [getattr(env.unwrapped if name != "render" else env, name)(*args) for env in self.envs]
-
-    def close(self) -> None:
-        for env in self.envs:
-            env.close()
-        if self.buffers is not None:
-            self.buffers.close()
-
-
 def _is_vector_step(answer: Any, n: int) -> bool:
-    """Whether a worker's answer to a vector step is one for ``n`` envs (:meth:`WorkerSlice.step`)."""
+    """Whether a worker's answer to a vector step is one for ``n`` envs (``WorkerSlice.step``'s layout)."""
     if type(answer) is not tuple or len(answer) != 5 or type(answer[3]) is not list or len(answer[3]) != n:
         return False
     return all(type(a) is np.ndarray and a.shape == (n,) and a.dtype == d for a, d in zip(answer[:3], _STEP_DTYPES))
@@ -275,7 +45,22 @@ _STEP_DTYPES = (np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.bool_))
 
 
 class IsolatedVectorEnv(gym.vector.VectorEnv):
-    """``n_envs`` copies of an isolated env, batched like ``SyncVectorEnv`` (see the module docstring)."""
+    """``n_envs`` copies of an isolated env, batched like ``SyncVectorEnv`` (see the module docstring).
+
+    Args:
+        target: the env's code.
+        options: how it runs; ``envs_per_worker`` (0: spread over all CPUs but one, which stays the caller's).
+        n_envs: how many envs.
+        gym_id: the registered id (each env is built in its worker as ``gym.make`` builds it).
+        kwargs: the envs' constructor arguments.
+        max_episode_steps: the TimeLimit of each env.
+        disable_env_checker: as ``gym.make``'s.
+
+    Raises:
+        ConfigError: ``n_envs`` or ``envs_per_worker`` is not positive.
+        EnvCrashedError, EnvTimeoutError, RemoteEnvError: a worker failed to start or to build its envs (every
+            worker started is stopped).
+    """
 
     def __init__(
         self,
@@ -299,8 +84,9 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         self.num_envs = n_envs
         self._workers: list[Worker] = []
         self._slices: list[tuple[int, int]] = []
-        self._buffers: _Buffers | None = None
+        self._buffers: ObservationBuffers | None = None
         self._closed_vec = False
+        self._waits = WaitChooser(WAYS)
         try:
             counts = [min(per, n_envs - o) for o in range(0, n_envs, per)]
             spin = len(counts) < cpus  # a CPU for each worker and one for the caller: both sides busy-wait
@@ -325,9 +111,9 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             desc = descs[0]
             self.single_observation_space = desc["observation_space"]
             self.single_action_space = desc["action_space"]
-            leaves = _box_leaves(self.single_observation_space)
+            leaves = box_leaves(self.single_observation_space)
             if leaves is not None:
-                self._buffers = _Buffers(leaves, n_envs)
+                self._buffers = ObservationBuffers(leaves, n_envs)
                 for w in self._workers:
                     w.send("vbuffers", leaves, n_envs, len(self._buffers.fds))
                     w.send_fds(self._buffers.fds)
@@ -347,6 +133,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
 
     @property
     def workers(self) -> list[Worker]:
+        """The worker processes, in the order of the envs they hold."""
         return list(self._workers)
 
     def _all(self, op: str, per_worker_args: list[tuple]) -> list[Any]:
@@ -354,11 +141,11 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             w.send(op, *args)
         return self._gather(op)
 
-    def _gather(self, op: str) -> list[Any]:
+    def _gather(self, op: str, spin: bool = True) -> list[Any]:
         out, error = [], None
         for w in self._workers:
             try:
-                out.append(w.receive(op, timeout=self._options.call_timeout))
+                out.append(w.receive(op, timeout=self._options.call_timeout, spin=spin))
             except Exception as e:  # keep reading the others, so every worker stays in step
                 out.append(None)
                 error = error or e
@@ -377,6 +164,19 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         return deepcopy(concatenate(self.single_observation_space, flat, self._unshared_out))
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+        """Reset every env, as ``SyncVectorEnv`` does.
+
+        Args:
+            seed: one seed (env ``i`` gets ``seed + i``), one per env, or None.
+            options: every env's reset options (``reset_mask`` is refused: envs autoreset on the next step).
+
+        Returns:
+            ``(observations, infos)``, batched.
+
+        Raises:
+            ValueError: a list of seeds of another length than ``num_envs``.
+            ConfigError: ``reset_mask`` in ``options``.
+        """
         if seed is None:
             seeds = [None] * self.num_envs
         elif isinstance(seed, int):
@@ -389,6 +189,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             )
         if options is not None and "reset_mask" in options:
             raise ConfigError("reset_mask is not supported by an isolated vector env (it autoresets on the next step).")
+        self._waits.forget_last()  # the time from the last step to the next one holds this reset
         answers = self._all("vreset", [(seeds[o : o + c], options) for o, c in self._slices])
         infos: dict = {}
         i = 0
@@ -398,7 +199,18 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
                 i += 1
         return self._obs(answers), infos
 
-    def step(self, actions):
+    def step(self, actions: Any) -> tuple:
+        """Step every env (one message per worker; an env whose episode ended resets instead, next-step autoreset).
+
+        Args:
+            actions: the batched actions.
+
+        Returns:
+            ``(observations, rewards, terminations, truncations, infos)``, batched as ``SyncVectorEnv`` batches them.
+
+        Raises:
+            as :meth:`hub_envs.isolation.proxy.Worker.request`, for the first worker that failed (the others are read).
+        """
         space = self.single_action_space
         if (
             isinstance(space, spaces.Box)
@@ -406,15 +218,15 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             and actions.dtype == space.dtype
             and actions.shape == (self.num_envs, *space.shape)
         ):  # raw bytes, one message per worker
-            # busy-waiting (a CPU for everyone): no pinning; else the first worker sleeps where this thread waits
+            # busy-waiting (a CPU for everyone): no pinning; else the first worker may sleep where this thread waits
             # (see affinity) and the others, sent theirs first, run wherever the scheduler finds a CPU
-            spinning = self._workers[0].spins
-            cpu, saved = (SPINNING, None) if spinning else pin_here()
+            way, cpu, saved = begin_wait(self._waits, self._workers[0].spins)
+            spinning = way == SPIN
             try:
                 for k in range(len(self._workers) - 1, -1, -1):
                     w, (o, c) = self._workers[k], self._slices[k]
                     w.send_raw(FAST_HEADER.pack(b"v", cpu if k == 0 or spinning else NO_CPU) + actions[o : o + c].tobytes())
-                answers = self._gather("vstep")
+                answers = self._gather("vstep", spin=spinning)
             finally:
                 unpin(saved)
         else:
@@ -427,7 +239,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         i = 0
         for w, (_, c), answer in zip(self._workers, self._slices, answers, strict=True):
             if not _is_vector_step(answer, c):
-                raise w._garbled("vstep", ValueError(f"a vector step answer of type {type(answer).__name__}"))
+                raise w.garbled("vstep", ValueError(f"a vector step answer of type {type(answer).__name__}"))
             r, te, tr, env_infos, _ = answer
             n = len(env_infos)
             rewards[i : i + n], terms[i : i + n], truncs[i : i + n] = r, te, tr
@@ -436,11 +248,21 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             i += n
         return self._obs(answers), rewards, terms, truncs, infos
 
-    def render(self):
+    def render(self) -> tuple:
+        """Every env's ``render()``."""
         frames = self._all("vcall", [("render", ())] * len(self._workers))
         return tuple(f for fs in frames for f in fs)
 
     def call(self, name: str, *args: Any) -> tuple:
+        """``render``, ``get_state`` or ``reset_to`` of every env, in its worker.
+
+        Args:
+            name: the method.
+            *args: its arguments (the same for every env).
+
+        Returns:
+            One result per env.
+        """
         results = self._all("vcall", [(name, args)] * len(self._workers))
         return tuple(r for rs in results for r in rs)
 
@@ -448,6 +270,7 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
         self.close()
 
     def close(self, **kwargs: Any) -> None:
+        """Close every env and worker (again: nothing)."""
         if self._closed_vec:
             return
         self._closed_vec = True

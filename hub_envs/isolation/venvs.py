@@ -1,46 +1,5 @@
-"""``isolation="venv"``: the worker runs in a venv built from the env's own requirements.
-
-One venv per digest of (Python minor version, the env's requirements, the worker's own needs ``numpy`` and
-``gymnasium``, and ``msgpack`` for its answers), under ``$HUB_ENVS_HOME/venvs/<digest>``, built with uv:
-
-* **atomically**: built in a temporary folder next to it and renamed into place only when complete, with
-  a ``hub-envs-venv.json`` record; a build that fails (uv cannot resolve or install) is removed and raises
-  :class:`~hub_envs.errors.VenvBuildError` with uv's own message;
-* **once**: under an exclusive file lock (``fcntl.flock`` on ``<digest>.lock``), so concurrent loaders (threads
-  or processes) build it once and the others wait, then reuse it;
-* **offline once cached**: a complete venv is reused without running uv at all.
-
-The venv holds the env's requirements, numpy, gymnasium and msgpack (its answers' wire), not torch or lerobot (an env module that
-imports lerobot must list it, and keeping the config in its own module keeps the venv small: see
-``envs/pendulum``). hub-envs itself is not installed into it: the worker imports the parent's hub-envs
-through a folder that holds only a link to the ``hub_envs`` package (no other package of the parent leaks
-in).
-
-``versions="publisher"`` (:func:`publisher_pins`) pins every package the manifest records a version of
-(``hub_env.json`` ``versions``: numpy, gymnasium and each requirement's package, the simulator included) to
-that version, holds the rest of the requirements' dependency closure to the versions the publisher had
-(``resolved``, format 3: uv constraints, so a dependency that is not needed here is not installed), and
-uses the publisher's Python minor when an interpreter of it is found (``uv python find``), else this one
-with a note. A manifest of format 1 or 2 has no ``resolved``: dependencies of dependencies then resolve to
-the newest compatible, and the notes say so. What the venv really holds is in its record (``installed``),
-which the reproduce report shows as the worker's versions.
-
-**What a build runs** (the repo chooses the requirements, so a build is repo-chosen code unless kept out):
-
-* only named requirements from the package index: a direct reference (``name @ file://...``, an https or
-  git URL) is refused (:func:`checked_requirements`), and so is anything in the manifest's ``versions`` and
-  ``resolved`` that is not a package name and a version (they become ``==`` pins and uv constraints);
-* for a sandboxed env (``wheels_only``), wheels only (uv's ``--no-build``): no package's build code runs,
-  since it would run outside the sandbox; a package that has no wheel for this Python is refused with a way out;
-* uv, and any build backend it starts, gets a scrubbed environment (:data:`BUILD_ENV`: no ``HF_TOKEN``, no
-  ``*_KEY``), with or without the sandbox;
-* the venv's interpreter never starts with its ``site`` outside the sandbox (a wheel may install a ``.pth``
-  file, which runs at every interpreter start): bytecode is compiled and the Python version read with
-  ``python -S -I``, the installed packages read from their metadata files, never by running the venv.
-
-Without the sandbox the venv's code runs as you, with your files and environment, once its worker starts: that
-is what ``trust_remote_code`` consented to; a build from source (an sdist) runs as you too, but without your
-tokens in its environment.
+"""``isolation="venv"``: the worker runs in a venv built with uv from the env's own requirements, one per
+requirements digest, built atomically and once, reused offline once cached (``docs/isolation.md``).
 
 Example:
     >>> from hub_envs.isolation.venvs import venv_digest
@@ -61,10 +20,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from hub_envs._text import safe_lines, safe_text
 from hub_envs.errors import IsolationUnavailableError, VenvBuildError
-from hub_envs.paths import hub_envs_home
+from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 
 RECORD = "hub-envs-venv.json"
 WORKER_NEEDS = ("numpy", "gymnasium")
@@ -101,10 +61,21 @@ _NAME_RE = re.compile(r"^([A-Z0-9]|[A-Z0-9][A-Z0-9._-]*[A-Z0-9])$", re.IGNORECAS
 
 
 def venvs_root() -> Path:
+    """The folder holding the venvs: ``$HUB_ENVS_HOME/venvs``."""
     return hub_envs_home() / "venvs"
 
 
-def venv_digest(requirements, python_minor: str, constraints=()) -> str:
+def venv_digest(requirements: Any, python_minor: str, constraints: Any = ()) -> str:
+    """The name of the venv for these requirements (order and repeats do not matter).
+
+    Args:
+        requirements: requirement strings.
+        python_minor: the Python ``major.minor`` the venv is made for.
+        constraints: uv constraints (``versions="publisher"``'s dependency closure).
+
+    Returns:
+        20 hex digits of a sha256 over them and the worker's own needs.
+    """
     data = {"python": python_minor, "requirements": sorted(set(requirements)), "worker": list(WORKER_NEEDS + WIRE_NEEDS)}
     if constraints:
         data["constraints"] = sorted(set(constraints))
@@ -126,14 +97,17 @@ def _uv() -> list[str]:
 
 
 def venv_python(venv: Path) -> Path:
+    """The interpreter of a venv.
+
+    Args:
+        venv: the venv's folder.
+    """
     return venv / "bin" / "python"
 
 
 def hub_envs_path() -> str:
     """A folder holding only a link to this hub-envs package: the PYTHONPATH of a venv worker."""
-    import hub_envs
-
-    package = Path(hub_envs.__file__).resolve().parent
+    package = PACKAGE_DIR
     folder = venvs_root() / "_hub_envs" / hashlib.sha256(str(package).encode()).hexdigest()[:16]
     link = folder / "hub_envs"
     if not link.is_symlink():
@@ -215,7 +189,16 @@ def checked_requirements(requirements, *, where: str, constraints: bool = False)
 def publisher_pins(
     requirements, versions: dict[str, str], resolved: dict[str, str] | None = None, *, where: str = "the env"
 ) -> tuple[list[str], list[str], str | None, str | None, list[str]]:
-    """``(pinned requirements, constraints, interpreter, its minor, notes)`` for ``versions="publisher"``.
+    """What ``versions="publisher"`` builds: the publisher's recorded versions pinned.
+
+    Args:
+        requirements: the env's requirement strings.
+        versions: the manifest's ``versions`` (package -> version, and ``python``).
+        resolved: the manifest's ``resolved`` dependency closure (format 3; None: older).
+        where: repo@sha, to name in errors and notes.
+
+    Returns:
+        ``(pinned requirements, uv constraints, interpreter or None, its minor or None, notes)``.
 
     Raises:
         VenvBuildError: a recorded version that is not a version, a ``resolved`` name that is not a package name.
@@ -276,8 +259,11 @@ def publisher_pins(
     return pinned, constraints, python, minor, notes
 
 
-def build_environ(environ=None) -> dict[str, str]:
+def build_environ(environ: dict[str, str] | None = None) -> dict[str, str]:
     """The environment uv runs in while it builds a venv: :data:`BUILD_ENV` and ``UV_*`` / ``LC_*`` only.
+
+    Args:
+        environ: the caller's environment (default ``os.environ``).
 
     >>> sorted(build_environ({"HF_TOKEN": "hf_x", "AWS_SECRET_ACCESS_KEY": "k", "PATH": "/usr/bin", "UV_CACHE_DIR": "/c"}))
     ['PATH', 'UV_CACHE_DIR']

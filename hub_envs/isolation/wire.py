@@ -1,22 +1,5 @@
-"""What an env worker sends back: data in msgpack, never a program.
-
-The parent decodes a worker's answers after its watchdog, and the worker runs the env's code (untrusted, maybe
-sandboxed). A pickle is a program its reader runs: even an allow-list of types left ways for a few bytes to make
-the parent allocate gigabytes (a memo index, a call of an allowed type), recurse until it crashed (a deep tuple as
-a dict key) or read out of bounds (a random generator's position). So the answers are msgpack, decoded by its C
-reader with hard limits (no length larger than the message, nesting bounded), and everything that is not plain
-msgpack data travels as an *extension record* of a closed set of kinds, each rebuilt here from data it checks
-first. Nothing is ever imported or called by name, and each answer has a memory budget (:class:`_Decoder`): one
-that would build far more than it weighs is :class:`~hub_envs.errors.AnswerTooLargeError` before it is built.
-
-Plain msgpack (exact types only): ``None``, ``bool``, ``int`` (64-bit), ``float``, ``str``, ``bytes``, ``list``,
-``dict`` (keys of any hashable type here; a ``bytearray`` or ``memoryview`` arrives as ``bytes``). Extension records
-(:data:`KINDS`): ``tuple``, ``int`` beyond 64 bits, ``set``, ``frozenset``, ``complex``, ``range``, ``slice``, ``OrderedDict``, ``defaultdict`` (its factory
-one of :func:`type_names`), ``deque``, gymnasium's ``GraphInstance``, numpy arrays (dtype, shape, order, bytes; object arrays as their items),
-numpy scalars and dtypes, the types of :func:`type_names`, gymnasium's spaces (their constructor arguments and
-random generator) and numpy random generators (bit generator name and state, positions checked). Anything else
-(subclasses of the plain types included; a subclass of a numpy scalar type or dtype travels as its base) cannot be
-sent: :func:`encode` raises :class:`Unsendable` naming where it is.
+"""What an env worker sends back: msgpack data with a closed set of checked extension records, never a program;
+:func:`encode` raises :class:`Unsendable` for anything else (why, and what can travel: ``docs/isolation.md``).
 
 Example:
     >>> import numpy as np
@@ -360,8 +343,17 @@ def _where(obj: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
 
 
 def encode(obj: Any, name: str = "the value") -> bytes:
-    """``obj`` as the wire carries it, or :class:`Unsendable` naming the first value it cannot carry (a path from
-    ``name``, e.g. ``info['x'][0]``).
+    """A value as the wire carries it.
+
+    Args:
+        obj: plain data, numpy arrays and scalars, gymnasium spaces, numpy random generators (:data:`KINDS`).
+        name: what to call ``obj`` in an error (``info``: a value inside is named ``info['x'][0]``).
+
+    Returns:
+        Its msgpack bytes.
+
+    Raises:
+        Unsendable: naming the first value inside that the wire cannot carry, and why.
 
     >>> encode([1, "a"]) == b"\\x92\\x01\\xa1a"
     True
@@ -927,9 +919,18 @@ class _Decoder:
 
 
 def decode(data: bytes) -> Any:
-    """What :func:`encode` encoded. Anything that is not its output is refused: :class:`~hub_envs.errors.IsolationError`
-    for a record that asks for more than it carries or for what the wire never builds, ``ValueError`` /
-    ``TypeError`` / ``msgpack`` errors for bytes that are no message at all.
+    """What :func:`encode` encoded; anything that is not its output is refused.
+
+    Args:
+        data: the bytes (untrusted: a worker runs the env's code).
+
+    Returns:
+        The value.
+
+    Raises:
+        IsolationError: a record asks for more than it carries, or for what the wire never builds
+            (:class:`~hub_envs.errors.AnswerTooLargeError`: it would build far more than it weighs).
+        ValueError: the bytes are no message at all (also ``TypeError`` and ``msgpack``'s errors).
 
     >>> decode(encode((1, {2: b"x"}, frozenset({3}))))
     (1, {2: b'x'}, frozenset({3}))

@@ -1,35 +1,30 @@
 """The worker process of an isolated env: imports the env's code, runs its envs, answers the parent.
 
-Started by :mod:`hub_envs.isolation.proxy` as ``python -P -c "from hub_envs.isolation.worker import main;
-main()" <fd> <page> <wake>`` (a fresh interpreter, never a fork of the parent, which may hold torch and
-threads), with the parent's ``sys.path`` as ``PYTHONPATH`` so it imports the same hub-envs. A sandboxed
-worker starts as ``python -S -P -c "from hub_envs.isolation.sandbox import boot; boot()" ...`` instead: it
-enters its sandbox before the interpreter's ``site`` runs, then :func:`serve` as here. ``<fd>`` is its end
-of a socketpair, the others the shared page and the wake-up socket of its :mod:`~hub_envs.isolation.doorbell`
-(a single env's short messages travel in the page, the others in the socket). The first message is the init
-dict (repo@sha, snapshot folder, env entry point, sandbox settings); then one request, one answer
-(:mod:`hub_envs.isolation.protocol`).
-
-It never outlives the parent: ``PR_SET_PDEATHSIG`` (SIGKILL when the parent dies, set before anything
-else runs) and, as a second line, the socket: EOF on it ends the worker. A process the env's code forks
-never answers: every answer is sent only by the worker's own pid (a forked child is ended instead).
-
-The env's code is imported exactly as in-process (:func:`hub_envs.importing.import_env_folder`: sources
-only, no bytecode) from the snapshot folder the parent verified (or, sandboxed, from the private copy
-:mod:`hub_envs.isolation.sandbox` verified again); the env's config and lerobot are never imported here.
+Started by :mod:`~hub_envs.isolation.proxy` as a fresh interpreter (never a fork of the parent), or through
+:func:`hub_envs.isolation.sandbox.boot` when sandboxed; one request, one answer (:mod:`~hub_envs.isolation.protocol`).
+The env's code is imported exactly as in-process, from the snapshot folder the parent verified; its config and
+lerobot are never imported here (but for :meth:`Server.op_config`).
 """
 
 from __future__ import annotations
 
 import os
 import pickle
-import signal
 import sys
 import time
 from functools import partial
+from multiprocessing.connection import Connection
 from typing import Any
 
-from hub_envs.isolation.doorbell import SPINNING, WORKER, Doorbell, SpinBudget
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
+
+from hub_envs.isolation.affinity import NO_CPU, Follower
+from hub_envs.isolation.buffers import Leaves, ObservationBuffers
+from hub_envs.isolation.doorbell import SPINNING, Doorbell, SpinBudget
+from hub_envs.isolation.lifetime import ENTER_FAILED_EXIT, FATAL_EXIT, attach_to_parent
 from hub_envs.isolation.protocol import FAST_HEADER, encode_answer, error_info, fast_answer, vector_answer
 from hub_envs.isolation.wire import Unsendable, encode
 
@@ -57,17 +52,6 @@ def _unsendable(key: Any, result: Any, error: Exception) -> str:
     return str(error)
 
 
-def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
-    """``prctl(PR_SET_PDEATHSIG, sig)``: the kernel sends ``sig`` to this process when its parent dies."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(1, int(sig), 0, 0, 0) == 0  # PR_SET_PDEATHSIG = 1
-    except Exception:  # pragma: no cover - not Linux
-        return False
-
-
 def _describe(env: Any) -> dict[str, Any]:
     raw = env.unwrapped
     obs_space, act_space = env.observation_space, env.action_space
@@ -89,10 +73,142 @@ def _describe(env: Any) -> dict[str, Any]:
     }
 
 
-class Server:
-    """Holds the envs of one worker (single envs by index, plus at most one vector slice) and serves requests."""
+class WorkerSlice:
+    """The envs ``offset .. offset + count`` of a vector env, inside one worker process, each built as ``gym.make``
+    builds it in-process (TimeLimit, OrderEnforcing, the env checker as registered).
 
-    def __init__(self, init: dict[str, Any], conn):
+    Args:
+        env_class: the env's entry point (imported from its verified code).
+        spec: from the parent's ``vmake``: ``gym_id``, ``kwargs``, ``max_episode_steps``, ``disable_env_checker``,
+            ``count`` and ``offset``.
+    """
+
+    def __init__(self, env_class: Any, spec: dict[str, Any]):
+        env_spec = EnvSpec(
+            id=spec["gym_id"],
+            entry_point=env_class,
+            max_episode_steps=spec["max_episode_steps"],
+            kwargs=dict(spec["kwargs"]),
+            disable_env_checker=spec["disable_env_checker"],
+        )
+        self.envs = [gym.make(env_spec) for _ in range(spec["count"])]
+        self.autoreset = [False] * len(self.envs)
+        self.buffers: ObservationBuffers | None = None
+        self.offset = spec["offset"]
+        space = self.envs[0].action_space
+        self.action_layout = (np.dtype(space.dtype), tuple(space.shape)) if isinstance(space, spaces.Box) else None
+
+    def attach_buffers(self, leaves: Leaves, n_envs: int, fds: list[int]) -> None:
+        """Write observations into the parent's shared buffers from now on.
+
+        Args:
+            leaves: the observation space's :func:`~hub_envs.isolation.buffers.box_leaves`.
+            n_envs: the whole vector env's (rows of the buffers; this slice writes from its offset).
+            fds: the buffers' memfds, one per leaf.
+        """
+        self.buffers = ObservationBuffers(leaves, n_envs, fds=fds)
+
+    def _out(self, i: int, obs: Any, unshared: list) -> None:
+        if self.buffers is not None:
+            self.buffers.write(self.offset + i, obs)
+        else:
+            unshared.append(obs)
+
+    def reset(self, seeds: list[int | None], options: dict[str, Any] | None) -> tuple[list, list]:
+        """Reset every env of the slice.
+
+        Args:
+            seeds: one per env.
+            options: every env's reset options.
+
+        Returns:
+            ``(infos, observations not in shared memory)``.
+        """
+        infos, unshared = [], []
+        for i, (env, seed) in enumerate(zip(self.envs, seeds, strict=True)):
+            obs, info = env.reset(seed=seed, options=options)
+            self._out(i, obs, unshared)
+            infos.append(info)
+        self.autoreset = [False] * len(self.envs)
+        return infos, unshared
+
+    def step(self, actions: list) -> tuple:
+        """Step every env of the slice (an env whose episode ended resets instead, as ``SyncVectorEnv`` does).
+
+        Args:
+            actions: one action per env of the slice.
+
+        Returns:
+            ``(rewards, terminations, truncations, infos, observations not in shared memory)``: rewards and flags
+            as the float64 and bool arrays ``SyncVectorEnv`` stores them in (assigned item by item, as it does).
+        """
+        n = len(self.envs)
+        rewards, terms, truncs = np.zeros(n, np.float64), np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+        infos, unshared = [], []
+        for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
+            if self.autoreset[i]:
+                obs, info = env.reset()
+                r, te, tr = 0.0, False, False
+            else:
+                obs, r, te, tr, info = env.step(action)
+            self._out(i, obs, unshared)
+            rewards[i], terms[i], truncs[i] = r, te, tr
+            infos.append(info)
+            self.autoreset[i] = bool(te or tr)
+        return rewards, terms, truncs, infos, unshared
+
+    def step_raw(self, data: bytes) -> tuple:
+        """:meth:`step` of actions sent as raw bytes.
+
+        Args:
+            data: :data:`~hub_envs.isolation.protocol.FAST_HEADER` and this slice's rows of the batched actions.
+
+        Returns:
+            As :meth:`step`.
+        """
+        dtype, shape = self.action_layout
+        actions = np.frombuffer(data, dtype=dtype, offset=FAST_HEADER.size).reshape((len(self.envs), *shape)).copy()
+        return self.step(list(actions))
+
+    def call(self, name: str, args: tuple) -> list:
+        """A method of every env of the slice.
+
+        Args:
+            name: ``render``, ``get_state`` or ``reset_to``.
+            args: its arguments.
+
+        Returns:
+            One result per env.
+
+        Raises:
+            AttributeError: any other name.
+        """
+        if name not in ("render", "get_state", "reset_to"):
+            raise AttributeError(f"{name} cannot be called through an isolated vector env")
+        return [getattr(env.unwrapped if name != "render" else env, name)(*args) for env in self.envs]
+
+    def close(self) -> None:
+        """Close the envs and unmap the shared buffers."""
+        for env in self.envs:
+            env.close()
+        if self.buffers is not None:
+            self.buffers.close()
+
+
+class Server:
+    """The envs of one worker (single envs by index, at most one vector slice): ``op_<name>(*args)`` answers the
+    request ``(name, *args)`` (:mod:`~hub_envs.isolation.protocol`).
+
+    Args:
+        init: the parent's init message (``where``, ``path``, ``key``, ``entry_point``): the env's code is imported
+            from ``path`` here.
+        conn: the worker's end of the socketpair (file descriptors arrive on it).
+
+    Raises:
+        Exception: whatever importing the env's code raised (the worker reports it and stops).
+    """
+
+    def __init__(self, init: dict[str, Any], conn: Connection):
         from hub_envs.envcode.importing import import_env_folder, resolve_entry_point
 
         self.where = init["where"]
@@ -119,22 +235,16 @@ class Server:
         """Arm the fast path of env 0: map its observation buffers (fds follow the message)."""
         import socket
 
-        import numpy as np
-
-        from hub_envs.isolation.vector import _Buffers
-
         sock = socket.socket(fileno=os.dup(self.conn.fileno()))
         try:
             _, fds, _, _ = socket.recv_fds(sock, 1, n_fds)
         finally:
             sock.close()
-        self.fast_buffers = _Buffers(leaves, 1, fds=fds)
+        self.fast_buffers = ObservationBuffers(leaves, 1, fds=fds)
         dtype, shape = np.dtype(action_dtype), tuple(action_shape)
         self.fast_action = (dtype, int(np.prod(shape, dtype=np.int64)), None if len(shape) == 1 else shape)
 
     def fast_step(self, data: bytes):
-        import numpy as np
-
         dtype, count, shape = self.fast_action
         raw = np.frombuffer(data, dtype, count, FAST_HEADER.size)  # too short: ValueError
         action = (raw if shape is None else raw.reshape(shape)).copy()
@@ -158,8 +268,6 @@ class Server:
 
     # -- a slice of a vector env --
     def op_vmake(self, spec: dict) -> dict:
-        from hub_envs.isolation.vector import WorkerSlice
-
         self.vec = WorkerSlice(self.env_class, spec)
         return _describe(self.vec.envs[0])
 
@@ -192,7 +300,7 @@ class Server:
 
     # -- the config with a user's field values (LeRobot's --env.<field> flags on an isolated load) --
     def op_config(self, entry_point: str, overrides: dict) -> dict:
-        """The config's values (:func:`hub_envs.envconfig.encode_config`) with ``overrides`` set before its
+        """The config's values (:func:`hub_envs.envcode.envconfig.encode_config`) with ``overrides`` set before its
         ``__post_init__``, which runs here, not in the parent. Imports the config module, and so lerobot.
         Answers ``{"values": ...}`` or ``{"error": (hub-envs error class name, message)}``."""
         from hub_envs.envcode.importing import resolve_entry_point
@@ -216,9 +324,14 @@ class Server:
             return {"error": (type(e).__name__, str(e))}
 
 
-def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
-    from hub_envs.isolation.affinity import NO_CPU, Follower
+def serve(conn: Connection, bell: Doorbell, init: dict[str, Any]) -> None:
+    """Import the env's code, then answer the parent's requests one by one until it says exit or goes away.
 
+    Args:
+        conn: the worker's end of the socketpair.
+        bell: the worker's end of the shared page beside it.
+        init: the parent's init message (:func:`~hub_envs.isolation.lifetime.attach_to_parent`).
+    """
     me = os.getpid()
 
     def answer(data: bytes) -> None:
@@ -284,27 +397,20 @@ def serve(conn, bell: Doorbell, init: dict[str, Any]) -> None:
             return
         answered = clock()
         if fatal:
-            os._exit(70)
+            os._exit(FATAL_EXIT)
 
 
 def main(argv: list[str] | None = None) -> None:
-    from multiprocessing.connection import Connection
+    """A worker's entry point, run as ``python -P -c "...main()" <fd> <page> <wake>``: attach to the parent, then
+    :func:`serve` until it says exit or goes away.
 
-    set_parent_death_signal()
-    try:  # never real-time (inherited from a parent some library made so): a busy env must not starve its watchdog
-        if os.sched_getscheduler(0) != os.SCHED_OTHER:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
-    argv = sys.argv[1:] if argv is None else argv
-    conn = Connection(int(argv[0]))
-    bell = Doorbell((int(argv[1]), int(argv[2])), sock_fd=conn.fileno(), side=WORKER)
-    if os.getppid() == 1:  # the parent died before the death signal was armed
-        os._exit(0)
-    init = pickle.loads(bell.receive(None, 0.0, lambda _deadline: conn.recv_bytes()))
+    Args:
+        argv: the arguments after ``-c`` (default ``sys.argv[1:]``).
+    """
+    conn, bell, init = attach_to_parent(sys.argv[1:] if argv is None else argv)
     if init.get("sandbox"):  # fail closed: a sandboxed worker enters its sandbox before its site runs (sandbox.boot)
         os.write(2, b"hub-envs worker: a sandboxed worker starts through hub_envs.isolation.sandbox.boot\n")
-        os._exit(71)
+        os._exit(ENTER_FAILED_EXIT)
     serve(conn, bell, init)
     os._exit(0)
 

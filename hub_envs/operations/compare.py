@@ -13,6 +13,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import statistics
 import time
 from collections.abc import Sequence
@@ -246,27 +247,32 @@ class CompareReport(ReportFiles):
         return "\n".join(out)
 
     def plot(self, path: str | Path) -> Path | None:
-        """Success rates, returns and the first paired difference.
+        """Write :meth:`figure` as a PNG.
 
         Args:
             path: the PNG to write.
 
         Returns:
-            ``path``; None without matplotlib.
+            ``path``; None (no file) without matplotlib (the ``plots`` extra).
         """
+        fig = self.figure()
+        return None if fig is None else save_figure(fig, path)
+
+    def figure(self):
+        """The plot as a matplotlib ``Figure`` (None without matplotlib): success rates (axis 0-100 %) and mean
+        returns with their intervals, and the first pair's per-seed return differences. Policies are labelled by
+        :func:`short_labels` (what tells their names apart), with a legend giving each shortened label's full name."""
         try:
             import matplotlib  # heavy: matplotlib
         except ModuleNotFoundError:
             return None
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt  # heavy: matplotlib
+        from matplotlib.lines import Line2D  # heavy: matplotlib
 
-        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
-
-        def short(label: str) -> str:
-            return label if len(label) <= 24 else "…" + label[-23:]
-
-        labels = [short(p.label) for p in self.policies]
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), layout="constrained")  # constrained: room for the legend below
+        names = [p.label for p in self.policies]
+        labels = short_labels(names)
         x = np.arange(len(self.policies))
         for ax, (value, ci, title) in zip(
             axes[:2],
@@ -277,9 +283,25 @@ class CompareReport(ReportFiles):
         ):  # fmt: skip
             v = np.asarray(value, dtype=float)
             lo = v - np.asarray([c[0] for c in ci]), np.asarray([c[1] for c in ci]) - v
-            ax.bar(x, v, yerr=np.abs(np.asarray(lo)), capsize=6, color="tab:blue", alpha=0.7)
+            ax.bar(x, v, yerr=np.abs(np.asarray(lo)), capsize=6, color="tab:blue", alpha=0.7, error_kw={"clip_on": False})
             ax.set_xticks(x, labels, rotation=15, fontsize=8)
             ax.set_title(title)
+        axes[0].set_ylim(0, 100)  # a rate: 0-100 % whatever the values (all 0 would otherwise draw negative percentages)
+        for xi, p in zip(x, self.policies):  # the rate, written at the bar's foot beside its interval (0 % shows no bar)
+            axes[0].text(xi + 0.08, 1.5, f"{100 * p.successes.mean:.0f} %", ha="left", va="bottom", fontsize=8)
+        renamed = [(short, full) for short, full in zip(labels, names) if short != full]
+        if renamed:
+            fig.legend(
+                [Line2D([], [], linestyle="none")] * len(renamed),
+                [f"{short}  =  {full}" for short, full in renamed],
+                loc="outside lower center",
+                ncols=1 if max(len(f) for _, f in renamed) > 60 else min(2, len(renamed)),
+                fontsize=7,
+                handlelength=0,
+                frameon=False,
+                title="policies",
+                title_fontsize=7,
+            )
         ax = axes[2]
         if self.differences:
             d = self.differences[0]
@@ -289,10 +311,11 @@ class CompareReport(ReportFiles):
             ax.axhspan(d.returns.ci[0], d.returns.ci[1], color="tab:orange", alpha=0.3, label="paired 95% CI of the mean")
             ax.axhline(0, color="grey", lw=0.8, ls=":")
             ax.set_xlabel("episode (seed order)")
-            ax.set_title(f"return: {short(d.a)} - {short(d.b)}", fontsize=9)
+            short = dict(zip(names, labels))
+            ax.set_title(f"return: {short[d.a]} - {short[d.b]}", fontsize=9)
             ax.legend(fontsize=7, loc="best")
         fig.suptitle(f"{self.repo_id}@{self.sha[:12]}: {len(self.seeds)} paired episodes", fontsize=10)
-        return save_figure(fig, path)
+        return fig
 
 
 def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[str, Any]:
@@ -330,6 +353,64 @@ def policy_spec(text: str | os.PathLike, *, token: str | None = None) -> dict[st
     with hub_io.translate_hub_errors(repo_id, rev or "main"):
         sha = hub_io.api(token).repo_info(repo_id, revision=rev).sha
     return {"type": "lerobot", "checkpoint": f"{repo_id}@{sha}"}
+
+
+_SHA_RE = re.compile(r"\b([0-9a-f]{8})[0-9a-f]{32}\b")
+
+
+def short_labels(names: Sequence[str], max_len: int = 32) -> list[str]:
+    """Labels for a plot that tell ``names`` (distinct) apart: the path components all names share at the start and
+    at the end become ``…``; a label still longer than ``max_len`` is cut to what is left's shortest tail of whole
+    components that no other label has, else its shortest such head, else as many of its last (or first)
+    characters as fit. Distinct names always give distinct labels (else the names themselves are returned).
+
+    >>> short_labels(["a/last/pretrained_model", "b/last/pretrained_model"])
+    ['a/…', 'b/…']
+    >>> short_labels(["outputs/train/act_1/checkpoints/last/pretrained_model", "outputs/train/act_2/checkpoints/005000/pretrained_model"])
+    ['…/act_1/checkpoints/last/…', '…/act_2/checkpoints/005000/…']
+    >>> short_labels(["random", "outputs/train/act/checkpoints/last/pretrained_model"])
+    ['random', '…/pretrained_model']
+    >>> short_labels(["random", "random (2)"]), short_labels(["user/act-reach", "user/act-pusht"])
+    (['random', 'random (2)'], ['…/act-reach', '…/act-pusht'])
+    >>> short_labels(["out/act_1/checkpoints/last/pretrained_model", "out/act_2/checkpoints/last/pretrained_model", "random"])
+    ['out/act_1/…', 'out/act_2/…', 'random']
+    """
+    names = [str(n) for n in names]
+    if not names or len(set(names)) != len(names):
+        return names
+    parts = [_SHA_RE.sub(r"\1…", n).split("/") for n in names]  # a pinned user/policy@<40-hex sha>: 8 hex tell it
+    shortest = min((len(p) for p in parts), default=0)
+    pre = suf = 0
+    if len(names) > 1:
+        while pre < shortest - 1 and len({p[pre] for p in parts}) == 1:
+            pre += 1
+        while pre + suf < shortest - 1 and len({p[len(p) - 1 - suf] for p in parts}) == 1:
+            suf += 1
+    mids = [p[pre : len(p) - suf] for p in parts]
+    head = "…/" if any(c not in ("", ".") for c in parts[0][:pre]) else ""  # a leading "./" or "/" alone is not worth a "…"
+    tail = "/…" if suf else ""
+
+    def wrapped(middle: str) -> str:  # one "…" where the dropped part and the cut meet
+        return ("" if middle.startswith("…") else head) + middle + ("" if middle.endswith("…") else tail)
+
+    labels = [wrapped("/".join(m)) for m in mids]
+    for i, mid in enumerate(mids):
+        if len(labels[i]) <= max_len:
+            continue
+        text = "/".join(mid)
+        others = ["/".join(m) for j, m in enumerate(mids) if j != i]
+        n = len(mid)
+        # (label, distinguishing): a tail no other name ends with, a head no other name starts with
+        cuts = [
+            (f"…/{t}", not any(o.endswith("/" + t) or o == t for o in others)) for t in ("/".join(mid[-k:]) for k in range(1, n))
+        ]
+        cuts += [
+            (f"{h}/…", not any(o.startswith(h + "/") or o == h for o in others)) for h in ("/".join(mid[:k]) for k in range(1, n))
+        ]
+        cuts += [(f"…{text[-k:]}", not any(o.endswith(text[-k:]) for o in others)) for k in range(len(text) - 1, 0, -1)]
+        cuts += [(f"{text[:k]}…", not any(o.startswith(text[:k]) for o in others)) for k in range(len(text) - 1, 0, -1)]
+        labels[i] = next((wrapped(c) for c, ok in cuts if ok and len(wrapped(c)) <= max_len), labels[i])
+    return labels if len(set(labels)) == len(labels) else names
 
 
 def _labels(names: list[str]) -> list[str]:

@@ -75,13 +75,21 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     return prov
 
 
-def _fingerprint(loaded: Any) -> dict[str, Any]:
+def _fingerprint(loaded: Any, ran: dict[int, Any] | None = None) -> dict[str, Any]:
+    """Recompute the manifest's golden-rollout fingerprint; ``ran``: random-policy rollouts by seed that the
+    episodes pass ran already (:func:`_run_episodes`), used when they cover its seeds."""
     recorded = loaded.manifest.fingerprint
     if not recorded:
         return {"status": "none recorded", "ok": True}
+    ran = ran or {}
+    episodes = [ran[s] for s in recorded["seeds"]] if all(s in ran for s in recorded["seeds"]) else None
     try:
         verify_fingerprint(
-            loaded.make, recorded, where=f"{loaded.repo_id}@{loaded.revision}", versions_note=lambda: drift_note(loaded)
+            loaded.make,
+            recorded,
+            where=f"{loaded.repo_id}@{loaded.revision}",
+            versions_note=lambda: drift_note(loaded),
+            episodes=episodes,
         )
     except FingerprintMismatchError as e:
         return {"status": "drifted", "ok": False, "message": str(e).splitlines()[0], "digest": recorded.get("digest")}
@@ -105,9 +113,14 @@ def _run_episodes(
     token: str | None,
     timings: dict[str, float],
     trust_policy_code: bool = False,
+    keep: tuple[list[int], int] = ([], 0),
+    kept: dict[int, Any] | None = None,
 ) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
     """The replay and the benchmark re-runs. Replayed episodes and random-policy benchmark episodes go
-    through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own."""
+    through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own.
+
+    ``keep = (seeds, steps)``: the random-policy rollouts of those seeds go into ``kept`` (by seed) when the pass
+    runs them for at least ``steps`` steps, so the golden-rollout fingerprint need not run them again."""
     rep = (
         Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance, episodes=episodes)
         if replay
@@ -139,6 +152,7 @@ def _run_episodes(
             )
             if x
         )
+        keep_seeds = set(keep[0]) if kept is not None and longest >= keep[1] else set()
         t = time.perf_counter()
         if seeds:
             for i, rollout in enumerate(
@@ -154,6 +168,8 @@ def _run_episodes(
             ):
                 replay_owner, bench_owner = owners[i]
                 (replay_owner.consume if replay_owner is not None else bench_owner.consume)(rollout)
+                if bench_owner is not None and rollout.seed in keep_seeds:
+                    kept.setdefault(rollout.seed, rollout)  # a seeded random-action episode, as the fingerprint's
         joint_seconds = time.perf_counter() - t
         steps_total = max(
             1, sum(len(a) for a in (rep.actions if rep is not None else [])) + sum(len(r.seeds) for r in joint) * time_limit
@@ -271,15 +287,14 @@ def reproduce(
         provenance = _provenance(loaded, dataset_root)
         notes = _dataset_notes(provenance) if dataset_root is not None else []
         timings["provenance"] = time.perf_counter() - t0 - timings["load"]
-        t = time.perf_counter()
-        fp = _fingerprint(loaded)
-        timings["fingerprint"] = time.perf_counter() - t
         replay_result: ReplayResult | None = None
         bench_results: list[BenchmarkResult] = []
         if replay and dataset_root is None:
             notes.append("no dataset/ in this repo: nothing to replay")
         if benchmarks and not loaded.manifest.benchmarks:
             notes.append("the manifest declares no benchmark results")
+        recorded = loaded.manifest.fingerprint or {}
+        ran: dict[int, Any] = {}
         t = time.perf_counter()
         with runner:
             replay_result, bench_results = _run_episodes(
@@ -294,8 +309,13 @@ def reproduce(
                 token=token,
                 timings=timings,
                 trust_policy_code=trust_policy_code,
+                keep=(list(recorded.get("seeds") or []), int(recorded.get("steps") or 0)),
+                kept=ran,
             )
         timings["episodes"] = time.perf_counter() - t
+        t = time.perf_counter()
+        fp = _fingerprint(loaded, ran)  # from the benchmark's random-policy episodes when they cover its seeds
+        timings["fingerprint"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id,
             sha=loaded.revision,

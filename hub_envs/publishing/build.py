@@ -28,11 +28,11 @@ from hub_envs.dataset.writer import (
     write_lerobot_dataset,
 )
 from hub_envs.envcode.envconfig import encode_config
-from hub_envs.errors import EnvCheckError, StatesNotRecordedWarning
+from hub_envs.errors import EnvCheckError, EnvFolderError, StatesNotRecordedWarning
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
-from hub_envs.harness.media import render_size_overrides, write_rollout_media
+from hub_envs.harness.media import MEDIA_EPISODES, MEDIA_STEPS, card_media_kwargs, write_rollout_media
 from hub_envs.harness.provenance import package_versions
 from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.paths import PACKAGE_DIR
@@ -79,7 +79,8 @@ def build(
     """Run the checks and write the complete repo content of ``loaded`` (a local folder) into ``staging``.
 
     The stages, each one call returning its record: the checks (:func:`check_env`: the env, open, for the stages that
-    show it), the code (:func:`write_code`: its digest), the one rollout pass (:func:`generate_dataset`: the dataset,
+    show it; and the env the card's media need: the author's ``[tool.hub-envs.media] gym_kwargs``,
+    :func:`media_env_maker`), the code (:func:`write_code`: its digest), the one rollout pass (:func:`generate_dataset`: the dataset,
     its states, the returns, the fingerprint; then the dataset half of the feature check), the media
     (:func:`render_media`), the manifest (:func:`draft_manifest`, then its content digest) and the card
     (:func:`write_card`). The repo content does not depend on where the episodes ran.
@@ -112,6 +113,11 @@ def build(
     say(f"Checking {loaded.local_folder.name}: determinism, gymnasium check_env, three-way features")
     env = check_env(loaded, seed=seed, determinism_steps=determinism_steps, where=where)
     try:
+        folder = EnvFolder.read(loaded.local_folder)
+        media_kwargs = card_media_kwargs(loaded.config.gym_kwargs, folder.media_gym_kwargs)  # the author's camera, >= 256 px
+        make_media_env = media_env_maker(loaded, media_kwargs, folder)
+        if folder.media_gym_kwargs:  # the author's media kwargs refused now, not after the dataset is built
+            make_media_env().close()
         code_digest = write_code(loaded, staging, repo_id)
         where_run = ", ".join(f"{k}={v}" for k, v in backend.settings().items() if v is not None)
         say(
@@ -132,9 +138,11 @@ def build(
         )
         check_features(loaded.config, env, run.features_written, seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
-        render_media(loaded, staging, seeds=list(run.summary.seeds), video=video)
+        render_media(loaded, staging, make_media_env, seeds=list(run.summary.seeds), video=video)
         manifest = draft_manifest(loaded, repo_id=repo_id, code_digest=code_digest, run=run, seed=seed, staging=staging)
-        write_card(loaded, staging, manifest, env, attestations=attestations, dataset_repo=dataset_repo)
+        write_card(
+            loaded, staging, manifest, env, media_kwargs=media_kwargs, attestations=attestations, dataset_repo=dataset_repo
+        )
     finally:
         env.close()
     manifest = replace(manifest, files=hash_files(staging, list_files(staging, skip=(MANIFEST_FILE,)))).validated(where=where)
@@ -439,27 +447,57 @@ def default_video(cfg: Any) -> bool:
     return bool(shapes) and all(len(s) >= 2 and min(s[:2]) >= MIN_VIDEO_SIDE for s in shapes)
 
 
-def render_media(loaded: LoadedEnv, staging: Path, *, seeds: list[int], video: bool) -> list[Path]:
+def media_env_maker(loaded: LoadedEnv, media_kwargs: dict[str, Any], folder: EnvFolder) -> Callable[[], Any]:
+    """``make()`` for the card's media.
+
+    Args:
+        loaded: the env folder, loaded.
+        media_kwargs: what the media's env is made with (:func:`hub_envs.harness.media.card_media_kwargs`).
+        folder: the env folder (its ``[tool.hub-envs.media] gym_kwargs``).
+
+    Returns:
+        A function making the env with ``media_kwargs``.
+
+    Raises:
+        EnvFolderError: (from the function) the env refused the author's media kwargs, named with where they come from.
+    """
+
+    def make():
+        try:
+            return loaded.make(**media_kwargs)
+        except (TypeError, ValueError) as exc:
+            if not folder.media_gym_kwargs:
+                raise
+            raise EnvFolderError(
+                f"{folder.root / 'pyproject.toml'}: [tool.hub-envs.media] gym_kwargs = {folder.media_gym_kwargs}: the env "
+                f"refused them when push_env made it to render the card's media ({type(exc).__name__}: {exc}). Give "
+                f"keyword arguments that {getattr(loaded.env_class, '__name__', 'the env')} takes, or remove the table."
+            ) from exc
+
+    return make
+
+
+def render_media(loaded: LoadedEnv, staging: Path, make_env: Callable[[], Any], *, seeds: list[int], video: bool) -> list[Path]:
     """The card's GIF (and, for a video dataset of an env with cameras, its MP4) of the first episodes.
 
     Args:
         loaded: the env folder, loaded.
         staging: the repo's staging folder (the media go to its ``media/``).
-        seeds: the dataset's seeds (the first three are shown).
+        make_env: makes the media's env (:func:`media_env_maker`).
+        seeds: the dataset's seeds (the first :data:`~hub_envs.harness.media.MEDIA_EPISODES` are shown).
         video: the dataset stores video.
 
     Returns:
         The files written.
     """
     cfg = loaded.config
-    size = render_size_overrides(cfg.gym_kwargs)  # the card's media at >= 256 px, rendered by the env at that size
     mp4 = staging / MP4_FILE if video and cameras(cfg) else None
     write_rollout_media(
-        lambda: loaded.make(**size),
+        make_env,
         staging / GIF_FILE,
-        seeds=seeds[:3],
+        seeds=seeds[:MEDIA_EPISODES],
         fps=int(cfg.fps),
-        max_steps=min(60, int(cfg.episode_length)),
+        max_steps=min(MEDIA_STEPS, int(cfg.episode_length)),
         mp4_path=mp4,
     )
     return [staging / GIF_FILE] + ([mp4] if mp4 is not None else [])
@@ -565,7 +603,14 @@ def draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: Da
 
 
 def write_card(
-    loaded: LoadedEnv, staging: Path, manifest: Manifest, env: Any, *, attestations: list | tuple, dataset_repo: bool
+    loaded: LoadedEnv,
+    staging: Path,
+    manifest: Manifest,
+    env: Any,
+    *,
+    media_kwargs: dict[str, Any],
+    attestations: list | tuple,
+    dataset_repo: bool,
 ) -> str:
     """The card (``README.md``), rendered from the manifest before its ``files`` are final (the card is one of them).
 
@@ -574,6 +619,7 @@ def write_card(
         staging: the repo's staging folder.
         manifest: the manifest, with its content digest (the card's load line names its content tag).
         env: the checked env (the spaces shown).
+        media_kwargs: what the media's env was made with (stated under the GIF).
         attestations: the merged attestations of this content ("Reproduced on").
         dataset_repo: the dataset is also in the dataset repo of the same name.
 
@@ -583,6 +629,7 @@ def write_card(
     card = render_card(
         manifest,
         env_class=loaded.env_class,
+        media_kwargs=media_kwargs,
         env=env,
         content_tag=content_tag(manifest.content_digest),
         license=EnvFolder.read(loaded.local_folder).license,

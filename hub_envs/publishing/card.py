@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import inspect
 import re
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from hub_envs.errors import InvalidRepoFormatError
+from hub_envs.harness.media import MEDIA_EPISODES
 from hub_envs.paths import PACKAGE_DIR
 from hub_envs.repo.format import GIF_FILE, MP4_FILE, Manifest
 
@@ -171,12 +174,24 @@ def reproduced_table(entries) -> str:
     return "\n".join(out)
 
 
+def media_note(seeds: list, fps: Any, media_kwargs: Mapping[str, Any]) -> str:
+    """What the card says under its GIF: which episodes, at what speed, rendered how (enough to render it again).
+
+    >>> media_note([0, 1, 2, 3], 30, {"render_camera": {"target": "drone"}, "render_width": 256})
+    ": episodes of seeds 0, 1, 2, real time (30 fps), from `env.render()` of `make(render_camera={'target': 'drone'}, render_width=256)`"
+    """
+    shown = ", ".join(str(s) for s in seeds[:MEDIA_EPISODES])
+    how = ", ".join(f"{k}={v!r}" for k, v in media_kwargs.items()).replace("`", "'")
+    return f": episodes of seeds {shown}, real time ({fps} fps), from `env.render()` of `make({how})`"
+
+
 def render_card(
     manifest: Manifest,
     *,
     env_class: type,
     env,
     content_tag: str,
+    media_kwargs: Mapping[str, Any] | None = None,
     license: str | None = None,
     reproductions: list | tuple = (),
     dataset_repo: bool = False,
@@ -194,6 +209,8 @@ def render_card(
             this content (its digest) make the "Reproduced on" table.
         dataset_repo: the dataset is also published as the dataset repo of the same name: the card says how LeRobot
             opens it by repo id, and its metadata links that dataset (``datasets:``).
+        media_kwargs: what the GIF's env was made with (:func:`hub_envs.harness.media.card_media_kwargs`), stated
+            under it.
 
     Returns:
         The card's text.
@@ -201,7 +218,6 @@ def render_card(
     Raises:
         InvalidRepoFormatError: the card template is missing.
     """
-
     repo_id = manifest.repo_id
     config = manifest.config
     dataset = manifest.dataset
@@ -251,7 +267,7 @@ def render_card(
         description=manifest.description or "A gymnasium environment in LeRobot's format, shared with hub-envs.",
         gif_path=GIF_FILE,
         gif_caption="Random-action rollouts",
-        gif_note=f": {min(3, len(seeds))} episodes, real time ({config.get('fps')} fps)",
+        gif_note=media_note(seeds, config.get("fps"), media_kwargs or {}),
         mp4_path=MP4_FILE if any(ft.get("dtype") == "video" for ft in ds_features.values()) else None,
         repo_id=repo_id,
         content_tag=content_tag,

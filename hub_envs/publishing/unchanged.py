@@ -10,6 +10,7 @@ from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs._stack import requirement_closure
 from hub_envs.dataset.video import DEFAULT_VIDEO_GOP
 from hub_envs.envcode.envconfig import encode_config
+from hub_envs.harness.media import card_media_kwargs
 from hub_envs.harness.provenance import package_versions
 from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.publishing.build import cameras, code_files_of, dataset_uses_video, published_overrides
@@ -130,13 +131,15 @@ def refresh_card(
         ``(sha, manifest)`` of the card's commit.
     """
     env = loaded.make()
+    folder = EnvFolder.read(loaded.local_folder)
     try:
         card = render_card(
             replace(remote, files={}),  # as build renders it: before the files are hashed
             env_class=loaded.env_class,
+            media_kwargs=card_media_kwargs(loaded.config.gym_kwargs, folder.media_gym_kwargs),
             env=env,
             content_tag=content_tag(remote.content_digest),
-            license=EnvFolder.read(loaded.local_folder).license,
+            license=folder.license,
             reproductions=attestations,
             dataset_repo="dataset_repo" in remote.dataset,
         ).encode("utf-8")

@@ -892,6 +892,9 @@ class EnvFolder:
     processors: tuple[dict[str, Any], ...] = ()
     #: ``[project] license`` as the card states it (:func:`card_license`); None when none is declared
     license: str | None = None
+    #: ``[tool.hub-envs.media] gym_kwargs``: keyword arguments for the env that renders the card's GIF/MP4 (its
+    #: camera, say), on top of the render size push_env asks for (:func:`hub_envs.harness.media.card_media_kwargs`)
+    media_gym_kwargs: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
@@ -961,6 +964,7 @@ class EnvFolder:
                 f"{project_path}: [tool.hub-envs] processors must be a list of tables, e.g.\n"
                 f'  [[tool.hub-envs.processors]]\n  name = "clip"\n  entry_point = "clip_action"\n  stage = "post"'
             )
+        media_gym_kwargs = _media_gym_kwargs(tool.get("media", {}), project_path)
         files = list_files(root)
         clash = sorted({f.split("/")[0] for f in files} & {*GENERATED, REPRODUCTIONS_DIR})
         if clash:
@@ -981,4 +985,34 @@ class EnvFolder:
             files=tuple(files),
             processors=tuple(processors),
             license=card_license(project),
+            media_gym_kwargs=media_gym_kwargs,
         )
+
+
+#: What ``[tool.hub-envs.media]`` may hold.
+MEDIA_KEYS = ("gym_kwargs",)
+_MEDIA_EXAMPLE = '  [tool.hub-envs.media]\n  gym_kwargs = { render_camera = { target = "drone", distance = 0.5 } }'
+
+
+def _media_gym_kwargs(media: Any, project_path: Path) -> dict[str, Any]:
+    """``[tool.hub-envs.media] gym_kwargs`` checked: a table of plain values (no dates), string keys."""
+    if not isinstance(media, dict):
+        raise EnvFolderError(f"{project_path}: [tool.hub-envs] media must be a table, e.g.\n{_MEDIA_EXAMPLE}")
+    unknown = sorted(set(media) - set(MEDIA_KEYS))
+    if unknown:
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs.media] has unknown keys {unknown}; it takes {list(MEDIA_KEYS)}, e.g.\n{_MEDIA_EXAMPLE}"
+        )
+    kwargs = media.get("gym_kwargs", {})
+    if not isinstance(kwargs, dict):
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs.media] gym_kwargs must be a table of the env's keyword arguments, e.g.\n{_MEDIA_EXAMPLE}"
+        )
+    try:  # the card states these values: plain JSON values only (TOML dates and times are not keyword values)
+        json.dumps(kwargs, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs.media] gym_kwargs holds a value that is not a string, number, boolean, "
+            f"array or table ({e}). Write the value as one of those."
+        ) from None
+    return kwargs
