@@ -455,12 +455,14 @@ def test_ctrl_c_cancels_a_ray_push_and_publishes_nothing(cluster, hub_module, tm
         sent_at = None
         while time.monotonic() < deadline and proc.poll() is None:
             counts = [int(n) for n in done.findall(bytes(err))]
-            if counts and 0 < max(counts) < episodes // 2:
+            if counts and max(counts) >= episodes // 2:
+                break  # past the middle without a worker seen running a shard: the assertion below says so
+            if counts and max(counts) > 0 and _busy_workers():  # a process title changes when a task starts: look again
                 sent_at = max(counts)
-                break  # mid-run: episodes have come back from the workers, most are still to run
+                break  # mid-run: episodes have come back from the workers, most are still to run, workers are running
             time.sleep(0.05)
         assert proc.poll() is None, "the push ended before it could be interrupted:\n" + err.decode(errors="replace")[-3000:]
-        assert _busy_workers(), "no Ray worker was running a shard when the push was interrupted"
+        assert sent_at is not None, "no Ray worker was seen running a shard in the first half of the push"
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=120)  # a hang guard
     finally:
