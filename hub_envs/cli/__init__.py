@@ -156,7 +156,8 @@ def command_module(name: str) -> ModuleType:
 
 def parse_command(name: str, argv: list[str], *, prog: str | None = None) -> Any:
     """The ``Config`` of command ``name`` from its arguments, as the command would run with them: a positional repo
-    id is its ``--repo_id`` (``hub-envs diff``: ``--old`` and ``--new``), every flag checked against the command's.
+    id is its ``--repo_id`` (``hub-envs diff``: ``--old`` and ``--new``), every flag checked against the command's
+    (``push``: without its ``--config.<field>`` flags, which its ``main`` splits off first).
 
     Args:
         name: a key of :data:`COMMANDS` whose module has a ``Config``.

@@ -23,17 +23,14 @@ from hub_envs.repo.refs import check_repo_flags
 DRACCUS_FLAGS = ("config_path", "help", "h")
 
 
-def parse_config(
-    command: str, config_class: type, argv: Sequence[str], *, positional: Sequence[str] = (), prog: str | None = None
-) -> Any:
+def parse_config(prog: str, config_class: type, argv: Sequence[str], *, positional: Sequence[str] = ()) -> Any:
     """Parse a command's arguments into its ``Config``: positional values to their flags, every flag checked, then draccus.
 
     Args:
-        command: the command's name, as messages name it (``"hub-envs reproduce"``).
+        prog: the command, as usage lines and messages name it (``"hub-envs reproduce"``, ``"push_env"``).
         config_class: the command's ``Config`` dataclass.
         argv: its arguments.
         positional: the fields a bare value fills, in order (``("repo_id",)``; ``hub-envs diff``: ``("old", "new")``).
-        prog: the usage line's program (default: ``command``).
 
     Returns:
         An instance of ``config_class``.
@@ -45,10 +42,10 @@ def parse_config(
             (:func:`~hub_envs.repo.refs.check_repo_flags`).
         SystemExit: draccus' own answer (``--help``: 0; a value it cannot read: 2, argparse's usage and message).
     """
-    argv = with_positional_as_flags(command, argv, positional)
+    argv = with_positional_as_flags(prog, argv, positional)
     check_repo_flags(argv)  # before draccus, which drops a trailing newline of a flag's value
-    check_flags(command, argv, flag_names(config_class))
-    return draccus.parse(config_class=config_class, args=argv, prog=prog or command)
+    check_flags(prog, argv, flag_names(config_class))
+    return draccus.parse(config_class=config_class, args=argv, prog=prog)
 
 
 def flag_names(config_class: type, prefix: str = "") -> list[str]:
