@@ -11,6 +11,7 @@ Example:
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
 import multiprocessing
@@ -338,6 +339,54 @@ def train_eval_freq_flag() -> str:
 
     names = {f.name for f in dataclasses.fields(TrainPipelineConfig)}
     return "env_eval_freq" if "env_eval_freq" in names else "eval_freq"
+
+
+#: where each LeRobot pipeline config ``hub-envs train``/``eval`` runs is defined, in LeRobot's package
+LEROBOT_PIPELINE_CONFIGS = {
+    "train": ("configs/train.py", "TrainPipelineConfig"),
+    "eval": ("configs/eval.py", "EvalPipelineConfig"),
+}
+
+
+def lerobot_pipeline_flags(command: str) -> frozenset[str] | None:
+    """The top-level flags of ``lerobot-train`` (``command="train"``) or ``lerobot-eval`` (``"eval"``): the init fields
+    of their pipeline config, read from LeRobot's source without importing it (importing LeRobot imports torch:
+    seconds before a mistyped flag could be named).
+
+    Args:
+        command: ``"train"`` or ``"eval"``.
+
+    Returns:
+        The field names, or None when LeRobot's source cannot be read this way (not installed, or moved): LeRobot's
+        own parser judges the flags then.
+    """
+    spec = find_spec("lerobot")  # a top-level package: found, not imported
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    relpath, name = LEROBOT_PIPELINE_CONFIGS[command]
+    try:
+        tree = ast.parse((Path(next(iter(spec.submodule_search_locations))) / relpath).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    classes = {node.name: node for node in tree.body if isinstance(node, ast.ClassDef)}
+    if name not in classes:
+        return None
+    names: set[str] = set()
+    pending = [classes[name]]
+    while pending:
+        cls = pending.pop()
+        pending += [classes[b.id] for b in cls.bases if isinstance(b, ast.Name) and b.id in classes]  # bases here
+        for stmt in cls.body:
+            if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
+                continue
+            if "ClassVar" in ast.unparse(stmt.annotation):
+                continue
+            if isinstance(stmt.value, ast.Call) and any(
+                k.arg == "init" and isinstance(k.value, ast.Constant) and k.value.value is False for k in stmt.value.keywords
+            ):  # field(init=False): no flag
+                continue
+            names.add(stmt.target.id)
+    return frozenset(names) or None
 
 
 def env_configs_create_envs() -> bool:

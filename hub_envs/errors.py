@@ -114,6 +114,11 @@ class ConfigError(HubEnvsError, ValueError):
     """A configuration value (CLI flag, EnvConfig field, setting) is invalid."""
 
 
+class UsageError(ConfigError):
+    """A command line names no such command or flag, or gives one value two ways; the CLI exits with code 2, as
+    argparse does, and the message says what was probably meant."""
+
+
 class AttestationError(HubEnvsError, ValueError):
     """A reproduction attestation is malformed, or could not be signed, verified or published."""
 

@@ -17,10 +17,10 @@ from hub_envs.repo.refs import parse_repo_ref
 class Config:
     """List a repo's reproduction attestations (merged and in open pull requests) as a matrix."""
 
-    repo_id: str | None = None
+    repo_id: str | None = None  # the env repo: user/name (every revision is listed); may come first, without the flag
     verify: bool = False  # check each signature with ssh-keygen -Y verify against --allowed_signers
-    allowed_signers: Path | None = None
-    json: bool = False
+    allowed_signers: Path | None = None  # with --verify: who may sign, in ssh-keygen's format ('principal key-type key')
+    json: bool = False  # print the attestations as JSON instead of the matrix
 
 
 def main(config: Config) -> int:

@@ -17,15 +17,15 @@ class Config(EnvFlags):
 
     policies: str | None = None  # comma-separated: random, a pretrained_model folder, a Hub repo id
     against: str | None = None  # another revision (user/name@<sha>): each policy on both, paired seed by seed
-    episodes: int = 20
-    seed: int = 0
+    episodes: int = 20  # episodes per policy (and per revision); episode i resets with seed + i
+    seed: int = 0  # the first episode's seed, and the bootstrap's
     trust_policy_code: bool = False  # consent to load Hub checkpoints (other repos than the env)
     workers: int = 0  # 0: up to 2 processes
-    resamples: int = 1000
+    resamples: int = 1000  # bootstrap resamples of the confidence intervals
     out: Path | None = None  # default compare-out/<user>/<name>/
     backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
     ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
-    json: bool = False
+    json: bool = False  # print the JSON report to stdout instead of the summary
 
 
 def main(config: Config) -> int:

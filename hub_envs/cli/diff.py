@@ -10,20 +10,22 @@ from pathlib import Path
 from hub_envs.cli.flags import CodeFlags, code_run
 from hub_envs.errors import ConfigError, HubEnvsError
 
+POSITIONAL = ("old", "new")  # hub-envs diff user/name@A user/name@B
+
 
 @dataclass
 class Config(CodeFlags):
     """Compare two revisions of an env repo (or two repos): files, manifest, spaces, behaviour on the same seeds and actions."""
 
-    old: str | None = None  # user/name@A (pin shas)
-    new: str | None = None  # user/name@B, or another repo
+    old: str | None = None  # the old revision, user/name@A (pin shas); may come first, without the flag
+    new: str | None = None  # the new one, user/name@B, or another repo; may come second, without the flag
     episodes: int = 2  # replay the old revision's recorded actions of this many dataset episodes on both
     random_episodes: int = 2  # plus this many seeded random-action episodes
     benchmarks: bool = True  # re-run the old revision's declared benchmarks on both: paired metric deltas with CIs
     trust_policy_code: bool = False  # consent to the LeRobot policy checkpoints those benchmarks name (other repos)
     resamples: int = 1000  # bootstrap resamples of the paired CIs
     tolerance: float = 0.0  # largest absolute difference still counted as identical (0: exact)
-    workers: int = 1
+    workers: int = 1  # processes for the episodes (the report does not depend on it)
     out: Path | None = None  # default diff-out/<user>/<name>/
     json: bool = False  # print the JSON report to stdout instead of the summary
 

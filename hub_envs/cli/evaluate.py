@@ -17,7 +17,7 @@ class Config(EnvFlags):
 
     policy: str = "random"  # 'random' or a LeRobot checkpoint user/policy@<sha>
     trust_policy_code: bool = False  # consent to load the policy checkpoint (another repo than the env)
-    episodes: int = 10
+    episodes: int = 10  # how many seeded episodes to run
     seed: int = 0  # episode i resets with seed + i
     max_steps: int | None = None  # default: the env config's episode_length
     backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)

@@ -10,7 +10,7 @@ from typing import Any
 class CodeFlags:
     """The consent to run an env repo's code, and how it runs (``hub-envs diff`` loads two, so has no ``--repo_id``)."""
 
-    trust_remote_code: bool = False
+    trust_remote_code: bool = False  # consent to run the env repo's code (or once for all: hub-envs trust user/name@<sha>)
     isolation: str = "none"  # "process": the env's code runs in worker processes; "venv": in a venv built from its requirements
     sandbox: bool = False  # the workers in a sandbox (no network, read-only files, no secrets, limits)
     versions: str = "current"  # "publisher" (with --isolation=venv): the publisher's recorded package versions
@@ -21,8 +21,8 @@ class CodeFlags:
 class EnvFlags(CodeFlags):
     """Which env (``--repo_id``, ``--revision``), the consent to run its code, and how it runs."""
 
-    repo_id: str | None = None
-    revision: str | None = None
+    repo_id: str | None = None  # the env: user/name[@revision], or a local folder (./path); may come first, without the flag
+    revision: str | None = None  # branch, tag or commit sha of --repo_id (overrides its @revision); pin a sha to get exactly it
 
 
 def code_run(flags: CodeFlags) -> dict[str, Any]:

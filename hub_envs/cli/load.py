@@ -14,10 +14,10 @@ from hub_envs.errors import ConfigError
 class Config(EnvFlags):
     """Load an env repo, run its checks, and print what was loaded (the three-way table)."""
 
-    check: bool = True
-    fingerprint: str = "error"
+    check: bool = True  # run the three-way feature check and the fingerprint check after registering the env
+    fingerprint: str = "error"  # what a drifted golden-rollout fingerprint does: error, warn or off
     recheck: bool = False  # run the checks even if they passed before with the same packages (a cached verdict)
-    json: bool = False
+    json: bool = False  # print what was loaded as JSON
 
 
 def main(config: Config) -> int:

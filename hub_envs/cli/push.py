@@ -5,28 +5,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import draccus
-
+from hub_envs.cli.argv import parse_config
 from hub_envs.errors import ConfigError
 
-ARGV = True  # main(argv): the --config.<field> flags are split off before draccus parses the rest
+ARGV = True  # main(argv, prog): the --config.<field> flags are split off before draccus parses the rest
 
 
 @dataclass
 class Config:
     """Validate a local env folder, generate its dataset and card, publish it in one commit."""
 
-    env_dir: Path | None = None
-    repo_id: str | None = None
-    episodes: int = 10
-    seed: int = 0
-    private: bool = False
-    tag: str | None = None
+    env_dir: Path | None = None  # the env folder to publish (its pyproject.toml, code and config)
+    repo_id: str | None = None  # where to publish it: user/name on the Hub; may come first, without the flag
+    episodes: int = 10  # random-action episodes of the dataset; episode i resets with seed + i
+    seed: int = 0  # the first episode's seed, and the checks'
+    private: bool = False  # create the repo private (an existing repo keeps its visibility; the dataset repo follows it)
+    tag: str | None = None  # a tag of your own for the commit (refused if it names another commit)
     workers: int = 0  # 0: as many as useful on this machine (local), the cluster's CPUs (ray)
     backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
     ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     out: Path | None = None  # --backend=ray: keep finished shards here; the same push started again skips them
-    commit_message: str | None = None
+    commit_message: str | None = None  # the commit's message; default: push_env: <name> <version> (<n> episodes, seed <s>)
     determinism_steps: int | None = None  # cap of the determinism check; default: a whole episode (two seeds)
     force: bool = False  # rebuild even when main already holds this code, config, seeds and versions
     video: bool | None = None  # camera features as MP4 (LeRobot's encoder); default: true when the env has cameras
@@ -34,22 +33,24 @@ class Config:
     dataset_repo: bool = True  # also publish the dataset as the dataset repo of the same name (LeRobotDataset(repo_id))
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str], prog: str = "hub-envs push") -> int:
     """Publish an env folder: :class:`Config`'s flags, plus ``--config.<field>=<value>`` for a variant (a field of the env's EnvConfig).
 
     Args:
-        argv: the command's arguments.
+        argv: the command's arguments (a positional repo id is ``--repo_id``).
+        prog: how usage lines and messages name the command (``push_env`` or ``hub-envs push``).
 
     Returns:
         The exit code: 0.
 
     Raises:
+        UsageError: a flag push does not have (the closest named), or a repo id given twice, differently.
         HubEnvsError: what failed (the CLI prints it as one message, exit code 1).
     """
     variant, rest = config_flags(argv)
     if any(a in ("-h", "--help") for a in rest):
         print("Config variants: --config.<field>=<value> sets a field of the env's EnvConfig before publishing.\n")
-    return push(draccus.parse(config_class=Config, args=rest), variant)
+    return push(parse_config(prog, Config, rest, positional=("repo_id",)), variant)
 
 
 def push(config: Config, variant: dict) -> int:

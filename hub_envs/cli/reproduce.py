@@ -24,9 +24,9 @@ class Config(EnvFlags):
     ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     tolerance: float = 0.0  # largest absolute difference accepted in the replay (0: exact)
     out: Path | None = None  # default reproduce-out/<user>/<name>/
-    replay: bool = True
-    benchmarks: bool = True
-    resamples: int = 1000
+    replay: bool = True  # replay the dataset's recorded actions and compare every step with what was recorded
+    benchmarks: bool = True  # re-run the benchmarks the repo declares and compare their metrics (with CIs)
+    resamples: int = 1000  # bootstrap resamples of the benchmark confidence intervals
     json: bool = False  # also print the JSON report to stdout
     attest: bool = False  # publish the outcome as reproductions/<date>-<sha12>-<stack>.json through a pull request on the repo
     sign_key: Path | None = None  # with --attest: sign it with this OpenSSH private key (ssh-keygen -Y sign)

@@ -12,16 +12,15 @@ from hub_envs.errors import MissingRequirementsError
 class Config:
     """Run the loopback Hub-protocol server."""
 
-    root: Path = Path("./hub-data")
-    host: str = "127.0.0.1"
-    port: int = 8000
-    token: str | None = None
+    root: Path = Path("./hub-data")  # the folder the repos are kept in (created if missing)
+    host: str = "127.0.0.1"  # the address to listen on (loopback by default)
+    port: int = 8000  # the port to listen on
+    token: str | None = None  # if set, writes and private reads need it (Authorization: Bearer; clients: HF_TOKEN=<token>)
     max_body_mb: float | None = None  # largest request body; default: $HUB_ENVS_SERVER_MAX_BODY_MB, else 2048
     max_line_mb: float | None = None  # largest commit line (one base64 file); default: $HUB_ENVS_SERVER_MAX_LINE_MB, else 16
     max_lfs_mb: float | None = None  # largest LFS file; default: $HUB_ENVS_SERVER_MAX_LFS_MB, else 51200 (the Hub's 50 GB)
-    header_timeout: float | None = (
-        None  # seconds to send a request head, then 408; default: $HUB_ENVS_SERVER_HEADER_TIMEOUT, else 20
-    )
+    # seconds to send a request head, then 408; default: $HUB_ENVS_SERVER_HEADER_TIMEOUT, else 20
+    header_timeout: float | None = None
     max_connections: int | None = None  # connections open at once, then 503; default: $HUB_ENVS_SERVER_MAX_CONNECTIONS, else 1000
 
 
