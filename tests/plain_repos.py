@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 #: A small reach task in LeRobot's conventions: ``agent_pos``, ``info["is_success"]``, a time limit, seeded resets.
-REACH = '''
+REACH = """
 import gymnasium as gym
 import numpy as np
 
@@ -40,21 +40,21 @@ class Reach(gym.Env):
         x, y = ((self.pos + 2) / 4 * 31).astype(int)
         frame[y, x] = 255
         return frame
-'''
+"""
 
-VECTOR_MAKE_ENV = '''
+VECTOR_MAKE_ENV = """
 
 def make_env(n_envs=1, use_async_envs=False, cfg=None):
     fns = [lambda: gym.wrappers.TimeLimit(Reach(), max_episode_steps=40) for _ in range(n_envs)]
     vec = gym.vector.AsyncVectorEnv if use_async_envs else gym.vector.SyncVectorEnv
     return vec(fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-'''
+"""
 
-BARE_MAKE_ENV = '''
+BARE_MAKE_ENV = """
 
 def make_env(n_envs=1, use_async_envs=False, cfg=None):
     return gym.wrappers.TimeLimit(Reach(), max_episode_steps=40)
-'''
+"""
 
 REQUIREMENTS = "gymnasium>=1.0\nnumpy  # arrays\n"
 
