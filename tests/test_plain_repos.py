@@ -17,6 +17,7 @@ from hub_envs import load_env
 from hub_envs.cli import main as cli
 from hub_envs.envcode.registration import snapshot_registries
 from hub_envs.errors import EnvContractError, MissingRequirementsError, PlainRepoWarning, UntrustedCodeError
+from hub_envs.isolation import sandbox as sandbox_module
 from hub_envs.repo.format import sha256_file
 
 
@@ -45,7 +46,7 @@ def only_vec(envs: dict):
     return vec
 
 
-def test_a_plain_repo_loads_only_with_consent_pinned_and_says_what_it_cannot_guarantee(hub, tmp_path):
+def test_a_plain_repo_loads_only_with_consent_pinned_and_says_what_it_cannot_guarantee(hub, tmp_path, capsys):
     from lerobot.envs.factory import make_env
 
     sha = upload(hub, "bob/reach", pr.vector_repo(tmp_path / "reach"))
@@ -72,6 +73,8 @@ def test_a_plain_repo_loads_only_with_consent_pinned_and_says_what_it_cannot_gua
         again = load_env(f"bob/reach@{sha}")
     assert again.report.trust.startswith("trust list")
     again.unregister()
+    assert cli(["load", f"--repo_id=bob/reach@{sha}"]) == 0
+    assert "cannot give: no fingerprint" in capsys.readouterr().out
     # a new commit is not covered by that consent
     (tmp_path / "reach" / "env.py").write_text((tmp_path / "reach" / "env.py").read_text() + "\n# changed\n")
     new = upload(hub, "bob/reach", tmp_path / "reach")
@@ -98,6 +101,22 @@ def test_a_bare_env_and_entry_files_under_a_folder_load_side_by_side(hub, tmp_pa
         load_env(f"bob/tasks@{tasks}:envs/Missing.py", trust_remote_code=True)
     for loaded in (one, near, far):
         loaded.unregister()
+
+
+@pytest.mark.parametrize("how", [{"isolation": "process"}, {"sandbox": True}])
+def test_a_plain_repo_runs_isolated_without_its_code_imported_here(hub, tmp_path, how):
+    if how.get("sandbox") and sandbox_module.sandbox_support().get("root") is not True:
+        pytest.skip("sandbox=True needs root (it is refused otherwise)")
+    tasks = upload(hub, "bob/tasks", pr.folder_repo(tmp_path / "tasks"))
+    with pytest.warns(PlainRepoWarning):
+        isolated = load_env(f"bob/tasks@{tasks}:envs/Near.py", trust_remote_code=True, **how)
+        here = load_env(f"bob/tasks@{tasks}:envs/Near.py", trust_remote_code=True, check=False)
+    assert isolated.runs_as == ("process+sandbox" if how.get("sandbox") else "process")
+    env = isolated.make()
+    assert np.array_equal(env.reset(seed=3)[0]["agent_pos"], here.make().reset(seed=3)[0]["agent_pos"])
+    env.close()
+    isolated.unregister()
+    here.unregister()
 
 
 def test_a_shim_over_an_installed_package_needs_its_requirements_txt_met(hub, tmp_path, monkeypatch):
@@ -155,18 +174,19 @@ def test_audit_reports_lerobot_conventions_and_exits_by_the_verdict(hub, tmp_pat
     assert {m.id for m in hub.api.list_models()} == {"bob/reach", "bob/bare"}  # it published nothing
 
 
-def test_adopt_publishes_a_repo_that_reproduces_and_makes_the_same_env_in_lerobot(hub, tmp_path):
+def test_adopt_publishes_a_repo_that_reproduces_and_makes_the_same_env_in_lerobot(hub, tmp_path, capsys, monkeypatch):
     from lerobot.envs.factory import make_env
-
-    from hub_envs import adopt, reproduce
 
     folder = pr.bare_repo(tmp_path / "bare")  # the bare form: adoption also gives it lerobot-eval's final_info
     sha = upload(hub, "bob/bare", folder)
-    result = adopt(f"bob/bare@{sha}", "me/reach", trust_remote_code=True, episodes=3, progress=False)
+    assert cli(["adopt", f"--from_repo=bob/bare@{sha}", "--repo_id=me/reach", "--trust_remote_code=true", "--episodes=3"]) == 0
+    adopted_sha = hub.api.model_info("me/reach").sha
+    assert f"Adopted bob/bare@{sha} as me/reach@{adopted_sha}" in capsys.readouterr().out
+    result = load_env(f"me/reach@{adopted_sha}", trust_remote_code=True)
     manifest = result.manifest
     assert manifest.files["source/env.py"] == sha256_file(folder / "env.py")  # the source's code, byte for byte
     assert f"bob/bare@{sha}" in manifest.description
-    snap = load_env(f"me/reach@{result.sha}", trust_remote_code=True)
+    snap = result
     origin = json.loads((snap.path / "adopted_from.json").read_text())
     assert origin["repo_id"] == "bob/bare" and origin["revision"] == sha
     assert f"bob/bare@{sha}" in (snap.path / "README.md").read_text()
@@ -174,10 +194,37 @@ def test_adopt_publishes_a_repo_that_reproduces_and_makes_the_same_env_in_lerobo
     assert snap.open_dataset().meta.total_episodes == 3
     snap.unregister()
 
-    report = reproduce(f"me/reach@{result.sha}", trust_remote_code=True, out=tmp_path / "repro", progress=False)
-    assert report.verdict() == "REPRODUCED"
+    monkeypatch.chdir(tmp_path)
+    assert cli(["reproduce", "--repo_id=me/reach", f"--revision={adopted_sha}", "--trust_remote_code=true"]) == 0
+    out = capsys.readouterr().out
+    assert "REPRODUCED" in out and "NOT REPRODUCED" not in out
 
-    adopted = only_vec(make_env(f"me/reach@{result.sha}", trust_remote_code=True))
+    adopted = only_vec(make_env(f"me/reach@{adopted_sha}", trust_remote_code=True))
     source = only_vec(make_env(f"bob/bare@{sha}", trust_remote_code=True))
     assert adopted.single_observation_space == source.single_observation_space
     assert all(np.array_equal(a, b) for a, b in zip(rollout(adopted, 7), rollout(source, 7), strict=True))
+
+
+def test_adopt_of_an_entry_file_under_a_folder_pins_the_source_and_refuses_what_it_cannot_fix(hub, tmp_path):
+    from hub_envs import adopt
+
+    tasks = upload(hub, "bob/tasks", pr.folder_repo(tmp_path / "tasks"))
+    with pytest.warns(UserWarning, match="Pin it"):  # the branch is resolved once: that commit is adopted
+        result = adopt("bob/tasks:envs/Far.py", "me/far", trust_remote_code=True, episodes=2, progress=False)
+    assert f"bob/tasks@{tasks}:envs/Far.py" in result.manifest.description
+    assert result.manifest.requirements == ("gymnasium>=1.0", "numpy")  # from its requirements.txt
+    with pytest.warns(PlainRepoWarning):
+        source = load_env(f"bob/tasks@{tasks}:envs/Far.py", trust_remote_code=True)
+    adopted = load_env(f"me/far@{result.sha}", trust_remote_code=True)
+    assert adopted.config.episode_length == 40 and adopted.config.task == "reach the target"
+    a, b = adopted.make(), source.make()
+    a.reset(seed=4), b.reset(seed=4)
+    action = np.array([0.3, -0.2], dtype=np.float32)
+    assert a.step(action)[:2][1] == b.step(action)[:2][1]
+    adopted.unregister()
+    source.unregister()
+
+    broken = upload(hub, "bob/broken", pr.broken_repo(tmp_path / "broken"))
+    with pytest.raises(EnvContractError, match="cannot be adopted as it is:\n  contract: .*defines no make_env"):
+        adopt(f"bob/broken@{broken}", "me/broken", trust_remote_code=True, progress=False)
+    assert "me/broken" not in {m.id for m in hub.api.list_models()}

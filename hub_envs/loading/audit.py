@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from hub_envs._text import safe_text
-from hub_envs.errors import DeterminismError, EnvCheckError, HubEnvsError, PlainRepoWarning
+from hub_envs.errors import DeterminismError, EnvCheckError, HubEnvsError, PlainRepoWarning, UnpinnedRevisionWarning
 from hub_envs.harness.checks import check_determinism, run_env_checker
 from hub_envs.loading.load import load_env
 from hub_envs.loading.loaded import LoadedEnv
@@ -203,6 +203,13 @@ def audit(
     if revision is not None:
         ref = type(ref)(ref.repo, revision, ref.entry, ref.explicit_entry)
     src = fetch_plain(ref, token=token, cache_dir=cache_dir)
+    if ref.revision != src.sha:  # audited (and adopted) is that commit, not whatever the branch names later
+        warnings.warn(
+            f"{ref.repo}: revision {ref.revision or 'main'!r} resolved to {src.sha}; that commit is the one audited. Pin it "
+            f"for reproducible results: {ref.text(src.sha)}",
+            UnpinnedRevisionWarning,
+            stacklevel=2,
+        )
     report = AuditReport(source=ref.text(src.sha), requirements=list(src.requirements))
     unmet, _ = requirement_status(src.requirements)
     if unmet:
