@@ -101,6 +101,8 @@ def test_a_bare_env_and_entry_files_under_a_folder_load_side_by_side(hub, tmp_pa
         load_env(f"bob/tasks@{tasks}:envs/Missing.py", trust_remote_code=True)
     for loaded in (one, near, far):
         loaded.unregister()
+    with pytest.raises(UntrustedCodeError, match=f'load_env\\("bob/tasks@{tasks}:envs/Near.py", trust_remote_code=True\\)'):
+        load_env(f"bob/tasks@{tasks}:envs/Near.py")  # the line to copy names the entry file
 
 
 @pytest.mark.parametrize("how", [{"isolation": "process"}, {"sandbox": True}])
@@ -193,6 +195,8 @@ def test_adopt_publishes_a_repo_that_reproduces_and_makes_the_same_env_in_lerobo
     assert snap.missing_guarantees == () and snap.report.fingerprint.startswith("matches")
     assert snap.open_dataset().meta.total_episodes == 3
     snap.unregister()
+    with load_env(f"me/reach@{adopted_sha}:env.py", trust_remote_code=True) as same:  # LeRobot's name for it: the same load
+        assert same.plain_source is None and same.report.fingerprint.startswith("matches")
 
     monkeypatch.chdir(tmp_path)
     assert cli(["reproduce", "--repo_id=me/reach", f"--revision={adopted_sha}", "--trust_remote_code=true"]) == 0

@@ -129,7 +129,9 @@ def load_env(
     _check_arguments(repo_id, fingerprint, content_digest)
     iso = isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits)
     if has_entry_path(repo_id):  # LeRobot's user/name[@rev]:path: an entry file of a plain EnvHub repo
-        return _load_plain(repo_id, revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
+        if not str(repo_id).endswith(":env.py"):
+            return _load_plain(repo_id, revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
+        repo_id = str(repo_id).removesuffix(":env.py")  # LeRobot's name of any repo's env.py: a published one's too
     report, timings, t0 = LoadReport(), {}, time.perf_counter()
     machine = _in_background(check_cache.machine_identity)  # what the check cache keys on, while the files download
     try:

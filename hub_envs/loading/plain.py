@@ -30,6 +30,7 @@ from hub_envs.errors import (
     PlainRepoWarning,
     RegistrationConflictError,
     UnpinnedRevisionWarning,
+    UntrustedCodeError,
 )
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading.isolated import isolated_parts, isolation_suffix
@@ -345,7 +346,10 @@ def load_plain(
         repo_id=ref.repo,
         requirements=src.requirements,
     )
-    report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
+    try:
+        report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
+    except UntrustedCodeError as e:  # its load line names the entry file too
+        raise UntrustedCodeError(str(e).replace(f'load_env("{src.where}"', f'load_env("{ref.text(src.sha)}"')) from None
     report.requirements = list(src.requirements)
     if iso.isolation != "venv":  # a venv worker installs them
         check_requirements(src.requirements, repo=src.where)
