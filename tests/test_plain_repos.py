@@ -232,3 +232,18 @@ def test_adopt_of_an_entry_file_under_a_folder_pins_the_source_and_refuses_what_
     with pytest.raises(EnvContractError, match="cannot be adopted as it is:\n  contract: .*defines no make_env"):
         adopt(f"bob/broken@{broken}", "me/broken", trust_remote_code=True, progress=False)
     assert "me/broken" not in {m.id for m in hub.api.list_models()}
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["audit", "--repo_id=bob/reach:envs/Near.py\n", "--trust_remote_code=true"],
+        ["adopt", "--from_repo=bob/reach:envs/Near.py\n", "--repo_id=me/near", "--trust_remote_code=true"],
+        ["adopt", "--from_repo=bob/reach", "--repo_id=me/near\n", "--trust_remote_code=true"],
+    ],
+)
+def test_audit_and_adopt_refuse_a_repo_flag_with_a_trailing_newline(argv, capsys):
+    """draccus reads a flag's value as YAML, which drops a trailing newline: the command would go on with another name."""
+    assert cli(argv) == 1
+    err = capsys.readouterr().err
+    assert "ConfigError" in err and "\\n'" in err, err
