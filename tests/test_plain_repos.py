@@ -78,7 +78,9 @@ def test_a_plain_repo_loads_only_with_consent_pinned_and_says_what_it_cannot_gua
     # a new commit is not covered by that consent
     (tmp_path / "reach" / "env.py").write_text((tmp_path / "reach" / "env.py").read_text() + "\n# changed\n")
     new = upload(hub, "bob/reach", tmp_path / "reach")
-    with pytest.raises(UntrustedCodeError, match=f"You trusted bob/reach@{sha[:12]} before"):
+    with pytest.raises(
+        UntrustedCodeError, match=f"You trusted bob/reach@{sha[:12]} before(.|\\n)*changed since {sha[:12]}.*: env.py"
+    ):
         load_env(f"bob/reach@{new}")
 
 

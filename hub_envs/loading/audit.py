@@ -274,6 +274,11 @@ def _audit_loaded(loaded: LoadedEnv, report: AuditReport, seeds: tuple[int, ...]
 def _check_final_info(vec: Any, report: AuditReport, seed: int) -> None:
     """lerobot-eval reads per-episode success from ``info["final_info"]["is_success"]``, which a vector env with
     ``AutoresetMode.SAME_STEP`` gives when an episode ends."""
+    if isinstance(vec, dict):  # the suite form: one task of it is what a plain load makes
+        tasks = [v for by_task in vec.values() if isinstance(by_task, dict) for v in by_task.values()]
+        for other in tasks[1:]:
+            other.close()
+        vec = tasks[0] if tasks else vec
     if isinstance(vec, dict) or not isinstance(vec, gym.vector.VectorEnv):
         what = (
             "a bare gym.Env: LeRobot wraps it in a SyncVectorEnv with NEXT_STEP autoreset"

@@ -348,8 +348,9 @@ def load_plain(
     )
     try:
         report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
-    except UntrustedCodeError as e:  # its load line names the entry file too
-        raise UntrustedCodeError(str(e).replace(f'load_env("{src.where}"', f'load_env("{ref.text(src.sha)}"')) from None
+    except UntrustedCodeError as e:  # its load line names the entry file too, and what changed since a trusted commit
+        message = str(e).replace(f'load_env("{src.where}"', f'load_env("{ref.text(src.sha)}"')
+        raise UntrustedCodeError(message + _changed_since_trusted(src, trusted)) from None
     report.requirements = list(src.requirements)
     if iso.isolation != "venv":  # a venv worker installs them
         check_requirements(src.requirements, repo=src.where)
@@ -443,6 +444,19 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
                 f"of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls."
             )
     return loaded
+
+
+def _changed_since_trusted(src: PlainSource, trusted: trust_list.TrustList) -> str:
+    """What changed since the last commit of the repo trusted before, when its snapshot is in the cache (a plain repo
+    has no manifest listing its files: they are hashed here)."""
+    previous = [e for e in trusted.previous(src.ref.repo) if e.sha != src.sha]
+    folder = src.path.parent / previous[-1].sha if previous else None
+    if folder is None or not folder.is_dir():
+        return ""
+    names = [p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file() and p.name != ".gitattributes"]
+    old = hash_files(folder, names)
+    changed = sorted(p for p in set(old) | set(src.files) if old.get(p) != src.files.get(p))
+    return f"\nFiles changed since {previous[-1].sha[:12]}, the commit you trusted: {', '.join(safe_text(p) for p in changed)}."
 
 
 def check_contract(loaded: LoadedEnv, *, where: str) -> None:
