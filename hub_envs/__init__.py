@@ -37,6 +37,9 @@ _EXPORTS = {
     "attest": "hub_envs.operations.attest",
     "Attestation": "hub_envs.repo.attestations",
     "env_from_dataset": "hub_envs.operations.from_dataset",
+    "audit": "hub_envs.loading.audit",
+    "AuditReport": "hub_envs.loading.audit",
+    "adopt": "hub_envs.publishing.adopt",
     "IsolationOptions": "hub_envs.isolation.options",
     "IsolatedEnv": "hub_envs.isolation.proxy",
     "IsolatedVectorEnv": "hub_envs.isolation.vector",
@@ -51,6 +54,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.isolation.proxy import IsolatedEnv  # noqa: F401
     from hub_envs.isolation.sandbox import sandbox_support  # noqa: F401
     from hub_envs.isolation.vector import IsolatedVectorEnv  # noqa: F401
+    from hub_envs.loading.audit import AuditReport, audit  # noqa: F401
     from hub_envs.loading.load import load_env  # noqa: F401
     from hub_envs.loading.loaded import LoadedEnv, LoadReport  # noqa: F401
     from hub_envs.operations.attest import attest  # noqa: F401
@@ -59,6 +63,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from hub_envs.operations.evaluate import EvalResult, evaluate  # noqa: F401
     from hub_envs.operations.from_dataset import env_from_dataset  # noqa: F401
     from hub_envs.operations.reproduce import reproduce  # noqa: F401
+    from hub_envs.publishing.adopt import adopt  # noqa: F401
     from hub_envs.publishing.push import PushResult, push_env  # noqa: F401
     from hub_envs.repo.attestations import Attestation  # noqa: F401
     from hub_envs.repo.format import Manifest  # noqa: F401

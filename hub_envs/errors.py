@@ -66,6 +66,11 @@ class EnvCodeError(HubEnvsError, RuntimeError):
     """The repo's code failed: it raised on import, in reset or step, or broke the env contract."""
 
 
+class EnvContractError(EnvCodeError):
+    """A plain LeRobot EnvHub repo's entry file breaks LeRobot's EnvHub contract: no ``make_env(n_envs, use_async_envs,
+    cfg=None)``, or it returns something other than a ``gym.Env``, a ``VectorEnv`` or ``{suite: {task_id: VectorEnv}}``."""
+
+
 class RegistrationConflictError(HubEnvsError, ValueError):
     """The gym id or draccus choice name is already taken by something else."""
 
@@ -204,6 +209,10 @@ class HubEnvsWarning(UserWarning):
 
 class UnpinnedRevisionWarning(HubEnvsWarning):
     """load_env was given a branch or tag: the result is pinned to the sha it resolved to, but the call is not."""
+
+
+class PlainRepoWarning(HubEnvsWarning):
+    """load_env loaded a plain LeRobot EnvHub repo (no hub_env.json): the guarantees it cannot give are named."""
 
 
 class StatesNotRecordedWarning(HubEnvsWarning):

@@ -33,7 +33,7 @@ LEROBOT_TYPOS = {"train": ("stpes", "steps"), "eval": ("output_dri", "output_dir
 
 
 #: the commands that take a repo id (each with --repo_id, or first without the flag)
-REPO_COMMANDS = ("push", "load", "trust", "untrust", "reproduce", "evaluate", "attestations", "compare")
+REPO_COMMANDS = ("push", "load", "trust", "untrust", "reproduce", "evaluate", "attestations", "compare", "audit")
 
 
 def _config_fields(name: str) -> list[str]:
@@ -187,6 +187,7 @@ def _positional_cases() -> list[tuple[str, list[str], list[str]]]:
         rest = ["--env_dir=./env"] if name == "push" else []
         cases.append((name, [ref, *rest], [f"--repo_id={ref}", *rest]))
     cases.append(("diff", ["user/name@a", "user/name@b"], ["--old=user/name@a", "--new=user/name@b"]))
+    cases.append(("adopt", [ref, "me/name"], [f"--from_repo={ref}", "--repo_id=me/name"]))  # the source, then the new repo
     return cases
 
 
@@ -199,7 +200,8 @@ def test_a_positional_repo_id_is_its_flag(name, positional, flags):
 
 
 def test_every_command_with_a_repo_id_flag_is_tested_with_it_positional():
-    assert sorted(n for n in COMMANDS if "repo_id" in _config_fields(n)) == sorted(REPO_COMMANDS)
+    own_positionals = {"adopt"}  # its POSITIONAL: the source repo, then the repo to publish (a case of its own above)
+    assert sorted(n for n in COMMANDS if "repo_id" in _config_fields(n) and n not in own_positionals) == sorted(REPO_COMMANDS)
 
 
 def test_a_repo_id_given_twice_differently_names_both(capsys):

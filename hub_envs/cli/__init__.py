@@ -10,6 +10,8 @@ library is imported.
     hub-envs load user/pendulum-lerobot@<sha> [--trust_remote_code=true] [--isolation=process]
     hub-envs trust user/pendulum-lerobot@<sha>
     hub-envs reproduce user/pendulum-lerobot --revision=<sha> --trust_remote_code=true [--attest=true]
+    hub-envs audit user/name[@rev][:path] --trust_remote_code=true
+    hub-envs adopt --from_repo=user/name@<sha>[:path] --repo_id=me/name --trust_remote_code=true
     hub-envs --version
     hub-envs train --env.type=hub --env.repo_id=user/pendulum-lerobot --env.revision=<sha> --policy.type=act ...
 """
@@ -49,6 +51,8 @@ COMMANDS: dict[str, Command] = {
     "serve": Command("serve", "run the loopback Hub-protocol server"),
     "push": Command("push", "validate an env folder, generate its dataset and card, publish it in one commit (also: push_env)"),
     "load": Command("load", "load an env repo, run its checks, print the three-way feature table"),
+    "audit": Command("audit", "check a plain LeRobot EnvHub repo against LeRobot's conventions; publishes nothing"),
+    "adopt": Command("adopt", "publish a hub-envs repo from a plain LeRobot EnvHub repo, pinned to its commit"),
     "trust": Command("trust", "trust one commit of a repo: hub-envs trust user/name@<sha>"),
     "untrust": Command("untrust", "forget the trust entries of a repo: hub-envs untrust user/name[@<sha>]"),
     "reproduce": Command("reproduce", "re-run what a repo recorded (dataset replay, benchmarks, fingerprint) and report"),

@@ -72,6 +72,8 @@ def main(config: Config) -> int:
     print(f"  integrity:   {loaded.report.integrity}")
     print(f"  trust:       {loaded.report.trust}")
     print(f"  fingerprint: {loaded.report.fingerprint}")
+    for missing in loaded.missing_guarantees:  # a plain LeRobot EnvHub repo
+        print(f"  cannot give: {missing}")
     if loaded.report.features is not None:
         print("  three-way feature check (declared / live / dataset):")
         print("    " + loaded.report.features.table().replace("\n", "\n    "))

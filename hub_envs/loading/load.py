@@ -17,7 +17,7 @@ from typing import Any
 from hub_envs.envcode import registration
 from hub_envs.envcode.code_copy import code_copy
 from hub_envs.envcode.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
-from hub_envs.errors import ConfigError, RegistrationConflictError
+from hub_envs.errors import ConfigError, InvalidRepoFormatError, RegistrationConflictError
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading import check_cache
 from hub_envs.loading.checks import (
@@ -31,6 +31,7 @@ from hub_envs.loading.checks import (
 )
 from hub_envs.loading.isolated import isolated_parts, isolation_options, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
+from hub_envs.loading.plain import has_entry_path, is_plain_snapshot_error, load_plain, parse_hub_path
 from hub_envs.loading.source import Source, finish_fetch, resolve_source
 from hub_envs.repo.trust_list import DIGEST_RE
 
@@ -58,7 +59,10 @@ def load_env(
     sandbox_limits: dict[str, int] | None = None,
     content_digest: str | None = None,
 ) -> LoadedEnv:
-    """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder.
+    """Load an env repo by id (``"user/name"``, ``"user/name@rev"``) or from a local folder; a plain LeRobot EnvHub repo
+    (no ``hub_env.json``; ``"user/name[@rev][:path]"`` as LeRobot's ``make_env`` names it) loads through
+    :func:`hub_envs.loading.plain.load_plain`, with the same consent, pinning and isolation, and a warning and
+    ``missing_guarantees`` naming what it cannot give (no manifest digest, no dataset, no fingerprint).
 
     The stages, in order: resolve, verify and trust (:func:`_resolve_source`), requirements, import (from
     :func:`hub_envs.envcode.code_copy.code_copy`) and register with the config checked against the manifest
@@ -124,18 +128,27 @@ def load_env(
     """
     _check_arguments(repo_id, fingerprint, content_digest)
     iso = isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits)
+    if has_entry_path(repo_id):  # LeRobot's user/name[@rev]:path: an entry file of a plain EnvHub repo
+        if not str(repo_id).endswith(":env.py"):
+            return _load_plain(repo_id, revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
+        repo_id = str(repo_id).removesuffix(":env.py")  # LeRobot's name of any repo's env.py: a published one's too
     report, timings, t0 = LoadReport(), {}, time.perf_counter()
     machine = _in_background(check_cache.machine_identity)  # what the check cache keys on, while the files download
-    src = resolve_source(
-        repo_id,
-        revision=revision,
-        trust_remote_code=trust_remote_code,
-        config=config,
-        token=token,
-        cache_dir=cache_dir,
-        report=report,
-        content_digest=content_digest,
-    )
+    try:
+        src = resolve_source(
+            repo_id,
+            revision=revision,
+            trust_remote_code=trust_remote_code,
+            config=config,
+            token=token,
+            cache_dir=cache_dir,
+            report=report,
+            content_digest=content_digest,
+        )
+    except InvalidRepoFormatError as e:
+        if not is_plain_snapshot_error(e) or content_digest is not None:
+            raise
+        return _load_plain(str(repo_id), revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
     timings["fetch_verify"] = time.perf_counter() - t0
     try:
         t = time.perf_counter()
@@ -155,6 +168,20 @@ def load_env(
     report.timings = timings
     remember(loaded)
     return loaded
+
+
+def _load_plain(repo_id: str, revision, trust_remote_code, check, token, cache_dir, config, iso, versions) -> LoadedEnv:
+    """A plain LeRobot EnvHub repo: what it cannot take refused, then :func:`~hub_envs.loading.plain.load_plain`."""
+    ref = parse_hub_path(repo_id)
+    if revision is not None:
+        ref = dataclasses.replace(ref, revision=revision)
+    if config:
+        raise ConfigError(f"load_env({repo_id!r}, config=...): a plain EnvHub repo's make_env takes no config fields.")
+    if versions != "current":
+        raise ConfigError(f"{repo_id}: versions={versions!r} needs the versions a publisher recorded; a plain repo records none.")
+    return load_plain(
+        ref, trust_remote_code=trust_remote_code, check=check, token=token, cache_dir=cache_dir, iso=iso, stacklevel=4
+    )
 
 
 def _check_arguments(repo_id: Any, fingerprint: str, content_digest: Any) -> None:

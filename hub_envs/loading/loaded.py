@@ -68,7 +68,13 @@ class LoadedEnv:
         local_folder: the env folder it was loaded from (None: from the Hub).
         isolation: how the env's code runs (:class:`hub_envs.isolation.IsolationOptions`); None: in this process.
         token: the Hub token this load downloaded with (None: huggingface_hub's own); a Ray worker downloads with it.
+        plain_source: for a plain LeRobot EnvHub repo (no ``hub_env.json``): ``user/name@<sha>[:path]``; else None.
+        missing_guarantees: what this load cannot guarantee (a plain repo: no manifest digest, no dataset, no
+            fingerprint, no declared features); empty for a repo published by push_env.
     """
+
+    plain_source: str | None = None
+    missing_guarantees: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -212,7 +218,7 @@ class LoadedEnv:
         """The Python line that loads this env again, pinned (``load_env("user/name@<sha>", trust_remote_code=True)``)."""
         if self.is_local:
             return f'load_env("{self.local_folder}")'
-        return f'load_env("{self.repo_id}@{self.revision}", trust_remote_code=True)'
+        return f'load_env("{self.plain_source or f"{self.repo_id}@{self.revision}"}", trust_remote_code=True)'
 
     # -- making envs --
     def make(self, cfg=None, **kwargs) -> gym.Env:

@@ -118,7 +118,7 @@ def local_path(ref: str | os.PathLike, *, stacklevel: int = 2) -> Path | None:
 
 
 #: The flags that name a Hub repo (or a local folder) or one of its revisions, in hub-envs' commands and LeRobot's.
-REPO_FLAGS = ("repo_id", "revision", "old", "new", "policy", "policies", "env.repo_id", "env.revision", "env.type")
+REPO_FLAGS = ("repo_id", "revision", "old", "new", "policy", "policies", "env.repo_id", "env.revision", "env.type", "from_repo")
 
 
 def check_repo_flags(argv: list[str]) -> None:

@@ -1,0 +1,134 @@
+"""``adopt``: publish a hub-envs repo from a plain LeRobot EnvHub repo, through push_env's pipeline: the source's files
+unchanged under ``source/`` (pinned to its commit), the adapter hub-envs writes for its entry file (with the features,
+time limit and task the audit found), ``adopted_from.json`` naming ``user/name@<sha>:<path>``; then a random-action
+dataset, the checks and a card, as for any push.
+
+Example:
+    >>> from hub_envs import adopt                                                                   # doctest: +SKIP
+    >>> adopt("someone/reach@<sha>", "me/reach", trust_remote_code=True)                             # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from hub_envs._text import safe_text
+from hub_envs.errors import EnvContractError
+from hub_envs.loading.audit import AuditReport, audit
+from hub_envs.loading.plain import (
+    CONFIG_ENTRY_POINT,
+    DEFAULT_EPISODE_LENGTH,
+    ENV_ENTRY_POINT,
+    SOURCE_DIR,
+    fetch_plain,
+    parse_hub_path,
+    render_adapter,
+)
+from hub_envs.publishing.push import PushResult, push_env
+from hub_envs.repo.refs import check_repo_id
+
+__all__ = ["ADOPTED_FROM_FILE", "adopt", "adopted_folder"]
+
+#: The file of an adopted repo that names its source (in the manifest's file list, so hashed like the code).
+ADOPTED_FROM_FILE = "adopted_from.json"
+#: The audit checks an adoption needs to pass (the others are what adoption fixes, or push_env checks itself).
+REQUIRED = ("requirements", "contract", "LeRobot observation names")
+
+
+def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: str | None = None) -> Path:
+    """Write the env folder push_env publishes for a plain repo: ``source/`` (its files at the audited commit),
+    the adapter, ``adopted_from.json`` and ``pyproject.toml``.
+
+    Args:
+        from_repo: the audited reference (``report.source``: ``user/name@<sha>[:path]``).
+        folder: an empty folder to write into.
+        report: the source's audit (features, time limit, task).
+        token: the Hub token.
+
+    Returns:
+        ``folder``.
+    """
+    ref = parse_hub_path(from_repo)
+    src = fetch_plain(ref, token=token)
+    folder.mkdir(parents=True, exist_ok=True)
+    for rel in src.files:
+        (folder / SOURCE_DIR / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src.path / rel, folder / SOURCE_DIR / rel)
+    features = {k: (t, tuple(s)) for k, (t, s) in report.features.items()}
+    adapter = render_adapter(
+        ref.text(src.sha),
+        ref.entry,
+        features=features,
+        features_map=report.features_map,
+        task=report.task,
+        episode_length=report.episode_length or DEFAULT_EPISODE_LENGTH,
+    )
+    for name, data in adapter.items():
+        (folder / name).write_bytes(data)
+    origin = {"repo_id": ref.repo, "revision": src.sha, "entry": ref.entry, "source": ref.text(src.sha), "files": src.files}
+    (folder / ADOPTED_FROM_FILE).write_text(json.dumps(origin, indent=2, sort_keys=True) + "\n")
+    name = ref.repo.split("/")[1] + (f"-{Path(ref.entry).stem}" if ref.explicit_entry else "")
+    deps = ", ".join(json.dumps(r) for r in src.requirements)
+    (folder / "pyproject.toml").write_text(
+        f'[project]\nname = {json.dumps(name)}\nversion = "0.0.0"\n'
+        f"description = {json.dumps(f'Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/).')}\n"
+        f"dependencies = [{deps}]\n\n"
+        f"[tool.hub-envs]\nenv = {json.dumps(ENV_ENTRY_POINT)}\nconfig = {json.dumps(CONFIG_ENTRY_POINT)}\n"
+    )
+    return folder
+
+
+def adopt(
+    from_repo: str,
+    repo_id: str,
+    *,
+    revision: str | None = None,
+    trust_remote_code: bool = False,
+    token: str | None = None,
+    audit_output: str | Path | None = None,
+    **push_options: Any,
+) -> PushResult:
+    """Publish ``repo_id`` as a hub-envs repo made from the plain LeRobot EnvHub repo ``from_repo``. The stages: audit the
+    source (:func:`hub_envs.loading.audit.audit`: its code runs, with consent), write the env folder
+    (:func:`adopted_folder`: code pinned to the audited commit), then push_env (checks, dataset, card, one commit).
+
+    Args:
+        from_repo: ``user/name[@rev][:path]``; a branch or tag is resolved to a commit once, and that commit is adopted.
+        repo_id: the hub-envs repo to publish (``me/name``).
+        revision: overrides ``@rev``.
+        trust_remote_code: consent to run the source's code (else the trust list must hold it).
+        token: the Hub token.
+        audit_output: a file for the audit's JSON report.
+        push_options: :func:`hub_envs.push_env`'s keywords (``episodes``, ``seed``, ``private``, ``progress``...).
+
+    Returns:
+        push_env's :class:`~hub_envs.publishing.push.PushResult`.
+
+    Raises:
+        EnvContractError: the audit found what adoption cannot fix (its contract, LeRobot's observation names, unmet
+            requirements); the message lists them.
+        UntrustedCodeError: no consent to run the source's code.
+        HubEnvsError: what push_env raises (a check failed, no write access...).
+    """
+    check_repo_id(repo_id, what="--repo_id")
+    report = audit(from_repo, revision=revision, trust_remote_code=trust_remote_code, token=token, output=audit_output)
+    blocking = [c for c in report.checks if c.name in REQUIRED and not c.passed]
+    if blocking:
+        raise EnvContractError(
+            f"{report.source} cannot be adopted as it is:\n"
+            + "\n".join(f"  {c.name}: {c.detail}" for c in blocking)
+            + "\nFix the source repo (or install its requirements) and adopt again; `hub-envs audit` shows every check."
+        )
+    with tempfile.TemporaryDirectory(prefix="hub-envs-adopt-") as tmp:
+        folder = adopted_folder(report.source, Path(tmp) / safe_text(repo_id.split("/")[1]), report, token=token)
+        return push_env(
+            folder,
+            repo_id,
+            token=token,
+            commit_message=push_options.pop("commit_message", None) or f"Adopt {report.source}",
+            **push_options,
+        )
