@@ -267,6 +267,11 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
 
         Returns:
             One result per env.
+
+        Raises:
+            RemoteEnvError: an env's method raised (the worker lives on).
+            EnvCrashedError: a worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within the step timeout (the worker is killed).
         """
         results = self._all("vcall", [(name, args)] * len(self._workers))
         return tuple(r for rs in results for r in rs)
