@@ -45,11 +45,14 @@ $(VENV_COMPAT)/.install-stamp: pyproject.toml $(COMPAT) scripts/make-venv
 SOURCES := hub_envs tests benchmarks envs plugins
 
 # ruff: lint (pyflakes, pycodestyle, import order, pyupgrade, bugbear) and the formatter's verdict; import-linter: the
-# architecture's layers, independences and no import circle (the contracts in pyproject.toml), on this checkout.
+# architecture's layers, independences and no import circle (the contracts in pyproject.toml), on this checkout;
+# mkdocs: the docs site (mkdocs.yml) in strict mode, into site/: a broken link or anchor, or a docstring its
+# API reference cannot parse, fails.
 lint: install
-	$(VENV)/bin/ruff check $(SOURCES)
-	$(VENV)/bin/ruff format --check $(SOURCES)
+	$(VENV)/bin/ruff check $(SOURCES) scripts/docs_hooks.py scripts/docs_griffe.py
+	$(VENV)/bin/ruff format --check $(SOURCES) scripts/docs_hooks.py scripts/docs_griffe.py
 	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
+	PYTHONPATH=$(CURDIR) $(VENV)/bin/mkdocs build --strict
 
 # The whole suite in both venvs (one leg when .venv fell back to the compat stack); says which leg failed.
 ifeq ($(FALLBACK),)
@@ -73,4 +76,4 @@ train-long: install
 	$(PY) -m benchmarks.train_long $(TRAIN_LONG_ARGS)
 
 clean:
-	rm -rf $(VENV) $(VENV_COMPAT) .pytest_cache .hypothesis .test-results benchmarks/out demo-out
+	rm -rf $(VENV) $(VENV_COMPAT) .pytest_cache .hypothesis .test-results benchmarks/out demo-out site

@@ -1,4 +1,5 @@
-"""Regenerate the README's pictures of hub-envs' own output, from real runs against an embedded Hub:
+"""Regenerate the pictures of hub-envs' own output that README, docs/publishing.md and docs/reproduce.md show, from
+real runs against an embedded Hub:
 
 - docs/hover-rollout.gif: envs/hover's card GIF, as push_env renders it;
 - docs/reproduce-video.png: the `hub-envs reproduce` plot of envs/reach published with video (30-step episodes);

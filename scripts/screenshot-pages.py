@@ -1,4 +1,4 @@
-"""Regenerate docs/hub-home.png and docs/hub-repo.png (the README's screenshots of the web page).
+"""Regenerate docs/hub-home.png and docs/hub-repo.png (docs/server.md's screenshots of the web page).
 
     make demo SERVE=1            # in one shell: publishes envs/{pendulum,hover,reach}, keeps the server up
     .venv/bin/python scripts/screenshot-pages.py http://127.0.0.1:PORT docs

@@ -94,11 +94,10 @@ def test_the_installed_wheel_serves_a_hub_and_pushes_an_env_with_its_card(wheel,
     assert "CARD True" in ran.stdout and "PAGE True" in ran.stdout, ran.stdout
 
 
-def test_the_readme_architecture_map_names_every_module():
-    """README's "Architecture" section is the map of the package: a module it does not name is a module nobody finds.
+def test_the_architecture_map_names_every_module():
+    """docs/architecture.md is the map of the package: a module it does not name is a module nobody finds.
     A top-level module is named as ``name.py``; a subpackage's modules by name in that subpackage's entry."""
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Architecture") :]
+    section = (ROOT / "docs" / "architecture.md").read_text()
     tree = section[section.index("```") + 3 : section.index("```", section.index("```") + 3)]
     entries: dict[str, str] = {}  # subpackage -> its lines in the map
     for line in tree.splitlines():
@@ -122,17 +121,16 @@ def test_the_readme_architecture_map_names_every_module():
             found = re.search(item, entries.get(rel.parts[0], ""), re.MULTILINE)
         if not found:
             missing.append(str(rel))
-    assert not missing, f"README's Architecture section does not name {missing}"
+    assert not missing, f"docs/architecture.md does not name {missing}"
 
 
-def test_the_readme_layers_are_the_layers_lint_imports_enforces():
-    """README's list of layers is the layers contract of pyproject.toml's [tool.importlinter] (what `make lint` runs):
+def test_the_architecture_layers_are_the_layers_lint_imports_enforces():
+    """docs/architecture.md's list of layers is the layers contract of pyproject.toml's [tool.importlinter] (what `make lint` runs):
     the map a newcomer reads is the architecture the tool checks, not a description that can drift from it."""
     contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
     layers = next(c["layers"] for c in contracts if c["type"] == "layers")
     expected = [" | ".join(part.strip().removeprefix("hub_envs.") for part in layer.split("|")) for layer in layers]
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Architecture") :]
+    section = (ROOT / "docs" / "architecture.md").read_text()
     block = section[section.index("The layers, top to bottom") :]
     block = block[block.index("```") + 3 : block.index("```", block.index("```") + 3)]
     assert [line.strip() for line in block.strip().splitlines()] == expected

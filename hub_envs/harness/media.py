@@ -49,7 +49,16 @@ RENDER_SIZE_KNOBS = (
 
 
 def render_size_overrides(gym_kwargs: Mapping[str, Any], min_width: int = MIN_WIDTH) -> dict[str, int]:
-    """The gym kwargs that make the env render at least ``min_width`` px wide (same aspect), or ``{}``."""
+    """The gym kwargs that make the env render at least ``min_width`` px wide (same aspect), or ``{}``.
+
+    Args:
+        gym_kwargs: the keyword arguments the env is made with (its config's ``gym_kwargs``).
+        min_width: the narrowest render wanted, in pixels.
+
+    Returns:
+        The first render-size pair of :data:`RENDER_SIZE_KNOBS` that ``gym_kwargs`` sets, scaled up to ``min_width``;
+        ``{}`` when it is wide enough already or the env has no such knob.
+    """
     for wk, hk in RENDER_SIZE_KNOBS:
         w, h = gym_kwargs.get(wk), gym_kwargs.get(hk)
         if isinstance(w, int) and isinstance(h, int) and w > 0 and h > 0:
@@ -62,7 +71,15 @@ def render_size_overrides(gym_kwargs: Mapping[str, Any], min_width: int = MIN_WI
 def card_media_kwargs(gym_kwargs: Mapping[str, Any], media_gym_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The keyword arguments the card's media are rendered with: the author's ``[tool.hub-envs.media] gym_kwargs``
     (``media_gym_kwargs``), then the render size :func:`render_size_overrides` asks for (at least :data:`MIN_WIDTH`
-    px wide, the author's own size knob taken into account). ``{}`` means the env as its config makes it."""
+    px wide, the author's own size knob taken into account). ``{}`` means the env as its config makes it.
+
+    Args:
+        gym_kwargs: the keyword arguments the env is made with (its config's ``gym_kwargs``).
+        media_gym_kwargs: the author's ``[tool.hub-envs.media] gym_kwargs``, if any.
+
+    Returns:
+        The keyword arguments to add to ``gym_kwargs`` for the env that renders the card's media.
+    """
     author = dict(media_gym_kwargs or {})
     return {**author, **render_size_overrides({**gym_kwargs, **author})}
 
@@ -96,7 +113,20 @@ def _frame(env: Any) -> np.ndarray:
 
 
 def rollout_frames(make_env: Callable[[], Any], *, seeds: list[int], max_steps: int, every: int = 1) -> list[np.ndarray]:
-    """Rendered frames of seeded random-action episodes (:class:`SeededEpisode`), one per seed in turn."""
+    """Rendered frames of seeded random-action episodes (:class:`SeededEpisode`), one per seed in turn.
+
+    Args:
+        make_env: builds the env (in ``rgb_array`` render mode); it is closed before this returns.
+        seeds: the reset seeds, one episode each.
+        max_steps: the longest an episode runs.
+        every: render every ``every``-th step (see :func:`media_step`).
+
+    Returns:
+        The frames, (H, W, 3) uint8, at most :data:`MAX_SIDE` px and at least :data:`MIN_WIDTH` px wide.
+
+    Raises:
+        EnvCodeError: ``render()`` raised or returned something other than an (H, W, 3) uint8 array.
+    """
     frames = []
     env = make_env()
     try:
@@ -115,6 +145,12 @@ def media_step(fps: int) -> int:
     """Render every ``media_step(fps)``-th step: the smallest divisor of ``fps`` that gives at most
     :data:`GIF_MAX_FPS` frames per second (an integer frame rate, so the MP4 plays at the env's real speed).
 
+    Args:
+        fps: the env's frames per second (its config's ``fps``).
+
+    Returns:
+        The step between two rendered frames.
+
     >>> media_step(20), media_step(30), media_step(50), media_step(7)
     (2, 2, 5, 1)
     """
@@ -132,7 +168,23 @@ def write_rollout_media(
     mp4_path: str | Path | None = None,
 ) -> list[Path]:
     """Render random-action rollouts of ``seeds`` to a looping GIF at the env's real speed (deterministic bytes for
-    the same frames) and, with ``mp4_path``, to an MP4 of the same frames (LeRobot's video encoder)."""
+    the same frames) and, with ``mp4_path``, to an MP4 of the same frames (LeRobot's video encoder).
+
+    Args:
+        make_env: builds the env that renders (see :func:`card_media_kwargs` for its keyword arguments).
+        gif_path: where the GIF goes (its folder is created).
+        seeds: the reset seeds, one episode each.
+        fps: the env's frames per second; the media play at that speed (see :func:`media_step`).
+        max_steps: the longest an episode runs.
+        mp4_path: where the MP4 goes, or None for no MP4.
+
+    Returns:
+        The files written: the GIF, then the MP4 if asked for.
+
+    Raises:
+        EnvCodeError: the env's ``render()`` failed (see :func:`rollout_frames`).
+        DatasetError: the frames could not be encoded as video.
+    """
     import imageio.v3 as iio  # heavy: imageio
 
     fps = max(int(fps), 1)

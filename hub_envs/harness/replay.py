@@ -238,6 +238,14 @@ def step_errors(replay: np.ndarray, data: np.ndarray) -> np.ndarray:
     """Per-frame max |replay - data| as float64 (booleans: 0 or 1; NaN vs NaN counts as equal).
 
     Equality is tested first (cheap, no conversion); magnitudes are computed only for frames that differ.
+
+    Args:
+        replay: the replayed values, one row per frame, in ``data``'s layout (same frame count).
+        data: the recorded values, one row per frame.
+
+    Returns:
+        One float64 per frame: 0 where the frame is equal, else its largest absolute difference (``inf`` where
+        only one side is NaN).
     """
     n = len(data)
     errors = np.zeros(n)
@@ -369,7 +377,19 @@ def _plan(dataset_root: Path, features_map: Mapping[str, str], episodes: list[in
 
 
 def env_actions(actions: np.ndarray, space: Any, where: str) -> np.ndarray:
-    """Recorded actions in the layout and dtype of the env's action space (:func:`hub_envs.harness.actions.to_env_actions`)."""
+    """Recorded actions in the layout and dtype of the env's action space (:func:`hub_envs.harness.actions.to_env_actions`).
+
+    Args:
+        actions: the dataset's actions of one episode, one row per step.
+        space: the env's action space.
+        where: the episode, as the error message names it (e.g. ``"episode 3 (seed 3)"``).
+
+    Returns:
+        The actions as the env takes them (integers for discrete spaces, the space's shape per step).
+
+    Raises:
+        ReproductionError: the recorded actions do not fit the action space (the env changed it since).
+    """
     shape = tuple(getattr(space, "shape", None) or ())
     if actions.shape[1:] != shape and int(np.prod(actions.shape[1:])) != int(np.prod(shape)):
         raise ReproductionError(
@@ -883,6 +903,9 @@ def replay_dataset(
         episodes: replay only these episode indices (default: all).
         localize: localize diverged episodes with ``reset_to`` (at most 3 episodes).
         progress: show a progress bar.
+
+    Returns:
+        The per-episode comparisons, the divergences (localized when asked) and the frame counts.
 
     Raises:
         ReproductionError: the dataset cannot be replayed (no seeds, no actions, action space changed).

@@ -43,7 +43,17 @@ class ReportFiles:
         raise NotImplementedError
 
     def write(self, out: str | Path) -> dict[str, str]:
-        """Write the files into ``out`` (created); return their paths (also in ``self.paths``)."""
+        """Write the files into ``out`` (created); return their paths (also in ``self.paths``).
+
+        Args:
+            out: the folder of the report (created with its parents).
+
+        Returns:
+            The paths written, by kind: ``"json"``, ``"markdown"`` and, when the report has a plot, ``"png"``.
+
+        Raises:
+            ValueError: the report holds a NaN or an infinity (its JSON would not be JSON).
+        """
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         png = self.plot(out / REPORT_PNG)
@@ -57,7 +67,18 @@ class ReportFiles:
     def finish(self, timings: dict[str, float], t0: float, *, out: str | Path | None, default: Path, write: bool = True) -> None:
         """Record ``timings`` (seconds; they go into the files), write the files into ``out`` (default:
         ``default``) unless ``write`` is False, then add the time that took (``report``) and the time since
-        ``t0`` (``total``), which the files written by then do not hold."""
+        ``t0`` (``total``), which the files written by then do not hold.
+
+        Args:
+            timings: seconds per stage of the run, by stage name.
+            t0: ``time.perf_counter()`` at the start of the run.
+            out: the folder to write the files into, or None for ``default``.
+            default: the folder used when ``out`` is None (see :func:`default_out_dir`).
+            write: False records the timings and writes nothing.
+
+        Raises:
+            ValueError: the report holds a NaN or an infinity (see :meth:`write`).
+        """
         self.timings = {k: round(v, 4) for k, v in timings.items()}
         if write:
             t = time.perf_counter()
@@ -69,6 +90,13 @@ class ReportFiles:
 def default_out_dir(root: str | Path, repo_id: str) -> Path:
     """``root/<user>/<name>``, the default folder of a report about ``repo_id`` (no ``..`` or empty parts).
 
+    Args:
+        root: the folder of all such reports (e.g. ``"reproduce-out"``).
+        repo_id: the repo the report is about, ``user/name``.
+
+    Returns:
+        The folder, under ``root`` whatever ``repo_id`` holds.
+
     >>> default_out_dir("reproduce-out", "alice/../hover").as_posix()
     'reproduce-out/alice/hover'
     """
@@ -77,6 +105,12 @@ def default_out_dir(root: str | Path, repo_id: str) -> Path:
 
 def seeds_text(seeds: list) -> str:
     """Seeds as a report shows them: all of up to four, else the first, the last and how many.
+
+    Args:
+        seeds: the seeds, in order.
+
+    Returns:
+        The text (``"-"`` for none).
 
     >>> seeds_text([0, 1, 2]), seeds_text(list(range(10))), seeds_text([])
     ('0, 1, 2', '0…9 (10)', '-')
@@ -87,7 +121,16 @@ def seeds_text(seeds: list) -> str:
 
 
 def save_figure(fig, path: str | Path, *, dpi: int = 100) -> Path:
-    """Save a matplotlib figure as a report's PNG (laid out tight, unless it has its own layout) and close it; its path."""
+    """Save a matplotlib figure as a report's PNG (laid out tight, unless it has its own layout) and close it; its path.
+
+    Args:
+        fig: a ``matplotlib.figure.Figure``.
+        path: the PNG file to write.
+        dpi: its resolution.
+
+    Returns:
+        ``path``, as a ``Path``.
+    """
     import matplotlib.pyplot as plt  # heavy: matplotlib
 
     if fig.get_layout_engine() is None:

@@ -761,7 +761,10 @@ class IsolatedEnv(gym.Env):
             ``(observation, info)``.
 
         Raises:
-            as :meth:`Worker.request`.
+            RemoteEnvError: the env raised (the worker lives on).
+            EnvCrashedError: the worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within the step timeout (the worker is killed).
+            AnswerTooLargeError: the answer would build far more than it weighs (the worker lives on).
         """
         if self._worker is not None and self._worker.dead is not None and self._options.restart and not self._closed:
             self._worker.close()
@@ -801,7 +804,10 @@ class IsolatedEnv(gym.Env):
             ``(observation, reward, terminated, truncated, info)``, exactly as the env returned them.
 
         Raises:
-            as :meth:`Worker.request`.
+            RemoteEnvError: the env raised (the worker lives on).
+            EnvCrashedError: the worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within the step timeout (the worker is killed).
+            AnswerTooLargeError: the answer would build far more than it weighs (the worker lives on).
         """
         fast = self._fast
         if fast is not None and type(action) is np.ndarray and action.dtype == fast[0] and action.shape == fast[1]:

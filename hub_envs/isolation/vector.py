@@ -209,7 +209,12 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
             ``(observations, rewards, terminations, truncations, infos)``, batched as ``SyncVectorEnv`` batches them.
 
         Raises:
-            as :meth:`hub_envs.isolation.proxy.Worker.request`, for the first worker that failed (the others are read).
+            RemoteEnvError: the env raised (the worker lives on).
+            EnvCrashedError: the worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within the step timeout (the worker is killed).
+            AnswerTooLargeError: the answer would build far more than it weighs (the worker lives on).
+
+        The first worker that failed raises; the others' answers are read.
         """
         space = self.single_action_space
         if (
@@ -262,6 +267,11 @@ class IsolatedVectorEnv(gym.vector.VectorEnv):
 
         Returns:
             One result per env.
+
+        Raises:
+            RemoteEnvError: an env's method raised (the worker lives on).
+            EnvCrashedError: a worker died, or sent what is not an answer (it is stopped).
+            EnvTimeoutError: no answer within the step timeout (the worker is killed).
         """
         results = self._all("vcall", [(name, args)] * len(self._workers))
         return tuple(r for rs in results for r in rs)

@@ -189,7 +189,8 @@ def audit(
         trust_remote_code: consent to run the repo's code for this call (else the trust list must hold repo@sha).
         seeds: the seeds of the determinism and rollout checks.
         steps: steps per rollout (0: the env's own time limit, at most 1000).
-        token, cache_dir: as for :func:`hub_envs.load_env`.
+        token: as for :func:`hub_envs.load_env`.
+        cache_dir: as for :func:`hub_envs.load_env`.
         output: a file to write the JSON report to (None: none).
 
     Returns:

@@ -118,7 +118,8 @@ def load_env(
         RegistrationConflictError, EnvCodeError: the code registers names of its own, or raises on import.
         FeatureMismatchError, FingerprintMismatchError: a load check failed.
         SandboxUnavailableError, IsolationUnavailableError: the isolation asked for cannot be made here.
-        All are :class:`~hub_envs.errors.HubEnvsError` s whose message says what to do next.
+
+    All are :class:`~hub_envs.errors.HubEnvsError` s whose message says what to do next.
 
     Example:
         >>> import gymnasium as gym

@@ -155,10 +155,14 @@ class LoadedEnv:
         """Fetch the bundled dataset's data files (``dataset/data/``, videos: load_env fetched its
         ``meta/`` only), verify each against the manifest's sha256, and return the dataset folder.
 
-        Once per LoadedEnv; files already in the cache are not downloaded again. None if the repo
-        has no dataset. Raises :class:`~hub_envs.errors.DatasetNotCachedError` offline when files
-        are missing, and :class:`~hub_envs.errors.IntegrityError` (the bad files are removed from
-        the cache) when a file differs from the manifest.
+        Once per LoadedEnv; files already in the cache are not downloaded again.
+
+        Returns:
+            The dataset folder of the snapshot, or None if the repo has no dataset.
+
+        Raises:
+            DatasetNotCachedError: offline, and files are missing from the cache.
+            IntegrityError: a file differs from the manifest (the bad files are removed from the cache).
         """
         root = self.dataset_meta_root
         if root is None or self._dataset_verified or self.is_local:
@@ -268,7 +272,19 @@ class LoadedEnv:
         features decode with the backend that works here (torchcodec if it loads, else pyav:
         :func:`hub_envs._compat.video_backend`) unless ``video_backend=`` is given. The MP4s of video features
         are checked to decode (a truncated or damaged file raises :class:`IntegrityError`, not a decode crash
-        inside a DataLoader)."""
+        inside a DataLoader).
+
+        Args:
+            **kwargs: more ``LeRobotDataset`` keywords (``episodes``, ``delta_timestamps``, ``video_backend``...).
+
+        Returns:
+            A ``lerobot.datasets.lerobot_dataset.LeRobotDataset`` rooted at the verified snapshot.
+
+        Raises:
+            InvalidRepoFormatError: the repo has no ``dataset/``.
+            DatasetNotCachedError: offline, and data files are missing (see :meth:`fetch_dataset`).
+            IntegrityError: a data file differs from the manifest, or a video does not decode.
+        """
         from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy: lerobot's datasets, torch
 
         root = self.fetch_dataset()

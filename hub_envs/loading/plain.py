@@ -176,7 +176,8 @@ def fetch_plain(ref: PlainRef, *, token: str | None = None, cache_dir: str | Pat
 
     Args:
         ref: the reference.
-        token, cache_dir: as for :func:`hub_envs.load_env`.
+        token: as for :func:`hub_envs.load_env`.
+        cache_dir: as for :func:`hub_envs.load_env`.
 
     Returns:
         The :class:`PlainSource`.

@@ -519,15 +519,17 @@ def compare(
         trust_remote_code: consent to run the env's code (or ``hub-envs trust`` its commit).
         trust_policy_code: consent to load the Hub checkpoints (they can run code; or ``hub-envs trust`` each).
         workers: processes (local; default up to 2) or Ray actors.
-        resamples, confidence: the bootstrap's resamples and level.
+        resamples: the bootstrap's resamples.
+        confidence: the bootstrap's confidence level.
         out: the reports' folder (default ``compare-out/<user>/<name>/``); ``write=False``: no files.
         progress: progress bars.
         token: the Hub token.
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`).
-        backend, ray_address: where the episodes run (:func:`hub_envs.make_backend`: ``"local"`` processes, or
+        backend: where the episodes run (:func:`hub_envs.make_backend`: ``"local"`` processes, or
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
+        ray_address: the Ray cluster with ``backend="ray"`` (default ``$RAY_ADDRESS``, else a local Ray for the run).
 
     Returns:
         The :class:`CompareReport` (written as ``report.json``, ``report.md`` and ``report.png`` unless ``write=False``).

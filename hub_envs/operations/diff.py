@@ -634,7 +634,8 @@ def diff(
     """Compare two revisions of an env repo (``"user/name@A"``, ``"user/name@B"``), or two env repos.
 
     Args:
-        old, new: ``user/name@rev`` (a branch, tag or sha; pin shas for a reproducible diff) or local folders.
+        old: ``user/name@rev`` (a branch, tag or sha; pin shas for a reproducible diff) or a local folder.
+        new: the other revision, as ``old``.
         episodes: replay the old revision's recorded actions of its first ``episodes`` dataset episodes on both.
         random_episodes: also run this many seeded random-action episodes on both (seeds 0, 1, ... other than the
             replayed episodes' seeds).

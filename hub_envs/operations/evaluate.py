@@ -140,7 +140,8 @@ def evaluate(
     Args:
         repo_id: ``user/name`` (``@rev`` allowed) or a local env folder. Pin a sha for a reproducible result.
         policy: see the module docstring.
-        episodes, seed: episode ``i`` resets with seed ``seed + i``.
+        episodes: how many episodes; episode ``i`` resets with seed ``seed + i``.
+        seed: the first episode's reset seed.
         max_steps: at most this many steps per episode (default: the env config's ``episode_length``).
         backend: ``"local"`` (``workers`` processes) or ``"ray"`` (``ray_address``, default ``$RAY_ADDRESS``, else
             a local Ray for the run); the result does not depend on it.

@@ -150,7 +150,10 @@ def env_from_dataset(
             folder, an env repo id (its bundled dataset) or a dataset repo id; ``@rev`` allowed.
         revision: the revision of ``path_or_repo_id`` when it is a repo id.
         env_revision: the env repo commit to use, skipping the search (it is still verified).
-        trust_remote_code, check, fingerprint, token: as for :func:`hub_envs.load_env`.
+        trust_remote_code: as for :func:`hub_envs.load_env`.
+        check: as for :func:`hub_envs.load_env`.
+        fingerprint: as for :func:`hub_envs.load_env`.
+        token: as for :func:`hub_envs.load_env`.
 
     Returns:
         A :class:`hub_envs.loading.loaded.LoadedEnv`; ``loaded.make()`` builds the env with the recorded kwargs.

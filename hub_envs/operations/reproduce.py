@@ -243,10 +243,12 @@ def reproduce(
             the report does not depend on it.
         tolerance: largest absolute difference accepted in the replay (0: bit-exact).
         out: folder for report.json/.md/.png (default ``reproduce-out/<user>/<name>/``).
-        replay, benchmarks: run those parts.
+        replay: replay the dataset's episodes.
+        benchmarks: re-run the declared benchmarks.
         episodes: replay only these episode indices (default: all).
         resamples: bootstrap resamples for the benchmark confidence intervals.
-        progress: progress bars. write: write the report files.
+        progress: progress bars.
+        write: write the report files.
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``, as
             :func:`hub_envs.load_env` takes them); isolated, the replay, the benchmarks and the fingerprint all
             step the env through its worker processes.
