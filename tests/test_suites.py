@@ -262,3 +262,56 @@ def test_lerobot_eval_reports_every_task_and_the_suite(hub_module, suite, one_st
     assert sorted((t["task_group"], t["task_id"]) for t in info["per_task"]) == [("reach-suite", i) for i in range(3)]
     assert all(len(t["metrics"]["sum_rewards"]) == 2 for t in info["per_task"])
     assert info["per_group"]["reach-suite"]["n_episodes"] == 6 and info["overall"]["n_episodes"] == 6
+
+
+# --- 4. reproduce: per task and for the suite ----------------------------------------------------------------------
+
+
+def test_reproduce_says_reproduced_per_task_and_for_the_suite(hub_module, suite, tmp_path, capsys):
+    code = cli_main(
+        [
+            "reproduce",
+            "--repo_id=alice/reach-suite",
+            f"--revision={suite.sha}",
+            "--trust_remote_code=true",
+            "--workers=1",
+            f"--out={tmp_path / 'out'}",
+        ]
+    )
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert f"REPRODUCED: alice/reach-suite@{suite.sha} (a suite of 3 tasks: 3 of 3 reproduced)" in printed
+    for i, task in enumerate(TASKS):
+        assert f"task {i} '{task}': REPRODUCED" in printed
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["verdict"] == "REPRODUCED" and report["suite"] == {"tasks": 3, "reproduced": 3}
+    for i, (task, part) in enumerate(zip(TASKS, report["tasks"], strict=True)):
+        assert (part["task"], part["task_index"], part["verdict"]) == (task, i, "REPRODUCED")
+        assert [e["episode"] for e in part["replay"]["episodes"]] == suite.manifest.tasks[i]["episodes"]
+        assert [b["name"] for b in part["benchmarks"]] == ["random-policy"] and part["benchmarks"][0]["passed"]
+        assert part["fingerprint"]["status"].startswith("matches")
+    assert "## Tasks" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_a_task_whose_dynamics_changed_is_the_one_not_reproduced(hub_module, suite, tmp_path):
+    from helpers import republish
+
+    from hub_envs import reproduce
+
+    def move_the_right_target(folder: Path) -> None:
+        code = folder / "reach_suite.py"
+        code.write_text(code.read_text().replace('"reach-right": 0.5}', '"reach-right": 0.55}'))
+
+    push_env(SUITE, "alice/reach-suite-edited", episodes=EPISODES, progress=False)
+    sha = republish(hub_module.api, "alice/reach-suite-edited", move_the_right_target)
+    report = reproduce("alice/reach-suite-edited", revision=sha, trust_remote_code=True, workers=1, write=False, progress=False)
+    assert not report.reproduced
+    assert [(t.task, t.reproduced) for t in report.tasks] == [
+        ("reach-left", True),
+        ("reach-center", True),
+        ("reach-right", False),
+    ]
+    right = report.tasks[2]
+    assert not right.replay.ok and right.fingerprint["status"] == "drifted"
+    assert {d.feature for e in right.replay.diverged for d in e.divergences} >= {"observation.environment_state"}
+    assert "task 2 'reach-right': NOT REPRODUCED" in report.summary()
