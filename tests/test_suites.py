@@ -142,7 +142,7 @@ def test_a_suite_is_one_commit_with_one_dataset_of_every_task(hub_module, suite)
 
 def test_pushing_an_unchanged_suite_again_builds_nothing_and_commits_nothing(hub_module, suite):
     again = push_env(SUITE, "alice/reach-suite", episodes=EPISODES, progress=False)
-    assert not again.created_commit and again.sha == suite.sha
+    assert not again.created_commit and again.sha == suite.sha and again.manifest.task_names == TASKS
     assert "build" not in again.timings  # main's manifest said it holds this suite: nothing was regenerated
     assert len(hub_module.api.list_repo_commits("alice/reach-suite")) == 2  # the initial one and the first push's
 
@@ -315,3 +315,26 @@ def test_a_task_whose_dynamics_changed_is_the_one_not_reproduced(hub_module, sui
     assert not right.replay.ok and right.fingerprint["status"] == "drifted"
     assert {d.feature for e in right.replay.diverged for d in e.divergences} >= {"observation.environment_state"}
     assert "task 2 'reach-right': NOT REPRODUCED" in report.summary()
+
+
+def test_evaluate_reports_each_task_and_the_suite_pooled(hub_module, suite, capsys):
+    from hub_envs import evaluate
+
+    whole = evaluate(f"alice/reach-suite@{suite.sha}", episodes=3, trust_remote_code=True, workers=1, progress=False)
+    assert [r.task for r in whole.per_task] == TASKS and whole.task is None
+    assert all(r.seeds == (0, 1, 2) for r in whole.per_task)  # every task over the same seeds, as lerobot-eval runs them
+    assert whole.returns == tuple(x for r in whole.per_task for x in r.returns)
+    one = evaluate(
+        f"alice/reach-suite@{suite.sha}", episodes=3, trust_remote_code=True, workers=1, progress=False, task="reach-right"
+    )
+    assert one.task == "reach-right" and one.returns == whole.per_task[2].returns and not one.per_task
+    assert one.returns != whole.per_task[0].returns  # another task: another env
+    code = cli_main(
+        ["evaluate", "--repo_id=alice/reach-suite", f"--revision={suite.sha}", "--trust_remote_code=true", "--episodes=3"]
+    )
+    printed = capsys.readouterr().out
+    assert code == 0 and "(3 tasks): 9 episodes of policy random" in printed
+    for task, r in zip(TASKS, whole.per_task, strict=True):
+        assert f"task {task!r}: mean return {r.metrics['mean_return']:.6g}" in printed
+    with pytest.raises(errors.ConfigError, match="is not one of its tasks"):
+        evaluate(f"alice/reach-suite@{suite.sha}", episodes=1, trust_remote_code=True, progress=False, task="reach-up")
