@@ -338,3 +338,31 @@ def test_evaluate_reports_each_task_and_the_suite_pooled(hub_module, suite, caps
         assert f"task {task!r}: mean return {r.metrics['mean_return']:.6g}" in printed
     with pytest.raises(errors.ConfigError, match="is not one of its tasks"):
         evaluate(f"alice/reach-suite@{suite.sha}", episodes=1, trust_remote_code=True, progress=False, task="reach-up")
+
+
+def test_compare_pairs_policies_per_task_and_pooled_over_the_suite(hub_module, suite, one_step_act, tmp_path):
+    from hub_envs.operations.compare import compare
+
+    report = compare(
+        f"alice/reach-suite@{suite.sha}",
+        ["random", str(one_step_act)],
+        episodes=3,
+        trust_remote_code=True,
+        trust_policy_code=True,
+        workers=1,
+        out=tmp_path / "cmp",
+        progress=False,
+    )
+    assert [t.task for t in report.tasks] == TASKS
+    for t in report.tasks:
+        assert [p.label for p in t.policies] == ["random", str(one_step_act)] and len(t.differences) == 1
+        a, b = t.policies
+        assert t.differences[0].returns.values == tuple(x - y for x, y in zip(a.returns.values, b.returns.values, strict=True))
+    random_per_task = [t.policies[0].returns.values for t in report.tasks]
+    assert len({v for v in random_per_task}) == 3  # each task in its own env
+    assert report.policies[0].returns.values == tuple(x for v in random_per_task for x in v)  # the suite: pooled
+    assert report.differences[0].returns.values == tuple(x for t in report.tasks for x in t.differences[0].returns.values)
+    assert "the suite (every task's episodes pooled, 9 per policy):" in report.summary()
+    saved = json.loads((tmp_path / "cmp" / "report.json").read_text())
+    assert [t["task"] for t in saved["tasks"]] == TASKS
+    assert "## Task `reach-left`" in (tmp_path / "cmp" / "report.md").read_text()
