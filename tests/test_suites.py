@@ -162,7 +162,7 @@ def test_a_one_task_env_is_published_as_before(hub_module):
 # --- 3. load_env: one task, or all ---------------------------------------------------------------------------------
 
 
-def test_load_env_makes_one_task_or_the_whole_suite(hub_module, suite):
+def test_load_env_makes_one_task_or_the_whole_suite(hub_module, suite, capsys):
     with load_env(f"alice/reach-suite@{suite.sha}", trust_remote_code=True) as loaded:
         assert loaded.is_suite and loaded.tasks == TASKS
         assert loaded.config.task == "reach-center"  # the default task
@@ -184,6 +184,8 @@ def test_load_env_makes_one_task_or_the_whole_suite(hub_module, suite):
         only["reach-suite"][2].close()
         with pytest.raises(errors.ConfigError, match="'reach-up' is not one of its tasks; it has"):
             loaded.for_task("reach-up")
+    assert cli_main(["load", "--repo_id=alice/reach-suite", f"--revision={suite.sha}", "--trust_remote_code=true"]) == 0
+    assert "tasks:       reach-left, reach-center, reach-right (default reach-center)" in capsys.readouterr().out
 
 
 # --- LeRobot: its own loader, --env.type=hub, lerobot-eval ------------------------------------------------------
