@@ -313,11 +313,12 @@ def check_suite(
                 f"{field_}: task {task!r} declares other features than the default task {default!r}; one dataset holds "
                 f"every task of a suite, so the config's features must not depend on the task."
             )
-        say(f"  task {index} {task!r}: determinism, gymnasium check_env, features")
         try:
-            check_env(view, seed=seed, determinism_steps=determinism_steps, where=f"{where} task {task!r}").close()
+            view.env_class(**view.config.gym_kwargs).close()
         except (TypeError, ValueError) as e:  # the env itself refused the task's keyword arguments
             raise EnvFolderError(f"{field_}: the env refuses task {task!r} ({type(e).__name__}: {e}).") from e
+        say(f"  task {index} {task!r}: determinism, gymnasium check_env, features")
+        check_env(view, seed=seed, determinism_steps=determinism_steps, where=f"{where} task {task!r}").close()
         out.append(SuiteTask(task, index, view, task_instruction(view.make, task, seed=seed)))
     said = [t.instruction for t in out]
     twice = sorted({x for x in said if said.count(x) > 1})

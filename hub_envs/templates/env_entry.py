@@ -350,7 +350,7 @@ def _published_config(config_class, manifest: dict, **fields):
         import draccus  # LeRobot's config library, present wherever LeRobot runs this file
 
         hints = typing.get_type_hints(config_class)  # field by field: EnvConfig is a draccus choice registry
-        return config_class(**{name: draccus.decode(hints[name], value) for name, value in overrides.items()}, **fields)
+        return config_class(**{**{name: draccus.decode(hints[name], value) for name, value in overrides.items()}, **fields})
     return config_class(**fields)
 
 
