@@ -273,8 +273,8 @@ def check_suite(
     where: str,
     say: Callable[[str], None] = lambda _: None,
 ) -> list[SuiteTask]:
-    """A suite's tasks (``[tool.hub-envs] tasks``), each checked as a one-task env is (:func:`check_env`), and their
-    instructions. Every task must be a value the config and the env accept, with the features of the config's default
+    """A suite's tasks (``[tool.hub-envs] tasks``), each checked as a one-task env is (:func:`check_env`; the default
+    task's env was, by :func:`build`), and their instructions. Every task must be a value the config and the env accept, with the features of the config's default
     task (one dataset holds them all), and the default task must be one of them.
 
     Args:
@@ -317,8 +317,9 @@ def check_suite(
             view.env_class(**view.config.gym_kwargs).close()
         except (TypeError, ValueError) as e:  # the env itself refused the task's keyword arguments
             raise EnvFolderError(f"{field_}: the env refuses task {task!r} ({type(e).__name__}: {e}).") from e
-        say(f"  task {index} {task!r}: determinism, gymnasium check_env, features")
-        check_env(view, seed=seed, determinism_steps=determinism_steps, where=f"{where} task {task!r}").close()
+        if task != default:  # the default task's env is the one build() checked already
+            say(f"  task {index} {task!r}: determinism, gymnasium check_env, features")
+            check_env(view, seed=seed, determinism_steps=determinism_steps, where=f"{where} task {task!r}").close()
         out.append(SuiteTask(task, index, view, task_instruction(view.make, task, seed=seed)))
     said = [t.instruction for t in out]
     twice = sorted({x for x in said if said.count(x) > 1})
