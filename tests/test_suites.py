@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import urllib.request
 from pathlib import Path
 
 import draccus
@@ -138,6 +139,9 @@ def test_a_suite_is_one_commit_with_one_dataset_of_every_task(hub_module, suite)
     assert "## Tasks" in card
     for i, task in enumerate(TASKS):
         assert f"| {i} | `{task}` | {INSTRUCTIONS[task]} |" in card
+    page = urllib.request.urlopen(f"{hub_module.endpoint}/alice/reach-suite").read().decode()  # the Hub's web page
+    table = page[page.index("<table", page.index(">Tasks</h2>")) :]
+    assert all(f"<code>{t}</code>" in table and INSTRUCTIONS[t] in table for t in TASKS)
 
 
 def test_pushing_an_unchanged_suite_again_builds_nothing_and_commits_nothing(hub_module, suite):
