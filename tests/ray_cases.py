@@ -148,6 +148,29 @@ def test_push_on_ray_publishes_exactly_what_the_local_backend_publishes(cluster,
     assert on_ray.manifest.dataset["episodes"] == 4 and on_ray.manifest.dataset["env_states"]
 
 
+def test_a_suite_pushes_and_reproduces_task_by_task_on_ray(cluster, hub_module):
+    """Each task's episodes run in that task's env on the workers (the task travels with the env's source): the
+    same commit as the local backend's, and every task reproduced on Ray."""
+    suite = Path(__file__).resolve().parent / "fixtures" / "suite_env"
+    local = push_env(suite, "ray/suite", episodes=2, workers=1, progress=False)
+    on_ray = push_env(suite, "ray/suite", episodes=2, backend="ray", ray_address=cluster.address, force=True, progress=False)
+    assert on_ray.created_commit is False and on_ray.sha == local.sha and on_ray.manifest.files == local.manifest.files
+    report = reproduce(
+        "ray/suite",
+        revision=local.sha,
+        trust_remote_code=True,
+        backend="ray",
+        ray_address=cluster.address,
+        write=False,
+        progress=False,
+    )
+    assert report.reproduced and [(t.task, t.reproduced) for t in report.tasks] == [
+        ("reach-left", True),
+        ("reach-center", True),
+        ("reach-right", True),
+    ]
+
+
 # --- reproduce -----------------------------------------------------------------------------------
 
 

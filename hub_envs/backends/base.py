@@ -31,7 +31,8 @@ class EnvSource:
     the same way, so with ``isolation="process"`` the env's code runs in a worker process of the Ray worker.
     ``content_digest`` is the manifest's content digest the driver's consent covers: a worker's load refuses a
     commit that holds anything else (its path to the Hub may differ from the driver's). ``token`` is the Hub
-    token the worker downloads with (None: the worker node's own, if it has one).
+    token the worker downloads with (None: the worker node's own, if it has one). ``task``: the suite task the env makes
+    (:meth:`~hub_envs.loading.loaded.LoadedEnv.for_task`; None: the published config's), named in ``identity`` too.
     """
 
     ref: str
@@ -42,6 +43,7 @@ class EnvSource:
     token: str | None = field(default=None, repr=False)
     isolation: dict[str, Any] = field(default_factory=dict)
     content_digest: str | None = None
+    task: str | None = None
 
     @classmethod
     def from_loaded(cls, loaded: Any) -> EnvSource:
@@ -55,25 +57,29 @@ class EnvSource:
             A Hub repo's ``user/name@<sha>`` with its content digest, or a local folder's files as a tar archive.
         """
         isolation = loaded.isolation.load_kwargs() if getattr(loaded, "isolation", None) is not None else {}
+        task = getattr(loaded, "task", None)
+        of_task = f"#task={task}" if task is not None else ""  # a suite task's episodes are other episodes
         if loaded.local_folder is not None:
             values = encode_config(loaded.config)
             config = {name: values[name] for name in sorted(loaded.manifest.config_overrides)}
             return cls(
                 ref=Path(loaded.local_folder).name,
-                identity=f"{loaded.repo_id}@{loaded.revision}",
+                identity=f"{loaded.repo_id}@{loaded.revision}{of_task}",
                 folder=_tar_folder(Path(loaded.local_folder)),
                 config=config,
                 isolation=isolation,
+                task=task,
             )
         ref = f"{loaded.repo_id}@{loaded.revision}"
         digest = loaded.manifest.content_digest
         return cls(
             ref=ref,
-            identity=f"{ref}#{digest}",  # a commit id alone is what the endpoint says it is: the content is named too
+            identity=f"{ref}#{digest}{of_task}",  # a commit id alone is what the endpoint says it is: the content is named too
             trust_remote_code=True,
             token=getattr(loaded, "token", None),
             isolation=isolation,
             content_digest=digest,
+            task=task,
         )
 
     def load(self, scratch: Path | None = None) -> Any:
@@ -89,6 +95,10 @@ class EnvSource:
             UntrustedCodeError: the commit holds other content than the driver's consent covers.
             hub_envs.errors.HubEnvsError: as :func:`hub_envs.load_env`.
         """
+        loaded = self._load(scratch)
+        return loaded.for_task(self.task) if self.task is not None else loaded
+
+    def _load(self, scratch: Path | None) -> Any:
         if self.folder is None:
             return load_env(
                 self.ref,

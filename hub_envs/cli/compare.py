@@ -26,6 +26,7 @@ class Config(EnvFlags):
     backend: str = "local"  # where the episodes run: local (this machine's processes) or ray (a Ray cluster)
     ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     json: bool = False  # print the JSON report to stdout instead of the summary
+    task: str | None = None  # a benchmark suite: the task(s) to compare on, comma-separated (default: all, and pooled)
 
 
 def main(config: Config) -> int:
@@ -61,6 +62,7 @@ def main(config: Config) -> int:
         out=config.out,
         backend=config.backend,
         ray_address=config.ray_address,
+        task=config.task,
         **code_run(config),
     )
     if config.json:

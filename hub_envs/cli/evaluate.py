@@ -25,6 +25,7 @@ class Config(EnvFlags):
     ray_address: str | None = None  # --backend=ray: the cluster; default $RAY_ADDRESS, else a local Ray for the run
     out: Path | None = None  # eval.json here; on Ray also the finished shards (a re-run skips them)
     json: bool = False  # print the result as JSON
+    task: str | None = None  # a benchmark suite: the task(s) to evaluate, comma-separated (default: all, each reported)
 
 
 def main(config: Config) -> int:
@@ -56,6 +57,7 @@ def main(config: Config) -> int:
         workers=config.workers or None,
         ray_address=config.ray_address,
         out=config.out,
+        task=config.task,
         **code_run(config),
     )
     print(json.dumps(result.to_dict(), indent=2) if config.json else result.summary(), file=sys.stdout)

@@ -58,6 +58,7 @@ def main(config: Config) -> int:
                     "env_type": loaded.env_type,
                     "path": str(loaded.path),
                     "isolation": _isolation_text(loaded),
+                    "tasks": loaded.tasks,
                     "report": loaded.report.to_dict(),
                 },
                 indent=2,
@@ -67,6 +68,8 @@ def main(config: Config) -> int:
     print(f"Loaded {loaded.repo_id} at {loaded.revision}")
     print(f"  gym id:      {loaded.gym_id}")
     print(f"  --env.type:  {loaded.env_type}")
+    if loaded.is_suite:  # a benchmark suite: --env.task=a,b picks tasks (default all), loaded.for_task(name) makes one
+        print(f"  tasks:       {', '.join(loaded.tasks)} (default {loaded.config.task})")
     print(f"  snapshot:    {loaded.path}")
     print(f"  runs:        {_isolation_text(loaded)}")
     print(f"  integrity:   {loaded.report.integrity}")

@@ -56,7 +56,7 @@ import os
 import shutil
 import uuid
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -120,12 +120,14 @@ class EpisodeFrames:
 
     ``index`` must count 0, 1, 2, ... in the order episodes are given; ``seed`` is the reset seed
     (recorded in the metadata; ``None`` if unknown). A ``"timestamp"`` array may be given to
-    override the default ``frame_index / fps``.
+    override the default ``frame_index / fps``. ``task_index`` is the episode's task in a dataset of several
+    (``write_lerobot_dataset(task=[...])``): every frame's ``task_index``.
     """
 
     index: int
     seed: int | None
     frames: dict[str, np.ndarray]
+    task_index: int = 0
 
     @property
     def length(self) -> int:
@@ -335,6 +337,7 @@ class _Episode:
     seed: int | None
     length: int
     columns: dict[str, np.ndarray]  # numeric columns, cast; images as uint8 (T, H, W, C)
+    task_index: int = 0
     pngs: dict[str, list[bytes]] = field(default_factory=dict)
     videos: dict[str, tuple[Path, float, int]] = field(default_factory=dict)  # key -> (mp4, duration s, bytes)
     digests: dict[str, str] = field(default_factory=dict)  # video key -> frames_sha256 of the frames before encoding
@@ -357,7 +360,7 @@ class _Writer:
         tmp: Path,
         features: dict[str, dict],
         fps: int,
-        task: str,
+        task: str | tuple[str, ...],
         chunks_size: int,
         file_mb: float,
         video_file_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
@@ -368,7 +371,7 @@ class _Writer:
         self.tmp = tmp
         self.features = features
         self.fps = fps
-        self.task = task
+        self.tasks = (task,) if isinstance(task, str) else tuple(task)  # by task_index
         self.chunks_size = chunks_size
         self.file_mb = file_mb
         self.file_bytes_limit = file_mb * 2**20
@@ -477,11 +480,14 @@ class _Writer:
         cols["frame_index"] = frame_index
         cols["episode_index"] = np.full(length, ep.index, dtype=np.int64)
         cols["index"] = np.arange(start, start + length, dtype=np.int64)
-        cols["task_index"] = np.zeros(length, dtype=np.int64)
+        task_index = int(getattr(ep, "task_index", 0))
+        if not 0 <= task_index < len(self.tasks):
+            raise DatasetError(f"{where}: task_index {task_index} names no task; the dataset has {len(self.tasks)}.")
+        cols["task_index"] = np.full(length, task_index, dtype=np.int64)
         seed = None if ep.seed is None else int(ep.seed)
         self.n_pending += 1
         self.frames_pending += length
-        return _Episode(ep.index, seed, int(length), cols)
+        return _Episode(ep.index, seed, int(length), cols, task_index=task_index)
 
     def _image(self, where: str, key: str, arr: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
         h, w, c = shape
@@ -559,7 +565,7 @@ class _Writer:
 
         row = {
             "episode_index": ep.index,
-            "tasks": [self.task],
+            "tasks": [self.tasks[ep.task_index]],
             "length": n,
             "data/chunk_index": chunk,
             "data/file_index": file,
@@ -692,7 +698,7 @@ class _Writer:
             self.meta_writer = None
         tasks_path = self.tmp / TASKS_PATH
         tasks_path.parent.mkdir(parents=True, exist_ok=True)
-        tasks_path.write_bytes(_tasks_parquet(self.task))
+        tasks_path.write_bytes(_tasks_parquet(self.tasks))
         stats = {key: {stat: value.tolist() for stat, value in st.items()} for key, st in (self.stats or {}).items()}
         _write_json(self.tmp / STATS_PATH, stats)
         hub_envs_info: dict[str, Any] = {"seeds": list(self.seeds), "stats": STATS_NOTE}
@@ -705,7 +711,7 @@ class _Writer:
             "robot_type": robot_type,
             "total_episodes": self.n_episodes,
             "total_frames": self.total_frames,
-            "total_tasks": 1,
+            "total_tasks": len(self.tasks),
             "chunks_size": self.chunks_size,
             "data_files_size_in_mb": self.file_mb,
             "video_files_size_in_mb": self.video_file_mb,
@@ -731,16 +737,17 @@ class _Writer:
 
 
 @functools.lru_cache(maxsize=16)
-def _tasks_parquet(task: str) -> bytes:
-    """``meta/tasks.parquet`` of a one-task dataset, in the layout the installed LeRobot's own writer gives (pandas;
-    its index name changed in 0.5). The same bytes for the same task: made once per task (pandas' writer costs
-    more than a small dataset's other metadata)."""
+def _tasks_parquet(tasks: tuple[str, ...]) -> bytes:
+    """``meta/tasks.parquet``: each task's text and its ``task_index``, in the layout the installed LeRobot's own writer
+    gives (pandas; its index name changed in 0.5). The same bytes for the same tasks: made once per tuple (pandas'
+    writer costs more than a small dataset's other metadata)."""
     import io
 
     import pandas as pd
 
     buffer = io.BytesIO()
-    pd.DataFrame({"task_index": [0]}, index=pd.Index([task], name=tasks_index_name())).to_parquet(buffer)
+    frame = pd.DataFrame({"task_index": list(range(len(tasks)))}, index=pd.Index(list(tasks), name=tasks_index_name()))
+    frame.to_parquet(buffer)
     return buffer.getvalue()
 
 
@@ -767,7 +774,7 @@ def write_lerobot_dataset(
     fps: int,
     features: Mapping[str, Mapping],
     episodes: Iterable[EpisodeFrames],
-    task: str,
+    task: str | Sequence[str],
     robot_type: str | None = None,
     extra_info: Mapping[str, Any] | None = None,
     progress: bool = True,
@@ -790,7 +797,8 @@ def write_lerobot_dataset(
             dtype ``"image"`` (shape ``[H, W, C]``, PNG in the parquet), ``"video"`` (shape ``[H, W, 3]``,
             MP4 files encoded by LeRobot's own encoder: :mod:`hub_envs.dataset.video`) or a numpy dtype name.
         episodes: :class:`EpisodeFrames`, consumed one at a time (memory stays bounded).
-        task: the natural-language task of every frame (``meta/tasks.parquet``).
+        task: the natural-language task of every frame (``meta/tasks.parquet``); or the tasks of a dataset of several, by
+            ``task_index`` (each episode's :attr:`EpisodeFrames.task_index`; distinct texts: LeRobot indexes them by text).
         robot_type: ``info.json["robot_type"]``.
         extra_info: merged into ``meta/hub_envs.json`` next to ``"seeds"`` (JSON values only).
         progress: show a progress bar.
@@ -810,8 +818,9 @@ def write_lerobot_dataset(
     root = Path(root)
     if not isinstance(fps, (int, np.integer)) or isinstance(fps, bool) or fps <= 0:
         raise ConfigError(f"fps={fps!r}: pass a positive integer.")
-    if not isinstance(task, str) or not task:
-        raise ConfigError("task must be a non-empty string (LeRobot stores one task per frame).")
+    tasks = (task,) if isinstance(task, str) else tuple(task)
+    if not tasks or not all(isinstance(t, str) and t for t in tasks) or len(set(tasks)) != len(tasks):
+        raise ConfigError("task must be a non-empty string, or a list of distinct ones (LeRobot stores one task per frame).")
     if chunks_size < 1 or data_files_size_in_mb <= 0 or video_files_size_in_mb <= 0:
         raise ConfigError("chunks_size, data_files_size_in_mb and video_files_size_in_mb must be positive.")
     if video_gop is not None:
@@ -827,7 +836,7 @@ def write_lerobot_dataset(
         raise DatasetError(f"Cannot create the dataset folder next to {root}: {exc}. Check the path and permissions.") from exc
 
     writer = _Writer(
-        tmp, feats, int(fps), task, int(chunks_size), data_files_size_in_mb, video_files_size_in_mb, video_gop=video_gop
+        tmp, feats, int(fps), tasks, int(chunks_size), data_files_size_in_mb, video_files_size_in_mb, video_gop=video_gop
     )
     try:
         total = len(episodes)  # type: ignore[arg-type]

@@ -23,7 +23,7 @@ from hub_envs.harness.provenance import DRIFT_KINDS, difference_text
 from hub_envs.harness.replay import ReplayResult
 from hub_envs.harness.report_files import REPORT_JSON, REPORT_MD, REPORT_PNG, ReportFiles, save_figure, seeds_text
 
-__all__ = ["ReproduceReport", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
+__all__ = ["ReproduceReport", "TaskReproduction", "REPORT_JSON", "REPORT_MD", "REPORT_PNG"]
 
 
 def _fmt(x: Any, digits: int = 6) -> str:
@@ -55,8 +55,54 @@ def jsonable(value: Any) -> Any:
 
 
 @dataclass
+class TaskReproduction:
+    """What the reproduction of one task of a benchmark suite found: its episodes' replay, its benchmarks, its
+    golden-rollout fingerprint. ``reproduced`` is True when every part that ran passed."""
+
+    task: str
+    task_index: int
+    replay: ReplayResult | None
+    benchmarks: list[BenchmarkResult]
+    fingerprint: dict[str, Any]
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        """``{part: passed}`` of the parts that ran."""
+        out: dict[str, bool] = {}
+        if self.replay is not None:
+            out["replay"] = self.replay.ok
+        for b in self.benchmarks:
+            out[f"benchmark {b.name}"] = b.passed
+        if self.fingerprint.get("status") not in (None, "off", "none recorded"):
+            out["fingerprint"] = bool(self.fingerprint.get("ok"))
+        return out
+
+    @property
+    def reproduced(self) -> bool:
+        return all(self.checks.values())
+
+    def verdict(self) -> str:
+        """``REPRODUCED`` or ``NOT REPRODUCED``."""
+        return "REPRODUCED" if self.reproduced else "NOT REPRODUCED"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The task's part of ``report.json``."""
+        return {
+            "task": self.task,
+            "task_index": self.task_index,
+            "reproduced": self.reproduced,
+            "verdict": self.verdict(),
+            "checks": self.checks,
+            "replay": self.replay.to_dict() if self.replay is not None else None,
+            "benchmarks": [b.to_dict() for b in self.benchmarks],
+            "fingerprint": self.fingerprint,
+        }
+
+
+@dataclass
 class ReproduceReport(ReportFiles):
-    """What a reproduction found. ``reproduced`` is True when every part that ran passed."""
+    """What a reproduction found. ``reproduced`` is True when every part that ran passed; for a benchmark suite, every
+    part of every task (``tasks``: one :class:`TaskReproduction` each)."""
 
     repo_id: str
     sha: str
@@ -68,17 +114,18 @@ class ReproduceReport(ReportFiles):
     settings: dict[str, Any] = field(default_factory=dict)
     paths: dict[str, str] = field(default_factory=dict)  # where write() put the files
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (load, replay, benchmarks, ...)
+    tasks: list[TaskReproduction] = field(default_factory=list)  # a suite's tasks, each reproduced on its own
 
     # -- verdict --
 
     @property
     def checks(self) -> dict[str, bool]:
-        out: dict[str, bool] = {}
+        out: dict[str, bool] = {f"task {t.task}: {part}": ok for t in self.tasks for part, ok in t.checks.items()}
         if self.replay is not None:
             out["replay"] = self.replay.ok
         for b in self.benchmarks:
             out[f"benchmark {b.name}"] = b.passed
-        if self.fingerprint.get("status") not in (None, "off", "none recorded"):
+        if self.fingerprint.get("status") not in (None, "off", "none recorded", "per task"):
             out["fingerprint"] = bool(self.fingerprint.get("ok"))
         return out
 
@@ -134,6 +181,18 @@ class ReproduceReport(ReportFiles):
     def summary(self) -> str:
         """A few lines for the terminal."""
         lines = [f"{self.verdict()}: {self.repo_id}@{self.sha}"]
+        if self.tasks:
+            done = sum(t.reproduced for t in self.tasks)
+            lines[0] += f" (a suite of {len(self.tasks)} tasks: {done} of {len(self.tasks)} reproduced)"
+        for t in self.tasks:
+            lines.append(f"  task {t.task_index} {t.task!r}: {t.verdict()}")
+            if t.replay is not None:
+                lines.append("    " + t.replay.summary())
+                for ep in t.replay.diverged[:1]:
+                    lines += ["      " + d.describe() for d in ep.divergences[:3]]
+            for b in t.benchmarks:
+                lines.append("    " + b.summary())
+            lines.append(f"    golden-rollout fingerprint: {t.fingerprint.get('status')}")
         if self.replay is not None:
             lines.append("  " + self.replay.summary())
             shown = self.replay.diverged[:2]
@@ -153,10 +212,11 @@ class ReproduceReport(ReportFiles):
             if not b.passed and not b.error:
                 lines.append(f"    episodes whose result differs: {b.episodes_differing}; {self.versions_note()}")
         fp = self.fingerprint
-        lines.append(
-            f"  golden-rollout fingerprint: {fp.get('status')}"
-            + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else "")
-        )
+        if not self.tasks:
+            lines.append(
+                f"  golden-rollout fingerprint: {fp.get('status')}"
+                + (f" ({fp['message']})" if fp.get("message") and not fp.get("ok") else "")
+            )
         lines.append(f"  stack: {self.versions_note()}")
         command = self.publisher_versions_command()
         if command:
@@ -181,6 +241,14 @@ class ReproduceReport(ReportFiles):
                 "notes": self.notes,
                 "provenance": self.provenance,
                 "timings": self.timings,
+                **(
+                    {
+                        "tasks": [t.to_dict() for t in self.tasks],
+                        "suite": {"tasks": len(self.tasks), "reproduced": sum(t.reproduced for t in self.tasks)},
+                    }
+                    if self.tasks
+                    else {}
+                ),
             }
         )
 
@@ -194,6 +262,20 @@ class ReproduceReport(ReportFiles):
             + ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in self.checks.items()),
             "",
         ]
+        if self.tasks:
+            out += [
+                "## Tasks",
+                "",
+                "| task id | task | verdict | replay | benchmarks | golden-rollout fingerprint |",
+                "|---|---|---|---|---|---|",
+            ]
+            for t in self.tasks:
+                replay = t.replay.summary() if t.replay is not None else "not run"
+                benches = "; ".join(b.summary() for b in t.benchmarks) or "none"
+                out.append(
+                    f"| {t.task_index} | `{t.task}` | **{t.verdict()}** | {replay} | {benches} | {t.fingerprint.get('status')} |"
+                )
+            out.append("")
         if self.replay is not None:
             r = self.replay
             how = "exactly" if r.tolerance == 0 else f"within an absolute tolerance of {r.tolerance:g}"
@@ -264,12 +346,13 @@ class ReproduceReport(ReportFiles):
                 "",
             ]
         fp = self.fingerprint
-        out += [
-            "## Golden-rollout fingerprint",
-            "",
-            f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""),
-            "",
-        ]
+        if not self.tasks:
+            out += [
+                "## Golden-rollout fingerprint",
+                "",
+                f"{fp.get('status')}" + (f": {fp.get('message')}" if fp.get("message") else ""),
+                "",
+            ]
         if self.version_differences:
             out += [
                 "## Versions that differ",
@@ -352,7 +435,7 @@ class ReproduceReport(ReportFiles):
         import matplotlib.pyplot as plt  # heavy: matplotlib
 
         panels: list[tuple[str, Any]] = []
-        for b in self.benchmarks:
+        for b in self.benchmarks + [b for t in self.tasks for b in t.benchmarks]:
             if b.reproduced_per_episode.get("return"):
                 panels.append(("returns", b))
         diverged = self.replay.diverged if self.replay is not None else []

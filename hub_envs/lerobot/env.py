@@ -132,7 +132,9 @@ class HubEnv(EnvConfig):
             from the command line (``--env.trust_remote_code=true``) or a Python call: never read from a
             ``--config_path`` file, and always saved as ``false`` (a shared config cannot carry consent).
         overrides: values for the repo config's own fields, e.g. ``--env.overrides='{obs_type: pixels_agent_pos}'``.
-        task, fps, episode_length: override the repo config's (default: the repo's).
+        task, fps, episode_length: override the repo config's (default: the repo's). A benchmark suite: ``task`` names
+            the tasks to make, comma-separated as LeRobot's multi-task configs do (default: all of them), each its own
+            task id in ``{suite: {task id: VectorEnv}}``, so ``lerobot-eval`` reports every task and the suite.
         fingerprint: ``error`` / ``warn`` / ``off``, what a drifted golden rollout does at load.
         check: run load_env's feature and fingerprint checks.
         isolation, sandbox, versions: run the env in worker processes / a sandbox / a venv of the publisher's
@@ -165,6 +167,10 @@ class HubEnv(EnvConfig):
         )
         where = f"{loaded.repo_id}@{loaded.revision}"
         overrides = dict(self.overrides or {})
+        self._suite_tasks = suite_selection(loaded, self.task if loaded.is_suite else None, where=where)
+        if self._suite_tasks:  # the suite's tasks, each made with its own config (create_envs)
+            overrides["task"] = self._suite_tasks[0]  # the features are the same for every task (push_env checks it)
+            self.task = None
         for name in ("task", "fps", "episode_length"):
             if getattr(self, name) is not None and (
                 loaded.config_class is not None or getattr(self, name) != getattr(loaded.config, name, None)
@@ -176,9 +182,10 @@ class HubEnv(EnvConfig):
         env_cfg = loaded.config_with(overrides) if overrides else loaded.config
         self._loaded = loaded
         self._env_config = env_cfg
+        self._overrides = overrides
         if not loaded.is_local:
             self.repo_id, self.revision = loaded.repo_id, loaded.revision
-        self.task = env_cfg.task
+        self.task = ",".join(self._suite_tasks) if self._suite_tasks else env_cfg.task
         self.fps = int(env_cfg.fps)
         self.episode_length = int(env_cfg.episode_length)
         self.features = dict(env_cfg.features)
@@ -221,8 +228,11 @@ class HubEnv(EnvConfig):
             use_async_envs: one process each.
 
         Returns:
-            ``{name: {0: VectorEnv}}``.
+            ``{name: {0: VectorEnv}}``; a suite: ``{name: {task id: VectorEnv}}`` of the tasks ``task`` names (default all).
         """
+        if self._suite_tasks:
+            configs = {t: self._loaded.config_with({**self._overrides, "task": t}) for t in self._suite_tasks}
+            return suite_vec_envs(self._loaded, configs, n_envs, use_async_envs)
         return {self._loaded.manifest.name: {0: make_vec_env(self._loaded, self._env_config, n_envs, use_async_envs)}}
 
     def get_env_processors(self):
@@ -234,12 +244,61 @@ class HubEnv(EnvConfig):
 
 
 class TaskDescription(gym.Wrapper):
-    """Exposes the config's ``task`` string to LeRobot's eval loop (``add_envs_task`` reads it)."""
+    """Exposes the config's ``task`` string (and a suite task's instruction) to LeRobot's eval loop (``add_envs_task``)."""
 
-    def __init__(self, env: gym.Env, task: str):
+    def __init__(self, env: gym.Env, task: str, description: str | None = None):
         super().__init__(env)
         self.task = task
-        self.task_description = task
+        self.task_description = description or task
+
+
+def suite_selection(loaded: LoadedEnv, task: str | None, *, where: str) -> list[str]:
+    """The suite tasks a LeRobot config names: ``task`` comma-separated (LeRobot's multi-task convention), or all.
+
+    Args:
+        loaded: the load (a one-task env: ``[]``).
+        task: the config's ``task`` (None: all the suite's tasks).
+        where: names the repo in messages.
+
+    Returns:
+        The task names, in the order given (``[]`` for a one-task env).
+
+    Raises:
+        ConfigError: a name that is not one of the suite's tasks (the message lists them).
+    """
+    if not loaded.is_suite:
+        return []
+    if not task:
+        return list(loaded.tasks)
+    chosen = [t.strip() for t in str(task).split(",") if t.strip()]
+    unknown = [t for t in chosen if t not in loaded.tasks]
+    if unknown or not chosen:
+        raise ConfigError(
+            f"{where}: --env.task={task!r} names {unknown or 'nothing'}, not tasks of this suite; its tasks are "
+            f"{loaded.tasks} (name one or several, comma-separated, or leave --env.task out for all)."
+        )
+    return chosen
+
+
+def suite_vec_envs(
+    loaded: LoadedEnv, configs: dict[str, EnvConfig], n_envs: int = 1, use_async_envs: bool = False
+) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+    """A suite's tasks as LeRobot's ``make_env`` returns a multi-task benchmark: ``{suite name: {task id: VectorEnv}}``,
+    each task's envs made from its config (:func:`make_vec_env`) and stating its instruction as ``task_description``.
+
+    Args:
+        loaded: a suite's load.
+        configs: ``{task name: its config}`` of the tasks to make.
+        n_envs, use_async_envs: per task, as :func:`make_vec_env`.
+
+    Returns:
+        The mapping; the task id is the task's index in ``loaded.tasks``.
+    """
+    out = {}
+    for task, cfg in configs.items():
+        record = loaded.manifest.task_record(task)
+        out[record["task_index"]] = make_vec_env(loaded, cfg, n_envs, use_async_envs, description=record["instruction"])
+    return {loaded.manifest.name: out}
 
 
 def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
@@ -265,7 +324,11 @@ def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:
 
 
 def make_vec_env(
-    loaded: LoadedEnv, cfg: EnvConfig | None = None, n_envs: int = 1, use_async_envs: bool = False
+    loaded: LoadedEnv,
+    cfg: EnvConfig | None = None,
+    n_envs: int = 1,
+    use_async_envs: bool = False,
+    description: str | None = None,
 ) -> gym.vector.VectorEnv:
     """``n_envs`` copies of a loaded env, as LeRobot's eval loop expects them: ``AutoresetMode.SAME_STEP`` (so
     ``info["final_info"]["is_success"]`` is there), the config's ``episode_length`` as time limit, its ``task`` exposed as
@@ -276,6 +339,7 @@ def make_vec_env(
         cfg: a config instance (default: the published one).
         n_envs: how many envs.
         use_async_envs: one process each.
+        description: the ``task_description`` the envs state (default: the config's ``task``).
 
     Returns:
         The vector env.
@@ -293,7 +357,7 @@ def make_vec_env(
         env = gym.make(gym_id, max_episode_steps=steps, disable_env_checker=True, **kwargs)
         if isinstance(env.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete)):
             env = IntegerActions(env)  # LeRobot's policies give floats
-        return TaskDescription(env, task) if task is not None else env
+        return TaskDescription(env, task, description) if task is not None else env
 
     fns = [_one for _ in range(n_envs)]
     mode = gym.vector.AutoresetMode.SAME_STEP
@@ -324,6 +388,10 @@ def make_env(
             cfg, n_envs=n_envs, use_async_envs=use_async_envs, hub_cache_dir=hub_cache_dir, trust_remote_code=trust_remote_code
         )
     loaded, env_cfg = found
+    if isinstance(cfg, HubEnv):
+        return cfg.create_envs(n_envs, use_async_envs)  # a suite's tasks, or the one env
+    if loaded.is_suite:  # the repo's own config (--env.type=<its choice>): the task it names, with its task id
+        return suite_vec_envs(loaded, {env_cfg.task: env_cfg}, n_envs, use_async_envs)
     return {loaded.manifest.name: {0: make_vec_env(loaded, env_cfg, n_envs, use_async_envs)}}
 
 
@@ -462,6 +530,7 @@ __all__ = [
     "set_cli_consent",
     "make_env_pre_post_processors",
     "make_vec_env",
+    "suite_vec_envs",
     "make_dataset",
     "make_train_eval_datasets",
     "keep_declared_shapes",

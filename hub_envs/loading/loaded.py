@@ -3,7 +3,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import copy
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,67 @@ class LoadedEnv:
         self._dataset_verified = False
         self._unregistered = False
         self._earlier: LoadedEnv | None = None  # the load of the same env_type this one replaced in _LOADED (remember)
+        self._task: str | None = None  # a suite's task this handle makes (for_task); None: the published config's
+
+    # -- a benchmark suite --
+    @property
+    def tasks(self) -> list[str]:
+        """A suite's tasks (values of the config's ``task`` field, in task-id order); ``[]`` for a one-task env."""
+        return self.manifest.task_names
+
+    @property
+    def is_suite(self) -> bool:
+        """Whether the repo is a benchmark suite (several tasks, ``[tool.hub-envs] tasks``)."""
+        return bool(self.manifest.tasks)
+
+    @property
+    def task(self) -> str | None:
+        """The suite task this handle makes (:meth:`for_task`); None: the published config's own."""
+        return self._task
+
+    def for_task(self, task: str) -> LoadedEnv:
+        """This env, making one task of its suite: ``make``, ``make_vec``, ``config`` and the backends follow it.
+
+        Shares this load's registration and imported code (releasing it stays with this handle).
+
+        Args:
+            task: one of :attr:`tasks`.
+
+        Returns:
+            A :class:`LoadedEnv` whose config has ``task`` set.
+
+        Raises:
+            ConfigError: not one of the suite's tasks (the message lists them).
+        """
+        self.manifest.task_record(task)  # ConfigError naming the tasks
+        view = copy.copy(self)
+        view.config = self.config_with({"task": task})
+        view._task = task
+        view._unregistered = True  # this handle's unregister() does nothing: the load it came from owns the names
+        return view
+
+    def make_suite(
+        self, n_envs: int = 1, use_async: bool = False, tasks: Sequence[str] | None = None
+    ) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+        """The suite as LeRobot's ``make_env`` returns one: ``{suite name: {task id: VectorEnv}}``, task ids being each
+        task's index in :attr:`tasks` (a one-task env: ``{name: {0: VectorEnv}}``).
+
+        Args:
+            n_envs: envs per task.
+            use_async: as :meth:`make_vec`.
+            tasks: the tasks to make (default: all).
+
+        Returns:
+            The mapping.
+
+        Raises:
+            ConfigError: a task that is not the suite's, or ``n_envs`` below 1.
+        """
+        if not self.is_suite:
+            return {self.manifest.name: {0: self.make_vec(n_envs, use_async)}}
+        chosen = list(self.tasks if tasks is None else tasks)
+        views = [self.for_task(t) for t in chosen]  # every name checked before any env is made
+        return {self.manifest.name: {self.tasks.index(v.task): v.make_vec(n_envs, use_async) for v in views}}
 
     @property
     def worker_venv(self) -> dict[str, Any] | None:
@@ -235,6 +297,7 @@ class LoadedEnv:
         Returns:
             The env (isolated: a proxy of one running in a worker process).
         """
+        cfg = cfg if cfg is not None or self._task is None else self.config  # a suite task's own config
         if cfg is not None:
             kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
         return gym.make(self.gym_id, **kwargs)
@@ -257,6 +320,7 @@ class LoadedEnv:
         """
         if n_envs < 1:
             raise ConfigError(f"n_envs must be at least 1, got {n_envs}.")
+        cfg = cfg if cfg is not None or self._task is None else self.config  # a suite task's own config
         if cfg is not None:
             kwargs = {**cfg.gym_kwargs, "max_episode_steps": cfg.episode_length, **kwargs}
         if self.isolation is not None:
@@ -333,7 +397,8 @@ class LoadedEnv:
         self.unregister()
 
     def __repr__(self) -> str:
-        return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r})"
+        task = f", task={self._task!r}" if self._task is not None else ""
+        return f"LoadedEnv({self.repo_id}@{self.revision[:12]}, gym_id={self.gym_id!r}, env_type={self.env_type!r}{task})"
 
 
 #: The envs load_env returned in this process, by draccus choice name (for integrations such as the LeRobot bridge).

@@ -30,6 +30,8 @@ from hub_envs.repo import hub_io, trust_list
 from hub_envs.repo.format import (
     DATASET_DIR,
     MANIFEST_FILE,
+    SINGLE_TASK_FORMAT_VERSION,
+    SUITE_FORMAT_VERSION,
     EnvFolder,
     Manifest,
     check_names_belong_to,
@@ -57,6 +59,11 @@ def _local_manifest(folder: EnvFolder) -> Manifest:
         processors=folder.processors,
         files=files,
         content_digest=content_digest(files),
+        # a suite's tasks by name (push_env records each one's instruction, episodes, seeds and fingerprint)
+        tasks=tuple(
+            {"task": t, "task_index": i, "instruction": "", "episodes": [], "seeds": []} for i, t in enumerate(folder.tasks)
+        ),
+        format_version=SUITE_FORMAT_VERSION if folder.tasks else SINGLE_TASK_FORMAT_VERSION,
     )
 
 

@@ -33,7 +33,15 @@ from hub_envs.loading.load import load_env
 from hub_envs.repo import hub_io
 from hub_envs.repo.refs import local_path, parse_repo_ref
 
-__all__ = ["compare", "CompareReport", "Estimate", "PolicyResult", "PairedDifference", "episodes_for_half_width"]
+__all__ = [
+    "compare",
+    "CompareReport",
+    "Estimate",
+    "PolicyResult",
+    "PairedDifference",
+    "TaskComparison",
+    "episodes_for_half_width",
+]
 
 DEFAULT_OUT = Path("compare-out")
 HALF_WIDTH = 0.05  # ±5 points of a rate
@@ -135,9 +143,19 @@ class PairedDifference:
         return f"{self.a} - {self.b} (paired over seeds): success {success}, mean return {self.returns.text(sign='+')}"
 
 
+@dataclass(frozen=True)
+class TaskComparison:
+    """One task of a benchmark suite: each policy on it, and their seed-paired differences on it."""
+
+    task: str
+    policies: list[PolicyResult]
+    differences: list[PairedDifference]
+
+
 @dataclass
 class CompareReport(ReportFiles):
-    """What ``hub-envs compare`` found."""
+    """What ``hub-envs compare`` found. On a benchmark suite, ``tasks`` holds each task's comparison and ``policies`` /
+    ``differences`` pool every task's episodes (pairs matched by task and seed; the bootstrap resamples those)."""
 
     policies: list[PolicyResult]
     differences: list[PairedDifference]
@@ -145,6 +163,7 @@ class CompareReport(ReportFiles):
     settings: dict[str, Any]
     paths: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    tasks: list[TaskComparison] = field(default_factory=list)
 
     @property
     def repo_id(self) -> str:
@@ -171,6 +190,13 @@ class CompareReport(ReportFiles):
         """What ``hub-envs compare`` prints: the envs, each policy, each pair, the episodes a ±5-point estimate needs."""
         conf = int(100 * self.settings["confidence"])
         lines = [f"Compared on {self.envs}: {len(self.seeds)} episodes, seeds {seeds_text(self.seeds)}"]
+        if self.tasks:
+            lines[0] += f", on each of {len(self.tasks)} tasks"
+            for t in self.tasks:
+                lines.append(f"  task {t.task!r}:")
+                lines += [f"    {p.summary()}" for p in t.policies]
+                lines += [f"    {d.summary()}" for d in t.differences]
+            lines.append(f"  the suite (every task's episodes pooled, {len(self.tasks) * len(self.seeds)} per policy):")
         lines += [f"  {p.summary()}" for p in self.policies]
         lines += [f"  {d.summary()}" for d in self.differences]
         lines.append(f"  ({conf}% bootstrap intervals, {self.settings['resamples']} resamples)")
@@ -191,6 +217,7 @@ class CompareReport(ReportFiles):
             "provenance": self.provenance,
             "settings": self.settings,
             "timings": self.timings,
+            **({"tasks": [asdict(t) for t in self.tasks]} if self.tasks else {}),
         }
 
     def to_markdown(self) -> str:
@@ -224,6 +251,13 @@ class CompareReport(ReportFiles):
                 f"| {d.a} - {d.b} | {d.successes.text(scale=100, sign='+', fmt='.1f').replace(' [', ' | [')} | "
                 f"{d.returns.text(sign='+').replace(' [', ' | [')} | {self._needed(d.episodes_for_5_points)} |"
             )
+        for t in self.tasks:
+            out += ["", f"## Task `{t.task}`", "", "| policy or A - B | success rate | mean return |", "|---|---|---|"]
+            out += [f"| {q.label} | {q.successes.text(scale=100, fmt='.1f')} | {q.returns.text()} |" for q in t.policies]
+            out += [
+                f"| {d.a} - {d.b} | {d.successes.text(scale=100, sign='+', fmt='.1f')} | {d.returns.text(sign='+')} |"
+                for d in t.differences
+            ]
         p = self.provenance
         out += [
             "",
@@ -462,6 +496,38 @@ def _paired(a: PolicyResult, b: PolicyResult, *, resamples: int, confidence: flo
     )
 
 
+def _compared_tasks(envs: list[Any], task: str | None) -> list[str]:
+    """The suite tasks a comparison runs (``[]``: a one-task env): ``task`` comma-separated, or all the first env's."""
+    if not envs[0].is_suite:
+        if task is not None:
+            raise ConfigError(f"--task={task!r}: {envs[0].repo_id} is a one-task env (no [tool.hub-envs] tasks); leave it out.")
+        return []
+    names = envs[0].tasks if task is None else [t.strip() for t in str(task).split(",") if t.strip()]
+    for env in envs:
+        for name in names:
+            env.manifest.task_record(name)  # ConfigError naming the env's tasks, before any episode runs
+    return list(names)
+
+
+def _differences(results: list[list[PolicyResult]], resamples: int, confidence: float, seed: int) -> list[PairedDifference]:
+    """The seed-paired differences of a comparison's arms (:func:`_pairs`)."""
+    return [_paired(a, b, resamples=resamples, confidence=confidence, seed=seed) for a, b in _pairs(results)]
+
+
+def _pooled(arms: list[PolicyResult], resamples: int, confidence: float, seed: int) -> PolicyResult:
+    """One arm over several tasks: their episodes in task order, as one estimate (the bootstrap resamples episodes)."""
+    stats = dict(resamples=resamples, confidence=confidence, seed=seed)
+    successes = [v for a in arms for v in a.successes.values]
+    return PolicyResult(
+        label=arms[0].label,
+        spec=arms[0].spec,
+        returns=Estimate.of([v for a in arms for v in a.returns.values], **stats),
+        successes=Estimate.of(successes, **stats),
+        episodes_for_5_points=episodes_for_half_width(successes, confidence=confidence),
+        seconds=round(sum(a.seconds for a in arms), 4),
+    )
+
+
 def _env_label(env: Any, first: Any) -> str:
     """``@<sha12>`` for a revision of the first env's repo, ``user/name@<sha12>`` for another repo."""
     return ("" if env.repo_id == first.repo_id else env.repo_id) + f"@{env.revision[:12]}"
@@ -497,6 +563,7 @@ def compare(
     token: str | None = None,
     backend: str = "local",
     ray_address: str | None = None,
+    task: str | None = None,
     **run: Unpack[CodeRun],
 ) -> CompareReport:
     """Evaluate ``policies`` on the episodes ``seed .. seed + episodes - 1`` of ``repo_id`` and compare them, seed-paired;
@@ -530,6 +597,9 @@ def compare(
             ``"ray"``, where each worker builds the policies from their specs once; a local checkpoint folder
             must then exist at the same path on every node).
         ray_address: the Ray cluster with ``backend="ray"`` (default ``$RAY_ADDRESS``, else a local Ray for the run).
+        task: a benchmark suite: the task(s) to compare on, comma-separated (default: every task; ``against`` must
+            have them too). Each task is compared on its own (``report.tasks``, the paired statistics per task) and
+            the suite pooled (``report.policies`` / ``differences``).
 
     Returns:
         The :class:`CompareReport` (written as ``report.json``, ``report.md`` and ``report.png`` unless ``write=False``).
@@ -574,17 +644,30 @@ def compare(
             progress=progress,
             backend=runner,
         )
-        results: list[list[PolicyResult]] = []  # per env, per policy
-        arms = iter(_labels([f"{label} on {_env_label(env, loaded)}" if against else label for env in envs for label in labels]))
+        arm_labels = _labels([f"{label} on {_env_label(env, loaded)}" if against else label for env in envs for label in labels])
+        tasks = _compared_tasks(envs, task)
+        per_task: list[TaskComparison] = []
         with runner:
-            for env in envs:
-                results.append([])
-                for spec in specs:
-                    arm = next(arms)
-                    t = time.perf_counter()
-                    results[-1].append(_run_policy(env, arm, spec, seeds, **kw))
-                    timings[f"policy {arm}"] = time.perf_counter() - t
-        diffs = [_paired(a, b, resamples=resamples, confidence=confidence, seed=seed) for a, b in _pairs(results)]
+            for name in tasks or [None]:  # a suite: each task in its own env (for_task), on the same seeds
+                arms = iter(arm_labels)
+                results: list[list[PolicyResult]] = []  # per env, per policy
+                for env in envs:
+                    results.append([])
+                    for spec in specs:
+                        arm = next(arms)
+                        t = time.perf_counter()
+                        on = env if name is None else env.for_task(name)
+                        results[-1].append(_run_policy(on, arm, spec, seeds, **kw))
+                        timings[f"policy {arm}" + (f" task {name}" if name else "")] = time.perf_counter() - t
+                if name is not None:
+                    per_task.append(
+                        TaskComparison(name, [r for e in results for r in e], _differences(results, resamples, confidence, seed))
+                    )
+        if per_task:  # the suite: every task's episodes of an arm pooled, in task order (so pairs match by task and seed)
+            n = len(per_task[0].policies)
+            pooled = [_pooled([t.policies[i] for t in per_task], resamples, confidence, seed) for i in range(n)]
+            results = [pooled[i : i + len(specs)] for i in range(0, n, len(specs))]
+        diffs = _differences(results, resamples, confidence, seed)
         provenance = {**run_provenance(loaded), "episode_length": int(loaded.config.episode_length), "seeds": seeds}
         if against:
             other = run_provenance(envs[1])
@@ -605,7 +688,9 @@ def compare(
                 "backend": runner.settings(),
                 "isolation": loaded.runs_as,
                 "half_width": HALF_WIDTH,
+                **({"tasks": tasks} if tasks else {}),
             },
+            tasks=per_task,
         )
         # in the files: load and each policy
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)

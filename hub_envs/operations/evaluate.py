@@ -10,7 +10,7 @@ Example:
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
 
@@ -28,7 +28,8 @@ __all__ = ["EvalResult", "evaluate"]
 
 @dataclass(frozen=True)
 class EvalResult:
-    """What an evaluation measured (and everything it depended on)."""
+    """What an evaluation measured (and everything it depended on). A suite's evaluation of several tasks holds each
+    task's own result in ``per_task`` and, here, every episode of them pooled (LeRobot's ``overall``)."""
 
     repo_id: str
     sha: str
@@ -41,6 +42,8 @@ class EvalResult:
     versions: dict[str, str]
     backend: dict[str, Any]
     isolation: str = "none"  # how the env's code ran: none, process, venv (+sandbox)
+    task: str | None = None  # the suite task evaluated (None: a one-task env, or several tasks: per_task)
+    per_task: tuple[EvalResult, ...] = field(default=())  # a suite: each task's result, in task-id order
 
     @property
     def metrics(self) -> dict[str, float]:
@@ -59,16 +62,25 @@ class EvalResult:
         """The result as JSON-ready data (``eval.json``), its metrics included."""
         d = asdict(self)
         d["metrics"] = self.metrics
+        d["per_task"] = [r.to_dict() for r in self.per_task]  # each task's metrics too
         return d
 
     def summary(self) -> str:
-        """One line: the env commit, the policy, the seeds and the metrics."""
+        """One line: the env commit (and task), the policy, the seeds and the metrics; a line more per task of a suite."""
         m = self.metrics
-        return (
-            f"{self.repo_id}@{self.sha}: {len(self.seeds)} episodes of policy {self.policy} "
-            f"(seeds {self.seeds[0]}..{self.seeds[-1]}): mean return {m['mean_return']:.6g}, "
-            f"success rate {m['success_rate']:.3g}, mean length {m['mean_length']:.4g}"
+        what = f" task {self.task!r}" if self.task else f" ({len(self.per_task)} tasks)" if self.per_task else ""
+        line = (
+            f"{self.repo_id}@{self.sha}{what}: {len(self.returns)} episodes of policy {self.policy} "
+            f"(seeds {self.seeds[0]}..{self.seeds[-1]}{' per task' if self.per_task else ''}): mean return "
+            f"{m['mean_return']:.6g}, success rate {m['success_rate']:.3g}, mean length {m['mean_length']:.4g}"
         )
+        for r in self.per_task:
+            t = r.metrics
+            line += (
+                f"\n  task {r.task!r}: mean return {t['mean_return']:.6g}, success rate {t['success_rate']:.3g}, "
+                f"mean length {t['mean_length']:.4g}"
+            )
+        return line
 
 
 def _policy(policy: Any, loaded: Any, backend: Backend, token: str | None, trust_policy_code: bool) -> tuple[Any, str]:
@@ -133,6 +145,7 @@ def evaluate(
     ray_address: str | None = None,
     out: str | Path | None = None,
     progress: bool = True,
+    task: str | None = None,
     **run: Unpack[CodeRun],
 ) -> EvalResult:
     """Run ``policy`` for ``episodes`` seeded episodes of ``repo_id`` and return the metrics.
@@ -147,6 +160,8 @@ def evaluate(
             a local Ray for the run); the result does not depend on it.
         out: Ray: keep finished shards here (the same evaluation started again skips them), and write
             ``eval.json``; local: write ``eval.json`` only.
+        task: a benchmark suite's task to evaluate, or several comma-separated (default: all its tasks, each over the same
+            seeds, as ``lerobot-eval`` runs a suite: ``per_task``, and the episodes pooled). A one-task env takes none.
         run: how the env's code runs (``isolation``, ``sandbox``, ``versions``, ``step_timeout``; see
             :func:`hub_envs.load_env`): isolated, the policy runs in this process, the env in worker processes.
 
@@ -154,8 +169,8 @@ def evaluate(
         The :class:`EvalResult`: per-episode returns, successes and lengths, their means, and what they depended on.
 
     Raises:
-        ConfigError: ``episodes`` or ``seed`` not a count, a misspelt ``run`` keyword, or a policy that is none of the
-            above.
+        ConfigError: ``episodes`` or ``seed`` not a count, a misspelt ``run`` keyword, a policy that is none of the
+            above, or a ``task`` that is not one of the suite's (or given for a one-task env).
         hub_envs.errors.HubEnvsError: the env or the policy cannot be loaded, or a backend is unavailable.
     """
     run = code_run(run, "evaluate")  # before anything starts: a misspelt keyword is named at once
@@ -172,31 +187,71 @@ def evaluate(
     with load_for_evaluation(
         repo_id, revision, trust_remote_code=trust_remote_code, token=token, run=run, where="evaluate"
     ) as loaded:
-        run_policy, name = _policy(policy, loaded, runner, token, trust_policy_code)
+        targets = _task_handles(loaded, task)
+        run_policy, name = _policy(policy, targets[0], runner, token, trust_policy_code)
         steps = int(max_steps) if max_steps is not None else int(loaded.config.episode_length)
         seeds = [seed + i for i in range(episodes)]
-        returns, successes, lengths = [], [], []
+        results = []
         with runner:
-            for rollout in runner.episodes(
-                loaded, seeds, max_steps=steps, policy=run_policy, progress=progress, desc=f"Evaluating {name}"
-            ):
-                returns.append(rollout.episode_return)
-                successes.append(rollout.success)
-                lengths.append(rollout.length)
-        result = EvalResult(
-            repo_id=loaded.repo_id,
-            sha=loaded.revision,
-            policy=name,
-            seeds=tuple(seeds),
-            max_steps=steps,
-            returns=tuple(returns),
-            successes=tuple(successes),
-            lengths=tuple(lengths),
-            versions=versions_run_with(loaded),
-            backend=runner.settings(),
-            isolation=loaded.runs_as,
-        )
+            for target in targets:
+                returns, successes, lengths = [], [], []
+                of = f" on task {target.task!r}" if target.task is not None else ""
+                for rollout in runner.episodes(
+                    target, seeds, max_steps=steps, policy=run_policy, progress=progress, desc=f"Evaluating {name}{of}"
+                ):
+                    returns.append(rollout.episode_return)
+                    successes.append(rollout.success)
+                    lengths.append(rollout.length)
+                results.append(
+                    EvalResult(
+                        repo_id=loaded.repo_id,
+                        sha=loaded.revision,
+                        policy=name,
+                        seeds=tuple(seeds),
+                        max_steps=steps,
+                        returns=tuple(returns),
+                        successes=tuple(successes),
+                        lengths=tuple(lengths),
+                        versions=versions_run_with(loaded),
+                        backend=runner.settings(),
+                        isolation=loaded.runs_as,
+                        task=target.task,
+                    )
+                )
+        result = results[0] if len(results) == 1 else _pooled(results)
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "eval.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
     return result
+
+
+def _task_handles(loaded: Any, task: str | None) -> list[Any]:
+    """What an evaluation runs: the env (a one-task env), or the suite tasks ``task`` names (comma-separated; default
+    all), each :meth:`~hub_envs.loading.loaded.LoadedEnv.for_task`."""
+    if not loaded.is_suite:
+        if task is not None:
+            raise ConfigError(
+                f"task={task!r}: {loaded.repo_id}@{loaded.revision} is a one-task env (no [tool.hub-envs] tasks); leave task out."
+            )
+        return [loaded]
+    names = loaded.tasks if task is None else [t.strip() for t in str(task).split(",") if t.strip()]
+    return [loaded.for_task(t) for t in names]  # ConfigError naming the suite's tasks
+
+
+def _pooled(results: list[EvalResult]) -> EvalResult:
+    """Several tasks' results as one: every episode pooled (LeRobot's ``overall``), each task's own in ``per_task``."""
+    first = results[0]
+    return EvalResult(
+        repo_id=first.repo_id,
+        sha=first.sha,
+        policy=first.policy,
+        seeds=first.seeds,
+        max_steps=first.max_steps,
+        returns=tuple(x for r in results for x in r.returns),
+        successes=tuple(x for r in results for x in r.successes),
+        lengths=tuple(x for r in results for x in r.lengths),
+        versions=first.versions,
+        backend=first.backend,
+        isolation=first.isolation,
+        per_task=tuple(results),
+    )

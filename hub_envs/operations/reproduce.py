@@ -31,7 +31,7 @@ from hub_envs.harness.provenance import (
     worker_provenance,
 )
 from hub_envs.harness.replay import Replay, ReplayResult
-from hub_envs.harness.report import ReproduceReport
+from hub_envs.harness.report import ReproduceReport, TaskReproduction
 from hub_envs.harness.report_files import default_out_dir
 from hub_envs.loading.isolated import CodeRun, code_run
 from hub_envs.loading.load import load_env
@@ -52,7 +52,7 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
         "seeds": {
             "dataset": list(m.dataset.get("seeds", [])),
             "fingerprint": list(m.fingerprint.get("seeds", [])),
-            "benchmarks": {str(b.get("name")): list(b.get("seeds", [])) for b in m.benchmarks},
+            "benchmarks": {_benchmark_key(b): list(b.get("seeds", [])) for b in m.benchmarks},
         },
         "versions_published": dict(m.versions),
         "closure_published": closure_only(m),
@@ -75,10 +75,15 @@ def _provenance(loaded: Any, dataset_root: Path | None) -> dict[str, Any]:
     return prov
 
 
-def _fingerprint(loaded: Any, ran: dict[int, Any] | None = None) -> dict[str, Any]:
-    """Recompute the manifest's golden-rollout fingerprint; ``ran``: random-policy rollouts by seed that the
-    episodes pass ran already (:func:`_run_episodes`), used when they cover its seeds."""
-    recorded = loaded.manifest.fingerprint
+def _benchmark_key(entry: dict[str, Any]) -> str:
+    """A benchmark's name in the provenance: a suite's per-task entries share theirs, so the task is named with it."""
+    return f"{entry.get('name')} [{entry['task']}]" if entry.get("task") else str(entry.get("name"))
+
+
+def _fingerprint(loaded: Any, ran: dict[int, Any] | None = None, recorded: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Recompute the manifest's golden-rollout fingerprint (``recorded``: a suite task's); ``ran``: random-policy
+    rollouts by seed that the episodes pass ran already (:func:`_run_episodes`), used when they cover its seeds."""
+    recorded = loaded.manifest.fingerprint if recorded is None else recorded
     if not recorded:
         return {"status": "none recorded", "ok": True}
     ran = ran or {}
@@ -115,12 +120,14 @@ def _run_episodes(
     trust_policy_code: bool = False,
     keep: tuple[list[int], int] = ([], 0),
     kept: dict[int, Any] | None = None,
+    declared: list[dict[str, Any]] | None = None,
 ) -> tuple[ReplayResult | None, list[BenchmarkResult]]:
     """The replay and the benchmark re-runs. Replayed episodes and random-policy benchmark episodes go
     through ONE pass of the rollout engine (one worker pool, one queue); a checkpoint policy runs on its own.
 
     ``keep = (seeds, steps)``: the random-policy rollouts of those seeds go into ``kept`` (by seed) when the pass
-    runs them for at least ``steps`` steps, so the golden-rollout fingerprint need not run them again."""
+    runs them for at least ``steps`` steps, so the golden-rollout fingerprint need not run them again. ``declared``: the
+    benchmarks to re-run (default: the manifest's; a suite task: its own)."""
     rep = (
         Replay(loaded.make, loaded.dataset_root, loaded.config.features_map, tolerance=tolerance, episodes=episodes)
         if replay
@@ -130,7 +137,7 @@ def _run_episodes(
         runs = (
             [
                 BenchmarkRun(loaded, b, resamples=resamples, token=token, trust_policy_code=trust_policy_code)
-                for b in loaded.manifest.benchmarks
+                for b in (loaded.manifest.benchmarks if declared is None else declared)
             ]
             if benchmarks
             else []
@@ -189,6 +196,32 @@ def _run_episodes(
     finally:
         if rep is not None:
             rep.close()
+
+
+def _reproduce_tasks(loaded: Any, *, episodes: list[int] | None, timings: dict[str, float], **run: Any) -> list[TaskReproduction]:
+    """A suite, task by task (:meth:`~hub_envs.loading.loaded.LoadedEnv.for_task`): the replay of the task's dataset
+    episodes (of ``episodes``, when given), the re-run of its benchmarks, its golden-rollout fingerprint (from the
+    benchmark's episodes when they cover its seeds), each in its task's env."""
+    out = []
+    for task in loaded.tasks:
+        view, record = loaded.for_task(task), loaded.manifest.task_record(task)
+        mine = [e for e in record["episodes"] if episodes is None or e in episodes]
+        recorded = record.get("fingerprint") or {}
+        ran: dict[int, Any] = {}
+        replay_result, bench_results = _run_episodes(
+            view,
+            episodes=mine,
+            timings={},
+            keep=(list(recorded.get("seeds") or []), int(recorded.get("steps") or 0)),
+            kept=ran,
+            declared=[b for b in loaded.manifest.benchmarks if b.get("task") == task],
+            **{**run, "replay": run["replay"] and bool(mine)},
+        )
+        fp = _fingerprint(view, ran, recorded=recorded)
+        out.append(TaskReproduction(task, record["task_index"], replay_result, bench_results, fp))
+    timings["replay"] = sum(t.replay.seconds for t in out if t.replay is not None)
+    timings["benchmarks"] = sum(b.seconds for t in out for b in t.benchmarks)
+    return out
 
 
 def _dataset_notes(provenance: dict[str, Any]) -> list[str]:
@@ -297,26 +330,45 @@ def reproduce(
             notes.append("the manifest declares no benchmark results")
         recorded = loaded.manifest.fingerprint or {}
         ran: dict[int, Any] = {}
+        task_results: list[TaskReproduction] = []
         t = time.perf_counter()
         with runner:
-            replay_result, bench_results = _run_episodes(
-                loaded,
-                replay=replay and dataset_root is not None,
-                benchmarks=benchmarks,
-                tolerance=tolerance,
-                backend=runner,
-                episodes=episodes,
-                resamples=resamples,
-                progress=progress,
-                token=token,
-                timings=timings,
-                trust_policy_code=trust_policy_code,
-                keep=(list(recorded.get("seeds") or []), int(recorded.get("steps") or 0)),
-                kept=ran,
-            )
+            if loaded.is_suite:  # each task: its episodes' replay, its benchmarks, its fingerprint
+                task_results = _reproduce_tasks(
+                    loaded,
+                    replay=replay and dataset_root is not None,
+                    benchmarks=benchmarks,
+                    tolerance=tolerance,
+                    backend=runner,
+                    episodes=episodes,
+                    resamples=resamples,
+                    progress=progress,
+                    token=token,
+                    timings=timings,
+                    trust_policy_code=trust_policy_code,
+                )
+            else:
+                replay_result, bench_results = _run_episodes(
+                    loaded,
+                    replay=replay and dataset_root is not None,
+                    benchmarks=benchmarks,
+                    tolerance=tolerance,
+                    backend=runner,
+                    episodes=episodes,
+                    resamples=resamples,
+                    progress=progress,
+                    token=token,
+                    timings=timings,
+                    trust_policy_code=trust_policy_code,
+                    keep=(list(recorded.get("seeds") or []), int(recorded.get("steps") or 0)),
+                    kept=ran,
+                )
         timings["episodes"] = time.perf_counter() - t
         t = time.perf_counter()
-        fp = _fingerprint(loaded, ran)  # from the benchmark's random-policy episodes when they cover its seeds
+        if task_results:
+            fp = {"status": "per task", "ok": all(r.fingerprint.get("ok", True) for r in task_results)}
+        else:
+            fp = _fingerprint(loaded, ran)  # from the benchmark's random-policy episodes when they cover its seeds
         timings["fingerprint"] = time.perf_counter() - t
         report = ReproduceReport(
             repo_id=loaded.repo_id,
@@ -337,6 +389,7 @@ def reproduce(
                 "versions": run.get("versions", "current"),
                 "source": "folder" if loaded.local_folder is not None else "hub",
             },
+            tasks=task_results,
         )
         report.finish(timings, t0, out=out, default=default_out_dir(DEFAULT_OUT, loaded.repo_id), write=write)
         return report

@@ -8,7 +8,7 @@ import shutil
 import sys
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,7 @@ from hub_envs.dataset.writer import (
     write_lerobot_dataset,
 )
 from hub_envs.envcode.envconfig import encode_config
-from hub_envs.errors import EnvCheckError, EnvFolderError, StatesNotRecordedWarning
+from hub_envs.errors import EnvCheckError, EnvFolderError, HubEnvsError, StatesNotRecordedWarning
 from hub_envs.harness.actions import stored_action, unsupported_reason
 from hub_envs.harness.checks import FINGERPRINT_STEPS, check_determinism, episode_prefix, fingerprint_of, run_env_checker
 from hub_envs.harness.features import check_features
@@ -44,6 +44,8 @@ from hub_envs.repo.format import (
     GIF_FILE,
     MANIFEST_FILE,
     MP4_FILE,
+    SINGLE_TASK_FORMAT_VERSION,
+    SUITE_FORMAT_VERSION,
     EnvFolder,
     Manifest,
     check_publishable,
@@ -114,20 +116,23 @@ def build(
     env = check_env(loaded, seed=seed, determinism_steps=determinism_steps, where=where)
     try:
         folder = EnvFolder.read(loaded.local_folder)
+        suite = check_suite(loaded, folder, seed=seed, determinism_steps=determinism_steps, where=where, say=say)
         media_kwargs = card_media_kwargs(loaded.config.gym_kwargs, folder.media_gym_kwargs)  # the author's camera, >= 256 px
         make_media_env = media_env_maker(loaded, media_kwargs, folder)
         if folder.media_gym_kwargs:  # the author's media kwargs refused now, not after the dataset is built
             make_media_env().close()
         code_digest = write_code(loaded, staging, repo_id)
         where_run = ", ".join(f"{k}={v}" for k, v in backend.settings().items() if v is not None)
+        per_task = f" for each of {len(suite)} tasks" if suite else ""
         say(
-            f"Generating the random-action dataset: {episodes} episodes x up to {loaded.config.episode_length} steps ({where_run})"
+            f"Generating the random-action dataset: {episodes} episodes{per_task} x up to {loaded.config.episode_length} "
+            f"steps ({where_run})"
         )
         run = generate_dataset(
             loaded,
             staging,
             repo_id=repo_id,
-            seeds=[seed + i for i in range(episodes)],
+            seeds=dataset_seeds(seed, episodes, len(suite)),
             backend=backend,
             code_digest=code_digest,
             fingerprint_seeds=fingerprint_seeds,
@@ -135,6 +140,7 @@ def build(
             where=where,
             progress=progress,
             video_gop=video_gop,
+            suite=suite,
         )
         check_features(loaded.config, env, run.features_written, seed=seed, where=where).raise_if_mismatch(where)
         say("Rendering the GIF and the card")
@@ -209,6 +215,122 @@ def check_env(loaded: LoadedEnv, *, seed: int, determinism_steps: int | None, wh
     return env
 
 
+@dataclass(frozen=True)
+class SuiteTask:
+    """One task of a suite, checked: its name (the config's ``task``), task id, handle and language instruction."""
+
+    task: str
+    index: int
+    loaded: LoadedEnv  # LoadedEnv.for_task(task)
+    instruction: str
+
+
+def dataset_seeds(seed: int, episodes: int, tasks: int = 0) -> list[int]:
+    """The dataset's reset seeds: episode ``i`` resets with ``seed + i``; a suite's tasks take ``episodes`` each, in task
+    order (task ``t``'s episodes are ``t * episodes`` to ``(t + 1) * episodes - 1``).
+
+    Args:
+        seed: the first episode's seed.
+        episodes: episodes per task.
+        tasks: the suite's task count (0: a one-task env).
+
+    Returns:
+        One seed per dataset episode.
+    """
+    return [seed + i for i in range(episodes * max(1, tasks))]
+
+
+def task_instruction(make: Callable[[], Any], task: str, *, seed: int) -> str:
+    """A task's language instruction as the env states it (LeRobot's convention: ``task_description`` on the env, as its
+    LIBERO and Meta-World envs set it), else the task's name.
+
+    Args:
+        make: makes the task's env.
+        task: the task's name.
+        seed: the reset seed (an env may set its description in ``reset``).
+
+    Returns:
+        The instruction.
+    """
+    env = make()
+    try:
+        env.reset(seed=seed)
+        try:
+            text = env.get_wrapper_attr("task_description")
+        except AttributeError:
+            text = None
+    finally:
+        env.close()
+    return text.strip() if isinstance(text, str) and text.strip() else task
+
+
+def check_suite(
+    loaded: LoadedEnv,
+    folder: EnvFolder,
+    *,
+    seed: int,
+    determinism_steps: int | None,
+    where: str,
+    say: Callable[[str], None] = lambda _: None,
+) -> list[SuiteTask]:
+    """A suite's tasks (``[tool.hub-envs] tasks``), each checked as a one-task env is (:func:`check_env`; the default
+    task's env was, by :func:`build`), and their instructions. Every task must be a value the config and the env accept, with the features of the config's default
+    task (one dataset holds them all), and the default task must be one of them.
+
+    Args:
+        loaded: the env folder, loaded.
+        folder: the env folder (its ``tasks``).
+        seed, determinism_steps: as :func:`check_env`.
+        where: names the folder in messages.
+        say: says the stage.
+
+    Returns:
+        The tasks in task-id order; ``[]`` for a one-task env.
+
+    Raises:
+        EnvFolderError: the default task is not listed, a task the config refuses, features that differ by task, two
+            tasks with one instruction.
+        DeterminismError, EnvCheckError, FeatureMismatchError, EnvCodeError: a task failed a check.
+    """
+    if not folder.tasks:
+        return []
+    field_ = f"{folder.root / 'pyproject.toml'}: [tool.hub-envs] tasks"
+    default = loaded.config.task
+    if default not in folder.tasks:
+        raise EnvFolderError(
+            f"{field_} = {list(folder.tasks)} does not list the config's default task {default!r} (what load_env and "
+            f"LeRobot make when no task is named). Add it to tasks, or set the config's task default to one of them."
+        )
+    declared = encode_config(loaded.config)["features"]
+    out: list[SuiteTask] = []
+    for index, task in enumerate(folder.tasks):
+        try:
+            view = loaded.for_task(task)
+        except HubEnvsError as e:
+            raise EnvFolderError(f"{field_}: the config refuses task {task!r}: {e}") from e
+        if encode_config(view.config)["features"] != declared:
+            raise EnvFolderError(
+                f"{field_}: task {task!r} declares other features than the default task {default!r}; one dataset holds "
+                f"every task of a suite, so the config's features must not depend on the task."
+            )
+        try:
+            view.env_class(**view.config.gym_kwargs).close()
+        except (TypeError, ValueError) as e:  # the env itself refused the task's keyword arguments
+            raise EnvFolderError(f"{field_}: the env refuses task {task!r} ({type(e).__name__}: {e}).") from e
+        if task != default:  # the default task's env is the one build() checked already
+            say(f"  task {index} {task!r}: determinism, gymnasium check_env, features")
+            check_env(view, seed=seed, determinism_steps=determinism_steps, where=f"{where} task {task!r}").close()
+        out.append(SuiteTask(task, index, view, task_instruction(view.make, task, seed=seed)))
+    said = [t.instruction for t in out]
+    twice = sorted({x for x in said if said.count(x) > 1})
+    if twice:
+        raise EnvFolderError(
+            f"{field_}: several tasks state the instruction {twice} (their task_description); LeRobot's tasks.parquet "
+            f"indexes tasks by their text, so each task needs its own."
+        )
+    return out
+
+
 # --- 2. the code ------------------------------------------------------------------------------------------------------
 
 
@@ -276,8 +398,10 @@ class DatasetRun:
     has_states: bool
     returns: list[float]
     successes: list[bool]
-    golden: dict[str, Any]  # the golden-rollout fingerprint, from the first episodes
+    golden: dict[str, Any]  # the golden-rollout fingerprint, from the first episodes (a suite: the default task's)
     video_gop: int | None = None  # the keyframe interval of the dataset's videos (None: no video feature)
+    tasks: list[dict[str, Any]] = field(default_factory=list)  # a suite's task records (the manifest's ``tasks``)
+    task_benchmarks: list[dict[str, Any]] = field(default_factory=list)  # a suite's random-policy benchmark, per task
 
 
 def env_meta(loaded: LoadedEnv, repo_id: str, code_digest: str) -> dict[str, Any]:
@@ -317,9 +441,12 @@ def generate_dataset(
     where: str,
     progress: bool,
     video_gop: int = DEFAULT_VIDEO_GOP,
+    suite: list[SuiteTask] = (),  # type: ignore[assignment]
 ) -> DatasetRun:
     """The one rollout pass: the dataset, its simulator states, the random-policy returns and the golden-rollout
-    fingerprint (its seeds are the first dataset episodes: no second rollout of them).
+    fingerprint (its seeds are the first dataset episodes: no second rollout of them). A suite's tasks run one after
+    the other into the same dataset (``seeds`` split evenly among them, in task order), each episode with its task's
+    ``task_index``, and each task gets its own returns, benchmark and fingerprint.
 
     Args:
         loaded: the env folder, loaded.
@@ -333,6 +460,7 @@ def generate_dataset(
         where: names the folder in messages.
         progress: show a progress bar.
         video_gop: the videos' keyframe interval.
+        suite: a suite's tasks (:func:`check_suite`); empty: a one-task env.
 
     Returns:
         The :class:`DatasetRun`.
@@ -342,31 +470,46 @@ def generate_dataset(
         DatasetError: the episodes cannot be written as a LeRobot dataset.
     """
     cfg = loaded.config
+    per_task = max(1, len(seeds) // max(1, len(suite)))
+    # (handle, task_index, its seeds, offset of its first episode): one part for a one-task env
+    parts = (
+        [(t.loaded, t.index, list(seeds[i * per_task : (i + 1) * per_task]), i * per_task) for i, t in enumerate(suite)]
+        if suite
+        else [(loaded, 0, list(seeds), 0)]
+    )
     returns: list[float] = []
     successes: list[bool] = []
+    task_first: dict[int, list[Any]] = {index: [] for _, index, _, _ in parts}
     # env.get_state() before each action, for exact replay (hub_envs.dataset.states): to disk as episodes arrive,
     # beside the dataset folder (which the writer creates whole at its end), moved into it after
     states = EnvStatesWriter(staging / ".env_states.parquet")
     states_problem: list[str] = []
-    first: list[Any] = []  # the fingerprint's episodes
 
     def frames():
-        for rollout in backend.episodes(
-            loaded,
-            seeds,
-            max_steps=int(cfg.episode_length),
-            progress=progress,
-            desc=f"Generating {len(seeds)} episodes",
-            record_states=True,
-        ):
-            states.add(rollout.index, rollout.states)
-            if rollout.states_problem and not states_problem:
-                states_problem.append(f"episode {rollout.index}: {rollout.states_problem}")
-            returns.append(float(np.sum(rollout.rewards)))
-            successes.append(bool(np.any(rollout.is_success)))
-            if rollout.index < fingerprint_seeds:
-                first.append(episode_prefix(rollout, FINGERPRINT_STEPS))
-            yield EpisodeFrames(index=rollout.index, seed=rollout.seed, frames=rollout_to_frames(rollout, cfg.features_map))
+        for handle, task_index, part_seeds, offset in parts:
+            task = f" of task {suite[task_index].task!r}" if suite else ""
+            for rollout in backend.episodes(
+                handle,
+                part_seeds,
+                max_steps=int(cfg.episode_length),
+                progress=progress,
+                desc=f"Generating {len(part_seeds)} episodes{task}",
+                record_states=True,
+            ):
+                index = offset + rollout.index  # the episode's index in the whole dataset
+                states.add(index, rollout.states)
+                if rollout.states_problem and not states_problem:
+                    states_problem.append(f"episode {index}: {rollout.states_problem}")
+                returns.append(float(np.sum(rollout.rewards)))
+                successes.append(bool(np.any(rollout.is_success)))
+                if rollout.index < fingerprint_seeds:
+                    task_first[task_index].append(episode_prefix(rollout, FINGERPRINT_STEPS))
+                yield EpisodeFrames(
+                    index=index,
+                    seed=rollout.seed,
+                    frames=rollout_to_frames(rollout, cfg.features_map),
+                    task_index=task_index,
+                )
 
     try:
         summary = write_lerobot_dataset(
@@ -375,7 +518,7 @@ def generate_dataset(
             fps=int(cfg.fps),
             features=features,
             episodes=frames(),
-            task=str(cfg.task),
+            task=[t.instruction for t in suite] if suite else str(cfg.task),
             extra_info={"env_meta": env_meta(loaded, repo_id, code_digest)},
             progress=False,  # the rollout bar above already counts episodes
             video_gop=video_gop,
@@ -394,6 +537,25 @@ def generate_dataset(
             StatesNotRecordedWarning,
             stacklevel=4,
         )
+    steps = min(FINGERPRINT_STEPS, int(cfg.episode_length))
+    golden = {index: fingerprint_of(first, steps=steps) for index, first in task_first.items()}
+    records, task_benchmarks = [], []
+    for _, index, part_seeds, offset in parts if suite else []:
+        span = slice(offset, offset + len(part_seeds))
+        task_benchmarks.append({**random_benchmark(returns[span], successes[span], part_seeds), "task": suite[index].task})
+        records.append(
+            {
+                "task": suite[index].task,
+                "task_index": index,
+                "instruction": suite[index].instruction,
+                "episodes": list(range(span.start, span.stop)),
+                "seeds": part_seeds,
+                "fingerprint": golden[index],
+                "return_mean": float(np.mean(returns[span])),
+                "success_rate": float(np.mean(successes[span])),
+            }
+        )
+    default = next((t.index for t in suite if t.task == cfg.task), 0)
     return DatasetRun(
         summary=summary,
         features=features,
@@ -402,8 +564,10 @@ def generate_dataset(
         has_states=has_states,
         returns=returns,
         successes=successes,
-        golden=fingerprint_of(first, steps=min(FINGERPRINT_STEPS, int(cfg.episode_length))),
+        golden=golden[default],
         video_gop=video_gop if dataset_uses_video({"features": features}) else None,
+        tasks=records,
+        task_benchmarks=task_benchmarks,
     )
 
 
@@ -589,10 +753,13 @@ def draft_manifest(loaded: LoadedEnv, *, repo_id: str, code_digest: str, run: Da
         seeds={"dataset": seeds, "check": seed, "fingerprint": run.golden["seeds"]},
         versions=package_versions(loaded.manifest.requirements),
         resolved=requirement_closure(loaded.manifest.requirements),
-        benchmarks=(random_benchmark(run.returns, run.successes, seeds),),
+        # a suite: one random-policy benchmark per task (its ``task`` named), its tasks' records
+        benchmarks=tuple(run.task_benchmarks) if run.tasks else (random_benchmark(run.returns, run.successes, seeds),),
         processors=tuple(loaded.manifest.processors),
         files={},
         content_digest="",
+        tasks=tuple(run.tasks),
+        format_version=SUITE_FORMAT_VERSION if run.tasks else SINGLE_TASK_FORMAT_VERSION,
     )
     return replace(
         manifest, content_digest=content_digest(hash_files(staging, list_files(staging, skip=(MANIFEST_FILE, CARD_FILE))))

@@ -242,7 +242,7 @@ def render_card(
             dataset_type=repo_id,
             dataset_name=manifest.name,
             metric_type=metric,
-            metric_name=f"{metric} ({b['policy']['type']} policy)",
+            metric_name=f"{metric} ({b['policy']['type']} policy{', task ' + b['task'] if b.get('task') else ''})",
             metric_value=float(value),
             verified=False,
         )
@@ -286,9 +286,39 @@ def render_card(
         dataset_repo=dataset_repo,
         seeds_text=seeds_text,
         benchmarks=benchmarks,
+        tasks=task_rows(manifest),
+        suite_name=manifest.name,
         fingerprint_digest=manifest.fingerprint.get("digest", "-"),
         versions=manifest.versions,
         processors=list(manifest.processors),
         reproduced_table=reproduced_table([e for e in reproductions if e.attestation.content_digest == manifest.content_digest]),
     )
     return str(card)
+
+
+def task_rows(manifest: Manifest) -> list[dict[str, Any]]:
+    """A suite's per-task table: each task's id, name, instruction, episodes, seeds, random-policy results, fingerprint.
+
+    Args:
+        manifest: the manifest (its ``tasks`` and per-task ``benchmarks``).
+
+    Returns:
+        One row per task, in task-id order (``[]`` for a one-task env).
+    """
+    by_task = {b.get("task"): b for b in manifest.benchmarks if b.get("name") == "random-policy"}
+    rows = []
+    for t in manifest.tasks:
+        seeds, metrics = t["seeds"], by_task.get(t["task"], {}).get("metrics", {})
+        rows.append(
+            {
+                "id": t["task_index"],
+                "task": t["task"],
+                "instruction": t["instruction"],
+                "episodes": f"{t['episodes'][0]}…{t['episodes'][-1]}" if len(t["episodes"]) > 1 else t["episodes"],
+                "seeds": f"{seeds[0]}…{seeds[-1]}" if len(seeds) > 1 else seeds,
+                "mean_return": metrics.get("mean_return", float("nan")),
+                "success_rate": metrics.get("success_rate", float("nan")),
+                "fingerprint": str(t.get("fingerprint", {}).get("digest", "-"))[:16],
+            }
+        )
+    return rows

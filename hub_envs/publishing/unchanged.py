@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import replace
+from typing import Any
 
 from hub_envs._compat import LEROBOT_VIDEO_GOP
 from hub_envs._stack import requirement_closure
@@ -13,16 +14,17 @@ from hub_envs.envcode.envconfig import encode_config
 from hub_envs.harness.media import card_media_kwargs
 from hub_envs.harness.provenance import package_versions
 from hub_envs.loading.loaded import LoadedEnv
-from hub_envs.publishing.build import cameras, code_files_of, dataset_uses_video, published_overrides
+from hub_envs.publishing.build import cameras, code_files_of, dataset_seeds, dataset_uses_video, published_overrides
 from hub_envs.publishing.card import render_card, reproduced_table
 from hub_envs.publishing.dataset_repo import dataset_commit_exists
 from hub_envs.repo import hub_io
 from hub_envs.repo.format import (
     CARD_FILE,
     DATASET_DIR,
-    FORMAT_VERSION,
     MANIFEST_FILE,
     MEDIA_DIR,
+    SINGLE_TASK_FORMAT_VERSION,
+    SUITE_FORMAT_VERSION,
     EnvFolder,
     Manifest,
     beyond_manifest,
@@ -79,10 +81,13 @@ def published_unchanged(
     if remote is None:
         return None
     local = loaded.manifest
-    seeds = [seed + i for i in range(episodes)]
+    tasks = local.task_names  # a suite's (the folder's [tool.hub-envs] tasks)
+    seeds = dataset_seeds(seed, episodes, len(tasks))
     code = code_files_of(loaded, repo_id)
     same = (
-        remote.format_version == FORMAT_VERSION
+        remote.format_version == (SUITE_FORMAT_VERSION if tasks else SINGLE_TASK_FORMAT_VERSION)
+        and remote.task_names == tasks
+        and all(t["episodes"] == list(range(i * episodes, (i + 1) * episodes)) for i, t in enumerate(remote.tasks))
         and remote.repo_id == repo_id
         and {p: h for p, h in remote.files.items() if not _generated(p)} == code
         and remote.code_digest == code_digest_of_files(code)
@@ -90,10 +95,10 @@ def published_unchanged(
         and remote.config_overrides == published_overrides(loaded)
         and remote.seeds.get("dataset") == seeds
         and remote.seeds.get("check") == seed
-        and remote.dataset.get("episodes") == episodes
+        and remote.dataset.get("episodes") == len(seeds)
         and dataset_uses_video(remote.dataset) == (video and bool(cameras(loaded.config)))
         and (not dataset_uses_video(remote.dataset) or remote.dataset.get("video_gop", LEROBOT_VIDEO_GOP) == video_gop)
-        and remote.fingerprint.get("seeds") == seeds[:fingerprint_seeds]
+        and remote.fingerprint.get("seeds") == _default_task_seeds(local, loaded.config, seeds, episodes)[:fingerprint_seeds]
         and (remote.name, remote.version, remote.description) == (local.name, local.version, local.description)
         and remote.requirements == tuple(local.requirements)
         and remote.processors == tuple(local.processors)
@@ -156,6 +161,14 @@ def refresh_card(
         token=token,
     )
     return sha, manifest
+
+
+def _default_task_seeds(local: Manifest, config: Any, seeds: list[int], episodes: int) -> list[int]:
+    """The dataset seeds of the task the top-level fingerprint is of: a suite's default task's, else all."""
+    if not local.tasks:
+        return seeds
+    index = local.task_names.index(config.task) if config.task in local.task_names else 0
+    return seeds[index * episodes : (index + 1) * episodes]
 
 
 def _generated(path: str) -> bool:

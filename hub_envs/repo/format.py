@@ -23,11 +23,15 @@ from typing import Any
 
 from hub_envs._text import safe_text
 from hub_envs._version import __version__
-from hub_envs.errors import EnvFolderError, IntegrityError, ManifestError
+from hub_envs.errors import ConfigError, EnvFolderError, IntegrityError, ManifestError
 
 #: The manifest format this hub-envs writes; it reads every format from 1 up to this one.
-#: 2 added ``config_overrides`` (config variants published with ``--config.<field>=<value>``).
-FORMAT_VERSION = 3
+#: 2 added ``config_overrides`` (config variants published with ``--config.<field>=<value>``); 3 ``resolved``; 4 ``tasks``
+#: (a benchmark suite: several tasks in one repo), written only by a suite's push (a one-task env's manifest stays 3).
+FORMAT_VERSION = 4
+#: The format a suite's manifest needs (its ``tasks``); a one-task env is published as :data:`SINGLE_TASK_FORMAT_VERSION`.
+SUITE_FORMAT_VERSION = 4
+SINGLE_TASK_FORMAT_VERSION = 3
 MANIFEST_FILE = "hub_env.json"
 CARD_FILE = "README.md"
 ENV_ENTRY_FILE = "env.py"
@@ -593,6 +597,34 @@ def _check_benchmark(entry: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'max_steps' must be a positive int. {_REPUBLISH}")
 
 
+def _check_tasks(data: dict, where: str) -> None:
+    """A suite's ``tasks`` (format 4): distinct task names, each with its task_index, episodes, seeds and fingerprint."""
+    tasks = data.get("tasks", [])
+    if not isinstance(tasks, list) or not all(isinstance(t, dict) for t in tasks):
+        raise ManifestError(f"{where}: 'tasks' must be a list of objects. {_REPUBLISH}")
+    names = [t.get("task") for t in tasks]
+    if not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
+        raise ManifestError(
+            f"{where}: 'tasks' must name distinct tasks (non-empty strings), got {safe_text(repr(names))[:200]}. {_REPUBLISH}"
+        )
+    for i, t in enumerate(tasks):
+        episodes, seeds = t.get("episodes"), t.get("seeds")
+        if not (
+            t.get("task_index") == i
+            and isinstance(t.get("instruction"), str)
+            and isinstance(episodes, list)
+            and all(_is_int(e) and e >= 0 for e in episodes)
+            and isinstance(seeds, list)
+            and len(seeds) == len(episodes)
+            and all(_is_int(s) and s >= 0 for s in seeds)
+            and isinstance(t.get("fingerprint", {}), dict)
+        ):
+            raise ManifestError(
+                f"{where}: tasks[{i}] ({safe_text(str(names[i]))}) must hold task_index {i}, a string instruction, and "
+                f"its dataset episodes and their seeds (lists of non-negative ints of one length). {_REPUBLISH}"
+            )
+
+
 def _newer_format_message(data: dict, version: int, where: str) -> str:
     """A manifest from a newer hub-envs: name the version that wrote it, and the upgrade that reads it."""
     versions = data.get("versions")
@@ -619,7 +651,7 @@ class Manifest:
     env_type: str
     files: dict[str, str]
     content_digest: str
-    format_version: int = FORMAT_VERSION
+    format_version: int = SINGLE_TASK_FORMAT_VERSION  # a suite's push writes SUITE_FORMAT_VERSION
     repo_id: str | None = None
     version: str = "0.0.0"
     description: str = ""
@@ -638,6 +670,10 @@ class Manifest:
     #: the installed version of every package in the closure of ``requirements`` (numpy and gymnasium
     #: included) when push_env ran: ``versions="publisher"`` pins them all, not only the requirements.
     resolved: dict[str, str] = field(default_factory=dict, metadata={"since": 3})
+    #: a benchmark suite's tasks, in task-id order: ``task`` (the config's ``task`` value), ``task_index`` (its
+    #: ``task_index`` in the dataset), ``instruction`` (its language instruction in ``meta/tasks.parquet``), its dataset
+    #: ``episodes`` and their ``seeds``, its golden-rollout ``fingerprint``. Empty: a one-task env.
+    tasks: tuple[dict[str, Any], ...] = field(default=(), metadata={"since": 4})
 
     # -- (de)serialization --
 
@@ -661,6 +697,8 @@ class Manifest:
         d["requirements"] = list(self.requirements)
         d["benchmarks"] = list(self.benchmarks)
         d["processors"] = list(self.processors)
+        if "tasks" in d:
+            d["tasks"] = list(self.tasks)
         return d
 
     def to_json(self) -> str:
@@ -750,6 +788,7 @@ class Manifest:
                 raise ManifestError(f"{where}: {key!r} must be a list of objects. {_REPUBLISH}")
         for i, entry in enumerate(data.get("benchmarks", [])):
             _check_benchmark(entry, f"{where} benchmarks[{i}]")
+        _check_tasks(data, where)
         try:  # what to_json will write: strict JSON (no NaN/Infinity), string keys
             json.dumps(data, allow_nan=False, sort_keys=True)
         except (TypeError, ValueError) as e:
@@ -758,7 +797,34 @@ class Manifest:
         kwargs["requirements"] = tuple(reqs)
         kwargs["benchmarks"] = tuple(data.get("benchmarks", []))
         kwargs["processors"] = tuple(data.get("processors", []))
+        kwargs["tasks"] = tuple(data.get("tasks", []))
         return cls(**kwargs)
+
+    # -- a suite --
+
+    @property
+    def task_names(self) -> list[str]:
+        """A suite's tasks (the config's ``task`` values), in task-id order; ``[]`` for a one-task env."""
+        return [str(t["task"]) for t in self.tasks]
+
+    def task_record(self, task: str) -> dict[str, Any]:
+        """A suite task's record (``tasks[i]``).
+
+        Args:
+            task: one of :attr:`task_names`.
+
+        Returns:
+            Its record.
+
+        Raises:
+            ConfigError: not a task of this suite (the message lists them).
+        """
+        for record in self.tasks:
+            if record["task"] == task:
+                return record
+        raise ConfigError(
+            f"{self.repo_id or self.name}: {task!r} is not one of its tasks; it has {self.task_names or 'none (a one-task env)'}."
+        )
 
     @classmethod
     def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
@@ -895,6 +961,9 @@ class EnvFolder:
     #: ``[tool.hub-envs.media] gym_kwargs``: keyword arguments for the env that renders the card's GIF/MP4 (its
     #: camera, say), on top of the render size push_env asks for (:func:`hub_envs.harness.media.card_media_kwargs`)
     media_gym_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: ``[tool.hub-envs] tasks``: a benchmark suite's tasks, values of the config's ``task`` field, in task-id order
+    #: (:func:`_suite_tasks`); empty: a one-task env
+    tasks: tuple[str, ...] = ()
 
     @classmethod
     def read(cls, root: str | Path) -> EnvFolder:
@@ -965,6 +1034,7 @@ class EnvFolder:
                 f'  [[tool.hub-envs.processors]]\n  name = "clip"\n  entry_point = "clip_action"\n  stage = "post"'
             )
         media_gym_kwargs = _media_gym_kwargs(tool.get("media", {}), project_path)
+        tasks = _suite_tasks(tool.get("tasks"), project_path)
         files = list_files(root)
         clash = sorted({f.split("/")[0] for f in files} & {*GENERATED, REPRODUCTIONS_DIR})
         if clash:
@@ -986,7 +1056,39 @@ class EnvFolder:
             processors=tuple(processors),
             license=card_license(project),
             media_gym_kwargs=media_gym_kwargs,
+            tasks=tasks,
         )
+
+
+_TASKS_EXAMPLE = '  [tool.hub-envs]\n  tasks = ["reach-left", "reach-right", "reach-far"]   # values of the config\'s task field'
+#: A task name: what LeRobot's ``--env.task=a,b`` can list (no comma), one line of printable text.
+_TASK_RE = re.compile(r"^[^,\x00-\x1f\x7f]{1,200}$")
+
+
+def _suite_tasks(value: Any, project_path: Path) -> tuple[str, ...]:
+    """``[tool.hub-envs] tasks`` checked without running code: absent (a one-task env), or at least two distinct task
+    names (the values of the config's ``task`` field; whether the config and the env accept each is checked at push)."""
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not all(isinstance(t, str) for t in value):
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs] tasks must be a list of task names (strings), e.g.\n{_TASKS_EXAMPLE}"
+        )
+    if len(value) < 2:
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs] tasks lists {len(value)} task; a suite has at least two. For one task, "
+            f"remove the key and set the config's task field's default."
+        )
+    bad = [t for t in value if not _TASK_RE.match(t) or t != t.strip()]
+    if bad:
+        raise EnvFolderError(
+            f"{project_path}: [tool.hub-envs] tasks has {[safe_text(b) for b in bad]}: a task name is one line of 1 to 200 "
+            f"characters, without commas (LeRobot's --env.task=a,b lists tasks with them) or surrounding spaces."
+        )
+    twice = sorted({t for t in value if value.count(t) > 1})
+    if twice:
+        raise EnvFolderError(f"{project_path}: [tool.hub-envs] tasks names {twice} more than once; list each task once.")
+    return tuple(value)
 
 
 #: What ``[tool.hub-envs.media]`` may hold.

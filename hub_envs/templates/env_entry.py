@@ -9,7 +9,9 @@ env's code and assets; not the dataset), checks every file against the manifest'
 the env's code as a package unique to repo+sha, and builds vector envs the way LeRobot's own
 ``make_env`` does (``AutoresetMode.SAME_STEP``, so ``info["final_info"]["is_success"]`` reaches
 LeRobot's eval loop, and a ``TimeLimit`` of the config's ``episode_length``). Each env exposes the
-config's ``task`` as ``task`` / ``task_description``, which LeRobot's ``add_envs_task`` reads.
+config's ``task`` as ``task`` / ``task_description``, which LeRobot's ``add_envs_task`` reads. A benchmark
+suite (the manifest's ``tasks``) comes back as ``{name: {task id: VectorEnv}}``, one per task (each with its
+language instruction as ``task_description``), so ``lerobot-eval`` reports every task and the suite.
 Needs only huggingface_hub and gymnasium (both come with lerobot); hub-envs is not required.
 """
 
@@ -288,12 +290,12 @@ class IntegerActions(gym.ActionWrapper):
 
 
 class TaskDescription(gym.Wrapper):
-    """Exposes the config's ``task`` string to LeRobot's eval loop (``add_envs_task``)."""
+    """Exposes the config's ``task`` string (and a suite task's instruction) to LeRobot's eval loop (``add_envs_task``)."""
 
-    def __init__(self, env: gym.Env, task: str):
+    def __init__(self, env: gym.Env, task: str, description: str | None = None):
         super().__init__(env)
         self.task = task
-        self.task_description = task
+        self.task_description = description or task
 
 
 #: repo@sha (and config) whose declared features matched a live env in this process
@@ -339,40 +341,79 @@ def _check_features_once(cfg, make_one) -> None:
     _FEATURES_CHECKED.add(key)
 
 
-def make_env(n_envs: int = 1, use_async_envs: bool = False, cfg=None):
-    """LeRobot EnvHub's entry point: ``{name: {0: VectorEnv}}`` of ``n_envs`` copies of this env.
+def _published_config(config_class, manifest: dict, **fields):
+    """The published config: the code's defaults with the fields the publisher set (``config_overrides``), and ``fields``."""
+    overrides = manifest.get("config_overrides") or {}
+    if overrides:
+        import typing
 
-    ``cfg``, when it is an instance of this repo's config class, overrides the published config;
-    anything else (LeRobot passes its own ``HubEnvConfig``) means the published one: the code's defaults
-    with the fields the publisher set (``config_overrides``: a variant published with ``--config.*``).
-    """
-    env_class, config_class = load_classes()
-    if not isinstance(cfg, config_class):
-        manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
-        overrides = manifest.get("config_overrides") or {}
-        if overrides:
-            import typing
+        import draccus  # LeRobot's config library, present wherever LeRobot runs this file
 
-            import draccus  # LeRobot's config library, present wherever LeRobot runs this file
+        hints = typing.get_type_hints(config_class)  # field by field: EnvConfig is a draccus choice registry
+        return config_class(**{**{name: draccus.decode(hints[name], value) for name, value in overrides.items()}, **fields})
+    return config_class(**fields)
 
-            hints = typing.get_type_hints(config_class)  # field by field: EnvConfig is a draccus choice registry
-            cfg = config_class(**{name: draccus.decode(hints[name], value) for name, value in overrides.items()})
-        else:
-            cfg = config_class()
+
+def _vector_env(env_class, cfg, n_envs: int, use_async_envs: bool, description: str | None = None):
+    """``n_envs`` copies of the env ``cfg`` describes, as LeRobot's eval loop expects them."""
     task = cfg.task if isinstance(cfg.task, str) else None
 
     def _one():
         env = gym.wrappers.TimeLimit(env_class(**cfg.gym_kwargs), max_episode_steps=int(cfg.episode_length))
         if isinstance(env.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete)):
             env = IntegerActions(env)
-        return TaskDescription(env, task) if task is not None else env
+        return TaskDescription(env, task, description) if task is not None else env
 
     _check_features_once(cfg, _one)
     fns = [_one for _ in range(n_envs)]
     mode = gym.vector.AutoresetMode.SAME_STEP
     if use_async_envs:
-        vec = gym.vector.AsyncVectorEnv(fns, context="fork", autoreset_mode=mode)
-    else:
-        vec = gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
+        return gym.vector.AsyncVectorEnv(fns, context="fork", autoreset_mode=mode)
+    return gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
+
+
+def _suite_tasks(manifest: dict, cfg, strict: bool) -> list:
+    """The suite tasks to make: the one a config of this repo names, those LeRobot's config names in its ``task``
+    (``a,b``, as LeRobot's own multi-task configs list them), else all. ``strict``: a config of this repo, whose task
+    must be one of the suite's (LeRobot's own config may hold a task of its own, which means all)."""
+    tasks = manifest.get("tasks") or []
+    names = [t["task"] for t in tasks]
+    wanted = getattr(cfg, "task", None)
+    if isinstance(wanted, str) and wanted:
+        chosen = [w.strip() for w in wanted.split(",")]
+        unknown = [w for w in chosen if w not in names]
+        if not unknown:
+            return [tasks[names.index(w)] for w in chosen]
+        if strict or any(w in names for w in chosen):
+            raise ValueError(f"{_safe(', '.join(unknown))}: not tasks of this suite; its tasks are "
+                             f"{', '.join(_safe(n) for n in names)}.")
+    return tasks
+
+
+def make_env(n_envs: int = 1, use_async_envs: bool = False, cfg=None):
+    """LeRobot EnvHub's entry point: ``{name: {0: VectorEnv}}`` of ``n_envs`` copies of this env; for a benchmark
+    suite, ``{name: {task id: VectorEnv}}`` of its tasks.
+
+    ``cfg``, when it is an instance of this repo's config class, overrides the published config (a suite: the
+    task it names); anything else (LeRobot passes its own ``HubEnvConfig``) means the published one: the code's
+    defaults with the fields the publisher set (``config_overrides``: a variant published with ``--config.*``),
+    and for a suite every task (or those its ``task`` names, comma-separated).
+    """
+    env_class, config_class = load_classes()
     manifest = json.loads((_HERE / _MANIFEST).read_text(encoding="utf-8"))
-    return {manifest.get("name") or "hub_env": {0: vec}}
+    name = manifest.get("name") or "hub_env"
+    if manifest.get("tasks"):
+        if isinstance(cfg, config_class):
+            records = _suite_tasks(manifest, cfg, strict=True)  # a config of this repo: the task it names
+            return {name: {r["task_index"]: _vector_env(env_class, cfg, n_envs, use_async_envs, r["instruction"])
+                           for r in records}}
+        return {
+            name: {
+                r["task_index"]: _vector_env(env_class, _published_config(config_class, manifest, task=r["task"]),
+                                             n_envs, use_async_envs, r["instruction"])
+                for r in _suite_tasks(manifest, cfg, strict=False)
+            }
+        }
+    if not isinstance(cfg, config_class):
+        cfg = _published_config(config_class, manifest)
+    return {name: {0: _vector_env(env_class, cfg, n_envs, use_async_envs)}}
