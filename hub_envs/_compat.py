@@ -213,6 +213,76 @@ def env_config_choices() -> dict[str, Any]:
     return choices
 
 
+#: The package of LeRobot's ``EnvConfig`` and its draccus choice registry (``--env.type``, in ``lerobot.envs.configs``),
+#: in every supported version: whatever parses a LeRobot config imports it first, and its import ends after its
+#: ``configs`` module ran, so a hook on it (:func:`after_import`) runs once ``EnvConfig`` is there and complete.
+LEROBOT_ENV_PACKAGE = "lerobot.envs"
+
+
+def lerobot_env_configs_imported() -> bool:
+    """Whether LeRobot's ``EnvConfig`` (:data:`LEROBOT_ENV_PACKAGE`) is imported in this process (asking imports nothing)."""
+    package, configs = sys.modules.get(LEROBOT_ENV_PACKAGE), sys.modules.get(f"{LEROBOT_ENV_PACKAGE}.configs")
+    return package is not None and not getattr(package.__spec__, "_initializing", False) and hasattr(configs, "EnvConfig")
+
+
+class _ThenCall:
+    """A module's loader that calls ``callback(module)`` once the module has run (and hands the module its own loader
+    back): what :func:`after_import` puts in the module's spec."""
+
+    def __init__(self, loader: Any, callback: Callable[[Any], None]):
+        self._loader, self._callback = loader, callback
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self._loader.exec_module(module)
+        module.__loader__ = module.__spec__.loader = self._loader  # the module keeps its real loader (get_source, ...)
+        self._callback(module)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._loader, name)
+
+
+class _AfterImport:
+    """A ``sys.meta_path`` finder that finds nothing itself: for one module it asks the finders after it for the spec
+    and wraps the spec's loader in :class:`_ThenCall` (the stdlib has no post-import hook)."""
+
+    def __init__(self, name: str, callback: Callable[[Any], None]):
+        self.name, self.callback = name, callback
+
+    def find_spec(self, fullname: str, path=None, target=None):
+        if fullname != self.name:
+            return None
+        for finder in sys.meta_path:
+            find = getattr(finder, "find_spec", None)
+            if finder is self or isinstance(finder, _AfterImport) or find is None:
+                continue
+            spec = find(fullname, path, target)
+            if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+                spec.loader = _ThenCall(spec.loader, self.callback)
+                return spec
+            if spec is not None:
+                return spec
+        return None
+
+
+def after_import(name: str, callback: Callable[[Any], None]) -> None:
+    """Call ``callback(module)`` right after the module ``name`` is imported, by whoever imports it: at once if it is
+    imported already. Once per module and callback (a second call with the same pair does nothing).
+
+    Args:
+        name: a full module name (``"lerobot.envs"``).
+        callback: called with the module, inside the import statement that imports it: it must not raise.
+    """
+    module = sys.modules.get(name)
+    if module is not None:
+        callback(module)
+        return
+    if not any(isinstance(f, _AfterImport) and f.name == name and f.callback == callback for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterImport(name, callback))
+
+
 def processor_step_names() -> list[str]:
     """Names in LeRobot's ``ProcessorStepRegistry`` (public ``list()`` on every supported version)."""
     from lerobot.processor.pipeline import ProcessorStepRegistry  # heavy: lerobot (torch)

@@ -1,0 +1,96 @@
+"""A new process's first step of a cached env: no torch, no lerobot, unless something asks for them.
+
+A user's second run of ``load_env("user/name@<sha>").make()`` (files cached, consent in the trust list, the checks'
+verdict cached) needs only gymnasium and the env's own code; LeRobot's config (``loaded.config``) and its ``--env.type``
+choice are still there the moment something asks for them in the same process. Each scenario is a fresh ``python``
+(``sys.modules`` is what is asserted); real parts: the loopback Hub, huggingface_hub, LeRobot's parser, draccus.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hub_envs import push_env, trust
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: Loads the env, makes it, steps it, and says which of torch and lerobot got imported; then the scenario.
+SCRIPT = """
+import json, sys
+from hub_envs import load_env
+
+loaded = load_env(sys.argv[1])
+env = loaded.make()
+env.reset(seed=0)
+env.step(env.action_space.sample())
+out = {"heavy": sorted({m.split(".")[0] for m in sys.modules} & {"torch", "lerobot"})}
+scenario = sys.argv[2]
+
+if scenario == "unregistered":  # the choice of a load released before LeRobot came is not registered when it comes
+    env_type = loaded.env_type
+    loaded.unregister()
+    from lerobot.envs.configs import EnvConfig
+
+    out["choice_after_unregister"] = env_type in EnvConfig.get_known_choices()
+    loaded = load_env(sys.argv[1])  # loaded again: registered at once
+
+if scenario == "config first":
+    cfg = loaded.config
+    out["config_first"] = [type(cfg).__qualname__, cfg.g]
+
+import draccus
+from lerobot.configs.eval import EvalPipelineConfig
+from lerobot.envs.configs import EnvConfig
+
+from hub_envs.envcode.envconfig import encode_config
+
+ev = draccus.parse(EvalPipelineConfig, args=[f"--env.type={loaded.env_type}", "--env.g=5.0", "--env.episode_length=7",
+                                             "--policy.type=act"])
+out["parsed"] = [isinstance(ev.env, loaded.config_class), ev.env.type == loaded.env_type, ev.env.g]
+out["made_from_parsed"] = loaded.make(ev.env).spec.max_episode_steps
+cfg = loaded.config
+out["config"] = [isinstance(cfg, EnvConfig), type(cfg) is loaded.config_class, encode_config(cfg) == loaded.manifest.config]
+print("RESULT " + json.dumps(out))
+"""
+
+
+def _run(ref: str, scenario: str) -> dict:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", SCRIPT, ref, scenario], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(next(line for line in done.stdout.splitlines() if line.startswith("RESULT "))[len("RESULT ") :])
+
+
+@pytest.fixture(scope="module")
+def cached(hub_module) -> str:
+    """envs/pendulum (state observations) pushed, trusted, and loaded once in a process of its own (which runs and
+    caches its checks): the ``user/name@<sha>`` of a user's second run."""
+    sha = push_env(ROOT / "envs" / "pendulum", "alice/pendulum-first-step", episodes=1, progress=False).sha
+    ref = f"alice/pendulum-first-step@{sha}"
+    trust("alice/pendulum-first-step", sha)
+    _run(ref, "first load")
+    return ref
+
+
+@pytest.mark.parametrize("scenario", ["parser first", "config first"])
+def test_a_cached_env_steps_without_torch_or_lerobot_and_lerobot_still_finds_it(cached, scenario):
+    out = _run(cached, scenario)
+    assert out["heavy"] == []  # the first step imported neither torch nor lerobot
+    if scenario == "config first":
+        assert out["config_first"] == ["PendulumEnvConfig", 10.0]  # the repo's config class, its published defaults
+    assert out["parsed"] == [True, True, 5.0]  # LeRobot's parser knows --env.type=<choice> and the repo's own fields
+    assert out["made_from_parsed"] == 7
+    assert out["config"] == [True, True, True]  # the real EnvConfig, and what the manifest records
+
+
+def test_a_choice_released_before_lerobot_is_imported_stays_unregistered(cached):
+    out = _run(cached, "unregistered")
+    assert out["heavy"] == []
+    assert out["choice_after_unregister"] is False
+    assert out["parsed"] == [True, True, 5.0] and out["config"] == [True, True, True]
