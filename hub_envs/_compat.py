@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import multiprocessing
 import sys
 from collections.abc import Callable, Mapping
 from importlib.metadata import PackageNotFoundError, version
@@ -21,9 +20,7 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
-import huggingface_hub
-from huggingface_hub import constants, utils
-from huggingface_hub.utils import _http, get_session
+from huggingface_hub import constants
 from packaging.version import Version
 
 
@@ -69,7 +66,18 @@ def _network_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseE
 #: ``NETWORK_ERRORS``: the Hub cannot be reached (connection refused or reset, DNS, timeout).
 #: ``TRANSFER_ERRORS``: the transfer broke off after it started (e.g. a connection dropped mid-file).
 #: Catch ``NETWORK_ERRORS`` first: with requests, ``TRANSFER_ERRORS`` includes it.
-NETWORK_ERRORS, TRANSFER_ERRORS = _network_errors()
+#: Both are made on first use (:func:`__getattr__`): the HTTP library is imported only where the Hub is talked to.
+NETWORK_ERRORS: tuple[type[BaseException], ...]
+TRANSFER_ERRORS: tuple[type[BaseException], ...]
+
+
+def __getattr__(name: str) -> Any:
+    """``NETWORK_ERRORS`` and ``TRANSFER_ERRORS``, made (importing the HTTP library) when first asked for."""
+    if name in ("NETWORK_ERRORS", "TRANSFER_ERRORS"):
+        network, transfer = _network_errors()
+        globals().update(NETWORK_ERRORS=network, TRANSFER_ERRORS=transfer)
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def file_get_retries_server_errors() -> bool:
@@ -106,6 +114,8 @@ def lfs_instead_of_xet(enabled: bool = True):
 
 def reset_http_sessions() -> None:
     """Drop the client's cached HTTP sessions (0.x ``reset_sessions``, 1.x ``close_session``)."""
+    from huggingface_hub import utils  # heavy: huggingface_hub's HTTP stack
+
     reset = getattr(utils, "close_session", None) or utils.reset_sessions
     reset()
 
@@ -125,6 +135,8 @@ def stream_file(url: str, headers: Mapping[str, str], timeout: float):
         ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it redirects a large file to a CDN), ``final_headers`` of the
         answer that carries the body, ``chunks`` an iterator of its bytes.
     """
+    from huggingface_hub.utils import get_session  # heavy: huggingface_hub's HTTP stack
+
     session = get_session()
     if HF_HUB_MAJOR >= 1:
         with session.stream("GET", url, headers=dict(headers), follow_redirects=True, timeout=timeout) as response:
@@ -155,6 +167,9 @@ def install_response_hook(hook) -> bool:
     Returns:
         True when it installed the hook now (idempotent per hook).
     """
+    import huggingface_hub  # heavy: huggingface_hub's HTTP stack (httpx or requests)
+    from huggingface_hub.utils import _http
+
     name = "_GLOBAL_CLIENT_FACTORY" if HF_HUB_MAJOR >= 1 else "_GLOBAL_BACKEND_FACTORY"
     previous = getattr(_http, name)
     if hook in getattr(previous, "_hub_envs_hooks", ()):
@@ -630,6 +645,8 @@ def point_clients_at(
 
 def live_children() -> set[int]:
     """Pids of this process's live multiprocessing children (public API: ``active_children``)."""
+    import multiprocessing  # heavy-ish: only where pools run
+
     return {p.pid for p in multiprocessing.active_children() if p.pid is not None}
 
 
@@ -643,6 +660,8 @@ def terminate_new_children(before: set[int]) -> None:
     Args:
         before: :func:`live_children` before the pool was made.
     """
+    import multiprocessing  # heavy-ish: only where pools run
+
     for proc in multiprocessing.active_children():
         if proc.pid not in before and proc.is_alive():
             proc.terminate()

@@ -29,7 +29,7 @@ loaded = load_env(sys.argv[1])
 env = loaded.make()
 env.reset(seed=0)
 env.step(env.action_space.sample())
-out = {"heavy": sorted({m.split(".")[0] for m in sys.modules} & {"torch", "lerobot"})}
+out = {"heavy": sorted({m.split(".")[0] for m in sys.modules} & {"torch", "lerobot"}), "checks": loaded.report.fingerprint}
 scenario = sys.argv[2]
 
 if scenario == "unregistered":  # the choice of a load released before LeRobot came is not registered when it comes
@@ -81,7 +81,7 @@ def cached(hub_module) -> str:
 @pytest.mark.parametrize("scenario", ["parser first", "config first"])
 def test_a_cached_env_steps_without_torch_or_lerobot_and_lerobot_still_finds_it(cached, scenario):
     out = _run(cached, scenario)
-    assert out["heavy"] == []  # the first step imported neither torch nor lerobot
+    assert out["heavy"] == [], out["checks"]  # the first step imported neither torch nor lerobot
     if scenario == "config first":
         assert out["config_first"] == ["PendulumEnvConfig", 10.0]  # the repo's config class, its published defaults
     assert out["parsed"] == [True, True, 5.0]  # LeRobot's parser knows --env.type=<choice> and the repo's own fields
@@ -91,6 +91,60 @@ def test_a_cached_env_steps_without_torch_or_lerobot_and_lerobot_still_finds_it(
 
 def test_a_choice_released_before_lerobot_is_imported_stays_unregistered(cached):
     out = _run(cached, "unregistered")
-    assert out["heavy"] == []
+    assert out["heavy"] == [], out["checks"]
     assert out["choice_after_unregister"] is False
     assert out["parsed"] == [True, True, 5.0] and out["config"] == [True, True, True]
+
+
+#: Repo ids on either side of huggingface_hub's rules (lengths, edges, '--', '..', '.git', characters).
+REPO_IDS = [
+    "user/name",
+    "u/n",
+    "user_/_name",
+    "user/name.v2",
+    "User-1/Name_2.x",
+    "a" * 96 + "/name",
+    "user/" + "b" * 96,
+    "user/" + "b" * 97,
+    "user/-name",
+    "user/name-",
+    "user/.name",
+    "user/name.",
+    "-user/name",
+    "user./name",
+    "user/na--me",
+    "user/na..me",
+    "user/name.git",
+    "user/name.gi",
+    "user/_",
+    "user/-",
+    "user/na_me",
+    "user/nam e",
+    "user/café",
+    "user/name\n",
+]
+
+
+@pytest.mark.parametrize("repo_id", REPO_IDS)
+def test_repo_ids_are_checked_by_huggingface_hubs_own_rules_without_importing_its_client(repo_id):
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id
+
+    from hub_envs.repo.format import repo_id_problem
+
+    try:
+        validate_repo_id(repo_id)
+        # what 0.35 lets through and 1.x refuses: a trailing newline (its pattern ends in $), non-ASCII letters (\w)
+        hf_accepts = "\n" not in repo_id and repo_id.isascii()
+    except HFValidationError:
+        hf_accepts = False
+    assert (repo_id_problem(repo_id) is None) == hf_accepts, repo_id_problem(repo_id)
+
+
+def test_the_cache_folder_of_a_repo_is_the_one_huggingface_hub_names(tmp_path):
+    from huggingface_hub.file_download import repo_folder_name
+
+    from hub_envs.repo.hub_cache import cache_snapshots_dir
+
+    folder = repo_folder_name(repo_id="alice/pendulum-first-step", repo_type="model")
+    assert cache_snapshots_dir("alice/pendulum-first-step", tmp_path) == tmp_path / folder / "snapshots"

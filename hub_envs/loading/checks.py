@@ -19,7 +19,6 @@ from hub_envs.errors import (
     InvalidRepoFormatError,
     IsolationUnavailableError,
 )
-from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.features import FeatureReport, check_features
 from hub_envs.harness.provenance import drift_note
 from hub_envs.isolation.options import IsolationOptions
@@ -270,6 +269,8 @@ def run_load_checks(
             loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
             check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint, **config_note})
             return
+
+        from hub_envs.harness.checks import verify_fingerprint  # heavy: the rollout machinery (multiprocessing, tqdm)
 
         handed_over = True
         try:  # the versions are read only for the error message (milliseconds)
