@@ -32,8 +32,35 @@ from hub_envs.repo.requirements import check_requirements
 FingerprintPolicy = Literal["error", "warn", "off"]
 
 #: What a cached verdict of an in-process load holds besides the checks: the config the code computes matched the
-#: manifest's values (:func:`checked_config`), so a later load with the same key may take them from the manifest.
+#: manifest's values (:func:`checked_config`) and those give the env exactly what the config does
+#: (:func:`manifest_reproduces`), so a later load with the same key may take them from the manifest.
 CONFIG_CHECKED = ("config", "the code's config matches the manifest")
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal, and of the same types all the way down (a tuple the code gives is not the list JSON gives back)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(v, b[k]) for k, v in a.items())
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def manifest_reproduces(config: Any, manifest: Manifest) -> bool:
+    """Whether registering from the manifest's values (``gym_kwargs``, ``episode_length``) gives the env exactly the
+    arguments ``config`` gives it: JSON keeps dicts, lists, strings, numbers and booleans as they are, and nothing else.
+
+    Args:
+        config: the config the code computed.
+        manifest: the verified manifest.
+
+    Returns:
+        True when they are the same values of the same types.
+    """
+    recorded = manifest.config or {}
+    return _same(recorded.get("gym_kwargs"), config.gym_kwargs) and _same(recorded.get("episode_length"), config.episode_length)
 
 
 @dataclass

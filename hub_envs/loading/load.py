@@ -29,6 +29,7 @@ from hub_envs.loading.checks import (
     check_processors,
     checked_config,
     config_check_cached,
+    manifest_reproduces,
     plan_for_worker,
     preflight,
     record_config_check,
@@ -254,7 +255,8 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
             if not iso.isolated and parts.deferred is None:  # the config the code computes, checked against the manifest's
                 config = checked_config(parts.config_class, src.manifest, set_fields, src.where)
                 parts = dataclasses.replace(parts, config=config)
-                record_config_check(plan)
+                if manifest_reproduces(config, src.manifest):  # the next load may register from the manifest alone
+                    record_config_check(plan)
             reg = _register(src, parts)
             run.timings["import_register"] = time.perf_counter() - t
             loaded = LoadedEnv(
@@ -285,7 +287,7 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
                     steps=run.check_steps,
                     key=plan.key,
                     cached=plan.cached,
-                    config_checked=not iso.isolated,
+                    config_checked=not iso.isolated and manifest_reproduces(parts.config, src.manifest),
                 )
                 run.timings["checks"] = time.perf_counter() - t
             if src.manifest.processors:
