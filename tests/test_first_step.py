@@ -25,12 +25,15 @@ SCRIPT = """
 import json, sys
 from hub_envs import load_env
 
-loaded = load_env(sys.argv[1])
+loaded = load_env(sys.argv[1], **json.loads(sys.argv[3]))
 env = loaded.make()
 env.reset(seed=0)
 env.step(env.action_space.sample())
 out = {"heavy": sorted({m.split(".")[0] for m in sys.modules} & {"torch", "lerobot"}), "checks": loaded.report.fingerprint}
 scenario = sys.argv[2]
+if scenario == "load only":
+    print("RESULT " + json.dumps(out))
+    sys.exit(0)
 
 if scenario == "unregistered":  # the choice of a load released before LeRobot came is not registered when it comes
     env_type = loaded.env_type
@@ -60,9 +63,10 @@ print("RESULT " + json.dumps(out))
 """
 
 
-def _run(ref: str, scenario: str) -> dict:
+def _run(ref: str, scenario: str, **load_kwargs) -> dict:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-c", SCRIPT, ref, scenario], env=env, capture_output=True, text=True, timeout=300)
+    argv = [sys.executable, "-c", SCRIPT, ref, scenario, json.dumps(load_kwargs)]
+    done = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(next(line for line in done.stdout.splitlines() if line.startswith("RESULT "))[len("RESULT ") :])
 
@@ -94,6 +98,19 @@ def test_a_choice_released_before_lerobot_is_imported_stays_unregistered(cached)
     assert out["heavy"] == [], out["checks"]
     assert out["choice_after_unregister"] is False
     assert out["parsed"] == [True, True, 5.0] and out["config"] == [True, True, True]
+
+
+def test_a_verdict_an_isolated_load_cached_does_not_spare_an_in_process_load_its_config_check(hub_module):
+    """An isolated load never runs the config's code here, so its cached verdict says nothing of the config: the next
+    in-process load imports it and checks it against the manifest (LeRobot with it); the one after that may not."""
+    sha = push_env(ROOT / "envs" / "pendulum", "alice/pendulum-after-isolated", episodes=1, progress=False).sha
+    ref = f"alice/pendulum-after-isolated@{sha}"
+    trust("alice/pendulum-after-isolated", sha)
+    assert "cached" not in _run(ref, "load only", isolation="process")["checks"]  # ran the checks, cached their verdict
+    first = _run(ref, "load only")
+    assert "cached" in first["checks"] and first["heavy"] == ["lerobot", "torch"]  # the config checked here
+    second = _run(ref, "load only")
+    assert "cached" in second["checks"] and second["heavy"] == []
 
 
 #: Repo ids on either side of huggingface_hub's rules (lengths, edges, '--', '..', '.git', characters).
