@@ -69,9 +69,6 @@ def _register_pending(_module: Any = None) -> None:
     statement that imported it, by :func:`hub_envs._compat.after_import`: it never raises). A choice whose config class
     cannot be imported or registered now is logged and left out: ``loaded.config_class`` raises its error."""
     choices = env_config_choices()
-    for txn in _OPEN:  # LeRobot's own choices arrived inside the block: a rollback keeps them
-        if txn.choices_before is None:
-            txn.choices_before = dict(choices)
     for env_type, load_class in list(_PENDING.items()):
         owner = _OWNED_CHOICES.get(env_type)
         _PENDING.pop(env_type, None)
@@ -81,8 +78,9 @@ def _register_pending(_module: Any = None) -> None:
             _OWNED_CHOICES.pop(env_type, None)
             what = str(e) if isinstance(e, HubEnvsError) else f"{type(e).__name__}: {e}"
             _log.warning("%s: its --env.type choice %r is not registered: %s", owner, env_type, what)
-    for txn in _OPEN:  # what registered now belongs to loads that succeeded before the block
-        txn.choices_before = dict(choices)
+    for txn in _OPEN:  # LeRobot arrived inside the block: its own choices, and those of loads before it, stay
+        if txn.choices_before is None:
+            txn.choices_before = dict(choices)
 
 
 #: The consent flag of LeRobot's CLIs for a hub env, ``--env.trust_remote_code=true``: a field of the ``hub`` choice,
