@@ -15,16 +15,18 @@ import contextlib
 import dataclasses
 import sys
 from collections.abc import Callable, Mapping
-from importlib.metadata import PackageNotFoundError, version
 from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
+import huggingface_hub
 from huggingface_hub import constants
 from packaging.version import Version
 
 
 def _version(dist: str) -> Version | None:
+    from importlib.metadata import PackageNotFoundError, version  # heavy-ish: importlib.metadata (email, zipfile, csv)
+
     try:
         return Version(version(dist))
     except PackageNotFoundError:
@@ -33,7 +35,7 @@ def _version(dist: str) -> Version | None:
 
 # --- huggingface_hub: requests (0.x) or httpx (1.x) --------------------------------------------
 
-HF_HUB_VERSION: Version = _version("huggingface_hub") or Version("0")
+HF_HUB_VERSION: Version = Version(huggingface_hub.__version__)  # the package's own (its distribution's version)
 HF_HUB_MAJOR: int = HF_HUB_VERSION.major
 
 
@@ -72,10 +74,15 @@ TRANSFER_ERRORS: tuple[type[BaseException], ...]
 
 
 def __getattr__(name: str) -> Any:
-    """``NETWORK_ERRORS`` and ``TRANSFER_ERRORS``, made (importing the HTTP library) when first asked for."""
+    """``NETWORK_ERRORS`` and ``TRANSFER_ERRORS`` (importing the HTTP library), and ``LEROBOT_VERSION`` (reading the
+    installed distributions), made when first asked for."""
     if name in ("NETWORK_ERRORS", "TRANSFER_ERRORS"):
         network, transfer = _network_errors()
         globals().update(NETWORK_ERRORS=network, TRANSFER_ERRORS=transfer)
+        return globals()[name]
+    if name == "LEROBOT_VERSION":
+        if name not in globals():  # asked through _lerobot_at_least too: read once
+            globals()[name] = _version("lerobot")
         return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -207,7 +214,14 @@ def install_response_hook(hook) -> bool:
 
 # --- lerobot -----------------------------------------------------------------------------------
 
-LEROBOT_VERSION: Version | None = _version("lerobot")
+#: The installed lerobot's version (None: not installed), read on first use (:func:`__getattr__`).
+LEROBOT_VERSION: Version | None
+
+
+def _lerobot_at_least(version: str) -> bool:
+    """Whether the installed lerobot is at least ``version``."""
+    lerobot = __getattr__("LEROBOT_VERSION")
+    return lerobot is not None and lerobot >= Version(version)
 
 
 def env_config_choices() -> dict[str, Any]:
@@ -365,14 +379,14 @@ def lerobot_dataset_layout() -> dict[str, Any]:
 def tasks_index_name() -> str | None:
     """The name of ``meta/tasks.parquet``'s index (the task strings) as the installed LeRobot writes it:
     unnamed in 0.4 (stored as ``__index_level_0__``), ``"task"`` from 0.5. Both read back the same."""
-    return "task" if LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5") else None
+    return "task" if _lerobot_at_least("0.5") else None
 
 
 def stats_extremes_as_float() -> bool:
     """Whether the installed LeRobot's writer stores the min/max stats of every numeric feature as float64
     (0.5 on: its running statistics work in float64) rather than in the feature's dtype (0.4: bool for
     ``next.done``, int64 for ``frame_index``), in ``meta/episodes`` and ``meta/stats.json``."""
-    return LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5")
+    return _lerobot_at_least("0.5")
 
 
 def train_dataset_hooks() -> tuple[str, ...]:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib.metadata
 import importlib.util
 import logging
 import os
@@ -200,7 +199,9 @@ def _installed_origin(target: Any, code: Path) -> str | None:
         file = spec.origin if spec is not None else None
     if not file or Path(file).resolve().is_relative_to(code.resolve()):
         return None
-    distributions = importlib.metadata.packages_distributions().get(module.split(".")[0])
+    from importlib.metadata import packages_distributions  # heavy-ish (email, zipfile, csv): an entry was replaced
+
+    distributions = packages_distributions().get(module.split(".")[0])
     return ", ".join(sorted(set(distributions))) if distributions else None
 
 

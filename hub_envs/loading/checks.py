@@ -20,14 +20,12 @@ from hub_envs.errors import (
     IsolationUnavailableError,
 )
 from hub_envs.harness.features import FeatureReport, check_features
-from hub_envs.harness.provenance import drift_note
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading import check_cache
 from hub_envs.loading.isolated import worker_versions
 from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.loading.source import Source
 from hub_envs.repo.format import DATASET_DIR, Manifest
-from hub_envs.repo.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
 
@@ -107,6 +105,8 @@ def preflight(
         plan.key = checks_key(src.where, src.manifest, steps=steps, fingerprint=fingerprint, machine=machine.result())
         plan.cached = check_cache.lookup(plan.key) if use_cache else None
         if plan.cached is None:
+            from hub_envs.repo.requirements import check_requirements  # heavy-ish: importlib.metadata, packaging
+
             check_requirements(src.manifest.requirements, repo=src.where)
     return plan
 
@@ -298,6 +298,7 @@ def run_load_checks(
             return
 
         from hub_envs.harness.checks import verify_fingerprint  # heavy: the rollout machinery (multiprocessing, tqdm)
+        from hub_envs.harness.provenance import drift_note  # heavy-ish: importlib.metadata, packaging
 
         handed_over = True
         try:  # the versions are read only for the error message (milliseconds)
