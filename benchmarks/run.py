@@ -36,6 +36,7 @@ README = Path(__file__).resolve().parent / "README.md"
 MODULES: dict[str, dict] = {
     "bench_load": {"repeats": 9},
     "bench_startup": {"repeats": 7},
+    "bench_first_step": {"repeats": 7},
     "bench_download": {"clients": 8, "size_mb": 32, "repeats": 3},
     "bench_datagen": {"repeats": 5},
     "bench_replay": {"repeats": 5},
@@ -92,6 +93,17 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "cli_trust_s": ("bench_startup", (LE, 0.5), "seconds: hub-envs trust user/name@<sha>"),
     "push_env_help_s": ("bench_startup", (LE, 0.5), "seconds: push_env --help"),
     "cli_help_vs_python": ("bench_startup", None, "hub-envs --help ÷ python -c pass"),
+    "first_step_vs_gymnasium": (
+        "bench_first_step",
+        (LE, 3.0),
+        "a fresh process from import to first step: load_env of a cached state-only env (pendulum) ÷ gymnasium.make('Pendulum-v1')",
+    ),
+    "first_step_peak_rss_mb": ("bench_first_step", None, "  MiB: that process's peak RSS (gymnasium's beside it in the details)"),
+    "first_step_lerobot_vs_gymnasium": (
+        "bench_first_step",
+        None,
+        "  the same with LeRobot's make_env of that repo ÷ gymnasium's",
+    ),
     "server_download_mb_s": ("bench_download", None, "MiB/s to 8 concurrent snapshot_downloads"),
     "server_errors": ("bench_download", (EQ, 0), "failed or corrupt downloads among them"),
     "push_build_s_pendulum": ("bench_push", None, "seconds: push's local work (checks, dataset, card), pendulum, 10 eps"),
@@ -288,7 +300,7 @@ def readme(out: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--only", nargs="*", help="module names (load, startup, download, datagen, replay, eval, server, pages, ...)"
+        "--only", nargs="*", help="module names (load, startup, first_step, download, datagen, replay, eval, server, pages, ...)"
     )
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument(

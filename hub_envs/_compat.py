@@ -14,21 +14,20 @@ from __future__ import annotations
 import ast
 import contextlib
 import dataclasses
-import multiprocessing
 import sys
 from collections.abc import Callable, Mapping
-from importlib.metadata import PackageNotFoundError, version
 from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
 import huggingface_hub
-from huggingface_hub import constants, utils
-from huggingface_hub.utils import _http, get_session
+from huggingface_hub import constants
 from packaging.version import Version
 
 
 def _version(dist: str) -> Version | None:
+    from importlib.metadata import PackageNotFoundError, version  # heavy-ish: importlib.metadata (email, zipfile, csv)
+
     try:
         return Version(version(dist))
     except PackageNotFoundError:
@@ -37,7 +36,7 @@ def _version(dist: str) -> Version | None:
 
 # --- huggingface_hub: requests (0.x) or httpx (1.x) --------------------------------------------
 
-HF_HUB_VERSION: Version = _version("huggingface_hub") or Version("0")
+HF_HUB_VERSION: Version = Version(huggingface_hub.__version__)  # the package's own (its distribution's version)
 HF_HUB_MAJOR: int = HF_HUB_VERSION.major
 
 
@@ -70,7 +69,23 @@ def _network_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseE
 #: ``NETWORK_ERRORS``: the Hub cannot be reached (connection refused or reset, DNS, timeout).
 #: ``TRANSFER_ERRORS``: the transfer broke off after it started (e.g. a connection dropped mid-file).
 #: Catch ``NETWORK_ERRORS`` first: with requests, ``TRANSFER_ERRORS`` includes it.
-NETWORK_ERRORS, TRANSFER_ERRORS = _network_errors()
+#: Both are made on first use (:func:`__getattr__`): the HTTP library is imported only where the Hub is talked to.
+NETWORK_ERRORS: tuple[type[BaseException], ...]
+TRANSFER_ERRORS: tuple[type[BaseException], ...]
+
+
+def __getattr__(name: str) -> Any:
+    """``NETWORK_ERRORS`` and ``TRANSFER_ERRORS`` (importing the HTTP library), and ``LEROBOT_VERSION`` (reading the
+    installed distributions), made when first asked for."""
+    if name in ("NETWORK_ERRORS", "TRANSFER_ERRORS"):
+        network, transfer = _network_errors()
+        globals().update(NETWORK_ERRORS=network, TRANSFER_ERRORS=transfer)
+        return globals()[name]
+    if name == "LEROBOT_VERSION":
+        if name not in globals():  # asked through _lerobot_at_least too: read once
+            globals()[name] = _version("lerobot")
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def file_get_retries_server_errors() -> bool:
@@ -107,6 +122,8 @@ def lfs_instead_of_xet(enabled: bool = True):
 
 def reset_http_sessions() -> None:
     """Drop the client's cached HTTP sessions (0.x ``reset_sessions``, 1.x ``close_session``)."""
+    from huggingface_hub import utils  # heavy: huggingface_hub's HTTP stack
+
     reset = getattr(utils, "close_session", None) or utils.reset_sessions
     reset()
 
@@ -126,6 +143,8 @@ def stream_file(url: str, headers: Mapping[str, str], timeout: float):
         ``X-Repo-Commit`` / ``X-Linked-Etag`` even when it redirects a large file to a CDN), ``final_headers`` of the
         answer that carries the body, ``chunks`` an iterator of its bytes.
     """
+    from huggingface_hub.utils import get_session  # heavy: huggingface_hub's HTTP stack
+
     session = get_session()
     if HF_HUB_MAJOR >= 1:
         with session.stream("GET", url, headers=dict(headers), follow_redirects=True, timeout=timeout) as response:
@@ -156,6 +175,9 @@ def install_response_hook(hook) -> bool:
     Returns:
         True when it installed the hook now (idempotent per hook).
     """
+    import huggingface_hub  # heavy: huggingface_hub's HTTP stack (httpx or requests)
+    from huggingface_hub.utils import _http
+
     name = "_GLOBAL_CLIENT_FACTORY" if HF_HUB_MAJOR >= 1 else "_GLOBAL_BACKEND_FACTORY"
     previous = getattr(_http, name)
     if hook in getattr(previous, "_hub_envs_hooks", ()):
@@ -193,7 +215,14 @@ def install_response_hook(hook) -> bool:
 
 # --- lerobot -----------------------------------------------------------------------------------
 
-LEROBOT_VERSION: Version | None = _version("lerobot")
+#: The installed lerobot's version (None: not installed), read on first use (:func:`__getattr__`).
+LEROBOT_VERSION: Version | None
+
+
+def _lerobot_at_least(version: str) -> bool:
+    """Whether the installed lerobot is at least ``version``."""
+    lerobot = __getattr__("LEROBOT_VERSION")
+    return lerobot is not None and lerobot >= Version(version)
 
 
 def env_config_choices() -> dict[str, Any]:
@@ -212,6 +241,76 @@ def env_config_choices() -> dict[str, Any]:
             "update hub_envs._compat.env_config_choices."
         )
     return choices
+
+
+#: The package of LeRobot's ``EnvConfig`` and its draccus choice registry (``--env.type``, in ``lerobot.envs.configs``),
+#: in every supported version: whatever parses a LeRobot config imports it first, and its import ends after its
+#: ``configs`` module ran, so a hook on it (:func:`after_import`) runs once ``EnvConfig`` is there and complete.
+LEROBOT_ENV_PACKAGE = "lerobot.envs"
+
+
+def lerobot_env_configs_imported() -> bool:
+    """Whether LeRobot's ``EnvConfig`` (:data:`LEROBOT_ENV_PACKAGE`) is imported in this process (asking imports nothing)."""
+    package, configs = sys.modules.get(LEROBOT_ENV_PACKAGE), sys.modules.get(f"{LEROBOT_ENV_PACKAGE}.configs")
+    return package is not None and not getattr(package.__spec__, "_initializing", False) and hasattr(configs, "EnvConfig")
+
+
+class _ThenCall:
+    """A module's loader that calls ``callback(module)`` once the module has run (and hands the module its own loader
+    back): what :func:`after_import` puts in the module's spec."""
+
+    def __init__(self, loader: Any, callback: Callable[[Any], None]):
+        self._loader, self._callback = loader, callback
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self._loader.exec_module(module)
+        module.__loader__ = module.__spec__.loader = self._loader  # the module keeps its real loader (get_source, ...)
+        self._callback(module)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._loader, name)
+
+
+class _AfterImport:
+    """A ``sys.meta_path`` finder that finds nothing itself: for one module it asks the finders after it for the spec
+    and wraps the spec's loader in :class:`_ThenCall` (the stdlib has no post-import hook)."""
+
+    def __init__(self, name: str, callback: Callable[[Any], None]):
+        self.name, self.callback = name, callback
+
+    def find_spec(self, fullname: str, path=None, target=None):
+        if fullname != self.name:
+            return None
+        for finder in sys.meta_path:
+            find = getattr(finder, "find_spec", None)
+            if finder is self or isinstance(finder, _AfterImport) or find is None:
+                continue
+            spec = find(fullname, path, target)
+            if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+                spec.loader = _ThenCall(spec.loader, self.callback)
+                return spec
+            if spec is not None:
+                return spec
+        return None
+
+
+def after_import(name: str, callback: Callable[[Any], None]) -> None:
+    """Call ``callback(module)`` right after the module ``name`` is imported, by whoever imports it: at once if it is
+    imported already. Once per module and callback (a second call with the same pair does nothing).
+
+    Args:
+        name: a full module name (``"lerobot.envs"``).
+        callback: called with the module, inside the import statement that imports it: it must not raise.
+    """
+    module = sys.modules.get(name)
+    if module is not None:
+        callback(module)
+        return
+    if not any(isinstance(f, _AfterImport) and f.name == name and f.callback == callback for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterImport(name, callback))
 
 
 def processor_step_names() -> list[str]:
@@ -281,14 +380,14 @@ def lerobot_dataset_layout() -> dict[str, Any]:
 def tasks_index_name() -> str | None:
     """The name of ``meta/tasks.parquet``'s index (the task strings) as the installed LeRobot writes it:
     unnamed in 0.4 (stored as ``__index_level_0__``), ``"task"`` from 0.5. Both read back the same."""
-    return "task" if LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5") else None
+    return "task" if _lerobot_at_least("0.5") else None
 
 
 def stats_extremes_as_float() -> bool:
     """Whether the installed LeRobot's writer stores the min/max stats of every numeric feature as float64
     (0.5 on: its running statistics work in float64) rather than in the feature's dtype (0.4: bool for
     ``next.done``, int64 for ``frame_index``), in ``meta/episodes`` and ``meta/stats.json``."""
-    return LEROBOT_VERSION is not None and LEROBOT_VERSION >= Version("0.5")
+    return _lerobot_at_least("0.5")
 
 
 def train_dataset_hooks() -> tuple[str, ...]:
@@ -609,6 +708,8 @@ def point_clients_at(
 
 def live_children() -> set[int]:
     """Pids of this process's live multiprocessing children (public API: ``active_children``)."""
+    import multiprocessing  # heavy-ish: only where pools run
+
     return {p.pid for p in multiprocessing.active_children() if p.pid is not None}
 
 
@@ -622,6 +723,8 @@ def terminate_new_children(before: set[int]) -> None:
     Args:
         before: :func:`live_children` before the pool was made.
     """
+    import multiprocessing  # heavy-ish: only where pools run
+
     for proc in multiprocessing.active_children():
         if proc.pid not in before and proc.is_alive():
             proc.terminate()

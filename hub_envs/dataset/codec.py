@@ -13,16 +13,12 @@ to PIL.
 
 from __future__ import annotations
 
+import functools
 import io
 import struct
 import zlib
 
 import numpy as np
-
-try:  # LeRobot depends on opencv
-    import cv2 as _cv2
-except ImportError:  # pragma: no cover
-    _cv2 = None
 
 __all__ = ["encode_png", "decode_png", "PNG_CHANNELS"]
 
@@ -63,9 +59,20 @@ def encode_png(frames: np.ndarray, level: int = 1) -> list[bytes]:
     return [header + _png_chunk(b"IDAT", compress(filtered[i], level)) + _PNG_IEND for i in range(t)]
 
 
+@functools.cache
+def _opencv():
+    """OpenCV, imported on the first decode (LeRobot depends on it); None where it is not installed."""
+    try:
+        import cv2  # heavy: opencv (tens of milliseconds): not for a load that decodes no frame
+    except ImportError:  # pragma: no cover
+        return None
+    return cv2
+
+
 def decode_png(data: bytes) -> np.ndarray:
     """PNG bytes -> uint8 ``(H, W, C)`` RGB(A) (grayscale gets ``C = 1``), as PIL (LeRobot's decoder) returns them."""
     img = None
+    _cv2 = _opencv()
     if _cv2 is not None:
         img = _cv2.imdecode(np.frombuffer(data, np.uint8), _cv2.IMREAD_UNCHANGED)
         if img is not None and img.dtype == np.uint8:

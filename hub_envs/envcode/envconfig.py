@@ -17,13 +17,13 @@ import dataclasses
 import json
 import typing
 from collections.abc import Mapping
-from typing import Any
-
-import draccus
-from lerobot.envs.configs import EnvConfig
+from typing import TYPE_CHECKING, Any
 
 from hub_envs.envcode.registration import CLI_ONLY_FIELDS
 from hub_envs.errors import ConfigError, EnvCodeError, InvalidRepoFormatError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from lerobot.envs.configs import EnvConfig
 
 
 def validate_config_class(config_class: Any, *, where: str) -> None:
@@ -37,6 +37,8 @@ def validate_config_class(config_class: Any, *, where: str) -> None:
     Raises:
         InvalidRepoFormatError: saying what the class lacks.
     """
+    from lerobot.envs.configs import EnvConfig  # heavy: lerobot (torch); the class's own module imported it already
+
     if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
         raise InvalidRepoFormatError(
             f"{where}: the config entry point is {config_class!r}, not a subclass of lerobot.envs.configs.EnvConfig. "
@@ -58,6 +60,7 @@ def instantiate_config(config_class: type, *, where: str, overrides: Mapping[str
     ``__post_init__`` runs, so what it computes follows them.
 
     >>> from dataclasses import dataclass
+    >>> from lerobot.envs.configs import EnvConfig
     >>> @dataclass
     ... class DemoConfig(EnvConfig):
     ...     episode_length: int = 200
@@ -66,6 +69,8 @@ def instantiate_config(config_class: type, *, where: str, overrides: Mapping[str
     >>> instantiate_config(DemoConfig, where="demo", overrides={"episode_length": "50"}).episode_length
     50
     """
+    import draccus  # heavy: draccus (yaml); the class's module imported LeRobot, which imports it
+
     overrides = dict(overrides or {})
     names = {f.name for f in dataclasses.fields(config_class) if f.init}
     unknown = sorted(set(overrides) - names)
@@ -112,6 +117,8 @@ def encode_config(cfg: EnvConfig) -> dict[str, Any]:
     """
     if not dataclasses.is_dataclass(cfg) and callable(getattr(cfg, "to_dict", None)):
         return json.loads(json.dumps(cfg.to_dict(), sort_keys=True))
+    import draccus  # heavy: draccus (yaml); a dataclass config is LeRobot's, which imports it
+
     cli_only = getattr(type(cfg), CLI_ONLY_FIELDS, ())  # a per-repo choice's consent flag (registration.consenting_choice)
     out = {f.name: draccus.encode(getattr(cfg, f.name)) for f in dataclasses.fields(cfg) if f.name not in cli_only}
     out["gym_kwargs"] = draccus.encode(cfg.gym_kwargs)

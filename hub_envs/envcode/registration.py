@@ -1,5 +1,6 @@
 """Register a loaded env with gymnasium and its config with draccus, all or nothing (:func:`registry_transaction`), under
-names hub-envs owns.
+names hub-envs owns. A draccus choice whose config class is not imported yet waits until LeRobot's config system is
+imported (by anyone): a load that needs neither LeRobot nor torch imports neither.
 
 Example:
     >>> import gymnasium as gym
@@ -15,8 +16,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib.metadata
 import importlib.util
+import logging
 import os
 import sys
 from collections.abc import Callable
@@ -25,17 +26,23 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-from lerobot.envs.configs import EnvConfig
 
-from hub_envs._compat import env_config_choices
+from hub_envs._compat import LEROBOT_ENV_PACKAGE, after_import, env_config_choices, lerobot_env_configs_imported
 from hub_envs.envcode.importing import ROOT_PACKAGE
-from hub_envs.errors import RegistrationConflictError
+from hub_envs.errors import HubEnvsError, RegistrationConflictError
+
+_log = logging.getLogger(__name__)
 
 #: name -> owner key ("repo@sha") for every gym id and draccus choice hub-envs registered.
 _OWNED_GYM: dict[str, str] = {}
 _OWNED_CHOICES: dict[str, str] = {}
 #: how many loads hold each registration: the same repo@sha loaded twice shares one, and it goes when the last goes
 _HOLDS: dict[Registration, int] = {}
+#: choice name -> the callable that imports its config class, for choices registered while LeRobot's config system was
+#: not imported: :func:`_register_pending` registers them the moment it is (their owner is in ``_OWNED_CHOICES`` already)
+_PENDING: dict[str, Callable[[], type]] = {}
+#: the transactions open now (a choice registry that appears inside one is what it restores to)
+_OPEN: list[Transaction] = []
 
 
 @dataclass(frozen=True)
@@ -49,6 +56,30 @@ class Registration:
 
 def _choices() -> dict[str, Any]:
     return env_config_choices()
+
+
+def _loaded_choices() -> dict[str, Any] | None:
+    """The live choice registry if LeRobot's config system is imported, else None (asking imports nothing)."""
+    return env_config_choices() if lerobot_env_configs_imported() else None
+
+
+def _register_pending(_module: Any = None) -> None:
+    """Register the choices that waited for LeRobot's config system, now that it is imported (called inside the import
+    statement that imported it, by :func:`hub_envs._compat.after_import`: it never raises). A choice whose config class
+    cannot be imported or registered now is logged and left out: ``loaded.config_class`` raises its error."""
+    choices = env_config_choices()
+    for env_type, load_class in list(_PENDING.items()):
+        owner = _OWNED_CHOICES.get(env_type)
+        _PENDING.pop(env_type, None)
+        try:
+            _register_choice(env_type, owner, load_class())
+        except Exception as e:  # noqa: BLE001 - the env's config code raised: never inside somebody else's import
+            _OWNED_CHOICES.pop(env_type, None)
+            what = str(e) if isinstance(e, HubEnvsError) else f"{type(e).__name__}: {e}"
+            _log.warning("%s: its --env.type choice %r is not registered: %s", owner, env_type, what)
+    for txn in _OPEN:  # LeRobot arrived inside the block: its own choices, and those of loads before it, stay
+        if txn.choices_before is None:
+            txn.choices_before = dict(choices)
 
 
 #: The consent flag of LeRobot's CLIs for a hub env, ``--env.trust_remote_code=true``: a field of the ``hub`` choice,
@@ -68,6 +99,7 @@ def consenting_choice(config_class: type) -> type:
     A class that is not a dataclass, or has that field already, is registered as it is.
 
     >>> from dataclasses import dataclass
+    >>> from lerobot.envs.configs import EnvConfig
     >>> @dataclass
     ... class DemoConfig(EnvConfig):
     ...     @property
@@ -107,14 +139,18 @@ class Transaction:
 
     def __init__(self) -> None:
         self.gym_before = dict(gym.registry)
-        self.choices_before = dict(_choices())
+        choices = _loaded_choices()
+        #: None while LeRobot's config system is not imported (:func:`_register_pending` fills it in when it is)
+        self.choices_before: dict[str, Any] | None = dict(choices) if choices is not None else None
+        if choices is None:
+            after_import(LEROBOT_ENV_PACKAGE, _register_pending)
 
     def replaced(self) -> list[str]:
         """Names registered before the block whose entry something in the block replaced or removed
         (env code calling ``gym.register`` with a taken id overwrites it with only a warning)."""
-        gym_now, choices_now = gym.registry, _choices()
+        gym_now, choices_now = gym.registry, _loaded_choices() or {}
         out = [f"gym id {k!r}" for k, v in self.gym_before.items() if gym_now.get(k) is not v]
-        out += [f"draccus choice {k!r}" for k, v in self.choices_before.items() if choices_now.get(k) is not v]
+        out += [f"draccus choice {k!r}" for k, v in (self.choices_before or {}).items() if choices_now.get(k) is not v]
         return out
 
     def replaced_by(self, code: str | os.PathLike) -> tuple[list[str], dict[str, list[str]]]:
@@ -130,11 +166,11 @@ class Transaction:
         Returns:
             ``(names the env's own code took over, {installed distribution: names its package took over})``.
         """
-        gym_now, choices_now = gym.registry, _choices()
+        gym_now, choices_now = gym.registry, _loaded_choices() or {}
         own: list[str] = []
         packages: dict[str, list[str]] = {}
         news = [(f"gym id {k!r}", gym_now.get(k), v) for k, v in self.gym_before.items()]
-        news += [(f"draccus choice {k!r}", choices_now.get(k), v) for k, v in self.choices_before.items()]
+        news += [(f"draccus choice {k!r}", choices_now.get(k), v) for k, v in (self.choices_before or {}).items()]
         for name, now, before in news:
             if now is before:
                 continue
@@ -163,7 +199,9 @@ def _installed_origin(target: Any, code: Path) -> str | None:
         file = spec.origin if spec is not None else None
     if not file or Path(file).resolve().is_relative_to(code.resolve()):
         return None
-    distributions = importlib.metadata.packages_distributions().get(module.split(".")[0])
+    from importlib.metadata import packages_distributions  # heavy-ish (email, zipfile, csv): an entry was replaced
+
+    distributions = packages_distributions().get(module.split(".")[0])
     return ", ".join(sorted(set(distributions))) if distributions else None
 
 
@@ -171,15 +209,20 @@ def _installed_origin(target: Any, code: Path) -> str | None:
 def registry_transaction():
     """On an exception inside the block, restore gymnasium's registry and draccus' EnvConfig choices."""
     txn = Transaction()
-    gym_before, choices_before = txn.gym_before, txn.choices_before
-    owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES), dict(_HOLDS))
+    gym_before = txn.gym_before
+    owned_before = (dict(_OWNED_GYM), dict(_OWNED_CHOICES), dict(_HOLDS), dict(_PENDING))
+    _OPEN.append(txn)
     try:
         yield txn
     except BaseException:
         gym.registry.clear()
         gym.registry.update(gym_before)
-        _choices().clear()
-        _choices().update(choices_before)
+        choices = _loaded_choices()
+        if choices is not None:  # None: LeRobot's config system is still not imported, so nothing was registered there
+            choices.clear()
+            choices.update(txn.choices_before or {})
+        _PENDING.clear()
+        _PENDING.update(owned_before[3])
         _OWNED_GYM.clear()
         _OWNED_GYM.update(owned_before[0])
         _OWNED_CHOICES.clear()
@@ -187,6 +230,8 @@ def registry_transaction():
         _HOLDS.clear()
         _HOLDS.update(owned_before[2])
         raise
+    finally:
+        _OPEN.remove(txn)
 
 
 def snapshot_registries() -> tuple[dict, dict]:
@@ -200,7 +245,7 @@ def register(
     env_type: str,
     owner: str,
     entry_point: Callable[..., gym.Env],
-    config_class: type,
+    config_class: type | Callable[[], type] | None,
     max_episode_steps: int | None,
     kwargs: dict[str, Any],
     disable_env_checker: bool = True,
@@ -214,7 +259,9 @@ def register(
         env_type: the draccus choice name.
         owner: who registers it (``user/name@<sha>``, with an isolated load's mode).
         entry_point: the env class (or an isolated load's factory of proxies).
-        config_class: the EnvConfig subclass (None: no choice of its own).
+        config_class: the EnvConfig subclass (None: no choice of its own), or a function without arguments that imports
+            and returns it: then the choice is registered when LeRobot's config system is imported (at once if it is),
+            so a process that never parses LeRobot configs never imports LeRobot for it.
         max_episode_steps: the time limit.
         kwargs: the env's keyword arguments (``gym_kwargs``).
         disable_env_checker: gymnasium's env checker off (hub-envs runs its own checks).
@@ -234,26 +281,19 @@ def register(
             f"gym id {gym_id!r} is already registered by {holder!r}, not by {owner}. "
             f"Unregister it first (hub_envs.unregister / del gymnasium.registry[{gym_id!r}]) or load in a fresh process."
         )
-    existing = _choices().get(env_type)
-    if not register_choice:  # an isolated env: the parent has no config class to offer draccus
-        existing = None
-    if existing is not None and _OWNED_CHOICES.get(env_type) != owner:
-        raise RegistrationConflictError(
-            f"draccus choice {env_type!r} is already registered for {existing!r}, not by {owner}. "
-            f"Pick another name or load in a fresh process."
-        )
-    if register_choice and not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
-        raise RegistrationConflictError(
-            f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice."
-        )
-    # A config class registered under another name by its own module would make `cfg.type` ambiguous.
-    other_names = [n for n, c in _choices().items() if c is config_class and n != env_type] if register_choice else []
-    for name in other_names:
-        if _OWNED_CHOICES.get(name) is None:
+    choices = _loaded_choices() if register_choice else None
+    if register_choice and choices is not None and not isinstance(config_class, type) and callable(config_class):
+        config_class = config_class()  # LeRobot's config system is here already: the class is cheap to import now
+    if register_choice:  # an isolated env has no config class here to offer draccus: no choice, nothing to conflict
+        taken = (choices or {}).get(env_type) is not None or env_type in _PENDING
+        if taken and _OWNED_CHOICES.get(env_type) != owner:
+            what = (choices or {}).get(env_type) or "a load waiting for LeRobot's config system"
             raise RegistrationConflictError(
-                f"{config_class.__qualname__} registered itself as the choice {name!r}. Remove its "
-                f"@EnvConfig.register_subclass decorator: hub-envs registers it as {env_type!r}."
+                f"draccus choice {env_type!r} is already registered for {what!r}, not by {owner}. "
+                f"Pick another name or load in a fresh process."
             )
+    if register_choice and choices is not None:
+        _check_choice_class(env_type, config_class, choices)
     if gym_id not in gym.registry:
         gym.register(
             id=gym_id,
@@ -263,12 +303,46 @@ def register(
             disable_env_checker=disable_env_checker,
         )
         _OWNED_GYM[gym_id] = owner
-    if register_choice and env_type not in _choices():
-        EnvConfig.register_subclass(env_type)(consenting_choice(config_class))
+    if register_choice and choices is not None and env_type not in choices:
+        _register_choice(env_type, owner, config_class)
+    elif register_choice and choices is None and env_type not in _PENDING and _OWNED_CHOICES.get(env_type) != owner:
+        _PENDING[env_type] = (
+            config_class if callable(config_class) and not isinstance(config_class, type) else lambda: config_class
+        )
         _OWNED_CHOICES[env_type] = owner
+        after_import(LEROBOT_ENV_PACKAGE, _register_pending)
     held = Registration(gym_id=gym_id, env_type=env_type, owner=owner)
     _HOLDS[held] = _HOLDS.get(held, 0) + 1
     return held
+
+
+def _check_choice_class(env_type: str, config_class: Any, choices: dict[str, Any]) -> None:
+    """Refuse a config class that cannot be the choice ``env_type`` (:class:`RegistrationConflictError`)."""
+    from lerobot.envs.configs import EnvConfig  # heavy: lerobot (torch); its config system is imported already
+
+    if not (isinstance(config_class, type) and issubclass(config_class, EnvConfig)):
+        raise RegistrationConflictError(
+            f"{config_class!r} is not a subclass of lerobot's EnvConfig; it cannot be a --env.type choice."
+        )
+    # A config class registered under another name by its own module would make `cfg.type` ambiguous.
+    for name in [n for n, c in choices.items() if c is config_class and n != env_type]:
+        if _OWNED_CHOICES.get(name) is None:
+            raise RegistrationConflictError(
+                f"{config_class.__qualname__} registered itself as the choice {name!r}. Remove its "
+                f"@EnvConfig.register_subclass decorator: hub-envs registers it as {env_type!r}."
+            )
+
+
+def _register_choice(env_type: str, owner: str | None, config_class: Any) -> None:
+    """Register ``config_class`` (with the consent field) as the choice ``env_type`` of LeRobot's ``EnvConfig``, owned by
+    ``owner``."""
+    from lerobot.envs.configs import EnvConfig  # heavy: lerobot (torch); its config system is imported already
+
+    choices = env_config_choices()
+    _check_choice_class(env_type, config_class, choices)
+    if env_type not in choices:
+        EnvConfig.register_subclass(env_type)(consenting_choice(config_class))
+    _OWNED_CHOICES[env_type] = owner
 
 
 def unregister(registration: Registration) -> None:
@@ -285,7 +359,10 @@ def unregister(registration: Registration) -> None:
         gym.registry.pop(registration.gym_id, None)
         del _OWNED_GYM[registration.gym_id]
     if _OWNED_CHOICES.get(registration.env_type) == registration.owner:
-        _choices().pop(registration.env_type, None)
+        _PENDING.pop(registration.env_type, None)
+        choices = _loaded_choices()
+        if choices is not None:
+            choices.pop(registration.env_type, None)
         del _OWNED_CHOICES[registration.env_type]
 
 

@@ -19,18 +19,46 @@ from hub_envs.errors import (
     InvalidRepoFormatError,
     IsolationUnavailableError,
 )
-from hub_envs.harness.checks import verify_fingerprint
 from hub_envs.harness.features import FeatureReport, check_features
-from hub_envs.harness.provenance import drift_note
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading import check_cache
 from hub_envs.loading.isolated import worker_versions
 from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.loading.source import Source
 from hub_envs.repo.format import DATASET_DIR, Manifest
-from hub_envs.repo.requirements import check_requirements
 
 FingerprintPolicy = Literal["error", "warn", "off"]
+
+#: What a cached verdict of an in-process load holds besides the checks: the config the code computes matched the
+#: manifest's values (:func:`checked_config`) and those give the env exactly what the config does
+#: (:func:`manifest_reproduces`), so a later load with the same key may take them from the manifest.
+CONFIG_CHECKED = ("config", "the code's config matches the manifest")
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal, and of the same types all the way down (a tuple the code gives is not the list JSON gives back)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(v, b[k]) for k, v in a.items())
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def manifest_reproduces(config: Any, manifest: Manifest) -> bool:
+    """Whether registering from the manifest's values (``gym_kwargs``, ``episode_length``) gives the env exactly the
+    arguments ``config`` gives it: JSON keeps dicts, lists, strings, numbers and booleans as they are, and nothing else.
+
+    Args:
+        config: the config the code computed.
+        manifest: the verified manifest.
+
+    Returns:
+        True when they are the same values of the same types.
+    """
+    recorded = manifest.config or {}
+    return _same(recorded.get("gym_kwargs"), config.gym_kwargs) and _same(recorded.get("episode_length"), config.episode_length)
 
 
 @dataclass
@@ -77,6 +105,8 @@ def preflight(
         plan.key = checks_key(src.where, src.manifest, steps=steps, fingerprint=fingerprint, machine=machine.result())
         plan.cached = check_cache.lookup(plan.key) if use_cache else None
         if plan.cached is None:
+            from hub_envs.repo.requirements import check_requirements  # heavy-ish: importlib.metadata, packaging
+
             check_requirements(src.manifest.requirements, repo=src.where)
     return plan
 
@@ -101,6 +131,20 @@ def plan_for_worker(
     worker = {**machine.result(), "worker_venv": check_cache.venv_identity(record["path"])}
     key = checks_key(src.where, src.manifest, steps=steps, fingerprint=fingerprint, machine=worker)
     return CheckPlan(plan.use_cache, key, check_cache.lookup(key) if plan.use_cache else None)
+
+
+def config_check_cached(plan: CheckPlan) -> bool:
+    """Whether ``plan``'s cached verdict says the config check (:func:`checked_config`) passed too (an isolated load's
+    verdict does not: its parent never runs the config's code)."""
+    return plan.cached is not None and plan.cached.get(CONFIG_CHECKED[0]) == CONFIG_CHECKED[1]
+
+
+def record_config_check(plan: CheckPlan) -> None:
+    """Add to ``plan``'s cached verdict that the config check passed (a verdict an isolated load stored, or one older
+    than that record), so the next in-process load can take the config from the manifest."""
+    if plan.cached is not None and not config_check_cached(plan):
+        result = {k: v for k, v in plan.cached.items() if k not in ("key", "checked_at", "digest")}
+        check_cache.store(plan.key, {**result, CONFIG_CHECKED[0]: CONFIG_CHECKED[1]})
 
 
 def checked_config(config_class: type, manifest: Manifest, set_fields: Mapping[str, Any], where: str) -> Any:
@@ -187,7 +231,15 @@ def checks_key(where: str, manifest: Manifest, *, steps: int, fingerprint: Finge
     )
 
 
-def run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps: int, key: str, cached: dict | None) -> None:
+def run_load_checks(
+    loaded: LoadedEnv,
+    *,
+    fingerprint: FingerprintPolicy,
+    steps: int,
+    key: str,
+    cached: dict | None,
+    config_checked: bool = False,
+) -> None:
     """The load checks: the three-way feature check (declared / live / dataset) and the golden-rollout fingerprint;
     a pass is cached under ``key``, a verdict cached before (``cached``) is reported instead of run.
 
@@ -197,6 +249,7 @@ def run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps:
         steps: the feature check's random-action steps.
         key: the verdict's cache key (:func:`checks_key`).
         cached: a verdict cached before, or None.
+        config_checked: the load checked its config against the manifest (in-process): the stored verdict says so.
 
     Raises:
         DatasetError: the manifest lists a dataset whose ``meta/info.json`` cannot be read.
@@ -206,6 +259,7 @@ def run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps:
     """
     where = f"{loaded.repo_id}@{loaded.revision}"
     recorded = loaded.manifest.fingerprint
+    config_note = dict([CONFIG_CHECKED]) if config_checked else {}
     if cached is not None:
         loaded.report.features = FeatureReport.from_dict(cached["features"])
         venv = " in the same worker venv" if loaded.worker_venv is not None else ""
@@ -240,14 +294,17 @@ def run_load_checks(loaded: LoadedEnv, *, fingerprint: FingerprintPolicy, steps:
         report.raise_if_mismatch(where)
         if fingerprint == "off" or not recorded:
             loaded.report.fingerprint = "off" if fingerprint == "off" else "none recorded"
-            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
+            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint, **config_note})
             return
+
+        from hub_envs.harness.checks import verify_fingerprint  # heavy: the rollout machinery (multiprocessing, tqdm)
+        from hub_envs.harness.provenance import drift_note  # heavy-ish: importlib.metadata, packaging
 
         handed_over = True
         try:  # the versions are read only for the error message (milliseconds)
             verify_fingerprint(lambda: env, recorded, where=where, versions_note=lambda: drift_note(loaded))
             loaded.report.fingerprint = f"matches ({len(recorded['seeds'])} seeds x {recorded['steps']} steps)"
-            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint})
+            check_cache.store(key, {"features": report.to_dict(), "fingerprint": loaded.report.fingerprint, **config_note})
         except FingerprintMismatchError as e:
             if fingerprint == "error":
                 raise

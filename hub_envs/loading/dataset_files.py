@@ -8,7 +8,7 @@ from pathlib import Path
 
 from hub_envs._text import safe_text
 from hub_envs.errors import DatasetNotCachedError, IntegrityError, InvalidRepoFormatError, OfflineNotCachedError
-from hub_envs.repo import hub_io
+from hub_envs.repo import hub_cache
 from hub_envs.repo.format import DATASET_DIR, MEDIA_DIR, Manifest, is_lazy_file, is_media_file, sha256_file
 
 
@@ -33,7 +33,7 @@ def ensure_dataset_files(
     lazy = sorted(p for p in manifest.files if is_lazy_file(p))
     missing = [p for p in lazy if not (path / p).is_file()]
     if missing:
-        if hub_io.offline():
+        if hub_cache.offline():
             raise DatasetNotCachedError(
                 f"{where}: {len(missing)} of the dataset's {len(lazy)} data file(s) are not in the local cache "
                 f"(e.g. {safe_text(missing[0])}), and the Hub cannot be used (HF_HUB_OFFLINE is set). load_env "
@@ -41,6 +41,8 @@ def ensure_dataset_files(
                 f"call loaded.fetch_dataset() (or open_dataset()), or "
                 f'huggingface_hub.snapshot_download("{repo_id}", revision="{sha}", allow_patterns=["{DATASET_DIR}/*"]).'
             )
+        from hub_envs.repo import hub_io  # heavy: huggingface_hub's client (httpx or requests): only to download
+
         hub_io.fetch_dataset_files(repo_id, sha, token=token, cache_dir=cache_dir)
     bad = [p for p in lazy if not (path / p).is_file() or sha256_file(path / p) != manifest.files[p]]
     if bad:
@@ -51,7 +53,7 @@ def ensure_dataset_files(
             f"were removed from the cache; fetch again (loaded.fetch_dataset()). If it persists, the endpoint serves "
             f"other bytes than the publisher pushed: check HF_ENDPOINT."
         )
-    hub_io.check_snapshot_layout(path, set(manifest.files), where=where)
+    hub_cache.check_snapshot_layout(path, set(manifest.files), where=where)
 
 
 def drop_cached_file(path: Path) -> None:
@@ -109,11 +111,13 @@ def ensure_media_file(
     if local:
         return file
     if not file.is_file():
-        if hub_io.offline():
+        if hub_cache.offline():
             raise OfflineNotCachedError(
                 f"{where}: {safe_text(rel)} is not in the local cache and the Hub cannot be used (HF_HUB_OFFLINE is "
                 f"set); load_env does not fetch the media. Unset HF_HUB_OFFLINE and call loaded.media_file({name!r})."
             )
+        from hub_envs.repo import hub_io  # heavy: huggingface_hub's client (httpx or requests): only to download
+
         hub_io.fetch_files(repo_id, sha, [rel], token=token, cache_dir=cache_dir)
     if sha256_file(file) != manifest.files[rel]:
         drop_cached_file(file)

@@ -14,10 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hub_envs._compat import lerobot_env_configs_imported
 from hub_envs.envcode import registration
 from hub_envs.envcode.code_copy import code_copy
+from hub_envs.envcode.envconfig import validate_config_class
 from hub_envs.envcode.importing import forget_env_folder, import_env_folder, is_imported, module_key, resolve_entry_point
 from hub_envs.errors import ConfigError, InvalidRepoFormatError, RegistrationConflictError
+from hub_envs.isolation.config import ManifestConfig
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading import check_cache
 from hub_envs.loading.checks import (
@@ -25,8 +28,11 @@ from hub_envs.loading.checks import (
     FingerprintPolicy,
     check_processors,
     checked_config,
+    config_check_cached,
+    manifest_reproduces,
     plan_for_worker,
     preflight,
+    record_config_check,
     run_load_checks,
 )
 from hub_envs.loading.isolated import isolated_parts, isolation_options, isolation_suffix
@@ -215,12 +221,48 @@ class _Run:
 @dataclass(frozen=True)
 class _Parts:
     """What a load registers: the gym entry point (the env class, or a factory of isolated proxies), the config class
-    (None when isolated without it here) and the config, and the options of an isolated load's workers."""
+    (None when isolated without it here, or not imported yet) and the config, the options of an isolated load's
+    workers, and what imports the config class when it is first asked for (:class:`_DeferredConfig`)."""
 
     env_class: Any
     config_class: type | None
     config: Any
     iso: IsolationOptions
+    deferred: _DeferredConfig | None = None
+
+
+class _DeferredConfig:
+    """The config class and config of an in-process load whose checks passed before, the config module (and LeRobot,
+    which it imports) imported on first use: the env's gym registration needs only the manifest's values
+    (:class:`~hub_envs.isolation.config.ManifestConfig`), which the cached verdict says the code computes."""
+
+    def __init__(self, src: Source, code: Path, key: str, set_fields: Mapping[str, Any]):
+        self._src, self._code, self._key, self._set_fields = src, code, key, dict(set_fields)
+        self._class: type | None = None
+
+    def config_class(self) -> type:
+        """The repo's EnvConfig subclass, imported now (once).
+
+        Raises:
+            InvalidRepoFormatError, EnvCodeError, RegistrationConflictError: as an in-process ``load_env`` would.
+        """
+        if self._class is None:
+            import lerobot.envs  # noqa: F401  (heavy: lerobot, torch; first, so the choices waiting for it register before)
+
+            src = self._src
+            package = import_env_folder(self._code, self._key)
+            config_class = resolve_entry_point(package, src.manifest.config_entry_point, where=f"{src.where}: config entry point")
+            validate_config_class(config_class, where=src.where)
+            self._class = config_class
+        return self._class
+
+    def config(self) -> Any:
+        """The config the code computes, checked against the manifest's values (as an in-process ``load_env`` checks it).
+
+        Raises:
+            InvalidRepoFormatError: the code computes other values than the manifest records.
+        """
+        return checked_config(self.config_class(), self._src.manifest, self._set_fields, self._src.where)
 
 
 def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run: _Run) -> LoadedEnv:
@@ -233,13 +275,16 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
         t = time.perf_counter()
         # a published env's code runs from real files (its own folder for __file__.resolve()), not cache symlinks
         code = src.path if src.local_folder is not None else code_copy(src.path, src.manifest.files, src.repo, src.sha)
+        set_fields = src.manifest.config_overrides if src.local_folder is None else dict(run.config or {})
         with registration.registry_transaction() as txn:
-            parts = _import_parts(src, code, key, iso, run.config)
+            deferred = _DeferredConfig(src, code, key, set_fields) if _config_can_wait(src, iso, plan) else None
+            parts = _import_parts(src, code, key, iso, run.config, deferred=deferred)
             _refuse_replacements(txn, code, src.where)
-            if not iso.isolated:  # the config the code computes, checked against the manifest's
-                set_fields = src.manifest.config_overrides if src.local_folder is None else dict(run.config or {})
+            if not iso.isolated and parts.deferred is None:  # the config the code computes, checked against the manifest's
                 config = checked_config(parts.config_class, src.manifest, set_fields, src.where)
                 parts = dataclasses.replace(parts, config=config)
+                if manifest_reproduces(config, src.manifest):  # the next load may register from the manifest alone
+                    record_config_check(plan)
             reg = _register(src, parts)
             run.timings["import_register"] = time.perf_counter() - t
             loaded = LoadedEnv(
@@ -250,20 +295,28 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
                 manifest=src.manifest,
                 env_class=parts.env_class,
                 config_class=parts.config_class,
-                config=parts.config,
+                config=parts.config if parts.deferred is None else None,  # deferred: the real one, when asked for
                 registration=reg,
                 report=run.report,
                 local_folder=src.local_folder,
                 isolation=parts.iso,
                 token=run.token,
                 cache_dir=run.cache_dir,
+                deferred_config=parts.deferred,
             )
             if run.check:
                 t = time.perf_counter()
                 plan = plan_for_worker(
                     plan, src, parts.iso, steps=run.check_steps, fingerprint=run.fingerprint, machine=run.machine
                 )
-                run_load_checks(loaded, fingerprint=run.fingerprint, steps=run.check_steps, key=plan.key, cached=plan.cached)
+                run_load_checks(
+                    loaded,
+                    fingerprint=run.fingerprint,
+                    steps=run.check_steps,
+                    key=plan.key,
+                    cached=plan.cached,
+                    config_checked=not iso.isolated and manifest_reproduces(parts.config, src.manifest),
+                )
                 run.timings["checks"] = time.perf_counter() - t
             if src.manifest.processors:
                 check_processors(loaded, dry=run.check, where=src.where)
@@ -277,8 +330,31 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
     return loaded
 
 
-def _import_parts(src: Source, code: Path, key: str, iso: IsolationOptions, config: Mapping[str, Any] | None) -> _Parts:
-    """Import the env's entry points here, or (isolated) build the proxies' factory, the config read from the manifest."""
+def _config_can_wait(src: Source, iso: IsolationOptions, plan: CheckPlan) -> bool:
+    """Whether an in-process load may leave the config's module (and LeRobot, which it imports) unimported until the
+    config is asked for: a Hub repo whose manifest records the config's values, whose checks passed before with these
+    very packages, the config check against the manifest included (the cached verdict says so), while LeRobot's config
+    system is not imported here (when it is, the config class is cheap to import and its choice is wanted now)."""
+    return (
+        not iso.isolated
+        and src.local_folder is None
+        and bool(src.manifest.config)
+        and config_check_cached(plan)
+        and not lerobot_env_configs_imported()
+    )
+
+
+def _import_parts(
+    src: Source,
+    code: Path,
+    key: str,
+    iso: IsolationOptions,
+    config: Mapping[str, Any] | None,
+    *,
+    deferred: _DeferredConfig | None = None,
+) -> _Parts:
+    """Import the env's entry points here, or (isolated) build the proxies' factory, the config read from the manifest;
+    with ``deferred``, the env's entry point only, the config's values from the manifest."""
     if iso.isolated:
         factory, config_class, isolated_config = isolated_parts(
             src.repo, src.sha, code, key, src.manifest, src.local_folder, iso, overrides=dict(config or {})
@@ -286,6 +362,8 @@ def _import_parts(src: Source, code: Path, key: str, iso: IsolationOptions, conf
         return _Parts(factory, config_class, isolated_config, factory.options)
     package = import_env_folder(code, key)
     env_class = resolve_entry_point(package, src.manifest.env_entry_point, where=f"{src.where}: env entry point")
+    if deferred is not None:
+        return _Parts(env_class, None, ManifestConfig(src.manifest.config, where=f"{src.where}: hub_env.json"), iso, deferred)
     config_class = resolve_entry_point(package, src.manifest.config_entry_point, where=f"{src.where}: config entry point")
     return _Parts(env_class, config_class, None, iso)  # the config: once no replaced registration is in the way
 
@@ -313,11 +391,11 @@ def _register(src: Source, parts: _Parts) -> registration.Registration:
         env_type=f"{src.manifest.env_type}@{qualifier}{suffix}",
         owner=f"{src.where} ({suffix.lstrip('-')})" if iso.isolated else src.where,  # not the in-process registration
         entry_point=parts.env_class,
-        config_class=parts.config_class,
+        config_class=parts.deferred.config_class if parts.deferred is not None else parts.config_class,
         max_episode_steps=int(config.episode_length),
         kwargs=config.gym_kwargs,
         disable_env_checker=bool(getattr(config, "disable_env_checker", True)),
-        register_choice=not iso.isolated or parts.config_class is not None,
+        register_choice=not iso.isolated or parts.config_class is not None,  # in-process: always, deferred or not
     )
 
 

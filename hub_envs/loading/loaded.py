@@ -62,7 +62,10 @@ class LoadedEnv:
         revision: the resolved 40-hex commit sha (``local-<digest>`` for a local folder).
         gym_id: the id registered with gymnasium (``gym.make(loaded.gym_id)``), unique per revision.
         env_type: the draccus choice name (``--env.type=<env_type>``), unique per revision.
-        config: an instance of the repo's EnvConfig subclass, with its published defaults.
+        config_class: the repo's EnvConfig subclass (None when isolated: this process never imports the env's code).
+        config: an instance of the repo's EnvConfig subclass, with its published defaults (isolated: a read-only
+            :class:`~hub_envs.isolation.config.ManifestConfig` of the manifest's values). A load whose checks passed before
+            (cached) imports the config's module, and LeRobot with it, only when one of these two is first asked for.
         manifest: the parsed ``hub_env.json``.
         path: the local snapshot folder.
         report: the :class:`LoadReport`.
@@ -94,6 +97,7 @@ class LoadedEnv:
         isolation=None,
         token=None,
         cache_dir=None,
+        deferred_config=None,
     ):
         self.repo_id: str = repo_id
         self.revision: str = revision
@@ -101,8 +105,9 @@ class LoadedEnv:
         self.path: Path = Path(path)
         self.manifest: Manifest = manifest
         self.env_class = env_class
-        self.config_class = config_class
-        self.config = config
+        self._config_class = config_class
+        self._config = config
+        self._deferred_config = deferred_config  # imports the config class and computes the config on first use
         self._registration = registration
         self.report: LoadReport = report
         self.local_folder: Path | None = local_folder
@@ -173,6 +178,21 @@ class LoadedEnv:
         chosen = list(self.tasks if tasks is None else tasks)
         views = [self.for_task(t) for t in chosen]  # every name checked before any env is made
         return {self.manifest.name: {self.tasks.index(v.task): v.make_vec(n_envs, use_async) for v in views}}
+
+    @property
+    def config_class(self) -> type | None:
+        """The repo's EnvConfig subclass (None when isolated), its module imported on first use."""
+        if self._config_class is None and self._deferred_config is not None:
+            self._config_class = self._deferred_config.config_class()
+        return self._config_class
+
+    @property
+    def config(self) -> Any:
+        """The repo's EnvConfig instance with its published defaults (isolated: a ``ManifestConfig``), computed on first use
+        and checked against the manifest's values then (:class:`~hub_envs.errors.InvalidRepoFormatError` if they differ)."""
+        if self._config is None and self._deferred_config is not None:
+            self._config = self._deferred_config.config()
+        return self._config
 
     @property
     def worker_venv(self) -> dict[str, Any] | None:

@@ -37,10 +37,9 @@ from hub_envs.loading.isolated import isolated_parts, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
 from hub_envs.loading.source import _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
-from hub_envs.repo import hub_io, trust_list
+from hub_envs.repo import trust_list
 from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, safe_relpath
 from hub_envs.repo.refs import parse_repo_ref
-from hub_envs.repo.requirements import check_requirements
 
 #: The entry file LeRobot's ``make_env`` reads when the reference names none.
 DEFAULT_ENTRY = "env.py"
@@ -186,6 +185,8 @@ def fetch_plain(ref: PlainRef, *, token: str | None = None, cache_dir: str | Pat
         EnvRepoNotFoundError, RevisionNotFoundError, OfflineNotCachedError, HostileResponseError: from hub_io.
         InvalidRepoFormatError: the entry file is not in the commit, or ``requirements.txt`` is malformed.
     """
+    from hub_envs.repo import hub_io  # heavy: huggingface_hub's client (load_env imports this module for every load)
+
     snap = hub_io.resolve_snapshot(ref.repo, ref.revision, token=token, cache_dir=cache_dir)
     path, where = snap.path, f"{ref.repo}@{snap.sha}"
     names = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
@@ -354,6 +355,8 @@ def load_plain(
         raise UntrustedCodeError(message + _changed_since_trusted(src, trusted)) from None
     report.requirements = list(src.requirements)
     if iso.isolation != "venv":  # a venv worker installs them
+        from hub_envs.repo.requirements import check_requirements  # heavy-ish: importlib.metadata, packaging
+
         check_requirements(src.requirements, repo=src.where)
     slug = entry_slug(ref.entry)
     adapter = render_adapter(ref.text(src.sha), ref.entry)

@@ -26,7 +26,7 @@ from hub_envs.errors import (
     UntrustedCodeError,
 )
 from hub_envs.loading.loaded import LoadReport
-from hub_envs.repo import hub_io, trust_list
+from hub_envs.repo import hub_cache, trust_list
 from hub_envs.repo.format import (
     DATASET_DIR,
     MANIFEST_FILE,
@@ -136,7 +136,7 @@ def _check_content_digest(expected: str | None, manifest: Manifest, where: str) 
         return
     raise UntrustedCodeError(
         f"{where} holds content {manifest.content_digest[:16]}…, not the content {expected[:16]}… this load was bound to "
-        f"(content_digest=, the digest consent was given for); nothing was imported. The endpoint {hub_io.endpoint()}, or "
+        f"(content_digest=, the digest consent was given for); nothing was imported. The endpoint {hub_cache.endpoint()}, or "
         f"the network path to it, serves other files under this commit id than the ones that were consented to. Do not "
         f"run it: compare the endpoint with the one the consent was given through (HF_ENDPOINT), or use TLS."
     )
@@ -156,20 +156,29 @@ def needed_first(path: str) -> bool:
     return path in (MANIFEST_FILE, f"{DATASET_DIR}/meta/info.json") or bool(code_files({path: ""}))
 
 
-def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> tuple[hub_io.Snapshot, Manifest]:
+def _hub_io():
+    """:mod:`hub_envs.repo.hub_io`, imported when a load needs the Hub (a pinned commit in the cache does not): it
+    installs its endpoint check on huggingface_hub's client before any request."""
+    from hub_envs.repo import hub_io  # heavy: huggingface_hub's client and its HTTP stack (httpx or requests)
+
+    return hub_io
+
+
+def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> tuple[hub_cache.Snapshot, Manifest]:
     """Resolve, download and verify a snapshot; a snapshot that fails is removed from the cache (so nothing,
     LeRobot's own loader included, later runs what it holds). The files :func:`needed_first` does not accept
     may still be downloading (``snap.pending``): :func:`finish_fetch` waits for them and verifies them."""
     fetch = dict(token=token, cache_dir=cache_dir, lazy=True, first=needed_first)
-    snap = hub_io.resolve_snapshot(repo, requested, **fetch)
+    # a pinned commit in the cache needs no request: no Hub client is imported for it
+    snap = hub_cache.cached_snapshot(repo, requested, cache_dir) or _hub_io().resolve_snapshot(repo, requested, **fetch)
     where = f"{repo}@{snap.sha}"
 
-    def verify(s: hub_io.Snapshot) -> Manifest:
+    def verify(s: hub_cache.Snapshot) -> Manifest:
         manifest = Manifest.read(s.path, where=f"{where}: hub_env.json")
         check_names_belong_to(manifest, repo)  # the names it registers live under this repo's namespace
         # the dataset's data and the media: when they are needed; the card and meta/: once they are here
         _verify_fetched(manifest, s, skip=s.pending, token=token, cache_dir=cache_dir)
-        hub_io.check_snapshot_layout(s.path, set(manifest.files), where=where)
+        hub_cache.check_snapshot_layout(s.path, set(manifest.files), where=where)
         return manifest
 
     try:
@@ -177,24 +186,24 @@ def _fetch_and_verify(repo: str, requested: str | None, *, token, cache_dir) -> 
             return snap, verify(snap)
         except (IntegrityError, InvalidRepoFormatError):
             snap.cancel()
-            if snap.from_cache and hub_io.offline():
+            if snap.from_cache and hub_cache.offline():
                 _raise_if_partly_cached(snap.path, where)
-            if not snap.from_cache or hub_io.offline():
+            if not snap.from_cache or hub_cache.offline():
                 raise
             # a cached snapshot may be damaged locally: fetch it again once, then judge
-            hub_io.drop_snapshot(snap.path)
-            snap = hub_io.resolve_snapshot(repo, snap.sha, force_download=True, **fetch)
+            hub_cache.drop_snapshot(snap.path)
+            snap = _hub_io().resolve_snapshot(repo, snap.sha, force_download=True, **fetch)
             return snap, verify(snap)
     except IntegrityError:
         snap.cancel()
-        hub_io.drop_snapshot(snap.path)
+        hub_cache.drop_snapshot(snap.path)
         raise
     except BaseException:
         snap.cancel()
         raise
 
 
-def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, cache_dir) -> None:
+def _verify_fetched(manifest: Manifest, snap: hub_cache.Snapshot, *, skip, token, cache_dir) -> None:
     """``manifest.verify_files`` (lazy) of a snapshot; files found *missing* are fetched once more before judging:
     huggingface_hub re-links a snapshot file (remove, then symlink) when another process sharing the cache downloads
     it at the same time, so a file can be absent for an instant, and a snapshot found in the cache may be one that
@@ -206,7 +215,7 @@ def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, c
     try:
         manifest.verify_files(snap.path, where=where, lazy=True, skip=skip)
     except IntegrityError as first:
-        if hub_io.offline():
+        if hub_cache.offline():
             raise
         missing = [
             p
@@ -219,7 +228,7 @@ def _verify_fetched(manifest: Manifest, snap: hub_io.Snapshot, *, skip, token, c
         if not missing:
             raise
         try:
-            hub_io.fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
+            _hub_io().fetch_files(snap.repo_id, snap.sha, missing, token=token, cache_dir=cache_dir)
         except HubEnvsError:
             if snap.from_cache:  # the caller drops the cached snapshot and fetches it whole: judged there
                 raise first from None
@@ -246,9 +255,9 @@ def finish_fetch(src: Source, *, token: str | None, cache_dir: str | Path | None
     try:
         verified = set(src.manifest.files) - set(snap.pending)  # by resolve_source
         _verify_fetched(src.manifest, snap, skip=verified, token=token, cache_dir=cache_dir)
-        hub_io.check_snapshot_layout(src.path, set(src.manifest.files), where=where)
+        hub_cache.check_snapshot_layout(src.path, set(src.manifest.files), where=where)
     except IntegrityError:
-        hub_io.drop_snapshot(src.path)
+        hub_cache.drop_snapshot(src.path)
         raise
 
 
@@ -271,7 +280,7 @@ class Source:
     manifest: Manifest
     local_folder: Path | None
     requested: str | None
-    snapshot: hub_io.Snapshot | None = None  # a Hub snapshot, maybe with files still downloading (``pending``)
+    snapshot: hub_cache.Snapshot | None = None  # a Hub snapshot, maybe with files still downloading (``pending``)
 
     @property
     def where(self) -> str:

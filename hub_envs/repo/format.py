@@ -419,14 +419,18 @@ REPO_ID_RULE = (
     "(no spaces, newlines or control characters); neither part starts or ends with '-' or '.' or holds '--' or '..'"
 )
 _NOT_REPO_ID_CHAR = re.compile(r"[^\w./-]", re.ASCII)  # searched in the whole text: "user/name\n" has one
+#: One side of a repo id, as huggingface_hub's ``validate_repo_id`` (1.x, the stricter) takes it: checked here, not by
+#: importing it (its module imports the client's HTTP stack, a good part of a cached load's time);
+#: ``tests/test_first_step.py`` holds the two to the same verdicts.
+_REPO_ID_PART = re.compile(r"\b[\w.-]{1,96}\b", re.ASCII)
 
 
 def repo_id_problem(value: object) -> str | None:
     """Why ``value`` is not a Hub repo id (``user/name``), or None when it is one: the one rule of every entry that
     takes a repo id (``load_env``, ``push_env``, ``trust``, the commands' flags, a manifest's ``repo_id``...).
 
-    huggingface_hub's own check (``validate_repo_id``) is applied too, after a match to the end of the text: its
-    pattern ends in ``$``, which lets ``"user/name\\n"`` through (0.35).
+    huggingface_hub's own rules (``validate_repo_id``: 1 to 96 characters a side, no ``--``, ``..`` or trailing ``.git``)
+    are applied too, matched to the end of the text (0.35's pattern ends in ``$``, which lets ``"user/name\\n"`` through).
 
     >>> repo_id_problem("user/pendulum-lerobot") is None
     True
@@ -445,14 +449,15 @@ def repo_id_problem(value: object) -> str | None:
         return f"it needs a namespace: 'user/{value}'"
     if value.count("/") != 1:
         return "it has more than one '/'"
-    # lazy: an isolated env's worker imports this module (through envcode.importing) in a venv without huggingface_hub
-    from huggingface_hub.errors import HFValidationError
-    from huggingface_hub.utils import validate_repo_id
-
-    try:
-        validate_repo_id(value)
-    except HFValidationError as e:
-        return str(e).rstrip(".")
+    for part in value.split("/"):
+        if not _REPO_ID_PART.fullmatch(part):
+            return (
+                f"{part!r} is not 1 to 96 ASCII letters, digits, '-', '_' or '.' that start and end with a letter, digit or '_'"
+            )
+    if "--" in value or ".." in value:
+        return "it holds '--' or '..'"
+    if value.endswith(".git"):
+        return "it ends in '.git'"
     return None
 
 

@@ -16,11 +16,9 @@ import logging
 import os
 import re
 import secrets
-import shutil
 import threading
 import warnings
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urljoin, urlsplit
 
@@ -43,7 +41,6 @@ from huggingface_hub.errors import (
     RepositoryNotFoundError,
 )
 from huggingface_hub.errors import RevisionNotFoundError as HfRevisionNotFoundError
-from huggingface_hub.file_download import repo_folder_name
 from huggingface_hub.utils import build_hf_headers
 from huggingface_hub.utils import tqdm as hf_tqdm
 
@@ -59,6 +56,7 @@ from hub_envs.errors import (
     OfflineNotCachedError,
     RevisionNotFoundError,
 )
+from hub_envs.repo import hub_cache
 from hub_envs.repo.format import (
     DATASET_DIR,
     MANIFEST_FILE,
@@ -66,48 +64,32 @@ from hub_envs.repo.format import (
     is_commit_sha,
     is_on_demand_file,
 )
+from hub_envs.repo.hub_cache import (  # noqa: F401  (the cache's side, re-exported: hub_io.offline(), hub_io.REPO_TYPE, ...)
+    DATASET_REPO_TYPE,
+    REPO_TYPE,
+    cache_snapshots_dir,
+    cached_snapshot,
+    check_snapshot_layout,
+    drop_snapshot,
+    endpoint,
+    normalized_revision,
+    offline,
+    snapshot_cache_dir,
+    snapshot_origin,
+)
 
 logger = logging.getLogger(__name__)
 
-REPO_TYPE = "model"  # model type, so LeRobot's EnvHub loader (hf_hub_download default) finds it
-#: The type of the repo of the same name push_env also publishes the dataset to (what ``LeRobotDataset(repo_id)`` reads).
-DATASET_REPO_TYPE = "dataset"
 
-
-@dataclass(frozen=True)
-class Snapshot:
-    """A repo at one commit, on local disk."""
-
-    repo_id: str
-    requested: str | None  # what the caller asked for (branch, tag, sha or None for main)
-    sha: str  # the resolved 40-hex commit id
-    path: Path
-    from_cache: bool  # True when no network request was made
-    #: files still downloading in the background (``resolve_snapshot(first=...)``), by repo path
-    pending: dict[str, concurrent.futures.Future] = field(default_factory=dict, compare=False, repr=False)
-    #: the files the Hub listed for the commit and this download fetched (empty when served from the cache)
-    fetched: frozenset[str] = field(default=frozenset(), compare=False, repr=False)
-    _pool: concurrent.futures.ThreadPoolExecutor | None = field(default=None, compare=False, repr=False)
-
-    @property
-    def pinned(self) -> bool:
-        return self.requested == self.sha
+class Snapshot(hub_cache.Snapshot):
+    """A repo at one commit, on local disk (:class:`hub_envs.repo.hub_cache.Snapshot`), whose background downloads' errors
+    :meth:`wait` raises as hub-envs errors."""
 
     def wait(self) -> None:
         """Wait for the files still downloading in the background; a failed download raises the hub-envs
         error :func:`translate_hub_errors` makes of it. The caller verifies the files."""
-        try:
-            with translate_hub_errors(self.repo_id, self.sha):
-                for future in self.pending.values():
-                    future.result()
-        finally:
-            self.cancel()  # done (or failed): the download threads end here
-
-    def cancel(self) -> None:
-        """Give up the background downloads: the ones not started are dropped, the running ones are waited
-        for (so nothing writes into the cache afterwards); their errors are ignored."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)  # joins its threads
+        with translate_hub_errors(self.repo_id, self.sha):
+            super().wait()
 
 
 # --- what a hostile endpoint could make the client write ----------------------------------------
@@ -260,16 +242,6 @@ def ensure_checked() -> None:
 ensure_checked()
 
 
-def offline() -> bool:
-    """Whether the client is offline (``HF_HUB_OFFLINE``, as huggingface_hub read it)."""
-    return bool(constants.HF_HUB_OFFLINE)
-
-
-def endpoint() -> str:
-    """The Hub's URL the client uses (``HF_ENDPOINT``, as huggingface_hub resolved it)."""
-    return constants.ENDPOINT
-
-
 def api(token: str | None = None) -> HfApi:
     """A fresh client at the current endpoint (never the one captured when huggingface_hub was imported), with the
     endpoint check installed.
@@ -369,41 +341,8 @@ def check_write_access(repo_id: str, *, token: str | None = None, pull_request: 
     )
 
 
-def cache_snapshots_dir(repo_id: str, cache_dir: str | Path | None = None) -> Path:
-    """The ``snapshots/`` folder of ``repo_id`` in the HF cache (huggingface_hub's own naming; it may not exist). The one
-    place hub-envs names a cache path: everything else asks ``snapshot_download`` / ``try_to_load_from_cache`` or goes
-    through here.
-
-    Args:
-        repo_id: an env repo.
-        cache_dir: the cache (None: ``HF_HUB_CACHE``).
-
-    Returns:
-        The folder's path.
-    """
-    cache = Path(cache_dir or constants.HF_HUB_CACHE)
-    return cache / repo_folder_name(repo_id=repo_id, repo_type=REPO_TYPE) / "snapshots"
-
-
-def snapshot_origin(folder: Path) -> tuple[str, str] | None:
-    """(repo_id, sha) when ``folder`` is a snapshot folder of a model repo in an HF cache, else None.
-
-    >>> snapshot_origin(Path("/c/models--alice--tiny/snapshots/" + "a" * 40))
-    ('alice/tiny', 'aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa')
-    >>> snapshot_origin(Path("/tmp/tiny")) is None
-    True
-    """
-    sha, snapshots, repo_dir = folder.name, folder.parent, folder.parent.parent
-    if snapshots.name != "snapshots" or not is_commit_sha(sha):
-        return None
-    kind, _, name = repo_dir.name.partition("--")
-    if kind != "models" or not name:
-        return None
-    return name.replace("--", "/"), sha
-
-
 def _cache_snapshot_dir(repo_id: str, sha: str, cache_dir: str | Path | None) -> Path:
-    return cache_snapshots_dir(repo_id, cache_dir) / sha
+    return snapshot_cache_dir(repo_id, sha, cache_dir)
 
 
 def _sent_a_token(response) -> bool:
@@ -521,17 +460,9 @@ def resolve_snapshot(
         EnvRepoNotFoundError, RevisionNotFoundError, OfflineNotCachedError, HubError: as :func:`translate_hub_errors`.
         HostileResponseError: the endpoint answered what huggingface_hub would have written outside the cache.
     """
-    if (
-        revision is not None
-        and not is_commit_sha(revision)
-        and len(revision) == 40
-        and all(c in "0123456789abcdefABCDEF" for c in revision)
-    ):
-        revision = revision.lower()
-    if is_commit_sha(revision) and not force_download:
-        cached = _cache_snapshot_dir(repo_id, revision, cache_dir)
-        if (cached / MANIFEST_FILE).is_file():
-            return Snapshot(repo_id, revision, revision, cached, from_cache=True)
+    revision = normalized_revision(revision)
+    if not force_download and (cached := cached_snapshot(repo_id, revision, cache_dir)) is not None:
+        return cached
     with translate_hub_errors(repo_id, revision):
         if offline():
             path = snapshot_download(repo_id, revision=revision, repo_type=REPO_TYPE, cache_dir=cache_dir, local_files_only=True)
@@ -808,66 +739,6 @@ def _check_resolved(repo_id: str, requested: str | None, sha: str | None) -> Non
             f"A commit id names its content, so this endpoint is not serving what you pinned; nothing was imported. "
             f"Check HF_ENDPOINT (and that nothing rewrites the traffic: use https)."
         )
-
-
-def snapshot_cache_dir(repo_id: str, sha: str, cache_dir: str | Path | None = None) -> Path:
-    """Where huggingface_hub keeps ``repo_id`` at commit ``sha``.
-
-    Args:
-        repo_id: the env repo.
-        sha: the commit.
-        cache_dir: the cache (None: ``HF_HUB_CACHE``).
-
-    Returns:
-        The folder's path (it may not exist).
-    """
-    return _cache_snapshot_dir(repo_id, sha, cache_dir)
-
-
-def check_snapshot_layout(path: Path, listed: set[str], *, where: str) -> None:
-    """Refuse a cache snapshot that holds anything but the manifest's files, each a link into its repo's ``blobs/``.
-
-    huggingface_hub makes every snapshot file a symlink to ``<repo>/blobs/<etag>``. A link resolving anywhere else, or a
-    file the manifest does not list (but those the Hub workflow adds after publication:
-    :func:`hub_envs.repo.format.beyond_manifest`), was not put there by a download of this commit.
-
-    Args:
-        path: the snapshot folder.
-        listed: the manifest's files.
-        where: names the snapshot in messages.
-
-    Raises:
-        IntegrityError: naming the links and files that do not belong.
-    """
-    blobs = path.parent.parent / "blobs"
-    bad = []
-    for dirpath, dirnames, filenames in os.walk(path):
-        for name in dirnames + filenames:
-            full = Path(dirpath, name)
-            rel = full.relative_to(path).as_posix()
-            if full.is_symlink():
-                target = Path(os.path.realpath(full))
-                if blobs.resolve() not in target.parents:
-                    bad.append(f"{rel} -> {target} (a link outside the cache's blobs/)")
-                    continue
-            if name in filenames and rel not in listed and not beyond_manifest(rel):
-                bad.append(f"{rel} (not in the manifest)")
-    if bad:
-        raise IntegrityError(
-            f"{where}: the cached snapshot {path} holds what no download of this commit puts there:\n  "
-            + "\n  ".join(safe_text(b) for b in bad[:20])
-            + "\nNot importing it. It was removed from the cache; load again to download the commit afresh."
-        )
-
-
-def drop_snapshot(path: Path) -> None:
-    """Remove one snapshot folder of the cache (its blobs stay: they are content-addressed).
-
-    Args:
-        path: ``.../snapshots/<sha>`` (anything else is left alone).
-    """
-    if path.parent.name == "snapshots" and is_commit_sha(path.name):
-        shutil.rmtree(path, ignore_errors=True)
 
 
 def read_manifest_text(repo_id: str, sha: str, *, token: str | None = None) -> str:

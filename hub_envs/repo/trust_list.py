@@ -27,11 +27,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from huggingface_hub import snapshot_download
-
 from hub_envs.errors import ConfigError, EnvRepoNotFoundError
 from hub_envs.paths import hub_envs_home, legacy_hub_envs_home
-from hub_envs.repo import hub_io
 from hub_envs.repo.format import Manifest, content_digest, hash_files, is_commit_sha
 from hub_envs.repo.refs import check_repo_id, parse_repo_ref
 
@@ -39,6 +36,14 @@ TRUST_FILE = "trusted.json"
 FORMAT = 2
 #: a manifest content digest: 64 lowercase hex digits
 DIGEST_RE = re.compile(r"[0-9a-f]{64}")
+
+
+def _hub_io():
+    """:mod:`hub_envs.repo.hub_io`, imported when the Hub is asked (reading the trust list does not): it installs its
+    endpoint check on huggingface_hub's client before any request."""
+    from hub_envs.repo import hub_io  # heavy: huggingface_hub's client and its HTTP stack (httpx or requests)
+
+    return hub_io
 
 
 def trust_file() -> Path:
@@ -185,7 +190,7 @@ def manifest_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
         ManifestError: the manifest cannot be read.
     """
     return Manifest.from_json(
-        hub_io.read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
+        _hub_io().read_manifest_text(repo_id, sha, token=token), where=f"{repo_id}@{sha}: hub_env.json"
     ).content_digest
 
 
@@ -223,6 +228,9 @@ def commit_digest(repo_id: str, sha: str, *, token: str | None = None) -> str:
     except EnvRepoNotFoundError as e:
         if "has no hub_env.json" not in str(e):
             raise
+
+    hub_io = _hub_io()
+    from huggingface_hub import snapshot_download  # heavy: huggingface_hub's client (hub_io installed its endpoint check)
 
     with hub_io.translate_hub_errors(repo_id, sha):
         return snapshot_digest(Path(snapshot_download(repo_id, revision=sha, token=token)))
