@@ -151,7 +151,7 @@ class LoadedEnv:
         """
         self.manifest.task_record(task)  # ConfigError naming the tasks
         view = copy.copy(self)
-        view.config = self.config_with({"task": task})
+        view._config = self.config_with({"task": task})
         view._task = task
         view._unregistered = True  # this handle's unregister() does nothing: the load it came from owns the names
         return view
