@@ -433,6 +433,38 @@ def test_a_worker_that_cannot_load_the_env_names_the_node(cluster, hub_module, t
         loaded.unregister()
 
 
+# --- a Ray token on the driver's machine (before Ctrl-C: its driver is another Ray job too) ---------------------------
+
+
+def test_a_ray_token_on_the_drivers_machine_does_not_break_a_cluster_without_token_auth(cluster, hub_module, tmp_path):
+    """A lab user has a Ray token on their machine (``ray.init()`` of a local Ray writes ``~/.ray/auth_token``) and
+    ``RAY_AUTH_MODE`` unset, and pushes with ``--backend=ray`` to a cluster started without token authentication (this
+    module's). The push's own driver owns what its workers share (``ray.put``): a worker on the other node gets it by
+    asking the driver, which refused to answer without the token (hub-envs' look for a token, before connecting, left
+    it in Ray's cache), so the push died with ``OwnerDiedError`` ("the object's owner has exited") while its driver was
+    running. It publishes what the local backend publishes."""
+    import secrets
+    import subprocess
+
+    repo = "ray/hover-token"
+    kw = {"episodes": 6, "config": {"episode_length": 12}, "determinism_steps": 6, "progress": False}
+    local = push_env(ENVS / "hover", repo, workers=1, **kw)
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN_PATH", "RAY_ADDRESS")}
+    env["RAY_AUTH_TOKEN"] = secrets.token_hex(32)  # a token found here: another cluster's, or left by a local Ray
+    result = subprocess.run(
+        [sys.executable, "-m", "hub_envs.cli", "push", f"--env_dir={ENVS / 'hover'}", f"--repo_id={repo}", "--episodes=6",
+         "--config.episode_length=12", "--determinism_steps=6", "--force=true", "--backend=ray",
+         f"--ray_address={cluster.address}", "--workers=2"],  # two shards at once: one on each node
+        env=env, capture_output=True, text=True, timeout=600,  # a hang guard
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "backend=ray" in result.stderr and "Generating 6 episodes" in result.stderr, result.stderr[-3000:]
+    assert "OwnerDiedError" not in result.stderr
+    # the same content as the local push's: no new commit
+    assert f"Unchanged; already published {repo} at commit {local.sha}" in result.stdout, result.stdout[-3000:]
+    assert _head(hub_module.api, repo) == local.sha
+
+
 # --- Ctrl-C (last: its driver is another Ray job, whose workers take the place of this module's warm ones) ---
 
 

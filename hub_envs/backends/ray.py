@@ -103,6 +103,23 @@ def _probe(address: str, timeout: float = 5.0) -> None:
         ) from None
 
 
+def _token_found_here(loader: Any) -> bool:
+    """Whether this process could send a Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH``, ``~/.ray/auth_token``),
+    whatever ``RAY_AUTH_MODE`` says, leaving Ray's token cache as it was.
+
+    Looking a token up keeps it in Ray's process-wide cache even when token authentication is off, and the gRPC
+    server that ``ray.init`` starts later in this process (the driver's, which owns its ``ray.put`` objects) then
+    refuses every request without that token. The raylets of a cluster without token authentication send none: asked
+    where a driver's object is, they get ``InvalidAuthToken`` and report its owner dead (``OwnerDiedError``) for every
+    task that needs the object on another node. A token is on any machine where a local Ray was ever started
+    (``ray.init()`` writes ``~/.ray/auth_token``).
+    """
+    try:
+        return loader.has_token(ignore_auth_mode=True)
+    finally:
+        loader.reset_cache()  # the next lookup (ray.init's) follows RAY_AUTH_MODE again
+
+
 def _check_auth(address: str) -> None:
     """Fail at once, saying what to set, when the Ray cluster at ``host:port`` uses token authentication and this
     process cannot authenticate to it.
@@ -121,7 +138,7 @@ def _check_auth(address: str) -> None:
     except ImportError:
         return
     token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
-    has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
+    has_token = _token_found_here(AuthenticationTokenLoader.instance())
     where = "RAY_AUTH_TOKEN, a file named by RAY_AUTH_TOKEN_PATH, or ~/.ray/auth_token"
     if token_mode and not has_token:  # (Ray's client aborts the whole process on a request in this state)
         raise ClusterAuthError(
