@@ -7,8 +7,10 @@ unmodified huggingface_hub client.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import html as html_lib
+import io
 import json
 import re
 import urllib.request
@@ -40,13 +42,16 @@ def pushed(hub_module):
 
 @pytest.fixture(scope="module")
 def attested(hub_module, pushed, tmp_path_factory):
-    """``hub-envs reproduce --attest=true`` on the suite: (the PR's attestation path, its bytes, what the CLI printed)."""
+    """``hub-envs reproduce --attest=true`` on the suite: (the PR's attestation path, its bytes)."""
     out = tmp_path_factory.mktemp("suite-report")
-    code = cli_main(
-        ["reproduce", REPO, f"--revision={pushed.sha}", "--trust_remote_code=true", "--workers=1", f"--out={out}",
-         "--attest=true"]
-    )  # fmt: skip
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = cli_main(
+            ["reproduce", REPO, f"--revision={pushed.sha}", "--trust_remote_code=true", "--workers=1", f"--out={out}",
+             "--attest=true"]
+        )  # fmt: skip
     assert code == 0
+    assert "Attested REPRODUCED (3 of 3 tasks) for alice/att-suite@" in printed.getvalue()
     api = hub_module.api
     (path,) = [f for f in api.list_repo_files(REPO, revision="refs/pr/1") if f.startswith("reproductions/")]
     local = hf_hub_download(REPO, path, revision="refs/pr/1", endpoint=hub_module.endpoint, force_download=True)
@@ -224,3 +229,12 @@ def test_a_one_task_attestation_stays_format_1_without_tasks(hub_module, tmp_pat
     att = Attestation.from_report(report, command=["hub-envs", "reproduce"])
     assert att.format_version == 1 and "tasks" not in json.loads(att.to_json()) and att.tasks == ()
     assert att.tasks_reproduced == (0, 0) and "tasks" not in att.summary()
+
+
+def test_server_and_repo_format_agree_on_the_suite_field():
+    import dataclasses
+
+    from hub_envs.repo.format import Manifest
+    from hub_envs.server.formats import MANIFEST_TASKS
+
+    assert MANIFEST_TASKS in {f.name for f in dataclasses.fields(Manifest)}

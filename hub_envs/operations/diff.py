@@ -1,5 +1,5 @@
 """``diff``: what changed between two revisions of an env repo (or two env repos), and does it behave differently? The
-files and manifest fields, the spaces, the same episodes on both, the benchmarks' seed-paired deltas.
+files and manifest fields, the spaces, the same episodes on both, the benchmarks' seed-paired deltas; a suite's, task by task.
 
 Example:
     >>> from hub_envs import diff                                                     # doctest: +SKIP
@@ -856,7 +856,9 @@ def diff(
             process imports neither.
 
     Returns:
-        A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1.
+        A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1. When either
+        revision is a benchmark suite, ``report.tasks`` compares it task by task (:func:`task_pairs`; each task's own
+        episodes, seeds, fingerprint and benchmarks) and the verdict is the suite's: every task identical.
 
     Raises:
         hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
@@ -879,7 +881,6 @@ def diff(
         t = time.perf_counter()
         files, fields = file_changes(a.manifest, b.manifest), manifest_changes(a.manifest, b.manifest)  # 1. static
         timings["static"] = time.perf_counter() - t
-        t = time.perf_counter()
         pair = {
             "episodes": episodes,
             "random_episodes": random_episodes,
