@@ -32,8 +32,10 @@ class AttestResult:
 
     def summary(self) -> str:
         """What was attested, and the pull request that adds it (what ``hub-envs reproduce --attest`` prints)."""
+        done, of = self.attestation.tasks_reproduced
         return (
-            f"Attested {self.attestation.verdict} for {self.attestation.repo_id}@{self.attestation.sha[:12]} "
+            f"Attested {self.attestation.verdict}{f' ({done} of {of} tasks)' if of else ''} for "
+            f"{self.attestation.repo_id}@{self.attestation.sha[:12]} "
             f"(stack {self.attestation.stack_digest}{', signed' if self.signed else ''}): pull request #{self.pr_num} "
             f"adds {self.path}\n  {safe_text(self.pr_url)}\n  The repo's owner merges it: "
             f"huggingface_hub.HfApi().merge_pull_request({self.attestation.repo_id!r}, {self.pr_num})"

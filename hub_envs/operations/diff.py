@@ -1,5 +1,5 @@
 """``diff``: what changed between two revisions of an env repo (or two env repos), and does it behave differently? The
-files and manifest fields, the spaces, the same episodes on both, the benchmarks' seed-paired deltas.
+files and manifest fields, the spaces, the same episodes on both, the benchmarks' seed-paired deltas; a suite's, task by task.
 
 Example:
     >>> from hub_envs import diff                                                     # doctest: +SKIP
@@ -45,14 +45,14 @@ from hub_envs.repo.format import (
     is_code_file,
 )
 
-__all__ = ["diff", "DiffReport", "SeedDiff", "classify_file", "manifest_changes"]
+__all__ = ["diff", "DiffReport", "SeedDiff", "TaskDiff", "classify_file", "manifest_changes", "task_pairs"]
 
 DEFAULT_OUT = Path("diff-out")
 
 #: fewer paired episodes than this: the report says their bootstrap interval is not a calibrated 95% one
 FEW_EPISODES = 10
 #: manifest fields the file lists already cover (or that only restate them)
-_MANIFEST_SKIP = ("files", "content_digest", "code_digest", "repo_id", "gym_id", "env_type")
+_MANIFEST_SKIP = ("files", "content_digest", "code_digest", "repo_id", "gym_id", "env_type", "tasks")  # tasks: the task table
 #: manifest fields whose change alters behaviour even when the compared episodes do not show it
 _BEHAVIOUR_FIELDS = ("config", "config_overrides", "dataset.features", "dataset.fps", "env_entry_point", "processors")
 
@@ -119,6 +119,47 @@ def file_changes(old: Manifest, new: Manifest) -> dict[str, dict[str, list[str]]
     return out
 
 
+def task_pairs(old: Manifest, new: Manifest) -> list[tuple[str | None, str | None]]:
+    """How the tasks of two revisions correspond, when either is a benchmark suite: ``(old task, new task)`` pairs, the
+    same name on both first, then a task removed and one added with the same (non-empty) instruction as a rename, then
+    ``(task, None)`` removed and ``(None, task)`` added. A one-task side is paired with the suite's task its config
+    names (its ``task`` field, when the suite has it), else with the suite's default task, and stands as ``""``.
+
+    >>> m = Manifest(name="s", env_entry_point="m:E", config_entry_point="m:C", gym_id="g", env_type="t", files={},
+    ...              content_digest="", config={"task": "a"}, tasks=({"task": "a", "instruction": "go"},
+    ...              {"task": "b", "instruction": "stop"}))
+    >>> task_pairs(m, Manifest(**{**m.__dict__, "tasks": ({"task": "a", "instruction": "go"}, {"task": "c", "instruction": "stop"})}))
+    [('a', 'a'), ('b', 'c')]
+    >>> task_pairs(m, Manifest(**{**m.__dict__, "tasks": ()}))
+    [('a', ''), ('b', None)]
+    """
+    a, b = old.task_names, new.task_names
+    if not a and not b:
+        return []
+    if not a or not b:
+        suite, single = (new, old) if not a else (old, new)
+        wanted = single.config.get("task")
+        chosen = wanted if wanted in suite.task_names else suite.config.get("task", suite.task_names[0])
+        rows: list[tuple[str | None, str | None]] = []
+        for t in suite.task_names:
+            if t == chosen:
+                rows.append(("", t) if not a else (t, ""))
+            else:
+                rows.append((None, t) if not a else (t, None))
+        return rows
+    pairs: list[tuple[str | None, str | None]] = [(t, t) for t in a if t in b]
+    removed, added = [t for t in a if t not in b], [t for t in b if t not in a]
+    said_a = {t: old.task_record(t).get("instruction") for t in removed}
+    said_b = {t: new.task_record(t).get("instruction") for t in added}
+    for t in list(removed):
+        twin = next((u for u in added if said_a[t] and said_b[u] == said_a[t]), None)
+        if twin is not None:
+            pairs.append((t, twin))
+            removed.remove(t)
+            added.remove(twin)
+    return pairs + [(t, None) for t in removed] + [(None, t) for t in added]
+
+
 # --- behavioural part ---------------------------------------------------------------------------
 
 
@@ -142,6 +183,7 @@ class SeedDiff:
     return_new: float = 0.0
     success_old: bool = False
     success_new: bool = False
+    task: str | None = None  # a suite's task (its name in the new revision) the episode ran in
 
     @property
     def diverged(self) -> bool:
@@ -149,7 +191,9 @@ class SeedDiff:
 
     def describe(self) -> str:
         """One line: where this seed's episodes first diverged (step, feature, element, both values), or that they did not."""
-        where = f"seed {self.seed} ({self.source})"
+        where = (
+            f"seed {self.seed} ({self.source})" if self.task is None else f"task {self.task!r} seed {self.seed} ({self.source})"
+        )
         if not self.diverged:
             return f"{where}: identical for {self.steps_old} steps"
         at = f"[{', '.join(map(str, self.element))}]" if self.element else ""
@@ -161,6 +205,11 @@ class SeedDiff:
     def to_dict(self) -> dict[str, Any]:
         """The comparison as JSON-ready data."""
         return {**asdict(self), "diverged": self.diverged}
+
+
+def _md_cell(text: str) -> str:
+    """Text as one Markdown table cell (a task name or instruction is the publisher's: no '|' or line break)."""
+    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def _short(value: Any, limit: int = 80) -> str:
@@ -227,12 +276,16 @@ def _compare(a: Any, b: Any, seed: int, source: str, names: dict[str, str], tole
     return out
 
 
-def _recorded_actions(loaded: Any, episodes: int) -> list[tuple[int, int, np.ndarray]]:
-    """(episode index, seed, actions) of the first ``episodes`` episodes of the revision's dataset."""
+def _recorded_actions(loaded: Any, episodes: int, among: list[int] | None = None) -> list[tuple[int, int, np.ndarray]]:
+    """(episode index, seed, actions) of the first ``episodes`` episodes of the revision's dataset (of those ``among``
+    lists: a suite task's)."""
     if episodes <= 0 or loaded.dataset_root is None:
         return []
     out = []
-    for m in read_episode_meta(loaded.dataset_root)[:episodes]:
+    metas = read_episode_meta(loaded.dataset_root)
+    if among is not None:
+        metas = [m for m in metas if int(m["episode_index"]) in set(among)]
+    for m in metas[:episodes]:
         if m.get("seed") is None:
             continue
         frames = read_episode_frames(loaded.dataset_root, int(m["episode_index"]), keys=["action"])
@@ -241,6 +294,120 @@ def _recorded_actions(loaded: Any, episodes: int) -> list[tuple[int, int, np.nda
 
 
 # --- the report ---------------------------------------------------------------------------------
+
+
+@dataclass
+class TaskDiff:
+    """One task of a benchmark suite across the two revisions (:func:`task_pairs`): its name and instruction on each side
+    (``old``/``new`` None: the task is not there; ``""``: that side is a one-task env), and, when on both, its episodes
+    paired seed by seed, its fingerprints, its benchmarks' paired deltas."""
+
+    old: str | None
+    new: str | None
+    instruction_old: str | None = None
+    instruction_new: str | None = None
+    spaces: list[dict[str, Any]] = field(default_factory=list)
+    seeds: list[SeedDiff] = field(default_factory=list)
+    fingerprint: dict[str, Any] = field(default_factory=dict)
+    benchmarks: list[dict[str, Any]] = field(default_factory=list)
+    deltas: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        """The task's name: ``old -> new`` when renamed."""
+        if self.renamed:
+            return f"{self.old} -> {self.new}"
+        return str(self.new or self.old or "(the one-task env)")
+
+    @property
+    def change(self) -> str:
+        """``added``, ``removed``, ``renamed``, ``vs one-task env`` or ``kept``."""
+        if self.old is None:
+            return "added"
+        if self.new is None:
+            return "removed"
+        if "" in (self.old, self.new):
+            return "vs one-task env"
+        return "renamed" if self.old != self.new else "kept"
+
+    @property
+    def renamed(self) -> bool:
+        return bool(self.old and self.new and self.old != self.new)
+
+    @property
+    def compared(self) -> bool:
+        return self.old is not None and self.new is not None
+
+    @property
+    def instruction_changed(self) -> bool:
+        """Whether the language instruction a policy reads changed (a one-task side has none to compare)."""
+        return self.compared and "" not in (self.old, self.new) and self.instruction_old != self.instruction_new
+
+    @property
+    def behaviour_identical(self) -> bool:
+        """Whether the task behaves the same on both: on both, same spaces, no paired episode diverged, the same
+        fingerprint, no benchmark episode differing."""
+        return self.compared and not (
+            self.spaces
+            or any(s.diverged for s in self.seeds)
+            or not self.fingerprint.get("same", True)
+            or any(b.get("episodes_differing") for b in self.benchmarks)
+        )
+
+    @property
+    def identical(self) -> bool:
+        """Identical behaviour under the same name and instruction."""
+        return self.behaviour_identical and self.change in ("kept", "vs one-task env") and not self.instruction_changed
+
+    def verdict(self) -> str:
+        """``identical``, ``behaviour differs``, ``added`` or ``removed`` (and ``renamed``/``instruction changed``)."""
+        if not self.compared:
+            return self.change
+        out = "identical behaviour" if self.behaviour_identical else "behaviour differs"
+        extra = [w for w, on in (("renamed", self.renamed), ("instruction changed", self.instruction_changed)) if on]
+        return out + (f" ({', '.join(extra)})" if extra else "")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The task's part of ``report.json``."""
+        return {
+            "old": self.old,
+            "new": self.new,
+            "change": self.change,
+            "instruction_old": self.instruction_old,
+            "instruction_new": self.instruction_new,
+            "instruction_changed": self.instruction_changed,
+            "behaviour_identical": self.behaviour_identical,
+            "identical": self.identical,
+            "verdict": self.verdict(),
+            "spaces": self.spaces,
+            "seeds": [s.to_dict() for s in self.seeds],
+            "fingerprint": self.fingerprint,
+            "benchmarks": self.benchmarks,
+            "deltas": self.deltas,
+            "notes": self.notes,
+        }
+
+    def row(self) -> tuple[str, ...]:
+        """(task, change, instruction, episodes diverged, fingerprint, benchmark episodes differing, verdict) as text."""
+        said = (
+            f"{self.instruction_old!r} -> {self.instruction_new!r}"
+            if self.instruction_changed
+            else repr(self.instruction_new if self.new else self.instruction_old)
+        )
+        if not self.compared:
+            return (self.name, self.change, said, "-", "-", "-", self.verdict())
+        bench = sum(len(b.get("episodes_differing", [])) for b in self.benchmarks)
+        of = sum(len(b.get("seeds", [])) for b in self.benchmarks if b.get("metrics"))
+        return (
+            self.name,
+            self.change,
+            said,
+            f"{sum(s.diverged for s in self.seeds)} of {len(self.seeds)}",
+            str(self.fingerprint.get("status", "-")),
+            f"{bench} of {of}" if of else "-",
+            self.verdict(),
+        )
 
 
 @dataclass
@@ -261,6 +428,11 @@ class DiffReport(ReportFiles):
     benchmarks: list[dict[str, Any]] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     paths: dict[str, str] = field(default_factory=dict)
+    #: a benchmark suite on either side: each task across the revisions (``seeds``, ``benchmarks``, ``deltas`` then pool
+    #: every task's, paired by task and seed)
+    tasks: list[TaskDiff] = field(default_factory=list)
+    #: a suite on either side: ``{"old": n tasks, "new": m tasks, "kind": "suite vs suite" | ...}``
+    suite: dict[str, Any] = field(default_factory=dict)
 
     @property
     def diverged(self) -> list[SeedDiff]:
@@ -280,13 +452,21 @@ class DiffReport(ReportFiles):
         return [b for b in self.benchmarks if b.get("episodes_differing")]
 
     @property
+    def tasks_differing(self) -> list[TaskDiff]:
+        """A suite's tasks that are not identical: added, removed, renamed, instruction or behaviour changed."""
+        return [t for t in self.tasks if not t.identical]
+
+    @property
     def behaviour_identical(self) -> bool:
+        """The verdict; for a suite, every task identical (a task added, removed or renamed, or whose instruction
+        changed, makes it differ: ``--env.task=`` and a language-conditioned policy see it)."""
         return not (
             self.spaces
             or self.diverged
             or not self.fingerprint.get("same", True)
             or self.behaviour_fields
             or self.benchmarks_differing
+            or self.tasks_differing
         )
 
     @property
@@ -312,6 +492,7 @@ class DiffReport(ReportFiles):
             "settings": self.settings,
             "provenance": self.provenance,
             "timings": self.timings,
+            **({"suite": self.suite, "tasks": [t.to_dict() for t in self.tasks]} if self.suite else {}),
         }
 
     def to_json(self) -> str:
@@ -342,6 +523,9 @@ class DiffReport(ReportFiles):
             "Files:",
             *(f"  {line}" for line in self._files_lines()),
         ]
+        if self.suite:
+            lines.append(f"Suite: {self.suite['kind']}; {len(self.tasks_differing)} of {len(self.tasks)} task(s) differ")
+            lines += [f"  {t.name}: {t.verdict()}" for t in self.tasks]
         if self.manifest:
             lines.append(f"Manifest: {len(self.manifest)} field(s) changed")
             lines += [f"  {c['field']}: {_short(c['old'], 40)} -> {_short(c['new'], 40)}" for c in self.manifest[:12]]
@@ -384,6 +568,22 @@ class DiffReport(ReportFiles):
             "",
             *(f"- {line}" for line in self._files_lines()),
             "",
+        ]
+        if self.suite:
+            out += [
+                "## Tasks",
+                "",
+                f"{self.suite['kind'][0].upper()}{self.suite['kind'][1:]}. Each task on both revisions, its episodes paired by "
+                "seed; **the suite: "
+                + ("identical behaviour" if self.behaviour_identical else f"{len(self.tasks_differing)} task(s) differ")
+                + "**.",
+                "",
+                "| task | change | instruction | episodes diverged | golden fingerprint | benchmark episodes differing | verdict |",
+                "| --- | --- | --- | --- | --- | --- | --- |",
+                *("| " + " | ".join(_md_cell(c) for c in t.row()) + " |" for t in self.tasks),
+                "",
+            ]
+        out += [
             "## Manifest fields",
             "",
         ]
@@ -481,8 +681,10 @@ class DiffReport(ReportFiles):
 # --- the operation ------------------------------------------------------------------------------
 
 
-def _fingerprints(old: Any, new: Any, live_old: dict | None, live_new: dict | None) -> dict[str, Any]:
-    a, b = old.manifest.fingerprint, new.manifest.fingerprint
+def _fingerprints(
+    old: Any, new: Any, live_old: dict | None, live_new: dict | None, recorded: tuple[dict, dict] | None = None
+) -> dict[str, Any]:
+    a, b = recorded if recorded is not None else (old.manifest.fingerprint, new.manifest.fingerprint)
     recorded_same = (a.get("digest") == b.get("digest")) if a and b else None
     comparable = bool(a and b and a.get("seeds") == b.get("seeds") and a.get("steps") == b.get("steps"))
     live_same = live_old["digest"] == live_new["digest"] if live_old and live_new else None
@@ -554,17 +756,19 @@ def _benchmark_deltas(
     progress: bool,
     token: str | None,
     trust_policy_code: bool,
+    declared: tuple[list[dict[str, Any]], list[dict[str, Any]]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Each benchmark ``old`` declares, re-run on ``old`` and ``new`` (same policy, seeds and steps: the old
+    """Each benchmark ``old`` declares (``declared``: the old and new declarations to use, a suite task's), re-run on ``old`` and ``new`` (same policy, seeds and steps: the old
     declaration's, or the old config's episode length), and per metric the paired per-episode difference with its
     bootstrap CI; a benchmark that cannot run says why (``error``).
 
     An episode differs when a per-episode value differs by more than ``tolerance`` per step: a return, a sum of
     up to ``max_steps`` rewards each within ``tolerance`` of the other, by more than ``tolerance * max_steps``;
     a success (0 or 1) when it flips (any ``tolerance`` below 1)."""
-    declared_new = {str(b.get("name")) for b in new.manifest.benchmarks}
+    old_declared, new_declared = declared if declared is not None else (old.manifest.benchmarks, new.manifest.benchmarks)
+    declared_new = {str(b.get("name")) for b in new_declared}
     out = []
-    for bench in old.manifest.benchmarks:
+    for bench in old_declared:
         max_steps = int(bench.get("max_steps") or old.config.episode_length)
         bench = {**bench, "max_steps": max_steps}
         runs = [
@@ -577,6 +781,7 @@ def _benchmark_deltas(
             "seeds": list(runs[0].seeds),
             "max_steps": max_steps,
             "declared_in_new": runs[0].name in declared_new,
+            **({"task": new.task or old.task} if (new.task or old.task) else {}),
         }
         out.append(entry)
         error = runs[0].result.error or runs[1].result.error
@@ -651,7 +856,9 @@ def diff(
             process imports neither.
 
     Returns:
-        A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1.
+        A :class:`DiffReport`; ``report.behaviour_identical`` is the verdict, ``report.exit_code`` 0 or 1. When either
+        revision is a benchmark suite, ``report.tasks`` compares it task by task (:func:`task_pairs`; each task's own
+        episodes, seeds, fingerprint and benchmarks) and the verdict is the suite's: every task identical.
 
     Raises:
         hub_envs.errors.HubEnvsError: a revision cannot be loaded or run (``hub-envs diff`` exits 2).
@@ -674,30 +881,23 @@ def diff(
         t = time.perf_counter()
         files, fields = file_changes(a.manifest, b.manifest), manifest_changes(a.manifest, b.manifest)  # 1. static
         timings["static"] = time.perf_counter() - t
-        t = time.perf_counter()
-        behaviour = _behaviour(
-            a, b, episodes=episodes, random_episodes=random_episodes, tolerance=tolerance, workers=workers, progress=progress
-        )
-        timings["behaviour"] = time.perf_counter() - t  # 2. behavioural
-        t = time.perf_counter()
-        bench_out: list[dict[str, Any]] = []
-        if benchmarks and not behaviour.action_changed:  # 3. the benchmarks
-            bench_out = _benchmark_deltas(
-                a,
-                b,
-                workers=workers,
-                resamples=resamples,
-                tolerance=tolerance,
-                progress=progress,
-                token=token,
-                trust_policy_code=trust_policy_code,
-            )
-            timings["benchmarks"] = time.perf_counter() - t
-        elif benchmarks and a.manifest.benchmarks:
-            behaviour.notes.append("the action space changed: the benchmarks were not re-run")
-        for bm in bench_out:
-            if bm.get("error"):
-                behaviour.notes.append(f"benchmark {bm['name']} was not re-run: {bm['error']}")
+        pair = {
+            "episodes": episodes,
+            "random_episodes": random_episodes,
+            "tolerance": tolerance,
+            "workers": workers,
+            "progress": progress,
+            "benchmarks": benchmarks,
+            "resamples": resamples,
+            "token": token,
+            "trust_policy_code": trust_policy_code,
+        }
+        suite, tasks = _suite_kind(a, b), []
+        if suite:  # 2-3. each task on both revisions, then pooled by task and seed
+            tasks = [_task_diff(a, b, o, n, timings=timings, **pair) for o, n in task_pairs(a.manifest, b.manifest)]
+            behaviour, bench_out, fp = _pooled(tasks, suite)
+        else:  # 2-3. the behaviour, the benchmarks
+            behaviour, bench_out, fp = _compare_sides(a, b, timings=timings, **pair)
         deltas = _seed_deltas(behaviour.seeds, resamples)
         report = DiffReport(  # 4. the report
             old=_ref(a),
@@ -706,10 +906,12 @@ def diff(
             manifest=fields,
             spaces=behaviour.spaces,
             seeds=behaviour.seeds,
-            fingerprint=_fingerprints(a, b, behaviour.live_old, behaviour.live_new),
+            fingerprint=fp,
             deltas=deltas,
             benchmarks=bench_out,
             notes=behaviour.notes + _closing_notes(deltas, bench_out, behaviour),
+            tasks=tasks,
+            suite=suite,
             settings={
                 "episodes": episodes,
                 "random_episodes": random_episodes,
@@ -734,6 +936,114 @@ def diff(
         return report
 
 
+def _compare_sides(
+    a: Any,
+    b: Any,
+    *,
+    timings: dict[str, float],
+    benchmarks: bool,
+    resamples: int,
+    token: str | None,
+    trust_policy_code: bool,
+    among: list[int] | None = None,
+    recorded: tuple[dict, dict] | None = None,
+    declared: tuple[list, list] | None = None,
+    **episodes_run: Any,
+) -> tuple[_Behaviour, list[dict[str, Any]], dict[str, Any]]:
+    """The behaviour of two sides (two revisions, or one task of each: ``among`` its old dataset episodes, ``recorded``
+    its old and new fingerprints, ``declared`` its old and new benchmarks), the benchmarks' paired deltas, the fingerprints."""
+    t = time.perf_counter()
+    behaviour = _behaviour(a, b, among=among, fingerprint=None if recorded is None else recorded[0], **episodes_run)
+    timings["behaviour"] = timings.get("behaviour", 0.0) + time.perf_counter() - t
+    t = time.perf_counter()
+    bench_out: list[dict[str, Any]] = []
+    old_declared = a.manifest.benchmarks if declared is None else declared[0]
+    if benchmarks and not behaviour.action_changed:
+        bench_out = _benchmark_deltas(
+            a,
+            b,
+            workers=episodes_run["workers"],
+            resamples=resamples,
+            tolerance=episodes_run["tolerance"],
+            progress=episodes_run["progress"],
+            token=token,
+            trust_policy_code=trust_policy_code,
+            declared=declared,
+        )
+        timings["benchmarks"] = timings.get("benchmarks", 0.0) + time.perf_counter() - t
+    elif benchmarks and old_declared:
+        behaviour.notes.append("the action space changed: the benchmarks were not re-run")
+    for bm in bench_out:
+        if bm.get("error"):
+            behaviour.notes.append(f"benchmark {bm['name']} was not re-run: {bm['error']}")
+    return behaviour, bench_out, _fingerprints(a, b, behaviour.live_old, behaviour.live_new, recorded)
+
+
+def _suite_kind(a: Any, b: Any) -> dict[str, Any]:
+    """``{"old": tasks, "new": tasks, "kind": ...}`` when either revision is a benchmark suite, else ``{}``; the kind
+    says plainly what is compared with what."""
+    if not (a.is_suite or b.is_suite):
+        return {}
+    n_a, n_b = len(a.tasks), len(b.tasks)
+    if a.is_suite and b.is_suite:
+        kind = f"suite vs suite ({n_a} tasks -> {n_b} tasks)"
+    else:
+        suite, single = ("old", "new") if a.is_suite else ("new", "old")
+        pair = next(p for p in task_pairs(a.manifest, b.manifest) if "" in p)
+        kind = (
+            f"the {suite} revision is a suite of {max(n_a, n_b)} tasks, the {single} one a one-task env: it is compared "
+            f"with the suite's task {pair[0] or pair[1]!r} only, the suite's other tasks have no counterpart"
+        )
+    return {"old": n_a, "new": n_b, "kind": kind}
+
+
+def _task_diff(a: Any, b: Any, old_task: str | None, new_task: str | None, *, timings: dict[str, float], **pair: Any) -> TaskDiff:
+    """One task across the revisions (:func:`task_pairs`): its instruction on each side, and when it is on both, its
+    episodes (the old task's dataset episodes, then seeded random ones), fingerprint and benchmarks, each side making
+    that task (``""``: a one-task side, making its own env)."""
+    rec_a = a.manifest.task_record(old_task) if old_task else {}
+    rec_b = b.manifest.task_record(new_task) if new_task else {}
+    out = TaskDiff(old_task, new_task, rec_a.get("instruction"), rec_b.get("instruction"))
+    if old_task is None or new_task is None:
+        return out
+    side_a = a.for_task(old_task) if old_task else a
+    side_b = b.for_task(new_task) if new_task else b
+    behaviour, bench_out, fp = _compare_sides(
+        side_a,
+        side_b,
+        timings=timings,
+        among=list(rec_a["episodes"]) if old_task else None,
+        recorded=(
+            rec_a.get("fingerprint") or {} if old_task else a.manifest.fingerprint,
+            rec_b.get("fingerprint") or {} if new_task else b.manifest.fingerprint,
+        ),
+        declared=(
+            [x for x in a.manifest.benchmarks if not old_task or x.get("task") == old_task],
+            [x for x in b.manifest.benchmarks if not new_task or x.get("task") == new_task],
+        ),
+        **pair,
+    )
+    for s in behaviour.seeds:
+        s.task = new_task or old_task
+    out.spaces, out.seeds, out.benchmarks, out.fingerprint = behaviour.spaces, behaviour.seeds, bench_out, fp
+    out.deltas = _seed_deltas(behaviour.seeds, pair["resamples"])
+    out.notes = behaviour.notes
+    return out
+
+
+def _pooled(tasks: list[TaskDiff], suite: dict[str, Any]) -> tuple[_Behaviour, list[dict[str, Any]], dict[str, Any]]:
+    """A suite's tasks pooled: every task's space changes, paired episodes (matched by task and seed) and benchmarks;
+    the fingerprint the same when every compared task's is."""
+    compared = [t for t in tasks if t.compared]
+    spaces = [{**sp, "task": t.name} for t in compared for sp in t.spaces]
+    pooled = _Behaviour(spaces=spaces, action_changed=any(sp["space"] == "action_space" for sp in spaces))
+    pooled.seeds = [s for t in compared for s in t.seeds]
+    pooled.notes = [f"task {t.name}: {n}" for t in compared for n in t.notes]
+    same = sum(bool(t.fingerprint.get("same", True)) for t in compared)
+    fp = {"same": same == len(compared), "status": f"per task: {same} of {len(compared)} compared task(s) the same"}
+    return pooled, [b for t in compared for b in t.benchmarks], fp
+
+
 @dataclass
 class _Behaviour:
     """What running both revisions found: their space changes, each seed's comparison, the golden fingerprints
@@ -748,10 +1058,20 @@ class _Behaviour:
 
 
 def _behaviour(
-    a: Any, b: Any, *, episodes: int, random_episodes: int, tolerance: float, workers: int, progress: bool
+    a: Any,
+    b: Any,
+    *,
+    episodes: int,
+    random_episodes: int,
+    tolerance: float,
+    workers: int,
+    progress: bool,
+    among: list[int] | None = None,
+    fingerprint: dict[str, Any] | None = None,
 ) -> _Behaviour:
-    """Both revisions' spaces compared, then the same episodes on both (the old revision's recorded actions, then seeded
-    random actions), and the golden fingerprint recomputed on both."""
+    """Both revisions' spaces compared, then the same episodes on both (the old revision's recorded actions, of its
+    dataset episodes ``among`` when given, then seeded random actions), and the golden fingerprint recomputed on both
+    (``fingerprint``: the recorded one whose seeds and steps to use, default the old manifest's)."""
     env_a, env_b = a.make(), b.make()
     try:
         spaces = _space_changes(env_a, env_b)
@@ -763,7 +1083,7 @@ def _behaviour(
     if found.action_changed:
         found.notes.append("the action space changed: the same actions cannot drive both revisions, so no episodes were compared")
         return found
-    recorded = _recorded_actions(a, episodes)
+    recorded = _recorded_actions(a, episodes, among)
     if episodes and not recorded:
         found.notes.append(f"{a.repo_id}@{a.revision[:12]} has no dataset with seeds: no recorded actions to replay")
     # random-action seeds other than the replayed episodes' (push_env records seeded random actions: the same seed
@@ -794,7 +1114,7 @@ def _behaviour(
         _compare(ra, rb, ra.seed, src, names, tolerance) for ra, rb, src in zip(runs[0], runs[1], sources, strict=True)
     ]
     # the golden fingerprint of both, recomputed here on the old manifest's seeds and steps (a few short episodes)
-    fp = a.manifest.fingerprint
+    fp = a.manifest.fingerprint if fingerprint is None else fingerprint
     if fp and fp.get("seeds"):
         fp_seeds, steps = [int(s) for s in fp["seeds"]], int(fp.get("steps", FINGERPRINT_STEPS))
         found.live_old = golden_fingerprint(a.make, seeds=fp_seeds, steps=steps)

@@ -158,9 +158,10 @@ def reproduced_table(entries) -> str:
         system = f"{str(a.stack.get('platform', '-')).split('-')[0]} {a.stack.get('machine', '')}, {a.stack.get('cpu', '-')}"
         by = "no pull request" if e.author is None else _cell(f"@{e.author}")
         by += f" (PR #{e.merged_from})" if e.author is not None and e.merged_from is not None else ""
+        done, of = a.tasks_reproduced
         cells = [
             _cell(a.created_at[:10]),
-            f"{'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()}",
+            f"{'✓ ' if a.reproduced else '✗ '}{a.verdict.lower()}" + (f", {done} of {of} tasks" if of else ""),
             f"`{a.sha[:12]}`",
             _cell(a.stack_digest),
             _cell(a.stack.get("python", "-")),
@@ -171,7 +172,28 @@ def reproduced_table(entries) -> str:
             "signed (OpenSSH)" if e.signed else "**unsigned**",
         ]
         out.append("| " + " | ".join(cells) + " |")
-    return "\n".join(out)
+    return "\n".join(out + _tasks_table(rows))
+
+
+def _tasks_table(rows) -> list[str]:
+    """A suite's attestations per task: one row per task, one column per attestation that names its tasks (its date,
+    commit and stack), each cell ✓ or ✗; nothing when none does (a one-task env's table stays as it was)."""
+    suites = [e for e in rows if e.attestation.tasks]
+    if not suites:
+        return []
+    names = list(dict.fromkeys(str(t["task"]) for e in suites for t in e.attestation.tasks))
+    header = [
+        f"{_cell(e.attestation.created_at[:10])} `{e.attestation.sha[:12]}` {_cell(e.attestation.stack_digest)}" for e in suites
+    ]
+    out = ["", "Per task (a benchmark suite's verdict for each of its tasks):", "", "| task | " + " | ".join(header) + " |"]
+    out.append("|---|" + "---|" * len(suites))
+    for name in names:
+        marks = []
+        for e in suites:
+            t = next((t for t in e.attestation.tasks if t["task"] == name), None)
+            marks.append("–" if t is None else "✓" if t["reproduced"] else "✗")
+        out.append(f"| {_cell(name)} | " + " | ".join(marks) + " |")
+    return out
 
 
 def media_note(seeds: list, fps: Any, media_kwargs: Mapping[str, Any]) -> str:

@@ -49,7 +49,11 @@ __all__ = [
     "matrix_text",
 ]
 
-FORMAT_VERSION = 1
+#: The format this hub-envs writes; it reads every format from 1 up to this one. 2 added ``tasks`` (a benchmark suite's
+#: verdict per task), written only for a suite (a one-task env's attestation stays 1, which older hub-envs read).
+FORMAT_VERSION = 2
+SINGLE_TASK_FORMAT_VERSION = 1
+SUITE_FORMAT_VERSION = 2
 KIND = "hub-envs reproduction attestation"
 SIGNATURE_NAMESPACE = "hub-envs"
 SIGNATURE_SUFFIX = ".sig"
@@ -153,6 +157,44 @@ def _benchmark_summary(b: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _task_summary(t: dict[str, Any]) -> dict[str, Any]:
+    """A suite task's part of the attestation: its verdict, checks, replay, benchmarks and fingerprint."""
+    return {
+        "task": t.get("task"),
+        "task_index": t.get("task_index"),
+        "verdict": t.get("verdict"),
+        "reproduced": bool(t.get("reproduced")),
+        "checks": dict(t.get("checks") or {}),
+        "replay": _replay_summary(t.get("replay")),
+        "benchmarks": [_benchmark_summary(b) for b in t.get("benchmarks", [])],
+        "fingerprint": {k: (t.get("fingerprint") or {}).get(k) for k in ("status", "ok", "digest")},
+    }
+
+
+def _check_tasks(tasks: Any, reproduced: bool, bad: Any) -> None:
+    """A suite attestation's ``tasks``: distinct named tasks at their indices, each verdict agreeing with its own
+    checks, and the attestation reproduced only when every task is."""
+    if not isinstance(tasks, list) or not all(isinstance(t, dict) for t in tasks):
+        raise bad("field 'tasks' must be a list of objects")
+    names = [t.get("task") for t in tasks]
+    if not all(isinstance(n, str) and 0 < len(n) <= 200 for n in names) or len(set(names)) != len(names):
+        raise bad(f"field 'tasks' must name distinct tasks (strings of 1 to 200 characters), got {str(names)[:80]!r}")
+    for i, t in enumerate(tasks):
+        checks = t.get("checks")
+        if not (
+            type(t.get("task_index")) is int
+            and t.get("verdict") in VERDICTS
+            and isinstance(t.get("reproduced"), bool)
+            and (t["verdict"] == "REPRODUCED") == t["reproduced"]
+            and isinstance(checks, dict)
+            and all(isinstance(v, bool) for v in checks.values())
+            and t["reproduced"] == all(checks.values())
+        ):
+            raise bad(f"tasks[{i}] must hold a task_index, and a verdict agreeing with 'reproduced' and its 'checks'")
+    if tasks and reproduced != all(t["reproduced"] for t in tasks):
+        raise bad("'reproduced' contradicts 'tasks'")
+
+
 @dataclass(frozen=True)
 class Attestation:
     """One reproduction attestation: what ``reproductions/<date>-<commit sha12>-<stack digest>.json`` holds. Frozen."""
@@ -175,8 +217,16 @@ class Attestation:
     created_at: str
     attested_by: str | None = None
     settings: dict[str, Any] = field(default_factory=dict)
-    format_version: int = FORMAT_VERSION
+    format_version: int = SINGLE_TASK_FORMAT_VERSION  # a suite's: SUITE_FORMAT_VERSION
     kind: str = KIND
+    #: a benchmark suite's verdict per task (format 2): ``task``, ``task_index``, ``verdict``, ``reproduced``,
+    #: ``checks``, ``replay``, ``benchmarks``, ``fingerprint``, in task-id order; empty for a one-task env
+    tasks: tuple[dict[str, Any], ...] = ()
+
+    @property
+    def tasks_reproduced(self) -> tuple[int, int]:
+        """``(tasks reproduced, tasks)`` of a suite; ``(0, 0)`` for a one-task env."""
+        return sum(bool(t.get("reproduced")) for t in self.tasks), len(self.tasks)
 
     @property
     def path(self) -> str:
@@ -230,6 +280,8 @@ class Attestation:
             created_at=now,
             attested_by=attested_by,
             settings={k: v for k, v in data.get("settings", {}).items() if k != "source"},
+            tasks=tuple(_task_summary(t) for t in data.get("tasks", [])),
+            format_version=SUITE_FORMAT_VERSION if data.get("tasks") else SINGLE_TASK_FORMAT_VERSION,
         ).validated()
 
     # -- (de)serialization --
@@ -239,6 +291,10 @@ class Attestation:
         d = dataclasses.asdict(self)
         d["benchmarks"] = list(self.benchmarks)
         d["command"] = list(self.command)
+        if self.format_version < SUITE_FORMAT_VERSION:
+            del d["tasks"]  # format 1 has no such field: older hub-envs read the file
+        else:
+            d["tasks"] = list(self.tasks)
         return d
 
     def to_json(self) -> str:
@@ -359,6 +415,9 @@ class Attestation:
         for name, value, ok in checks:
             if not ok:
                 raise bad(f"field {name!r} has an invalid value {str(value)[:80]!r}")
+        if "tasks" in data and version < SUITE_FORMAT_VERSION:
+            raise bad(f"field 'tasks' needs format_version {SUITE_FORMAT_VERSION}, the file says {version}")
+        _check_tasks(data.get("tasks", []), data["reproduced"], bad)
         if (data["verdict"] == "REPRODUCED") != data["reproduced"]:
             raise bad(f"'verdict' {data['verdict']!r} contradicts 'reproduced' {data['reproduced']!r}")
         if data["reproduced"] != all(data["checks"].values()):
@@ -368,13 +427,16 @@ class Attestation:
         values = {k: data[k] for k in names if k in data}
         values["benchmarks"] = tuple(data["benchmarks"])
         values["command"] = tuple(data["command"])
+        values["tasks"] = tuple(data.get("tasks", []))
         return cls(**values)
 
     # -- text --
 
     def summary(self) -> str:
-        """One line: the verdict, the env commit and the stack."""
-        return f"{self.verdict}: {self.repo_id}@{self.sha[:12]} on {describe_stack(self.stack)}"
+        """One line: the verdict (a suite's: how many of its tasks), the env commit and the stack."""
+        done, of = self.tasks_reproduced
+        tasks = f" ({done} of {of} tasks)" if of else ""
+        return f"{self.verdict}{tasks}: {self.repo_id}@{self.sha[:12]} on {describe_stack(self.stack)}"
 
 
 # --- signatures (OpenSSH) -----------------------------------------------------------------------
@@ -674,7 +736,8 @@ def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool,
         cells: dict[tuple[str, str], list[str]] = {}
         for i, e in good:
             a = e.attestation
-            mark = f"{'✓' if a.reproduced else '✗'} {_signature_mark(e, verified.get(i))}"  # type: ignore[union-attr]
+            done, of = a.tasks_reproduced  # type: ignore[union-attr]
+            mark = f"{'✓' if a.reproduced else '✗'}{f' {done}/{of} tasks' if of else ''} {_signature_mark(e, verified.get(i))}"  # type: ignore[union-attr]
             mark += "" if e.merged else f" (PR #{e.pr_num})"
             cells.setdefault((a.sha, a.stack_digest), []).append(mark)  # type: ignore[union-attr]
         header = ["env revision \\ stack", *stacks]
@@ -686,7 +749,8 @@ def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool,
             "",
             "✓ reproduced, ✗ did not. unsigned: only the pull request's author (below) vouches for it; signed: an OpenSSH",
             "signature is attached (check it: --verify=true --allowed_signers=FILE); verified: a key in your allowed_signers",
-            "signed these bytes. (PR #N): in an open pull request, not merged yet.",
+            "signed these bytes. (PR #N): in an open pull request, not merged yet. N/M tasks: of a benchmark suite's M tasks,",
+            "N reproduced (each task's verdict under files).",
             "",
             "stacks:",
         ]
@@ -709,4 +773,8 @@ def matrix_text(entries: list[AttestationEntry], verified: dict[int, tuple[bool,
         if a.attested_by and a.attested_by != e.author:
             line += f"; the file names its author '{safe_text(a.attested_by)}' (self-declared, not checked)"
         lines.append(line)
+        if a.tasks:
+            done, of = a.tasks_reproduced
+            per = ", ".join(f"{safe_text(t['task'])} {'✓' if t['reproduced'] else '✗'}" for t in a.tasks)
+            lines.append(f"    {done} of {of} tasks reproduced: {per}")
     return "\n".join(lines)

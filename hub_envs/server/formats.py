@@ -8,3 +8,6 @@ from __future__ import annotations
 
 #: An env repo has this manifest at its root (``hub_envs.repo.format.MANIFEST_FILE``).
 ENV_MANIFEST = "hub_env.json"
+#: A benchmark suite's tasks in that manifest (``hub_envs.repo.format.Manifest.tasks``): objects with ``task``,
+#: ``task_index``, ``instruction``, ``episodes``, ``fingerprint``; its ``benchmarks`` name their ``task``.
+MANIFEST_TASKS = "tasks"

@@ -64,6 +64,7 @@ from hub_envs.server.storage import (
     folders_of,
     validate_path,
 )
+from hub_envs.server.suites import SuiteTables
 
 logger = logging.getLogger("hub_envs.server")
 
@@ -183,6 +184,7 @@ class Pages:
         self.renderer = CardRenderer()  # card Markdown: in worker processes, within a time budget
         self.episodes = EpisodeReader()  # the dataset viewer's reads, cached
         self.records = Records()  # reproduction attestations, cached
+        self.suites = SuiteTables()  # a suite's task table from its manifest, cached
 
     # -- routing --
 
@@ -454,6 +456,7 @@ class Pages:
             load_line=load_line(repo.repo_id, repo_type, commit),
             recent=recent,
             reproductions=matrix(attested),
+            suite_tasks=self.suites.get(repo, commit) if not path and repo_type == "model" else [],
             merge_rights=self._merge_rights(repo),
             rollout_video=_ROLLOUT_VIDEO if not path and _ROLLOUT_VIDEO in commit.files else None,
             shown_files=len(shown),

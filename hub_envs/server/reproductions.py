@@ -18,6 +18,7 @@ SIG = ".sig"
 MAX_RECORD_BYTES = 1024 * 1024  # a larger record is not read
 _HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _CACHE_SIZE = 1024
+MAX_TASKS = 500  # a suite's tasks shown per record
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,7 @@ class Record:
         created_at: when it was made.
         declared_by: the ``attested_by`` the file declares (not trusted: shown as declared).
         error: why the file cannot be read, or None.
+        tasks: a benchmark suite's ``(task, reproduced)`` per task, as the record declares them (empty: one task).
     """
 
     path: str
@@ -43,10 +45,16 @@ class Record:
     created_at: str
     declared_by: str | None
     error: str | None = None
+    tasks: tuple[tuple[str, bool], ...] = ()
 
     @property
     def reproduced(self) -> bool:
         return self.verdict == "REPRODUCED"
+
+    @property
+    def tasks_reproduced(self) -> int:
+        """How many of a suite's tasks reproduced."""
+        return sum(ok for _, ok in self.tasks)
 
 
 @dataclass(frozen=True)
@@ -194,6 +202,11 @@ def _parse(repo: Repo, path: str, entry: FileEntry) -> Record:
         return bad("its 'verdict' is neither REPRODUCED nor NOT REPRODUCED")
     if not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{6,64}", digest)):
         return bad("its 'stack_digest' is not a digest")
+    tasks = data.get("tasks", [])
+    if not (isinstance(tasks, list) and all(isinstance(t, dict) and isinstance(t.get("reproduced"), bool) for t in tasks)):
+        return bad("its 'tasks' is not a list of task verdicts")
+    if tasks and (verdict == "REPRODUCED") != all(t["reproduced"] for t in tasks):
+        return bad("its 'verdict' contradicts its tasks' verdicts")
     stack = data.get("stack") if isinstance(data.get("stack"), dict) else {}
     declared = data.get("attested_by")
     created = data.get("created_at")
@@ -205,6 +218,7 @@ def _parse(repo: Repo, path: str, entry: FileEntry) -> Record:
         describe_stack(stack),
         str(created)[:40] if isinstance(created, str) else "",
         str(declared)[:100] if isinstance(declared, str) else None,
+        tasks=tuple((" ".join(str(t.get("task"))[:200].split()), t["reproduced"]) for t in tasks[:MAX_TASKS]),
     )
 
 
