@@ -9,6 +9,7 @@ import hashlib
 import os
 import re
 import shutil
+import sys
 import uuid
 import warnings
 from dataclasses import dataclass
@@ -38,7 +39,7 @@ from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
 from hub_envs.loading.source import _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 from hub_envs.repo import hub_io, trust_list
-from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, safe_relpath
+from hub_envs.repo.format import MANIFEST_FILE, SUITE_FORMAT_VERSION, Manifest, content_digest, hash_files, safe_relpath
 from hub_envs.repo.refs import parse_repo_ref
 from hub_envs.repo.requirements import check_requirements
 
@@ -366,9 +367,16 @@ def load_plain(
         config_class = resolve_entry_point(package, CONFIG_ENTRY_POINT, where=f"{src.where}: adapter")
         validate_config_class(config_class, where=src.where)
         config = instantiate_config(config_class, where=src.where)
+        tasks = () if iso.isolated else discover_tasks(package, where=f"{src.where}:{ref.entry}")
+        if tasks:  # a suite: the config names the task to make, the first by default (its env, in task-id order)
+            config = instantiate_config(config_class, where=src.where, overrides={"task": tasks[0]["task"]})
+        suites = list(dict.fromkeys(t["suite"] for t in tasks))
         manifest = Manifest(
             **{
-                **{f: getattr(source_manifest, f) for f in ("name", "env_entry_point", "config_entry_point", "repo_id")},
+                **{f: getattr(source_manifest, f) for f in ("env_entry_point", "config_entry_point", "repo_id")},
+                "name": str(suites[0]) if len(suites) == 1 else source_manifest.name,  # make_suite's key, as make_env's
+                "format_version": SUITE_FORMAT_VERSION if tasks else source_manifest.format_version,
+                "tasks": tasks,
                 "gym_id": f"{ref.repo}-{slug}" if slug else ref.repo,
                 "env_type": f"{ref.repo}-{slug}" if slug else ref.repo,
                 "files": {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()},
@@ -445,6 +453,39 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
                 f"of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls."
             )
     return loaded
+
+
+def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
+    """The tasks of an entry file whose ``make_env`` returns the suite form ``{suite: {task_id: VectorEnv}}`` with more
+    than one task (the adapter's ``describe_suite``: every env made once, ``n_envs=1``, and closed), as a suite
+    manifest's ``tasks`` records: ``task`` (the env's ``task``, else ``<suite>/<task_id>``), ``task_index``,
+    ``instruction`` (the env's ``task_description``, else the name), and the source's ``suite`` and ``task_id``.
+
+    Args:
+        package: the imported code folder.
+        where: names the repo, commit and entry file in messages.
+
+    Returns:
+        The records, in the order ``make_env`` gives them; ``()`` for one env (or a suite of one task).
+
+    Raises:
+        EnvContractError: ``make_env`` returns a dict that is not the suite form, or another type.
+        EnvCodeError: the repo's code raised.
+    """
+    describe = vars(sys.modules[resolve_entry_point(package, ENV_ENTRY_POINT, where=where).__module__])["describe_suite"]
+    try:
+        found = describe()
+    except TypeError as e:
+        if "breaks LeRobot's EnvHub contract" in str(e):
+            raise EnvContractError(f"{safe_text(e)} Nothing was registered.") from e
+        raise EnvCodeError(f"{where}: its make_env(n_envs=1, use_async_envs=False) raised TypeError: {safe_text(e)}") from e
+    except HubEnvsError:
+        raise
+    except Exception as e:
+        raise EnvCodeError(
+            f"{where}: its make_env(n_envs=1, use_async_envs=False) raised {type(e).__name__}: {safe_text(e)}"
+        ) from e
+    return tuple({**d, "task_index": i} for i, d in enumerate(found))
 
 
 def _changed_since_trusted(src: PlainSource, trusted: trust_list.TrustList) -> str:

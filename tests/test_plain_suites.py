@@ -1,0 +1,152 @@
+"""A plain LeRobot EnvHub repo whose ``make_env`` returns a benchmark suite (``{suite: {task_id: VectorEnv}}``), uploaded
+with ``HfApi().upload_folder``: load_env exposes its tasks, ``hub-envs audit`` checks and reports each task, and ``hub-envs
+adopt`` publishes a hub-envs suite from it (one dataset holding every task) on which LeRobot's ``make_env`` gives the same
+suite and tasks as on the source, and ``hub-envs reproduce`` says REPRODUCED per task (issue #32's acceptance)."""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+
+import numpy as np
+import pandas as pd
+import plain_repos as pr
+import pytest
+
+from hub_envs import load_env
+from hub_envs.cli import main as cli
+from hub_envs.envcode.registration import snapshot_registries
+from hub_envs.errors import ConfigError, PlainRepoWarning, UntrustedCodeError
+
+EPISODES = 3
+
+
+def upload(hub, repo_id, folder) -> str:
+    hub.api.create_repo(repo_id, exist_ok=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # huggingface_hub: a README without card metadata
+        return hub.api.upload_folder(repo_id=repo_id, folder_path=str(folder)).oid
+
+
+def rollout(vec, seed: int, steps: int = 25) -> list:
+    """Observations and rewards of a seeded random-action rollout of a vector env (the actions seeded too), up to the
+    first end of an episode (what comes then depends on the vector env's autoreset mode, not on the env)."""
+    obs, _ = vec.reset(seed=seed)
+    vec.action_space.seed(seed)
+    out = [obs["agent_pos"].copy()]
+    for _ in range(steps):
+        obs, reward, term, trunc, _ = vec.step(vec.action_space.sample())
+        out.append(np.asarray(reward).copy())
+        if np.any(term) or np.any(trunc):  # the observation of this step is a reset's in SAME_STEP autoreset
+            break
+        out.append(obs["agent_pos"].copy())
+    return out
+
+
+def same_rollouts(a, b, seed: int) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(rollout(a, seed), rollout(b, seed), strict=True))
+
+
+def described(envs: dict) -> dict:
+    """``{suite: {task_id: (task, task_description)}}`` of a suite, as lerobot-eval reads them from each task's envs."""
+    return {
+        suite: {tid: (vec.call("task")[0], vec.call("task_description")[0]) for tid, vec in by_task.items()}
+        for suite, by_task in envs.items()
+    }
+
+
+def close_all(envs: dict) -> None:
+    for by_task in envs.values():
+        for vec in by_task.values():
+            vec.close()
+
+
+def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp_path, capsys, monkeypatch):
+    from lerobot.envs.factory import make_env
+
+    sha = upload(hub, "bob/reach-suite", pr.suite_repo(tmp_path / "reach-suite"))
+    source_ref = f"bob/reach-suite@{sha}"
+    expected = {"reach_suite": {i: (t, d) for i, (t, d) in enumerate(zip(pr.SUITE_TASKS, pr.SUITE_INSTRUCTIONS))}}
+
+    # 1. load_env: only with consent, then the tasks as a hub-envs suite exposes them
+    before = snapshot_registries()
+    with pytest.raises(UntrustedCodeError):
+        load_env(source_ref)
+    assert snapshot_registries() == before
+    with pytest.warns(PlainRepoWarning):
+        loaded = load_env(source_ref, trust_remote_code=True)
+    assert loaded.is_suite and loaded.tasks == pr.SUITE_TASKS
+    assert [r["instruction"] for r in loaded.manifest.tasks] == pr.SUITE_INSTRUCTIONS
+    assert loaded.config.task == "reach-near"  # the first task, by default
+    far = loaded.for_task("reach-far")
+    env = far.make()
+    assert env.get_wrapper_attr("task_description") == "reach the far target"
+    env.close()
+    with pytest.raises(ConfigError, match="reach-near"):
+        loaded.for_task("reach-nowhere")
+    ours = loaded.make_suite(n_envs=2)
+    assert described(ours) == expected  # the source's suite name and task ids, each task's env
+    source = make_env(source_ref, n_envs=2, trust_remote_code=True)  # LeRobot's own loader, on the source repo
+    assert described(source) == expected
+    for tid in range(3):
+        assert same_rollouts(ours["reach_suite"][tid], source["reach_suite"][tid], seed=tid)
+    close_all(ours), close_all(source)
+    loaded.unregister()
+
+    # 2. audit: every check per task, reported per task (text and JSON), nothing published
+    assert cli(["audit", source_ref, "--trust_remote_code=true", f"--output={tmp_path / 'audit.json'}"]) == 0
+    out = capsys.readouterr().out
+    for i, task in enumerate(pr.SUITE_TASKS):
+        assert f"task {i} '{task}'" in out
+    saved = json.loads((tmp_path / "audit.json").read_text())
+    assert saved["passed"] is True and [t["task"] for t in saved["tasks"]] == pr.SUITE_TASKS
+    for part in saved["tasks"]:
+        names = {c["name"] for c in part["checks"] if c["passed"]}
+        assert {
+            "final_info autoreset",
+            "gymnasium check_env",
+            "is_success in info",
+            "seeding and whole-episode determinism",
+        } <= names
+    assert {m.id for m in hub.api.list_models()} == {"bob/reach-suite"}
+
+    # 3. adopt: one hub-envs suite, one dataset holding every task
+    start = time.perf_counter()
+    code = cli(
+        ["adopt", f"--from_repo={source_ref}", "--repo_id=me/reach-suite", "--trust_remote_code=true", f"--episodes={EPISODES}"]
+    )
+    seconds = time.perf_counter() - start
+    assert code == 0
+    adopted_sha = hub.api.model_info("me/reach-suite").sha
+    files = list(hub.api.list_repo_tree("me/reach-suite", revision=adopted_sha, recursive=True))
+    size = sum(getattr(f, "size", 0) or 0 for f in files)
+    with capsys.disabled():  # the figures of the adoption (no assertion on them: speed lives in benchmarks/)
+        print(f"\nadopt of a {len(pr.SUITE_TASKS)}-task plain suite: {seconds:.2f} s, {size} bytes in {len(files)} entries")
+    adopted = load_env(f"me/reach-suite@{adopted_sha}", trust_remote_code=True)
+    assert adopted.manifest.format_version == 4 and adopted.tasks == pr.SUITE_TASKS
+    assert adopted.manifest.name == "reach_suite" and adopted.missing_guarantees == ()
+    assert json.loads((adopted.path / "adopted_from.json").read_text())["source"] == source_ref
+    root = adopted.fetch_dataset()
+    tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
+    assert dict(zip(tasks.index, tasks["task_index"], strict=True)) == {d: i for i, d in enumerate(pr.SUITE_INSTRUCTIONS)}
+    info = json.loads((root / "meta" / "info.json").read_text())
+    assert info["total_tasks"] == 3 and info["total_episodes"] == 3 * EPISODES
+    adopted.unregister()
+
+    # 4. LeRobot's make_env on the adopted repo: the same suite, task ids, tasks and instructions, the same envs
+    source = make_env(source_ref, n_envs=1, trust_remote_code=True)
+    theirs = make_env(f"me/reach-suite@{adopted_sha}", n_envs=1, trust_remote_code=True)
+    assert described(theirs) == described(source) == expected
+    for tid in range(3):
+        assert same_rollouts(theirs["reach_suite"][tid], source["reach_suite"][tid], seed=10 + tid)
+    close_all(theirs), close_all(source)
+
+    # 5. hub-envs reproduce on the adopted repo: REPRODUCED per task
+    capsys.readouterr()
+    monkeypatch.chdir(tmp_path)
+    assert cli(["reproduce", "--repo_id=me/reach-suite", f"--revision={adopted_sha}", "--trust_remote_code=true"]) == 0
+    printed = capsys.readouterr().out
+    assert f"REPRODUCED: me/reach-suite@{adopted_sha} (a suite of 3 tasks: 3 of 3 reproduced)" in printed
+    for i, task in enumerate(pr.SUITE_TASKS):
+        assert f"task {i} '{task}': REPRODUCED" in printed
