@@ -122,6 +122,20 @@ def suite_repo(folder: Path) -> Path:
     return write(folder, {"env.py": REACH + SUITE_MAKE_ENV, "requirements.txt": REQUIREMENTS, "README.md": "# reach suite\n"})
 
 
+def two_suites_repo(folder: Path) -> Path:
+    """``env.py`` whose make_env returns two suites of one task each, whose envs all state the same ``task``."""
+    make = """
+
+def make_env(n_envs=1, use_async_envs=False, cfg=None):
+    def vec(target):
+        fns = [lambda: gym.wrappers.TimeLimit(Reach(target=target), max_episode_steps=40) for _ in range(n_envs)]
+        return gym.vector.SyncVectorEnv(fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+
+    return {"near": {0: vec(0.2)}, "far": {0: vec(1.5)}}
+"""
+    return write(folder, {"env.py": REACH + make, "requirements.txt": REQUIREMENTS})
+
+
 #: The installed package a shim repo names in its requirements.txt (built as a wheel by the tests).
 PACKAGE = "hub-envs-fixture-reach"
 PACKAGE_FILES = {"hub_envs_fixture_reach/__init__.py": REACH + VECTOR_MAKE_ENV}

@@ -150,3 +150,25 @@ def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp
     assert f"REPRODUCED: me/reach-suite@{adopted_sha} (a suite of 3 tasks: 3 of 3 reproduced)" in printed
     for i, task in enumerate(pr.SUITE_TASKS):
         assert f"task {i} '{task}': REPRODUCED" in printed
+
+
+def test_tasks_without_distinct_names_and_several_suites_load_but_are_not_adopted(hub, tmp_path):
+    from hub_envs import adopt
+    from hub_envs.errors import EnvContractError
+
+    sha = upload(hub, "bob/two", pr.two_suites_repo(tmp_path / "two"))
+    with pytest.warns(PlainRepoWarning):
+        loaded = load_env(f"bob/two@{sha}", trust_remote_code=True)
+    assert loaded.tasks == ["near/0", "far/0"]  # every env says "reach the target": named by suite and task id
+    assert [r["instruction"] for r in loaded.manifest.tasks] == ["reach the target"] * 2
+    envs = loaded.make_suite()
+    assert {s: list(by_task) for s, by_task in envs.items()} == {"near": [0], "far": [0]}
+    close_all(envs)
+    far = loaded.for_task("far/0").make()
+    far.reset(seed=0)
+    assert far.get_wrapper_attr("target").tolist() == [1.5, 1.5]
+    far.close()
+    loaded.unregister()
+    with pytest.raises(EnvContractError, match=r"cannot be adopted as it is:\n  one suite: make_env returns 2 suites \(near, far\)"):
+        adopt(f"bob/two@{sha}", "me/two", trust_remote_code=True, episodes=2, progress=False)
+    assert "me/two" not in {m.id for m in hub.api.list_models()}

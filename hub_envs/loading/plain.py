@@ -459,7 +459,8 @@ def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
     """The tasks of an entry file whose ``make_env`` returns the suite form ``{suite: {task_id: VectorEnv}}`` with more
     than one task (the adapter's ``describe_suite``: every env made once, ``n_envs=1``, and closed), as a suite
     manifest's ``tasks`` records: ``task`` (the env's ``task``, else ``<suite>/<task_id>``), ``task_index``,
-    ``instruction`` (the env's ``task_description``, else the name), and the source's ``suite`` and ``task_id``.
+    ``instruction`` (the env's ``task_description``, else its ``task``, else the name), and the source's ``suite`` and
+    ``task_id``.
 
     Args:
         package: the imported code folder.

@@ -99,16 +99,15 @@ def _first_attr(env, name):
 def describe_entries(entries):
     """Each task of a suite: ``{suite, task_id, task, instruction}``. A task's name is its env's ``task`` (LeRobot's
     LIBERO and Meta-World envs put the task's name there) when every task has a distinct one hub-envs can use, else
-    ``<suite>/<task_id>``; its instruction is its env's ``task_description`` (what ``lerobot-eval`` gives a policy),
-    else its name."""
+    ``<suite>/<task_id>``; its instruction is its env's ``task_description``, else its ``task`` (what ``lerobot-eval``
+    gives a policy), else its name."""
     named = [_first_attr(vec, "task") for _, _, vec in entries]
     usable = all(n is not None and _TASK_NAME.match(n) and n == n.strip() for n in named) and len(set(named)) == len(named)
     out = []
-    for (suite, task_id, vec), name in zip(entries, named):
-        name = name if usable else f"{suite}/{task_id}"
-        out.append(
-            {"suite": suite, "task_id": task_id, "task": name, "instruction": _first_attr(vec, "task_description") or name}
-        )
+    for (suite, task_id, vec), said in zip(entries, named):
+        name = said if usable else f"{suite}/{task_id}"
+        instruction = _first_attr(vec, "task_description") or said or name  # what lerobot-eval gives a policy
+        out.append({"suite": suite, "task_id": task_id, "task": name, "instruction": instruction})
     return out
 
 
