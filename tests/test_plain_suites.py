@@ -126,7 +126,9 @@ def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp
     adopted = load_env(f"me/reach-suite@{adopted_sha}", trust_remote_code=True)
     assert adopted.manifest.format_version == 4 and adopted.tasks == pr.SUITE_TASKS
     assert adopted.manifest.name == "reach_suite" and adopted.missing_guarantees == ()
-    assert json.loads((adopted.path / "adopted_from.json").read_text())["source"] == source_ref
+    origin = json.loads((adopted.path / "adopted_from.json").read_text())
+    assert origin["source"] == source_ref
+    assert origin["tasks"] == [{"task": t, "suite": "reach_suite", "task_id": i} for i, t in enumerate(pr.SUITE_TASKS)]
     root = adopted.fetch_dataset()
     tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
     assert dict(zip(tasks.index, tasks["task_index"], strict=True)) == {d: i for i, d in enumerate(pr.SUITE_INSTRUCTIONS)}
@@ -169,6 +171,25 @@ def test_tasks_without_distinct_names_and_several_suites_load_but_are_not_adopte
     assert far.get_wrapper_attr("target").tolist() == [1.5, 1.5]
     far.close()
     loaded.unregister()
-    with pytest.raises(EnvContractError, match=r"cannot be adopted as it is:\n  one suite: make_env returns 2 suites \(near, far\)"):
+    with pytest.raises(
+        EnvContractError, match=r"cannot be adopted as it is:\n  one suite: make_env returns 2 suites \(near, far\)"
+    ):
         adopt(f"bob/two@{sha}", "me/two", trust_remote_code=True, episodes=2, progress=False)
     assert "me/two" not in {m.id for m in hub.api.list_models()}
+
+
+def test_an_isolated_load_of_a_plain_suite_finds_its_tasks_in_a_worker(hub, tmp_path):
+    sha = upload(hub, "bob/reach-suite", pr.suite_repo(tmp_path / "reach-suite"))
+    with pytest.warns(PlainRepoWarning):
+        isolated = load_env(f"bob/reach-suite@{sha}", trust_remote_code=True, isolation="process")
+        here = load_env(f"bob/reach-suite@{sha}", trust_remote_code=True, check=False)
+    assert isolated.runs_as == "process" and isolated.tasks == here.tasks == pr.SUITE_TASKS
+    assert isolated.manifest.tasks == here.manifest.tasks
+    action = np.array([0.3, -0.2], dtype=np.float32)
+    for task in ("reach-far", "reach-origin"):  # each task's env in the worker is the one made here
+        a, b = isolated.for_task(task).make(), here.for_task(task).make()
+        assert np.array_equal(a.reset(seed=3)[0]["agent_pos"], b.reset(seed=3)[0]["agent_pos"])
+        assert a.step(action)[1] == b.step(action)[1]
+        a.close(), b.close()
+    isolated.unregister()
+    here.unregister()

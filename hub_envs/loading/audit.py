@@ -221,7 +221,8 @@ def audit(
     nothing. The stages: requirements, load (with consent: the repo's code runs), the ``make_env`` contract, gymnasium's
     checker, LeRobot's observation names and the features they give, ``is_success``, the ``final_info`` autoreset
     (lerobot-eval reads per-episode success there: without it every episode scores as a failure), seeding and
-    whole-episode determinism, and spaces vs rollouts.
+    whole-episode determinism, and spaces vs rollouts. A ``make_env`` returning a suite of several tasks has these
+    checks run task by task (``report.tasks``), and its tasks' features compared.
 
     Args:
         repo_id: ``user/name[@rev][:path]``.

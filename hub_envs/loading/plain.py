@@ -5,6 +5,7 @@ it: the same consent, trust-on-first-use, pinning, requirements preflight and is
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import re
@@ -34,7 +35,7 @@ from hub_envs.errors import (
     UntrustedCodeError,
 )
 from hub_envs.isolation.options import IsolationOptions
-from hub_envs.loading.isolated import isolated_parts, isolation_suffix
+from hub_envs.loading.isolated import describe_in_worker, isolated_parts, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
 from hub_envs.loading.source import _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
@@ -367,16 +368,9 @@ def load_plain(
         config_class = resolve_entry_point(package, CONFIG_ENTRY_POINT, where=f"{src.where}: adapter")
         validate_config_class(config_class, where=src.where)
         config = instantiate_config(config_class, where=src.where)
-        tasks = () if iso.isolated else discover_tasks(package, where=f"{src.where}:{ref.entry}")
-        if tasks:  # a suite: the config names the task to make, the first by default (its env, in task-id order)
-            config = instantiate_config(config_class, where=src.where, overrides={"task": tasks[0]["task"]})
-        suites = list(dict.fromkeys(t["suite"] for t in tasks))
         manifest = Manifest(
             **{
-                **{f: getattr(source_manifest, f) for f in ("env_entry_point", "config_entry_point", "repo_id")},
-                "name": str(suites[0]) if len(suites) == 1 else source_manifest.name,  # make_suite's key, as make_env's
-                "format_version": SUITE_FORMAT_VERSION if tasks else source_manifest.format_version,
-                "tasks": tasks,
+                **{f: getattr(source_manifest, f) for f in ("name", "env_entry_point", "config_entry_point", "repo_id")},
                 "gym_id": f"{ref.repo}-{slug}" if slug else ref.repo,
                 "env_type": f"{ref.repo}-{slug}" if slug else ref.repo,
                 "files": {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()},
@@ -386,6 +380,8 @@ def load_plain(
                 "description": f"plain LeRobot EnvHub repo {ref.text(src.sha)}",
             }
         )
+        if not iso.isolated:  # in-process: the tasks are found here (isolated: in a worker, by _register)
+            manifest, config = as_suite(manifest, config_class, config, discover_tasks(package, where=f"{src.where}:{ref.entry}"))
         loaded = _register(src, manifest, package, code, key, config_class, config, iso, report, token, cache_dir, check)
     except BaseException:
         if not imported_before:
@@ -446,6 +442,11 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
         )
         if check:
             check_contract(loaded, where=f"{where}:{src.ref.entry}")
+        if iso.isolated:  # the suite's tasks, found where the repo's code runs
+            tasks = discover_tasks(
+                lambda: describe_in_worker(loaded.gym_id, iso, f"{ENV_MODULE}:describe_suite"), where=f"{where}:{src.ref.entry}"
+            )
+            loaded.manifest, loaded.config = as_suite(manifest, config_class, config, tasks)
         replaced, _ = txn.replaced_by(code)
         if replaced:
             raise RegistrationConflictError(
@@ -453,6 +454,32 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
                 f"of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls."
             )
     return loaded
+
+
+def as_suite(manifest: Manifest, config_class: type, config: Any, tasks: tuple[dict[str, Any], ...]) -> tuple[Manifest, Any]:
+    """A plain load's manifest and config for the tasks :func:`discover_tasks` found: none, as they are; a suite, the
+    manifest holds the tasks (format 4), is named after the suite (``make_suite``'s key, as the source's ``make_env``
+    gives it) and the config names the first task (the one ``make`` makes).
+
+    Args:
+        manifest: the load's manifest.
+        config_class: the adapter's config class.
+        config: its instance.
+        tasks: the tasks.
+
+    Returns:
+        ``(manifest, config)``.
+    """
+    if not tasks:
+        return manifest, config
+    suites = list(dict.fromkeys(str(t["suite"]) for t in tasks))
+    where = manifest.description
+    config = instantiate_config(config_class, where=where, overrides={"task": tasks[0]["task"]})
+    name = suites[0] if len(suites) == 1 else manifest.name
+    suite = dataclasses.replace(
+        manifest, name=name, format_version=SUITE_FORMAT_VERSION, tasks=tasks, config=encode_config(config)
+    )
+    return suite, config
 
 
 def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
@@ -463,7 +490,8 @@ def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
     ``task_id``.
 
     Args:
-        package: the imported code folder.
+        package: the imported code folder; or, for an isolated load, a function calling the adapter's ``describe_suite``
+            in a worker.
         where: names the repo, commit and entry file in messages.
 
     Returns:
@@ -473,14 +501,19 @@ def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
         EnvContractError: ``make_env`` returns a dict that is not the suite form, or another type.
         EnvCodeError: the repo's code raised.
     """
-    describe = vars(sys.modules[resolve_entry_point(package, ENV_ENTRY_POINT, where=where).__module__])["describe_suite"]
+    if callable(package):  # an isolated load: the adapter's describe_suite, called in a worker
+        describe = package
+    else:
+        describe = vars(sys.modules[resolve_entry_point(package, ENV_ENTRY_POINT, where=where).__module__])["describe_suite"]
     try:
         found = describe()
     except TypeError as e:
         if "breaks LeRobot's EnvHub contract" in str(e):
             raise EnvContractError(f"{safe_text(e)} Nothing was registered.") from e
         raise EnvCodeError(f"{where}: its make_env(n_envs=1, use_async_envs=False) raised TypeError: {safe_text(e)}") from e
-    except HubEnvsError:
+    except HubEnvsError as e:
+        if "breaks LeRobot's EnvHub contract" in str(e):  # from a worker: the adapter's TypeError, as it said it
+            raise EnvContractError(f"{safe_text(e)} Nothing was registered.") from e
         raise
     except Exception as e:
         raise EnvCodeError(

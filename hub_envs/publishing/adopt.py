@@ -1,7 +1,8 @@
 """``adopt``: publish a hub-envs repo from a plain LeRobot EnvHub repo, through push_env's pipeline: the source's files
 unchanged under ``source/`` (pinned to its commit), the adapter hub-envs writes for its entry file (with the features,
 time limit and task the audit found), ``adopted_from.json`` naming ``user/name@<sha>:<path>``; then a random-action
-dataset, the checks and a card, as for any push.
+dataset, the checks and a card, as for any push. A source whose ``make_env`` returns a suite of several tasks becomes a
+hub-envs suite named after it (``[tool.hub-envs] tasks``, one dataset holding every task).
 
 Example:
     >>> from hub_envs import adopt                                                                   # doctest: +SKIP
@@ -109,6 +110,8 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
     for name, data in adapter.items():
         (folder / name).write_bytes(data)
     origin = {"repo_id": ref.repo, "revision": src.sha, "entry": ref.entry, "source": ref.text(src.sha), "files": src.files}
+    if report.tasks:  # where each task of the adopted suite sits in the source's make_env
+        origin["tasks"] = [{"task": t.task, "suite": str(t.suite), "task_id": t.task_id} for t in report.tasks]
     (folder / ADOPTED_FROM_FILE).write_text(json.dumps(origin, indent=2, sort_keys=True) + "\n")
     name = ref.repo.split("/")[1] + (f"-{Path(ref.entry).stem}" if ref.explicit_entry else "")
     tasks = ""
@@ -153,7 +156,8 @@ def adopt(
 
     Raises:
         EnvContractError: the audit found what adoption cannot fix (its contract, LeRobot's observation names, unmet
-            requirements); the message lists them.
+            requirements; a suite: any task's, features that differ between tasks, several suites, task ids other than
+            ``0..N-1``); the message lists them.
         UntrustedCodeError: no consent to run the source's code.
         HubEnvsError: what push_env raises (a check failed, no write access...).
     """
