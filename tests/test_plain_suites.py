@@ -9,6 +9,7 @@ import json
 import time
 import warnings
 
+import draccus
 import numpy as np
 import pandas as pd
 import plain_repos as pr
@@ -63,7 +64,10 @@ def close_all(envs: dict) -> None:
 
 
 def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp_path, capsys, monkeypatch):
+    from lerobot.configs.eval import EvalPipelineConfig
     from lerobot.envs.factory import make_env
+
+    from hub_envs.lerobot.env import make_env as hub_make_env
 
     sha = upload(hub, "bob/reach-suite", pr.suite_repo(tmp_path / "reach-suite"))
     source_ref = f"bob/reach-suite@{sha}"
@@ -93,6 +97,19 @@ def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp
         assert same_rollouts(ours["reach_suite"][tid], source["reach_suite"][tid], seed=tid)
     close_all(ours), close_all(source)
     loaded.unregister()
+
+    # --env.type=hub on the plain repo: every task, or those --env.task names, under the source's suite and task ids
+    def parsed(*extra):
+        args = ["--env.type=hub", "--env.repo_id=bob/reach-suite", f"--env.revision={sha}", "--env.trust_remote_code=true"]
+        return draccus.parse(EvalPipelineConfig, args=[*args, "--policy.type=act", *extra])
+
+    with pytest.warns(PlainRepoWarning):
+        envs = hub_make_env(parsed().env, n_envs=1)
+    assert described(envs) == expected
+    close_all(envs)
+    envs = hub_make_env(parsed("--env.task=reach-origin,reach-near").env, n_envs=1)
+    assert described(envs) == {"reach_suite": {2: expected["reach_suite"][2], 0: expected["reach_suite"][0]}}
+    close_all(envs)
 
     # 2. audit: every check per task, reported per task (text and JSON), nothing published
     assert cli(["audit", source_ref, "--trust_remote_code=true", f"--output={tmp_path / 'audit.json'}"]) == 0
