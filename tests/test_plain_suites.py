@@ -138,8 +138,12 @@ def test_a_plain_suite_repo_loads_audits_adopts_and_reproduces_per_task(hub, tmp
     adopted_sha = hub.api.model_info("me/reach-suite").sha
     files = list(hub.api.list_repo_tree("me/reach-suite", revision=adopted_sha, recursive=True))
     size = sum(getattr(f, "size", 0) or 0 for f in files)
+    data = list(hub.api.list_repo_tree("me/reach-suite", repo_type="dataset", recursive=True))  # LeRobot's own tools read it
     with capsys.disabled():  # the figures of the adoption (no assertion on them: speed lives in benchmarks/)
-        print(f"\nadopt of a {len(pr.SUITE_TASKS)}-task plain suite: {seconds:.2f} s, {size} bytes in {len(files)} entries")
+        print(
+            f"\nadopt of a {len(pr.SUITE_TASKS)}-task plain suite: {seconds:.2f} s; env repo {size} bytes in {len(files)} "
+            f"entries, dataset repo {sum(getattr(f, 'size', 0) or 0 for f in data)} bytes"
+        )
     adopted = load_env(f"me/reach-suite@{adopted_sha}", trust_remote_code=True)
     assert adopted.manifest.format_version == 4 and adopted.tasks == pr.SUITE_TASKS
     assert adopted.manifest.name == "reach_suite" and adopted.missing_guarantees == ()
