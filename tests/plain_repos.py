@@ -123,7 +123,8 @@ def suite_repo(folder: Path) -> Path:
 
 
 def two_suites_repo(folder: Path) -> Path:
-    """``env.py`` whose make_env returns two suites of one task each, whose envs all state the same ``task``."""
+    """``env.py`` whose make_env returns two suites of one task each, whose envs all state the same ``task``;
+    ``empty.py`` breaks the contract with a suite of no task."""
     make = """
 
 def make_env(n_envs=1, use_async_envs=False, cfg=None):
@@ -133,7 +134,8 @@ def make_env(n_envs=1, use_async_envs=False, cfg=None):
 
     return {"near": {0: vec(0.2)}, "far": {0: vec(1.5)}}
 """
-    return write(folder, {"env.py": REACH + make, "requirements.txt": REQUIREMENTS})
+    empty = "\n\ndef make_env(n_envs=1, use_async_envs=False, cfg=None):\n    return {'near': {}}\n"
+    return write(folder, {"env.py": REACH + make, "empty.py": REACH + empty, "requirements.txt": REQUIREMENTS})
 
 
 #: The installed package a shim repo names in its requirements.txt (built as a wheel by the tests).

@@ -197,6 +197,12 @@ def test_tasks_without_distinct_names_and_several_suites_load_but_are_not_adopte
     ):
         adopt(f"bob/two@{sha}", "me/two", trust_remote_code=True, episodes=2, progress=False)
     assert "me/two" not in {m.id for m in hub.api.list_models()}
+    before = snapshot_registries()
+    with pytest.raises(
+        EnvContractError, match=r"empty.py breaks LeRobot's EnvHub contract: make_env returned a suite with no task"
+    ):
+        load_env(f"bob/two@{sha}:empty.py", trust_remote_code=True)
+    assert snapshot_registries() == before
 
 
 def test_an_isolated_load_of_a_plain_suite_finds_its_tasks_in_a_worker(hub, tmp_path):

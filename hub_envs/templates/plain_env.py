@@ -70,7 +70,7 @@ _TASK_NAME = re.compile(r"^[^,\x00-\x1f\x7f]{1,200}$")
 
 def suite_entries(result):
     """``[(suite, task_id, env)]`` of a ``{suite: {task_id: VectorEnv}}`` result, in its order (a TypeError when a suite
-    is not a dict, or there is none)."""
+    is not a dict, or there is no task)."""
     if not result or not all(isinstance(by_task, dict) for by_task in result.values()):
         for by_task in result.values():
             for vec in by_task.values() if isinstance(by_task, dict) else [by_task]:
@@ -79,7 +79,10 @@ def suite_entries(result):
             f"{SOURCE} {CONTRACT}: make_env returned a dict that is not {{suite: {{task_id: VectorEnv}}}} "
             f"(keys {', '.join(repr(k) for k in list(result)[:6])})."
         )
-    return [(suite, task_id, vec) for suite, by_task in result.items() for task_id, vec in by_task.items()]
+    entries = [(suite, task_id, vec) for suite, by_task in result.items() for task_id, vec in by_task.items()]
+    if not entries:
+        raise TypeError(f"{SOURCE} {CONTRACT}: make_env returned a suite with no task ({', '.join(map(repr, result))}).")
+    return entries
 
 
 def _first_attr(env, name):
