@@ -84,6 +84,60 @@ def folder_repo(folder: Path) -> Path:
     return write(folder, {"envs/Near.py": near, "envs/Far.py": far, "requirements.txt": REQUIREMENTS})
 
 
+#: A benchmark suite in LeRobot's form: ``make_env`` returns ``{suite: {task_id: VectorEnv}}``, each env stating its
+#: task's name as ``task`` and its instruction as ``task_description`` (where LeRobot's LIBERO and Meta-World envs do).
+SUITE_MAKE_ENV = """
+
+TASKS = {
+    "reach-near": (0.2, "reach the near target"),
+    "reach-far": (1.5, "reach the far target"),
+    "reach-origin": (0.0, "go back to the origin"),
+}
+
+
+class ReachTask(Reach):
+    def __init__(self, name, render_mode="rgb_array"):
+        target, description = TASKS[name]
+        super().__init__(render_mode=render_mode, target=target)
+        self.task = name
+        self.task_description = description
+
+
+def make_env(n_envs=1, use_async_envs=False, cfg=None):
+    vec = gym.vector.AsyncVectorEnv if use_async_envs else gym.vector.SyncVectorEnv
+    one = lambda name: gym.wrappers.TimeLimit(ReachTask(name), max_episode_steps=40)  # noqa: E731
+    return {
+        "reach_suite": {
+            i: vec([lambda name=name: one(name) for _ in range(n_envs)], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+            for i, name in enumerate(TASKS)
+        }
+    }
+"""
+SUITE_TASKS = ["reach-near", "reach-far", "reach-origin"]
+SUITE_INSTRUCTIONS = ["reach the near target", "reach the far target", "go back to the origin"]
+
+
+def suite_repo(folder: Path) -> Path:
+    """``env.py`` whose make_env returns a suite of three tasks (LeRobot's ``{suite: {task_id: VectorEnv}}``)."""
+    return write(folder, {"env.py": REACH + SUITE_MAKE_ENV, "requirements.txt": REQUIREMENTS, "README.md": "# reach suite\n"})
+
+
+def two_suites_repo(folder: Path) -> Path:
+    """``env.py`` whose make_env returns two suites of one task each, whose envs all state the same ``task``;
+    ``empty.py`` breaks the contract with a suite of no task."""
+    make = """
+
+def make_env(n_envs=1, use_async_envs=False, cfg=None):
+    def vec(target):
+        fns = [lambda: gym.wrappers.TimeLimit(Reach(target=target), max_episode_steps=40) for _ in range(n_envs)]
+        return gym.vector.SyncVectorEnv(fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+
+    return {"near": {0: vec(0.2)}, "far": {0: vec(1.5)}}
+"""
+    empty = "\n\ndef make_env(n_envs=1, use_async_envs=False, cfg=None):\n    return {'near': {}}\n"
+    return write(folder, {"env.py": REACH + make, "empty.py": REACH + empty, "requirements.txt": REQUIREMENTS})
+
+
 #: The installed package a shim repo names in its requirements.txt (built as a wheel by the tests).
 PACKAGE = "hub-envs-fixture-reach"
 PACKAGE_FILES = {"hub_envs_fixture_reach/__init__.py": REACH + VECTOR_MAKE_ENV}

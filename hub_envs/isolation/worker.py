@@ -298,6 +298,14 @@ class Server:
     def op_ping(self):
         return os.getpid()
 
+    # -- what a function of the env's code says about it (a plain EnvHub repo's suite: its tasks) --
+    def op_describe(self, entry_point: str) -> Any:
+        """What ``entry_point`` (a function of the env's code taking no argument) returns, e.g. the tasks of a plain
+        repo's suite (``hub_envs_plain_env:describe_suite``), found where the env's code runs."""
+        from hub_envs.envcode.importing import resolve_entry_point
+
+        return resolve_entry_point(self.package, entry_point, where=f"{self.where}: {entry_point}")()
+
     # -- the config with a user's field values (LeRobot's --env.<field> flags on an isolated load) --
     def op_config(self, entry_point: str, overrides: dict) -> dict:
         """The config's values (:func:`hub_envs.envcode.envconfig.encode_config`) with ``overrides`` set before its

@@ -292,13 +292,16 @@ def suite_vec_envs(
         n_envs, use_async_envs: per task, as :func:`make_vec_env`.
 
     Returns:
-        The mapping; the task id is the task's index in ``loaded.tasks``.
+        The mapping; the task id is the task's index in ``loaded.tasks`` (a plain EnvHub repo's suite: its own suite
+        names and task ids).
     """
-    out = {}
+    out: dict = {}
     for task, cfg in configs.items():
         record = loaded.manifest.task_record(task)
-        out[record["task_index"]] = make_vec_env(loaded, cfg, n_envs, use_async_envs, description=record["instruction"])
-    return {loaded.manifest.name: out}
+        vec = make_vec_env(loaded, cfg, n_envs, use_async_envs, description=record["instruction"])
+        # a plain EnvHub repo's suite keeps the suite names and task ids its own make_env gives
+        out.setdefault(record.get("suite", loaded.manifest.name), {})[record.get("task_id", record["task_index"])] = vec
+    return out
 
 
 def loaded_for(cfg: Any) -> tuple[LoadedEnv, EnvConfig] | None:

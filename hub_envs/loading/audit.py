@@ -28,7 +28,7 @@ from hub_envs.loading.loaded import LoadedEnv
 from hub_envs.loading.plain import DEFAULT_EPISODE_LENGTH, fetch_plain, parse_hub_path
 from hub_envs.repo.requirements import requirement_status
 
-__all__ = ["AuditCheck", "AuditReport", "audit", "infer_features"]
+__all__ = ["AuditCheck", "AuditReport", "AuditTask", "audit", "infer_features"]
 
 #: LeRobot's observation keys for an EnvHub env, and the dataset names its ``features_map`` gives them.
 OBSERVATION_NAMES = {
@@ -48,6 +48,36 @@ class AuditCheck:
 
 
 @dataclass
+class AuditTask:
+    """One task of a suite (``make_env`` returned ``{suite: {task_id: VectorEnv}}``): its checks and what they found.
+
+    Attributes:
+        task: its name (its env's ``task``, else ``<suite>/<task_id>``), what ``LoadedEnv.for_task`` takes.
+        suite, task_id: where the source's ``make_env`` puts it.
+        instruction: its env's ``task_description`` (else its name), what ``lerobot-eval`` gives a policy.
+        checks: one :class:`AuditCheck` per check, in order.
+        features, features_map, episode_length: as :class:`AuditReport`'s, for this task.
+    """
+
+    task: str
+    suite: Any
+    task_id: Any
+    instruction: str
+    checks: list[AuditCheck] = field(default_factory=list)
+    features: dict[str, list] = field(default_factory=dict)
+    features_map: dict[str, str] = field(default_factory=dict)
+    episode_length: int | None = None
+
+    @property
+    def passed(self) -> bool:
+        """Whether every check of the task ran and passed."""
+        return all(c.passed for c in self.checks)
+
+    def add(self, name: str, passed: bool | None, detail: str) -> None:
+        self.checks.append(AuditCheck(name, passed, safe_text(detail)))
+
+
+@dataclass
 class AuditReport:
     """What :func:`audit` found.
 
@@ -59,6 +89,9 @@ class AuditReport:
         episode_length: the env's own time limit (None: it has none).
         task: the env's ``task`` / ``task_description``, if it has one.
         requirements: the requirements of its ``requirements.txt``.
+        tasks: a suite's tasks, each with its own checks (:class:`AuditTask`); empty for one env. The report's own
+            ``checks`` then hold what concerns the whole (requirements, contract, the same features for every task),
+            and ``features`` / ``episode_length`` / ``task`` are the first task's.
     """
 
     source: str
@@ -68,11 +101,12 @@ class AuditReport:
     episode_length: int | None = None
     task: str | None = None
     requirements: list[str] = field(default_factory=list)
+    tasks: list[AuditTask] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
-        """Whether every check ran and passed."""
-        return all(c.passed for c in self.checks)
+        """Whether every check ran and passed (a suite: every task's too)."""
+        return all(c.passed for c in self.checks) and all(t.passed for t in self.tasks)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready data (what ``audit.json`` holds)."""
@@ -83,6 +117,12 @@ class AuditReport:
         marks = {True: "PASS", False: "FAIL", None: "SKIP"}
         lines = [f"Audit of {self.source}: {'PASSED' if self.passed else 'FAILED'}"]
         lines += [f"  [{marks[c.passed]}] {c.name}: {c.detail}" for c in self.checks]
+        for i, t in enumerate(self.tasks):
+            lines.append(
+                f"  task {i} {safe_text(t.task)!r} ({safe_text(str(t.suite))}/{safe_text(str(t.task_id))}: "
+                f"{safe_text(t.instruction)!r}): {'PASSED' if t.passed else 'FAILED'}"
+            )
+            lines += [f"    [{marks[c.passed]}] {c.name}: {c.detail}" for c in t.checks]
         if self.features:
             lines.append("  features: " + ", ".join(f"{k} {t} {tuple(s)}" for k, (t, s) in self.features.items()))
         return "\n".join(lines)
@@ -181,7 +221,8 @@ def audit(
     nothing. The stages: requirements, load (with consent: the repo's code runs), the ``make_env`` contract, gymnasium's
     checker, LeRobot's observation names and the features they give, ``is_success``, the ``final_info`` autoreset
     (lerobot-eval reads per-episode success there: without it every episode scores as a failure), seeding and
-    whole-episode determinism, and spaces vs rollouts.
+    whole-episode determinism, and spaces vs rollouts. A ``make_env`` returning a suite of several tasks has these
+    checks run task by task (``report.tasks``), and its tasks' features compared.
 
     Args:
         repo_id: ``user/name[@rev][:path]``.
@@ -237,15 +278,55 @@ def audit(
 
 
 def _audit_loaded(loaded: LoadedEnv, report: AuditReport, seeds: tuple[int, ...], steps: int) -> None:
-    where = report.source
     vec = _make_vector(loaded, 2)
     form = "dict (suite form)" if isinstance(vec, dict) else type(vec).__name__
-    report.add("contract", True, f"make_env(n_envs=2, use_async_envs=False) returns a {form}")
-    _check_final_info(vec, report, seeds[0])
+    if not loaded.is_suite:
+        report.add("contract", True, f"make_env(n_envs=2, use_async_envs=False) returns a {form}")
+        _check_final_info(vec, report, seeds[0])
+        _audit_env(loaded, report, report.source, seeds, steps)
+        report.task = _task_of(loaded)
+        return
+    by_task = {(s, t): v for s, tasks in vec.items() for t, v in tasks.items()}
+    report.add(
+        "contract",
+        True,
+        f"make_env(n_envs=2, use_async_envs=False) returns a suite of {len(loaded.tasks)} tasks "
+        f"({', '.join(sorted({str(r['suite']) for r in loaded.manifest.tasks}))})",
+    )
+    for record in loaded.manifest.tasks:  # each task through the checks of one env, in its own env
+        part = AuditTask(record["task"], record["suite"], record["task_id"], record["instruction"])
+        report.tasks.append(part)
+        _check_final_info(by_task.pop((record["suite"], record["task_id"])), part, seeds[0])
+        _audit_env(loaded.for_task(record["task"]), part, f"{report.source} task {record['task']!r}", seeds, steps)
+    for rest in by_task.values():
+        rest.close()
+    first = report.tasks[0]
+    report.features, report.features_map, report.episode_length = first.features, first.features_map, first.episode_length
+    report.task = first.task
+    differ = [t.task for t in report.tasks if (t.features, t.features_map) != (first.features, first.features_map)]
+    report.add(
+        "the same features for every task",
+        not differ,
+        f"{len(report.tasks)} tasks: " + ", ".join(f"{k} {t} {tuple(s)}" for k, (t, s) in first.features.items())
+        if not differ
+        else f"{', '.join(map(repr, differ))} differ from {first.task!r}: one dataset holds every task of a suite",
+    )
+
+
+def _task_of(loaded: LoadedEnv) -> str | None:
+    env = loaded.make()
+    try:
+        return _attr(env, "task_description", "task")
+    finally:
+        env.close()
+
+
+def _audit_env(loaded: LoadedEnv, report: AuditReport | AuditTask, where: str, seeds: tuple[int, ...], steps: int) -> None:
+    """gymnasium's checker, LeRobot's observation names, ``is_success``, spaces vs rollouts and determinism, on the env
+    ``loaded.make`` gives (a suite task's: ``loaded`` is its ``for_task`` view)."""
     env = loaded.make()
     try:
         report.episode_length = _time_limit(env)
-        report.task = _attr(env, "task_description", "task")
         try:
             notes = run_env_checker(env, where=where)
             report.add("gymnasium check_env", True, "; ".join(notes[:3]) or "no warnings")
@@ -272,10 +353,10 @@ def _audit_loaded(loaded: LoadedEnv, report: AuditReport, seeds: tuple[int, ...]
         report.add("seeding and whole-episode determinism", False, str(e))
 
 
-def _check_final_info(vec: Any, report: AuditReport, seed: int) -> None:
+def _check_final_info(vec: Any, report: AuditReport | AuditTask, seed: int) -> None:
     """lerobot-eval reads per-episode success from ``info["final_info"]["is_success"]``, which a vector env with
     ``AutoresetMode.SAME_STEP`` gives when an episode ends."""
-    if isinstance(vec, dict):  # the suite form: one task of it is what a plain load makes
+    if isinstance(vec, dict):  # the suite form of one task (a suite of several is checked task by task)
         tasks = [v for by_task in vec.values() if isinstance(by_task, dict) for v in by_task.values()]
         for other in tasks[1:]:
             other.close()
@@ -327,7 +408,7 @@ def _check_final_info(vec: Any, report: AuditReport, seed: int) -> None:
         vec.close()
 
 
-def _check_rollouts(env: gym.Env, report: AuditReport, seeds: tuple[int, ...], steps: int) -> None:
+def _check_rollouts(env: gym.Env, report: AuditReport | AuditTask, seeds: tuple[int, ...], steps: int) -> None:
     """``is_success`` in every info, and every observation inside the observation space, over seeded random rollouts."""
     bad_success, outside, count = [], [], 0
     for seed in seeds:

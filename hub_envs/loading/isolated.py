@@ -276,6 +276,29 @@ def config_in_worker(gym_id: str, isolation: IsolationOptions, entry_point: str,
     return ManifestConfig(answer["values"], where=f"{where}: its config with {sorted(fields)}")
 
 
+def describe_in_worker(gym_id: str, isolation: IsolationOptions, entry_point: str) -> Any:
+    """What a function of an isolated env's code returns, called in a worker (this process never imports the code).
+
+    Args:
+        gym_id: the load's gym id (its entry point is the proxies' factory).
+        isolation: the load's options.
+        entry_point: ``module:function`` of the env's code, taking no argument; it returns what the wire carries.
+
+    Returns:
+        Its answer.
+
+    Raises:
+        RemoteEnvError: the function raised (the message is the worker's).
+    """
+    from hub_envs.isolation.proxy import Worker  # heavy: the worker machinery (msgpack): only an isolated load
+
+    worker = Worker(gym.spec(gym_id).entry_point.target, isolation)
+    try:
+        return worker.request("describe", entry_point, timeout=isolation.start_timeout)
+    finally:
+        worker.close()
+
+
 def isolated_vector_env(gym_id: str, isolation: IsolationOptions, n_envs: int, kwargs: Mapping[str, Any]) -> Any:
     """An isolated load's vector env: its envs in worker processes that step side by side.
 

@@ -158,9 +158,10 @@ class LoadedEnv:
 
     def make_suite(
         self, n_envs: int = 1, use_async: bool = False, tasks: Sequence[str] | None = None
-    ) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+    ) -> dict[str, dict[Any, gym.vector.VectorEnv]]:
         """The suite as LeRobot's ``make_env`` returns one: ``{suite name: {task id: VectorEnv}}``, task ids being each
-        task's index in :attr:`tasks` (a one-task env: ``{name: {0: VectorEnv}}``).
+        task's index in :attr:`tasks` (a one-task env: ``{name: {0: VectorEnv}}``; a plain EnvHub repo's suite: the suite
+        names and task ids its ``make_env`` gives).
 
         Args:
             n_envs: envs per task.
@@ -177,7 +178,12 @@ class LoadedEnv:
             return {self.manifest.name: {0: self.make_vec(n_envs, use_async)}}
         chosen = list(self.tasks if tasks is None else tasks)
         views = [self.for_task(t) for t in chosen]  # every name checked before any env is made
-        return {self.manifest.name: {self.tasks.index(v.task): v.make_vec(n_envs, use_async) for v in views}}
+        suite: dict[str, dict[Any, gym.vector.VectorEnv]] = {}
+        for view in views:  # a plain repo's suite keeps its own suite names and task ids (its records say them)
+            record = self.manifest.task_record(view.task)
+            key = record.get("suite", self.manifest.name)
+            suite.setdefault(key, {})[record.get("task_id", record["task_index"])] = view.make_vec(n_envs, use_async)
+        return suite
 
     @property
     def config_class(self) -> type | None:

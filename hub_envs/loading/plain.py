@@ -5,10 +5,12 @@ it: the same consent, trust-on-first-use, pinning, requirements preflight and is
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import re
 import shutil
+import sys
 import uuid
 import warnings
 from dataclasses import dataclass
@@ -33,12 +35,12 @@ from hub_envs.errors import (
     UntrustedCodeError,
 )
 from hub_envs.isolation.options import IsolationOptions
-from hub_envs.loading.isolated import isolated_parts, isolation_suffix
+from hub_envs.loading.isolated import describe_in_worker, isolated_parts, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
 from hub_envs.loading.source import _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 from hub_envs.repo import trust_list
-from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, safe_relpath
+from hub_envs.repo.format import MANIFEST_FILE, SUITE_FORMAT_VERSION, Manifest, content_digest, hash_files, safe_relpath
 from hub_envs.repo.refs import parse_repo_ref
 
 #: The entry file LeRobot's ``make_env`` reads when the reference names none.
@@ -381,6 +383,8 @@ def load_plain(
                 "description": f"plain LeRobot EnvHub repo {ref.text(src.sha)}",
             }
         )
+        if not iso.isolated:  # in-process: the tasks are found here (isolated: in a worker, by _register)
+            manifest, config = as_suite(manifest, config_class, config, discover_tasks(package, where=f"{src.where}:{ref.entry}"))
         loaded = _register(src, manifest, package, code, key, config_class, config, iso, report, token, cache_dir, check)
     except BaseException:
         if not imported_before:
@@ -441,6 +445,11 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
         )
         if check:
             check_contract(loaded, where=f"{where}:{src.ref.entry}")
+        if iso.isolated:  # the suite's tasks, found where the repo's code runs
+            tasks = discover_tasks(
+                lambda: describe_in_worker(loaded.gym_id, iso, f"{ENV_MODULE}:describe_suite"), where=f"{where}:{src.ref.entry}"
+            )
+            loaded.manifest, loaded.config = as_suite(manifest, config_class, config, tasks)
         replaced, _ = txn.replaced_by(code)
         if replaced:
             raise RegistrationConflictError(
@@ -448,6 +457,72 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
                 f"of its own. Remove the env code's own gym.register / @EnvConfig.register_subclass calls."
             )
     return loaded
+
+
+def as_suite(manifest: Manifest, config_class: type, config: Any, tasks: tuple[dict[str, Any], ...]) -> tuple[Manifest, Any]:
+    """A plain load's manifest and config for the tasks :func:`discover_tasks` found: none, as they are; a suite, the
+    manifest holds the tasks (format 4), is named after the suite (``make_suite``'s key, as the source's ``make_env``
+    gives it) and the config names the first task (the one ``make`` makes).
+
+    Args:
+        manifest: the load's manifest.
+        config_class: the adapter's config class.
+        config: its instance.
+        tasks: the tasks.
+
+    Returns:
+        ``(manifest, config)``.
+    """
+    if not tasks:
+        return manifest, config
+    suites = list(dict.fromkeys(str(t["suite"]) for t in tasks))
+    where = manifest.description
+    config = instantiate_config(config_class, where=where, overrides={"task": tasks[0]["task"]})
+    name = suites[0] if len(suites) == 1 else manifest.name
+    suite = dataclasses.replace(
+        manifest, name=name, format_version=SUITE_FORMAT_VERSION, tasks=tasks, config=encode_config(config)
+    )
+    return suite, config
+
+
+def discover_tasks(package: Any, *, where: str) -> tuple[dict[str, Any], ...]:
+    """The tasks of an entry file whose ``make_env`` returns the suite form ``{suite: {task_id: VectorEnv}}`` with more
+    than one task (the adapter's ``describe_suite``: every env made once, ``n_envs=1``, and closed), as a suite
+    manifest's ``tasks`` records: ``task`` (the env's ``task``, else ``<suite>/<task_id>``), ``task_index``,
+    ``instruction`` (the env's ``task_description``, else its ``task``, else the name), and the source's ``suite`` and
+    ``task_id``.
+
+    Args:
+        package: the imported code folder; or, for an isolated load, a function calling the adapter's ``describe_suite``
+            in a worker.
+        where: names the repo, commit and entry file in messages.
+
+    Returns:
+        The records, in the order ``make_env`` gives them; ``()`` for one env (or a suite of one task).
+
+    Raises:
+        EnvContractError: ``make_env`` returns a dict that is not the suite form, or another type.
+        EnvCodeError: the repo's code raised.
+    """
+    if callable(package):  # an isolated load: the adapter's describe_suite, called in a worker
+        describe = package
+    else:
+        describe = vars(sys.modules[resolve_entry_point(package, ENV_ENTRY_POINT, where=where).__module__])["describe_suite"]
+    try:
+        found = describe()
+    except TypeError as e:
+        if "breaks LeRobot's EnvHub contract" in str(e):
+            raise EnvContractError(f"{safe_text(e)} Nothing was registered.") from e
+        raise EnvCodeError(f"{where}: its make_env(n_envs=1, use_async_envs=False) raised TypeError: {safe_text(e)}") from e
+    except HubEnvsError as e:
+        if "breaks LeRobot's EnvHub contract" in str(e):  # from a worker: the adapter's TypeError, as it said it
+            raise EnvContractError(f"{safe_text(e)} Nothing was registered.") from e
+        raise
+    except Exception as e:
+        raise EnvCodeError(
+            f"{where}: its make_env(n_envs=1, use_async_envs=False) raised {type(e).__name__}: {safe_text(e)}"
+        ) from e
+    return tuple({**d, "task_index": i} for i, d in enumerate(found))
 
 
 def _changed_since_trusted(src: PlainSource, trusted: trust_list.TrustList) -> str:

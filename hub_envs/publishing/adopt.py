@@ -1,7 +1,8 @@
 """``adopt``: publish a hub-envs repo from a plain LeRobot EnvHub repo, through push_env's pipeline: the source's files
 unchanged under ``source/`` (pinned to its commit), the adapter hub-envs writes for its entry file (with the features,
 time limit and task the audit found), ``adopted_from.json`` naming ``user/name@<sha>:<path>``; then a random-action
-dataset, the checks and a card, as for any push.
+dataset, the checks and a card, as for any push. A source whose ``make_env`` returns a suite of several tasks becomes a
+hub-envs suite named after it (``[tool.hub-envs] tasks``, one dataset holding every task).
 
 Example:
     >>> from hub_envs import adopt                                                                   # doctest: +SKIP
@@ -18,7 +19,7 @@ from typing import Any
 
 from hub_envs._text import safe_text
 from hub_envs.errors import EnvContractError
-from hub_envs.loading.audit import AuditReport, audit
+from hub_envs.loading.audit import AuditCheck, AuditReport, audit
 from hub_envs.loading.plain import (
     CONFIG_ENTRY_POINT,
     DEFAULT_EPISODE_LENGTH,
@@ -36,7 +37,43 @@ __all__ = ["ADOPTED_FROM_FILE", "adopt", "adopted_folder"]
 #: The file of an adopted repo that names its source (in the manifest's file list, so hashed like the code).
 ADOPTED_FROM_FILE = "adopted_from.json"
 #: The audit checks an adoption needs to pass (the others are what adoption fixes, or push_env checks itself).
-REQUIRED = ("requirements", "contract", "LeRobot observation names")
+REQUIRED = ("requirements", "contract", "LeRobot observation names", "the same features for every task")
+
+
+def suite_shape_problems(report: AuditReport) -> list[AuditCheck]:
+    """What keeps a suite from being adopted with the same suite name and task ids LeRobot's ``make_env`` gives on the
+    source: a hub-envs suite is one suite whose task ids are ``0..N-1`` in order (its tasks' ``task_index``).
+
+    Args:
+        report: the source's audit.
+
+    Returns:
+        A failed :class:`~hub_envs.loading.audit.AuditCheck` per problem (none for one env).
+    """
+    if not report.tasks:
+        return []
+    problems = []
+    suites = list(dict.fromkeys(str(t.suite) for t in report.tasks))
+    if len(suites) > 1:
+        problems.append(
+            AuditCheck(
+                "one suite",
+                False,
+                f"make_env returns {len(suites)} suites ({', '.join(suites)}); an adopted repo is one suite. Adopt an entry "
+                f"file that returns one of them (user/name@rev:path/to/file.py).",
+            )
+        )
+    ids = [t.task_id for t in report.tasks]
+    if ids != list(range(len(ids))):
+        problems.append(
+            AuditCheck(
+                "task ids",
+                False,
+                f"the task ids are {ids[:8]}; an adopted suite numbers its tasks 0..{len(ids) - 1} in order, as LeRobot's "
+                f"LIBERO and Meta-World suites do, so its make_env would not give the same ids.",
+            )
+        )
+    return problems
 
 
 def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: str | None = None) -> Path:
@@ -59,25 +96,34 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
         (folder / SOURCE_DIR / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src.path / rel, folder / SOURCE_DIR / rel)
     features = {k: (t, tuple(s)) for k, (t, s) in report.features.items()}
+    lengths = [t.episode_length or DEFAULT_EPISODE_LENGTH for t in report.tasks] or [
+        report.episode_length or DEFAULT_EPISODE_LENGTH
+    ]
     adapter = render_adapter(
         ref.text(src.sha),
         ref.entry,
         features=features,
         features_map=report.features_map,
-        task=report.task,
-        episode_length=report.episode_length or DEFAULT_EPISODE_LENGTH,
+        task=report.task,  # a suite's: its first task's name
+        episode_length=max(lengths),  # a task's own time limit ends its episodes first
     )
     for name, data in adapter.items():
         (folder / name).write_bytes(data)
     origin = {"repo_id": ref.repo, "revision": src.sha, "entry": ref.entry, "source": ref.text(src.sha), "files": src.files}
+    if report.tasks:  # where each task of the adopted suite sits in the source's make_env
+        origin["tasks"] = [{"task": t.task, "suite": str(t.suite), "task_id": t.task_id} for t in report.tasks]
     (folder / ADOPTED_FROM_FILE).write_text(json.dumps(origin, indent=2, sort_keys=True) + "\n")
     name = ref.repo.split("/")[1] + (f"-{Path(ref.entry).stem}" if ref.explicit_entry else "")
+    tasks = ""
+    if report.tasks:  # a suite: its name is the manifest's, which the adopted env.py gives LeRobot as the suite's
+        name = str(report.tasks[0].suite)
+        tasks = f"tasks = [{', '.join(json.dumps(t.task) for t in report.tasks)}]\n"
     deps = ", ".join(json.dumps(r) for r in src.requirements)
     (folder / "pyproject.toml").write_text(
         f'[project]\nname = {json.dumps(name)}\nversion = "0.0.0"\n'
         f"description = {json.dumps(f'Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/).')}\n"
         f"dependencies = [{deps}]\n\n"
-        f"[tool.hub-envs]\nenv = {json.dumps(ENV_ENTRY_POINT)}\nconfig = {json.dumps(CONFIG_ENTRY_POINT)}\n"
+        f"[tool.hub-envs]\nenv = {json.dumps(ENV_ENTRY_POINT)}\nconfig = {json.dumps(CONFIG_ENTRY_POINT)}\n{tasks}"
     )
     return folder
 
@@ -110,13 +156,21 @@ def adopt(
 
     Raises:
         EnvContractError: the audit found what adoption cannot fix (its contract, LeRobot's observation names, unmet
-            requirements); the message lists them.
+            requirements; a suite: any task's, features that differ between tasks, several suites, task ids other than
+            ``0..N-1``); the message lists them.
         UntrustedCodeError: no consent to run the source's code.
         HubEnvsError: what push_env raises (a check failed, no write access...).
     """
     check_repo_id(repo_id, what="--repo_id")
     report = audit(from_repo, revision=revision, trust_remote_code=trust_remote_code, token=token, output=audit_output)
     blocking = [c for c in report.checks if c.name in REQUIRED and not c.passed]
+    blocking += [
+        AuditCheck(f"task {t.task!r}: {c.name}", c.passed, c.detail)
+        for t in report.tasks
+        for c in t.checks
+        if c.name in REQUIRED and not c.passed
+    ]
+    blocking += suite_shape_problems(report)
     if blocking:
         raise EnvContractError(
             f"{report.source} cannot be adopted as it is:\n"

@@ -15,7 +15,8 @@ FEATURES_MAP = {{FEATURES_MAP}}
 
 @dataclass
 class PlainEnvConfig(EnvConfig):
-    """The env's settings: none of its own (``make_env`` takes none), its time limit and LeRobot's features."""
+    """The env's settings: none of its own (``make_env`` takes none), its task (a suite's: the one to make), its time
+    limit and LeRobot's features."""
 
     task: str | None = {{TASK}}
     fps: int = {{FPS}}
@@ -27,4 +28,4 @@ class PlainEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        return {}
+        return {"task": self.task} if self.task is not None else {}  # a suite's task picks its env (one env: ignored)
