@@ -449,7 +449,7 @@ def _register(src, manifest, package, code, key, config_class, config, iso, repo
             tasks = discover_tasks(
                 lambda: describe_in_worker(loaded.gym_id, iso, f"{ENV_MODULE}:describe_suite"), where=f"{where}:{src.ref.entry}"
             )
-            loaded.manifest, loaded.config = as_suite(manifest, config_class, config, tasks)
+            loaded.manifest, loaded._config = as_suite(manifest, config_class, config, tasks)  # (config: a cached property)
         replaced, _ = txn.replaced_by(code)
         if replaced:
             raise RegistrationConflictError(
