@@ -249,3 +249,50 @@ def test_audit_and_adopt_refuse_a_repo_flag_with_a_trailing_newline(argv, capsys
     assert cli(argv) == 1
     err = capsys.readouterr().err
     assert "ConfigError" in err and "\\n'" in err, err
+
+
+# --- red-team round 29 ------------------------------------------------------------------------------------------------
+
+
+def test_adopt_publishes_only_the_files_its_audit_ran_with_consent_not_what_a_second_fetch_adds(hub, tmp_path, monkeypatch):
+    """adopt fetched the source commit a second time after its audit and copied whatever the snapshot held into the folder
+    push_env runs (a local folder: no consent) and publishes: a hostile endpoint adding a file under the same commit id had
+    it run as the user and published under their name (red-team finding, session 29)."""
+    from lying_endpoint import LyingEndpoint
+
+    from hub_envs.errors import IntegrityError
+    from hub_envs.publishing.adopt import adopt
+    from hub_envs.testing import hub_environment
+
+    marker = tmp_path / "PWNED"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
+    optional_plugin = "\nimport os, sys\nsys.path.insert(0, os.path.dirname(__file__))\ntry:\n    import rt29_plugin  # noqa\nexcept ImportError:\n    pass\n"
+    a = upload(hub, "bob/plugged", pr.write(tmp_path / "a", {"env.py": pr.REACH + pr.VECTOR_MAKE_ENV + optional_plugin}))
+    payload = "import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n"
+    b = upload(hub, "bob/plugged", pr.write(tmp_path / "b", {"rt29_plugin.py": payload}))
+    assert cli(["trust", f"bob/plugged@{a}"]) == 0  # consent to commit a, with its files as they were
+    seen = {"revision requests": 0, "lie from": 10**9}
+
+    def lying() -> bool:
+        return seen["revision requests"] >= seen["lie from"]
+
+    def path(method, p):
+        seen["revision requests"] += f"/revision/{a}" in p
+        return p.replace(a, b) if lying() else p
+
+    def answer(method, p, status, headers, body):  # commit b's files, named as commit a's
+        if lying():
+            return status, {k: v.replace(b, a) for k, v in headers.items()}, body.replace(b.encode(), a.encode())
+        return status, headers, body
+
+    with LyingEndpoint(hub.endpoint, rewrite_path=path, rewrite_answer=answer) as lie, hub_environment(lie.endpoint, hub.hf_home):
+        from hub_envs.loading.audit import audit
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert audit(f"bob/plugged@{a}").passed  # honest: how many revision requests an audit makes
+            seen["lie from"] = 2 * seen["revision requests"] + 1  # adopt's own audit honest, its second fetch lied to
+            with pytest.raises(IntegrityError, match="not .* as when it was audited"):
+                adopt(f"bob/plugged@{a}", "me/plugged", episodes=2, progress=False)
+    assert not marker.exists()
+    assert not hub.api.repo_exists("me/plugged")

@@ -59,6 +59,8 @@ class AuditReport:
         episode_length: the env's own time limit (None: it has none).
         task: the env's ``task`` / ``task_description``, if it has one.
         requirements: the requirements of its ``requirements.txt``.
+        content_digest: the digest of the files the audit ran, which its consent covered (None: nothing ran); what
+            ``adopt`` publishes must have it.
     """
 
     source: str
@@ -68,6 +70,7 @@ class AuditReport:
     episode_length: int | None = None
     task: str | None = None
     requirements: list[str] = field(default_factory=list)
+    content_digest: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -229,6 +232,7 @@ def audit(
                 raise
             report.add("contract", False, str(e))
             return _finish(report, output)
+    report.content_digest = loaded.manifest.content_digest  # what consent covered: adopt publishes exactly these files
     try:
         _audit_loaded(loaded, report, seeds, steps)
     finally:

@@ -11,19 +11,18 @@ Example:
 from __future__ import annotations
 
 import json
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from hub_envs._text import safe_text
-from hub_envs.errors import EnvContractError
+from hub_envs.errors import EnvContractError, IntegrityError
 from hub_envs.loading.audit import AuditReport, audit
 from hub_envs.loading.plain import (
     CONFIG_ENTRY_POINT,
     DEFAULT_EPISODE_LENGTH,
     ENV_ENTRY_POINT,
-    SOURCE_DIR,
+    code_folder_files,
     fetch_plain,
     parse_hub_path,
     render_adapter,
@@ -51,13 +50,23 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
 
     Returns:
         ``folder``.
+
+    Raises:
+        IntegrityError: the commit now holds other files than the audit ran (and consent covered): the endpoint served
+            other content under the same commit id, or the cache changed.
     """
     ref = parse_hub_path(from_repo)
-    src = fetch_plain(ref, token=token)
+    src = fetch_plain(ref, token=token)  # fetched again: held to the digest of what the audit ran, with consent
+    if report.content_digest is None or src.digest != report.content_digest:
+        raise IntegrityError(
+            f"{src.where}: its files now have content digest {src.digest[:16]}…, not {str(report.content_digest)[:16]}… "
+            f"as when it was audited (and its code run, with consent): the endpoint serves other files under the same "
+            f"commit id, or the cache changed. Nothing was published; adopt again, and check what it holds."
+        )
     folder.mkdir(parents=True, exist_ok=True)
-    for rel in src.files:
-        (folder / SOURCE_DIR / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(src.path / rel, folder / SOURCE_DIR / rel)
+    for rel, data in code_folder_files(src, {}).items():  # each file's bytes checked against its hash as they are copied
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_bytes(data)
     features = {k: (t, tuple(s)) for k, (t, s) in report.features.items()}
     adapter = render_adapter(
         ref.text(src.sha),
@@ -112,6 +121,7 @@ def adopt(
         EnvContractError: the audit found what adoption cannot fix (its contract, LeRobot's observation names, unmet
             requirements); the message lists them.
         UntrustedCodeError: no consent to run the source's code.
+        IntegrityError: the source commit's files changed between the audit and the copy (:func:`adopted_folder`).
         HubEnvsError: what push_env raises (a check failed, no write access...).
     """
     check_repo_id(repo_id, what="--repo_id")
