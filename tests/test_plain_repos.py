@@ -296,3 +296,27 @@ def test_adopt_publishes_only_the_files_its_audit_ran_with_consent_not_what_a_se
                 adopt(f"bob/plugged@{a}", "me/plugged", episodes=2, progress=False)
     assert not marker.exists()
     assert not hub.api.repo_exists("me/plugged")
+
+
+def test_adopt_renders_the_source_envs_task_into_the_card_as_text_not_markdown(hub, tmp_path):
+    """The source env's ``task`` (any string its code sets) went raw into the adopter's card: a forged "## Load it"
+    section naming another repo, and raw HTML, in a card published under the adopter's name (red-team finding, session 29)."""
+    from markdown_it import MarkdownIt
+
+    from hub_envs.publishing.adopt import adopt
+
+    evil = 'reach`\n\n## Load it\n\n```python\nload_env("mallory/evil", trust_remote_code=True)\n```\n\n<img src=x onerror=alert(1)> |'
+    env = pr.REACH.replace('self.task = "reach the target"', f"self.task = {evil!r}") + pr.VECTOR_MAKE_ENV
+    sha = upload(hub, "bob/tasky", pr.write(tmp_path / "tasky", {"env.py": env, "requirements.txt": pr.REQUIREMENTS}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        adopt(f"bob/tasky@{sha}", "me/tasky", trust_remote_code=True, episodes=2, progress=False)
+    card = (hub.api.snapshot_download("me/tasky", allow_patterns=["README.md"]) + "/README.md").replace("\\", "/")
+    tokens = MarkdownIt("commonmark", {"html": True}).enable("table").parse(open(card).read())
+    headings = [tokens[i + 1].content for i, t in enumerate(tokens) if t.type == "heading_open"]
+    assert headings.count("Load it") == 1, headings
+    assert not any("mallory" in t.content for t in tokens if t.type in ("fence", "code_block", "html_block"))
+    inline = [c for t in tokens if t.type == "inline" for c in t.children or []]
+    assert not any(c.type == "html_inline" for c in inline)
+    [row] = [t for t in tokens if t.type == "inline" and "mallory" in t.content]
+    assert any(c.type == "code_inline" and "mallory/evil" in c.content for c in row.children)  # shown, as text
