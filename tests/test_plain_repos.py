@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -16,7 +17,13 @@ from helpers import build_wheel, install_wheels
 from hub_envs import load_env
 from hub_envs.cli import main as cli
 from hub_envs.envcode.registration import snapshot_registries
-from hub_envs.errors import EnvContractError, MissingRequirementsError, PlainRepoWarning, UntrustedCodeError
+from hub_envs.errors import (
+    EnvContractError,
+    InvalidRepoFormatError,
+    MissingRequirementsError,
+    PlainRepoWarning,
+    UntrustedCodeError,
+)
 from hub_envs.isolation import sandbox as sandbox_module
 from hub_envs.repo.format import sha256_file
 
@@ -320,3 +327,53 @@ def test_adopt_renders_the_source_envs_task_into_the_card_as_text_not_markdown(h
     assert not any(c.type == "html_inline" for c in inline)
     [row] = [t for t in tokens if t.type == "inline" and "mallory" in t.content]
     assert any(c.type == "code_inline" and "mallory/evil" in c.content for c in row.children)  # shown, as text
+
+
+def test_a_plain_repo_holding_bytecode_is_refused_before_consent_is_asked(hub_storing_bytecode, tmp_path, monkeypatch):
+    """A plain repo with a harmless helper.py and, beside it, an unchecked-hash __pycache__/helper.*.pyc compiled from
+    other source: the trust prompt listed helper.py, and with consent the bytecode ran instead (red-team finding, session
+    29). A hub-envs repo's manifest refuses bytecode; a plain repo is held to the same rule."""
+    import importlib.util
+    import py_compile
+
+    marker = tmp_path / "PWNED"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
+    hidden = tmp_path / "hidden" / "helper.py"
+    hidden.parent.mkdir()
+    hidden.write_text("import os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('pwned')\n")
+    pyc = py_compile.compile(
+        str(hidden), cfile=str(tmp_path / "helper.pyc"), invalidation_mode=py_compile.PycInvalidationMode.UNCHECKED_HASH
+    )
+    env = (
+        pr.REACH + pr.VECTOR_MAKE_ENV + "\nimport os, sys\nsys.path.insert(0, os.path.dirname(__file__))\nimport helper  # noqa\n"
+    )
+    folder = pr.write(tmp_path / "byte", {"env.py": env, "helper.py": "X = 1  # harmless\n"})
+    (folder / Path(importlib.util.cache_from_source(str(folder / "helper.py")))).parent.mkdir(exist_ok=True)
+    Path(importlib.util.cache_from_source(str(folder / "helper.py"))).write_bytes(Path(pyc).read_bytes())
+    sha = upload(hub_storing_bytecode, "mallory/byte", folder)
+    for consent in (False, True):
+        with pytest.raises(InvalidRepoFormatError, match=r"compiled bytecode \(__pycache__/helper\..*\.pyc\)"):
+            load_env(f"mallory/byte@{sha}", trust_remote_code=consent)
+    assert not marker.exists()
+
+
+def test_a_plain_repos_cached_snapshot_linking_out_of_the_cache_is_refused_and_dropped(hub, tmp_path):
+    """The cache is not trusted: a snapshot file of a plain repo linking outside the cache's blobs/ (here to a stand-in
+    for the Hub token) was hashed, and copied into the code folder a sandboxed env sees, while the sandbox hides HF_HOME
+    (red-team finding, session 29). A hub-envs repo's load refuses such a link; a plain load does too."""
+    from hub_envs.errors import IntegrityError
+    from hub_envs.paths import hub_envs_home
+
+    sha = upload(hub, "bob/linky", pr.vector_repo(tmp_path / "linky"))
+    with pytest.warns(PlainRepoWarning):
+        load_env(f"bob/linky@{sha}", trust_remote_code=True, check=False).unregister()
+    secret = tmp_path / "token"
+    secret.write_text("hf_not_for_env_code")
+    snapshot = hub.hf_home / "hub" / "models--bob--linky" / "snapshots" / sha
+    (snapshot / "notes.txt").symlink_to(secret)
+    with pytest.raises(IntegrityError, match="notes.txt -> .*a link outside the cache's blobs/"):
+        load_env(f"bob/linky@{sha}", trust_remote_code=True, check=False)
+    assert not snapshot.exists() and secret.read_text() == "hf_not_for_env_code"  # the snapshot dropped, not the target
+    assert not [p for p in (hub_envs_home() / "plain").rglob("notes.txt")]
+    with pytest.warns(PlainRepoWarning):  # loads again from a fresh download
+        load_env(f"bob/linky@{sha}", trust_remote_code=True, check=False).unregister()

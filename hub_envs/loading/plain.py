@@ -26,6 +26,7 @@ from hub_envs.errors import (
     EnvCodeError,
     EnvContractError,
     HubEnvsError,
+    IntegrityError,
     InvalidRepoFormatError,
     PlainRepoWarning,
     RegistrationConflictError,
@@ -38,7 +39,7 @@ from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
 from hub_envs.loading.source import _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 from hub_envs.repo import hub_io, trust_list
-from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, safe_relpath
+from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, is_bytecode_path, safe_relpath
 from hub_envs.repo.refs import parse_repo_ref
 from hub_envs.repo.requirements import check_requirements
 
@@ -184,13 +185,28 @@ def fetch_plain(ref: PlainRef, *, token: str | None = None, cache_dir: str | Pat
 
     Raises:
         EnvRepoNotFoundError, RevisionNotFoundError, OfflineNotCachedError, HostileResponseError: from hub_io.
-        InvalidRepoFormatError: the entry file is not in the commit, or ``requirements.txt`` is malformed.
+        InvalidRepoFormatError: the entry file is not in the commit, it holds bytecode (``.pyc``, ``__pycache__/``), or
+            ``requirements.txt`` is malformed.
+        IntegrityError: the cached snapshot holds a link outside the cache's ``blobs/``, or a file the commit does not list.
     """
     snap = hub_io.resolve_snapshot(ref.repo, ref.revision, token=token, cache_dir=cache_dir)
     path, where = snap.path, f"{ref.repo}@{snap.sha}"
     names = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
     for name in names:
         safe_relpath(name, where=where)
+    # as for a hub-envs repo: every file a link into the cache's blobs/, none the commit does not list (when it was listed)
+    try:
+        hub_io.check_snapshot_layout(path, set(snap.fetched or names), where=where)
+    except IntegrityError:
+        hub_io.drop_snapshot(path)  # as for a hub-envs repo: what it held is not run later, by LeRobot's loader either
+        raise
+    bytecode = [safe_text(n) for n in names if is_bytecode_path(n)]
+    if bytecode:  # the trust prompt lists .py files; Python would run the bytecode instead of the .py beside it
+        raise InvalidRepoFormatError(
+            f"{where}: holds compiled bytecode ({', '.join(bytecode[:8])}{' …' if len(bytecode) > 8 else ''}), which Python "
+            f"runs instead of the .py source beside it (what you read before consenting). hub-envs loads .py sources only: "
+            f"ask the repo's author to delete the __pycache__ folders and .pyc/.pyo files."
+        )
     if ref.entry not in names:
         found = [safe_text(n) for n in names if n.endswith(".py")]
         raise InvalidRepoFormatError(
