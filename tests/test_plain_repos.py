@@ -377,3 +377,16 @@ def test_a_plain_repos_cached_snapshot_linking_out_of_the_cache_is_refused_and_d
     assert not [p for p in (hub_envs_home() / "plain").rglob("notes.txt")]
     with pytest.warns(PlainRepoWarning):  # loads again from a fresh download
         load_env(f"bob/linky@{sha}", trust_remote_code=True, check=False).unregister()
+
+
+def test_an_entry_file_whose_name_holds_an_adapter_placeholder_loads_as_that_file(hub, tmp_path):
+    """The adapter was rendered by successive text replacements: an entry file named ``x"{{SOURCE_ENTRY}}".py`` had its
+    name read again as a placeholder, and the adapter's source became Python of the file name's making (here a syntax
+    error; with other names, an expression of its choosing) (red-team finding, session 29)."""
+    name = 'x"{{SOURCE_ENTRY}}".py'
+    sha = upload(hub, "bob/odd", pr.write(tmp_path / "odd", {name: pr.REACH + pr.VECTOR_MAKE_ENV}))
+    with pytest.warns(PlainRepoWarning):
+        loaded = load_env(f"bob/odd@{sha}:{name}", trust_remote_code=True)
+    assert loaded.plain_source == f"bob/odd@{sha}:{name}"
+    assert loaded.make().reset(seed=0)[0]["agent_pos"].shape == (2,)
+    loaded.unregister()
