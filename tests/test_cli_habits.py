@@ -284,3 +284,11 @@ def test_a_config_file_never_gives_consent_to_run_a_repos_code(hub, tmp_path, mo
         # consent on the command line, the rest from the file: as before
         assert cli_main(["load", f"--config_path={config}", "--trust_remote_code=true"]) == 0
     assert marker.exists()
+
+
+def test_an_unknown_flag_is_named_without_its_escape_sequences(capsys):
+    """The "did you mean" message printed an unknown flag raw: escape sequences in a command line a script builds from
+    other text reached the terminal (red-team finding, session 29)."""
+    assert cli_main(["load", "--re\x1b[2Jvision=main", "u/e"]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "--re\\x1b[2Jvision" in err, err

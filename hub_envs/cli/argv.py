@@ -16,6 +16,7 @@ from typing import Any
 
 import draccus
 
+from hub_envs._text import safe_text
 from hub_envs.errors import ConfigError, UsageError
 from hub_envs.repo.refs import check_repo_flags
 
@@ -150,7 +151,7 @@ def check_flags(command: str, argv: Sequence[str], known: Iterable[str], *, nest
         checked = name.split(".")[0] if nested else name
         close = suggest(checked, [k for k in known if k not in DRACCUS_FLAGS])
         rest = name[len(checked) :]
-        said.append(f"--{name}" + (f": did you mean --{close}{rest}?" if close else ""))
+        said.append(f"--{safe_text(name)}" + (f": did you mean --{close}{safe_text(rest)}?" if close else ""))
     flag_word = "flag" if len(unknown) == 1 else "flags"
     raise UsageError(f"{command} has no {flag_word} {'; '.join(said)} ({command} --help lists its flags)")
 
@@ -194,7 +195,7 @@ def with_positional_as_flags(command: str, argv: Sequence[str], fields: Sequence
     for field, value in zip(fields, values):
         if field in given and given[field] != value:
             raise UsageError(
-                f"{command}: {field} was given twice, as {value!r} (positional) and as --{field}={given[field]}; give it once."
+                f"{command}: {field} was given twice, as {value!r} (positional) and as --{field}={safe_text(given[field])}; give it once."
             )
         if field not in given:
             out.append(f"--{field}={value}")
