@@ -390,3 +390,16 @@ def test_an_entry_file_whose_name_holds_an_adapter_placeholder_loads_as_that_fil
     assert loaded.plain_source == f"bob/odd@{sha}:{name}"
     assert loaded.make().reset(seed=0)[0]["agent_pos"].shape == (2,)
     loaded.unregister()
+
+
+def test_adopt_of_an_entry_file_named_outside_the_bmp_writes_a_readable_pyproject(hub, tmp_path):
+    """adopt wrote pyproject.toml strings with json.dumps, whose surrogate-pair escapes TOML refuses: an entry file named
+    with an emoji made the adoption fail on its own pyproject (red-team finding, session 29)."""
+    from hub_envs.publishing.adopt import adopt
+
+    name = "envs/Reach\U0001f916.py"
+    sha = upload(hub, "bob/robot", pr.write(tmp_path / "robot", {name: pr.REACH + pr.VECTOR_MAKE_ENV}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = adopt(f"bob/robot@{sha}:{name}", "me/robot", trust_remote_code=True, episodes=2, progress=False)
+    assert json.loads(open(hub.api.hf_hub_download("me/robot", "adopted_from.json", revision=result.sha)).read())["entry"] == name

@@ -81,14 +81,22 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
     origin = {"repo_id": ref.repo, "revision": src.sha, "entry": ref.entry, "source": ref.text(src.sha), "files": src.files}
     (folder / ADOPTED_FROM_FILE).write_text(json.dumps(origin, indent=2, sort_keys=True) + "\n")
     name = ref.repo.split("/")[1] + (f"-{Path(ref.entry).stem}" if ref.explicit_entry else "")
-    deps = ", ".join(json.dumps(r) for r in src.requirements)
+    deps = ", ".join(_toml_string(r) for r in src.requirements)
+    description = f"Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/)."
     (folder / "pyproject.toml").write_text(
-        f'[project]\nname = {json.dumps(name)}\nversion = "0.0.0"\n'
-        f"description = {json.dumps(f'Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/).')}\n"
+        f'[project]\nname = {_toml_string(name)}\nversion = "0.0.0"\n'
+        f"description = {_toml_string(description)}\n"
         f"dependencies = [{deps}]\n\n"
-        f"[tool.hub-envs]\nenv = {json.dumps(ENV_ENTRY_POINT)}\nconfig = {json.dumps(CONFIG_ENTRY_POINT)}\n"
+        f"[tool.hub-envs]\nenv = {_toml_string(ENV_ENTRY_POINT)}\nconfig = {_toml_string(CONFIG_ENTRY_POINT)}\n",
+        encoding="utf-8",
     )
     return folder
+
+
+def _toml_string(text: str) -> str:
+    """``text`` as a TOML basic string: JSON's escapes but not its ``\\uD83D\\uDE00`` surrogate pairs, which TOML refuses
+    (an entry file or a requirement marker outside the BMP made an unreadable pyproject.toml: red-team, session 29)."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 def adopt(
