@@ -403,3 +403,28 @@ def test_adopt_of_an_entry_file_named_outside_the_bmp_writes_a_readable_pyprojec
         warnings.simplefilter("ignore")
         result = adopt(f"bob/robot@{sha}:{name}", "me/robot", trust_remote_code=True, episodes=2, progress=False)
     assert json.loads(open(hub.api.hf_hub_download("me/robot", "adopted_from.json", revision=result.sha)).read())["entry"] == name
+
+
+def test_a_plain_load_bound_to_a_content_digest_refuses_other_content_and_takes_its_own(hub, tmp_path, monkeypatch):
+    """``content_digest=`` (a Ray worker's binding to its driver's consent, #30 item 7) was dropped silently for a plain
+    repo's ``user/name@sha:path``: a commit holding other files ran under consent given for other content (red-team
+    finding, session 29)."""
+    marker = tmp_path / "RAN"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
+    payload = "\nimport os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('ran')\n"
+    sha = upload(
+        hub,
+        "bob/bound",
+        pr.write(
+            tmp_path / "bound", {"envs/T.py": pr.REACH + pr.VECTOR_MAKE_ENV + payload, "env.py": pr.REACH + pr.VECTOR_MAKE_ENV}
+        ),
+    )
+    for ref in (f"bob/bound@{sha}:envs/T.py", f"bob/bound@{sha}:env.py", f"bob/bound@{sha}"):
+        with pytest.raises(UntrustedCodeError, match="not the content 0000000000000000… this load was bound to"):
+            load_env(ref, trust_remote_code=True, content_digest="0" * 64)
+    assert not marker.exists()
+    with pytest.warns(PlainRepoWarning):
+        digest = load_env(f"bob/bound@{sha}:envs/T.py", trust_remote_code=True, check=False).manifest.content_digest
+    with pytest.warns(PlainRepoWarning):
+        again = load_env(f"bob/bound@{sha}:envs/T.py", trust_remote_code=True, content_digest=digest, check=False)
+    assert again.manifest.content_digest == digest

@@ -36,7 +36,7 @@ from hub_envs.errors import (
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading.isolated import isolated_parts, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
-from hub_envs.loading.source import _trust_gate
+from hub_envs.loading.source import _check_content_digest, _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 from hub_envs.repo import hub_io, trust_list
 from hub_envs.repo.format import MANIFEST_FILE, Manifest, content_digest, hash_files, is_bytecode_path, safe_relpath
@@ -328,6 +328,7 @@ def load_plain(
     token: str | None,
     cache_dir: str | Path | None,
     iso: IsolationOptions,
+    content_digest: str | None = None,
     stacklevel: int = 3,
 ) -> LoadedEnv:
     """Load a plain LeRobot EnvHub repo: resolve, fetch and hash (:func:`fetch_plain`), warn when unpinned, the trust
@@ -339,13 +340,15 @@ def load_plain(
         ref: the reference (:func:`parse_hub_path`).
         trust_remote_code, check, token, cache_dir: as :func:`hub_envs.load_env` takes them.
         iso: the isolation options.
+        content_digest: the digest of the files consent was given for (a Ray worker gets its driver's); other content
+            is refused before anything of it is imported.
         stacklevel: of the warnings.
 
     Returns:
         A :class:`LoadedEnv` whose ``missing_guarantees`` lists what it cannot give.
 
     Raises:
-        UntrustedCodeError: no consent for this commit and content.
+        UntrustedCodeError: no consent for this commit and content, or content other than ``content_digest``.
         MissingRequirementsError: a requirement of ``requirements.txt`` is not installed.
         EnvContractError: the entry file breaks LeRobot's EnvHub contract (no ``make_env``, another return type).
         EnvCodeError: the repo's code raised.
@@ -372,6 +375,7 @@ def load_plain(
         repo_id=ref.repo,
         requirements=src.requirements,
     )
+    _check_content_digest(content_digest, source_manifest, src.where)  # before consent: a binding it was given for
     try:
         report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
     except UntrustedCodeError as e:  # its load line names the entry file too, and what changed since a trusted commit
