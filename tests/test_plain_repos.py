@@ -428,3 +428,21 @@ def test_a_plain_load_bound_to_a_content_digest_refuses_other_content_and_takes_
     with pytest.warns(PlainRepoWarning):
         again = load_env(f"bob/bound@{sha}:envs/T.py", trust_remote_code=True, content_digest=digest, check=False)
     assert again.manifest.content_digest == digest
+
+
+def test_the_source_a_worker_gets_of_a_plain_load_names_its_entry_file_and_digest(hub, tmp_path):
+    """What the driver sends a worker (``EnvSource``, Ray's and the local backend's) named a plain load as
+    ``user/name@<sha>`` only: bound to the commit's digest (red-team 29 fix above), a worker would make ``env.py``
+    instead of the entry file the driver loaded."""
+    from hub_envs.backends.base import EnvSource
+
+    folder = pr.folder_repo(tmp_path / "twofold")
+    (folder / "env.py").write_text(pr.REACH + pr.VECTOR_MAKE_ENV)  # another env, at the default entry
+    sha = upload(hub, "bob/twofold", folder)
+    with pytest.warns(PlainRepoWarning):
+        far = load_env(f"bob/twofold@{sha}:envs/Far.py", trust_remote_code=True)
+    source = EnvSource.from_loaded(far)
+    assert source.ref == f"bob/twofold@{sha}:envs/Far.py" and source.content_digest == far.manifest.content_digest
+    with pytest.warns(PlainRepoWarning):
+        worker = source.load()
+    assert worker.plain_source == far.plain_source and worker.gym_id == far.gym_id
