@@ -260,7 +260,7 @@ def test_a_config_file_never_gives_consent_to_run_a_repos_code(hub, tmp_path, mo
 
     marker = tmp_path / "RAN"
     monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
-    payload = "\nimport os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('ran')\n"
+    payload = f"\nimport os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('ran')  # {suffix}\n"
     hub.api.create_repo("bob/shared")
     folder = pr.write(tmp_path / "shared", {"env.py": pr.REACH + pr.VECTOR_MAKE_ENV + payload, "requirements.txt": "numpy\n"})
     sha = hub.api.upload_folder(repo_id="bob/shared", folder_path=str(folder)).oid
