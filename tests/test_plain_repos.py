@@ -446,3 +446,21 @@ def test_the_source_a_worker_gets_of_a_plain_load_names_its_entry_file_and_diges
     with pytest.warns(PlainRepoWarning):
         worker = source.load()
     assert worker.plain_source == far.plain_source and worker.gym_id == far.gym_id
+
+
+def test_a_trusted_hub_envs_repo_loaded_by_an_entry_file_says_why_it_asks_again_not_that_the_endpoint_lies(hub, tmp_path):
+    """`hub-envs trust` of a hub-envs repo binds its manifest's digest; loading that commit as a plain repo by an entry
+    file hashes every file instead, so it asked again saying "the endpoint now serves other content under the same commit
+    id. Do not trust it again", and told the user to run the `hub-envs trust` they had just run (red-team 29, TOFU)."""
+    from helpers import TINY, copy_env
+
+    from hub_envs import push_env
+
+    result = push_env(copy_env(tmp_path, TINY), "bob/published", episodes=1, progress=False)
+    assert cli(["trust", f"bob/published@{result.sha}"]) == 0
+    load_env(f"bob/published@{result.sha}").unregister()  # consent holds for the hub-envs load
+    with pytest.raises(UntrustedCodeError) as asked:
+        load_env(f"bob/published@{result.sha}:tiny.py")
+    said = str(asked.value)
+    assert "is a hub-envs repo" in said and f'load_env("bob/published@{result.sha}")' in said, said
+    assert "endpoint now serves" not in said and "hub-envs trust bob/published" not in said, said

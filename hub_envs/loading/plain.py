@@ -379,6 +379,14 @@ def load_plain(
     try:
         report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
     except UntrustedCodeError as e:  # its load line names the entry file too, and what changed since a trusted commit
+        if MANIFEST_FILE in src.files:  # a hub-envs repo by an entry file: its trust entry binds its manifest's digest
+            raise UntrustedCodeError(
+                f"{src.where} is a hub-envs repo (it has {MANIFEST_FILE}), loaded here as a plain EnvHub repo by an entry "
+                f"file ({safe_text(ref.entry)}); nothing was imported. Consent recorded for it (hub-envs trust) covers the "
+                f"files its manifest lists, checked against it, so it does not cover this load: load it as a hub-envs repo, "
+                f'load_env("{src.where}"), or pass trust_remote_code=True: load_env("{ref.text(src.sha)}", '
+                f"trust_remote_code=True)."
+            ) from None
         message = str(e).replace(f'load_env("{src.where}"', f'load_env("{ref.text(src.sha)}"')
         raise UntrustedCodeError(message + _changed_since_trusted(src, trusted)) from None
     report.requirements = list(src.requirements)
