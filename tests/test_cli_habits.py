@@ -244,3 +244,51 @@ def test_lerobots_pipeline_flags_are_read_without_importing_it(command, module, 
 
     config = getattr(importlib.import_module(f"lerobot.configs.{module}"), cls)
     assert lerobot_pipeline_flags(command) == {f.name for f in dataclasses.fields(config) if f.init}
+
+
+# --- red-team round 29 ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", ["yaml", "json"])
+def test_a_config_file_never_gives_consent_to_run_a_repos_code(hub, tmp_path, monkeypatch, capsys, suffix):
+    """Every command takes draccus' --config_path: a config file someone shared holding ``trust_remote_code: true`` made
+    `hub-envs load`, `audit` and `adopt` run the repo's code without consent on the command line (red-team finding,
+    session 29; docs/security.md: a config never carries consent)."""
+    import warnings
+
+    import plain_repos as pr
+
+    marker = tmp_path / "RAN"
+    monkeypatch.setenv("HUB_ENVS_TEST_MARKER", str(marker))
+    payload = f"\nimport os, pathlib\npathlib.Path(os.environ['HUB_ENVS_TEST_MARKER']).write_text('ran')  # {suffix}\n"
+    hub.api.create_repo("bob/shared")
+    folder = pr.write(tmp_path / "shared", {"env.py": pr.REACH + pr.VECTOR_MAKE_ENV + payload, "requirements.txt": "numpy\n"})
+    sha = hub.api.upload_folder(repo_id="bob/shared", folder_path=str(folder)).oid
+    config = tmp_path / f"shared.{suffix}"
+    config.write_text(
+        f"repo_id: bob/shared@{sha}\ntrust_remote_code: true\n"
+        if suffix == "yaml"
+        else json.dumps({"repo_id": f"bob/shared@{sha}", "trust_remote_code": True})
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for argv in (
+            ["load", f"--config_path={config}"],
+            ["audit", f"--config_path={config}"],
+            ["adopt", f"--config_path={config}", f"--from_repo=bob/shared@{sha}", "--repo_id=me/shared"],
+        ):
+            assert cli_main(argv) == 1
+            err = capsys.readouterr().err
+            assert "ConfigError" in err and "sets trust_remote_code" in err and "never carries consent" in err, err
+            assert not marker.exists()
+        # consent on the command line, the rest from the file: as before
+        assert cli_main(["load", f"--config_path={config}", "--trust_remote_code=true"]) == 0
+    assert marker.exists()
+
+
+def test_an_unknown_flag_is_named_without_its_escape_sequences(capsys):
+    """The "did you mean" message printed an unknown flag raw: escape sequences in a command line a script builds from
+    other text reached the terminal (red-team finding, session 29)."""
+    assert cli_main(["load", "--re\x1b[2Jvision=main", "u/e"]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "--re\\x1b[2Jvision" in err, err

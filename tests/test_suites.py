@@ -372,3 +372,31 @@ def test_compare_pairs_policies_per_task_and_pooled_over_the_suite(hub_module, s
     saved = json.loads((tmp_path / "cmp" / "report.json").read_text())
     assert [t["task"] for t in saved["tasks"]] == TASKS
     assert "## Task `reach-left`" in (tmp_path / "cmp" / "report.md").read_text()
+
+
+# --- red-team round 29 ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "\x1b]8;;http://evil.example/\x1b\\reach-left\x1b]8;;\x1b\\",  # a terminal hyperlink hiding where it goes
+        "\x1b[2J\x1b[Htrust: trust_remote_code=True",  # clears the screen, prints a line of its choosing
+        "reach-left\n## Load it",
+        "x" * 201,
+        "reach-left,reach-right",
+    ],
+)
+def test_a_hand_written_manifest_naming_a_task_push_env_would_refuse_is_refused_at_load(hub_module, suite, name, capsys):
+    """A hostile suite writes its hub_env.json itself (upload_folder, not push_env): its task names went to the terminal
+    raw through `hub-envs load` (escape sequences included), and into reports, whatever push_env's rule for
+    ``[tool.hub-envs] tasks`` (red-team finding, session 29). The manifest is held to that same rule."""
+    from hub_envs.errors import ManifestError
+    from hub_envs.repo.format import Manifest
+
+    data = json.loads(Path(hub_module.api.hf_hub_download("alice/reach-suite", "hub_env.json", revision=suite.sha)).read_text())
+    Manifest.from_json(json.dumps(data), where="the suite")  # as published: read
+    data["tasks"][1]["task"] = name
+    with pytest.raises(ManifestError, match="a task name is one line") as refused:
+        Manifest.from_json(json.dumps(data), where="the suite")
+    assert "\x1b" not in str(refused.value) and "\n" not in str(refused.value)

@@ -70,7 +70,8 @@ class EnvSource:
                 isolation=isolation,
                 task=task,
             )
-        ref = f"{loaded.repo_id}@{loaded.revision}"
+        # a plain EnvHub repo's entry file is part of what to load (user/name@<sha>:path): without it a worker made env.py
+        ref = getattr(loaded, "plain_source", None) or f"{loaded.repo_id}@{loaded.revision}"
         digest = loaded.manifest.content_digest
         return cls(
             ref=ref,

@@ -16,11 +16,15 @@ from typing import Any
 
 import draccus
 
-from hub_envs.errors import UsageError
+from hub_envs._text import safe_text
+from hub_envs.errors import ConfigError, UsageError
 from hub_envs.repo.refs import check_repo_flags
 
 #: what draccus accepts besides a config's fields: its config file, and help
 DRACCUS_FLAGS = ("config_path", "help", "h")
+#: the fields that consent to running a repo's code: given on the command line only, never by a ``--config_path`` file
+#: (a config someone shared describes a run; it never carries consent: docs/security.md)
+CONSENT_FIELDS = ("trust_remote_code", "trust_policy_code")
 
 
 def parse_config(prog: str, config_class: type, argv: Sequence[str], *, positional: Sequence[str] = ()) -> Any:
@@ -39,13 +43,54 @@ def parse_config(prog: str, config_class: type, argv: Sequence[str], *, position
         UsageError: a flag the command does not have, a positional value it does not take, or a value given both as a
             positional and as its flag, differently.
         ConfigError: a repo flag holding a newline, a control character or surrounding spaces
-            (:func:`~hub_envs.repo.refs.check_repo_flags`).
+            (:func:`~hub_envs.repo.refs.check_repo_flags`), or consent given by a ``--config_path`` file
+            (:func:`check_consent_from_command_line`).
         SystemExit: draccus' own answer (``--help``: 0; a value it cannot read: 2, argparse's usage and message).
     """
     argv = with_positional_as_flags(prog, argv, positional)
     check_repo_flags(argv)  # before draccus, which drops a trailing newline of a flag's value
-    check_flags(prog, argv, flag_names(config_class))
-    return draccus.parse(config_class=config_class, args=argv, prog=prog)
+    names = flag_names(config_class)
+    check_flags(prog, argv, names)
+    config = draccus.parse(config_class=config_class, args=argv, prog=prog)
+    check_consent_from_command_line(prog, config, argv, names)
+    return config
+
+
+def check_consent_from_command_line(prog: str, config: Any, argv: Sequence[str], names: Sequence[str]) -> None:
+    """Refuse consent (:data:`CONSENT_FIELDS`) that a ``--config_path`` file gave rather than the command line.
+
+    Args:
+        prog: the command, as the message names it.
+        config: the parsed config.
+        argv: the arguments it was parsed from (flags only).
+        names: its flag names (:func:`flag_names`).
+
+    Raises:
+        ConfigError: naming the field, the file and the flag to pass instead.
+
+    >>> from hub_envs.cli.audit import Config
+    >>> check_consent_from_command_line(
+    ...     "hub-envs audit", Config(trust_remote_code=True), ["--config_path=c.yaml"], ["trust_remote_code"]
+    ... )  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    hub_envs.errors.ConfigError: hub-envs audit: c.yaml sets trust_remote_code, which consents to running a repo's code: ...
+    """
+    given = dict(flags(argv))
+    if "config_path" not in given:
+        return
+    for name in names:
+        if name.rsplit(".", 1)[-1] not in CONSENT_FIELDS or name in given:
+            continue
+        value = config
+        for part in name.split("."):
+            value = getattr(value, part, None)
+        if value:
+            raise ConfigError(
+                f"{prog}: {given['config_path']} sets {name}, which consents to running a repo's code: a config file "
+                f"never carries consent. Pass --{name}=true on the command line (or trust the commit once: hub-envs trust "
+                f"user/name@<sha>), and remove it from the file."
+            )
 
 
 def flag_names(config_class: type, prefix: str = "") -> list[str]:
@@ -106,7 +151,7 @@ def check_flags(command: str, argv: Sequence[str], known: Iterable[str], *, nest
         checked = name.split(".")[0] if nested else name
         close = suggest(checked, [k for k in known if k not in DRACCUS_FLAGS])
         rest = name[len(checked) :]
-        said.append(f"--{name}" + (f": did you mean --{close}{rest}?" if close else ""))
+        said.append(f"--{safe_text(name)}" + (f": did you mean --{close}{safe_text(rest)}?" if close else ""))
     flag_word = "flag" if len(unknown) == 1 else "flags"
     raise UsageError(f"{command} has no {flag_word} {'; '.join(said)} ({command} --help lists its flags)")
 
@@ -150,7 +195,7 @@ def with_positional_as_flags(command: str, argv: Sequence[str], fields: Sequence
     for field, value in zip(fields, values):
         if field in given and given[field] != value:
             raise UsageError(
-                f"{command}: {field} was given twice, as {value!r} (positional) and as --{field}={given[field]}; give it once."
+                f"{command}: {field} was given twice, as {value!r} (positional) and as --{field}={safe_text(given[field])}; give it once."
             )
         if field not in given:
             out.append(f"--{field}={value}")

@@ -6,6 +6,7 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
+from hub_envs._text import safe_text
 from hub_envs.cli.flags import EnvFlags
 from hub_envs.errors import ConfigError
 
@@ -69,7 +70,7 @@ def main(config: Config) -> int:
     print(f"  gym id:      {loaded.gym_id}")
     print(f"  --env.type:  {loaded.env_type}")
     if loaded.is_suite:  # a benchmark suite: --env.task=a,b picks tasks (default all), loaded.for_task(name) makes one
-        print(f"  tasks:       {', '.join(loaded.tasks)} (default {loaded.config.task})")
+        print(f"  tasks:       {safe_text(', '.join(loaded.tasks))} (default {safe_text(str(loaded.config.task))})")
     print(f"  snapshot:    {loaded.path}")
     print(f"  runs:        {_isolation_text(loaded)}")
     print(f"  integrity:   {loaded.report.integrity}")
@@ -79,7 +80,7 @@ def main(config: Config) -> int:
         print(f"  cannot give: {missing}")
     if loaded.report.features is not None:
         print("  three-way feature check (declared / live / dataset):")
-        print("    " + loaded.report.features.table().replace("\n", "\n    "))
+        print("    " + "\n    ".join(safe_text(line) for line in loaded.report.features.table().splitlines()))  # repo's names
     return 0
 
 

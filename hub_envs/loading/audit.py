@@ -92,6 +92,8 @@ class AuditReport:
         tasks: a suite's tasks, each with its own checks (:class:`AuditTask`); empty for one env. The report's own
             ``checks`` then hold what concerns the whole (requirements, contract, the same features for every task),
             and ``features`` / ``episode_length`` / ``task`` are the first task's.
+        content_digest: the digest of the files the audit ran, which its consent covered (None: nothing ran); what
+            ``adopt`` publishes must have it.
     """
 
     source: str
@@ -102,6 +104,7 @@ class AuditReport:
     task: str | None = None
     requirements: list[str] = field(default_factory=list)
     tasks: list[AuditTask] = field(default_factory=list)
+    content_digest: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -270,6 +273,7 @@ def audit(
                 raise
             report.add("contract", False, str(e))
             return _finish(report, output)
+    report.content_digest = loaded.manifest.content_digest  # what consent covered: adopt publishes exactly these files
     try:
         _audit_loaded(loaded, report, seeds, steps)
     finally:

@@ -137,7 +137,9 @@ def load_env(
     iso = isolation_options(isolation, sandbox, versions, step_timeout, restart, envs_per_worker, sandbox_limits)
     if has_entry_path(repo_id):  # LeRobot's user/name[@rev]:path: an entry file of a plain EnvHub repo
         if not str(repo_id).endswith(":env.py"):
-            return _load_plain(repo_id, revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
+            return _load_plain(
+                repo_id, revision, trust_remote_code, check, token, cache_dir, config, iso, versions, content_digest
+            )
         repo_id = str(repo_id).removesuffix(":env.py")  # LeRobot's name of any repo's env.py: a published one's too
     report, timings, t0 = LoadReport(), {}, time.perf_counter()
     machine = _in_background(check_cache.machine_identity)  # what the check cache keys on, while the files download
@@ -153,9 +155,11 @@ def load_env(
             content_digest=content_digest,
         )
     except InvalidRepoFormatError as e:
-        if not is_plain_snapshot_error(e) or content_digest is not None:
+        if not is_plain_snapshot_error(e):
             raise
-        return _load_plain(str(repo_id), revision, trust_remote_code, check, token, cache_dir, config, iso, versions)
+        return _load_plain(
+            str(repo_id), revision, trust_remote_code, check, token, cache_dir, config, iso, versions, content_digest
+        )
     timings["fetch_verify"] = time.perf_counter() - t0
     try:
         t = time.perf_counter()
@@ -177,7 +181,9 @@ def load_env(
     return loaded
 
 
-def _load_plain(repo_id: str, revision, trust_remote_code, check, token, cache_dir, config, iso, versions) -> LoadedEnv:
+def _load_plain(
+    repo_id: str, revision, trust_remote_code, check, token, cache_dir, config, iso, versions, content_digest=None
+) -> LoadedEnv:
     """A plain LeRobot EnvHub repo: what it cannot take refused, then :func:`~hub_envs.loading.plain.load_plain`."""
     ref = parse_hub_path(repo_id)
     if revision is not None:
@@ -187,7 +193,14 @@ def _load_plain(repo_id: str, revision, trust_remote_code, check, token, cache_d
     if versions != "current":
         raise ConfigError(f"{repo_id}: versions={versions!r} needs the versions a publisher recorded; a plain repo records none.")
     return load_plain(
-        ref, trust_remote_code=trust_remote_code, check=check, token=token, cache_dir=cache_dir, iso=iso, stacklevel=4
+        ref,
+        trust_remote_code=trust_remote_code,
+        check=check,
+        token=token,
+        cache_dir=cache_dir,
+        iso=iso,
+        content_digest=content_digest,  # a Ray worker's binding to the driver's consent holds for plain repos too
+        stacklevel=4,
     )
 
 

@@ -28,6 +28,7 @@ from hub_envs.errors import (
     EnvCodeError,
     EnvContractError,
     HubEnvsError,
+    IntegrityError,
     InvalidRepoFormatError,
     PlainRepoWarning,
     RegistrationConflictError,
@@ -37,10 +38,18 @@ from hub_envs.errors import (
 from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading.isolated import describe_in_worker, isolated_parts, isolation_suffix
 from hub_envs.loading.loaded import LoadedEnv, LoadReport, remember
-from hub_envs.loading.source import _trust_gate
+from hub_envs.loading.source import _check_content_digest, _trust_gate
 from hub_envs.paths import PACKAGE_DIR, hub_envs_home
 from hub_envs.repo import trust_list
-from hub_envs.repo.format import MANIFEST_FILE, SUITE_FORMAT_VERSION, Manifest, content_digest, hash_files, safe_relpath
+from hub_envs.repo.format import (
+    MANIFEST_FILE,
+    SUITE_FORMAT_VERSION,
+    Manifest,
+    content_digest,
+    hash_files,
+    is_bytecode_path,
+    safe_relpath,
+)
 from hub_envs.repo.refs import parse_repo_ref
 
 #: The entry file LeRobot's ``make_env`` reads when the reference names none.
@@ -185,7 +194,9 @@ def fetch_plain(ref: PlainRef, *, token: str | None = None, cache_dir: str | Pat
 
     Raises:
         EnvRepoNotFoundError, RevisionNotFoundError, OfflineNotCachedError, HostileResponseError: from hub_io.
-        InvalidRepoFormatError: the entry file is not in the commit, or ``requirements.txt`` is malformed.
+        InvalidRepoFormatError: the entry file is not in the commit, it holds bytecode (``.pyc``, ``__pycache__/``), or
+            ``requirements.txt`` is malformed.
+        IntegrityError: the cached snapshot holds a link outside the cache's ``blobs/``, or a file the commit does not list.
     """
     from hub_envs.repo import hub_io  # heavy: huggingface_hub's client (load_env imports this module for every load)
 
@@ -194,6 +205,19 @@ def fetch_plain(ref: PlainRef, *, token: str | None = None, cache_dir: str | Pat
     names = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file() and p.name != ".gitattributes")
     for name in names:
         safe_relpath(name, where=where)
+    # as for a hub-envs repo: every file a link into the cache's blobs/, none the commit does not list (when it was listed)
+    try:
+        hub_io.check_snapshot_layout(path, set(snap.fetched or names), where=where)
+    except IntegrityError:
+        hub_io.drop_snapshot(path)  # as for a hub-envs repo: what it held is not run later, by LeRobot's loader either
+        raise
+    bytecode = [safe_text(n) for n in names if is_bytecode_path(n)]
+    if bytecode:  # the trust prompt lists .py files; Python would run the bytecode instead of the .py beside it
+        raise InvalidRepoFormatError(
+            f"{where}: holds compiled bytecode ({', '.join(bytecode[:8])}{' …' if len(bytecode) > 8 else ''}), which Python "
+            f"runs instead of the .py source beside it (what you read before consenting). hub-envs loads .py sources only: "
+            f"ask the repo's author to delete the __pycache__ folders and .pyc/.pyo files."
+        )
     if ref.entry not in names:
         found = [safe_text(n) for n in names if n.endswith(".py")]
         raise InvalidRepoFormatError(
@@ -231,16 +255,25 @@ def render_adapter(
     """
     env_text = (PACKAGE_DIR / "templates" / "plain_env.py").read_text(encoding="utf-8")
     config_text = (PACKAGE_DIR / "templates" / "plain_config.py").read_text(encoding="utf-8")
-    env_text = env_text.replace('"{{SOURCE}}"', repr(source)).replace('"{{SOURCE_ENTRY}}"', repr(entry))
-    for token, value in (
-        ("{{FEATURES}}", repr({k: (t, list(s)) for k, (t, s) in (features or {}).items()})),
-        ("{{FEATURES_MAP}}", repr(dict(features_map or {}))),
-        ("{{TASK}}", repr(task)),
-        ("{{FPS}}", repr(int(fps))),
-        ("{{EPISODE_LENGTH}}", repr(int(episode_length))),
-    ):
-        config_text = config_text.replace(token, value)
-    return {f"{ENV_MODULE}.py": env_text.encode(), f"{CONFIG_MODULE}.py": config_text.encode()}
+    env_values = {'"{{SOURCE}}"': repr(source), '"{{SOURCE_ENTRY}}"': repr(entry)}
+    config_values = {
+        "{{FEATURES}}": repr({k: (t, list(s)) for k, (t, s) in (features or {}).items()}),
+        "{{FEATURES_MAP}}": repr(dict(features_map or {})),
+        "{{TASK}}": repr(task),
+        "{{FPS}}": repr(int(fps)),
+        "{{EPISODE_LENGTH}}": repr(int(episode_length)),
+    }
+    return {
+        f"{ENV_MODULE}.py": _fill(env_text, env_values).encode(),
+        f"{CONFIG_MODULE}.py": _fill(config_text, config_values).encode(),
+    }
+
+
+def _fill(template: str, values: dict[str, str]) -> str:
+    """``template`` with each placeholder replaced in one pass: a value (an entry file's name, an env's task) that holds
+    a placeholder's text is never read again as one (red-team finding, session 29: an entry file named
+    ``x"{{SOURCE_ENTRY}}".py`` made the adapter's source, so code of the file name's choosing)."""
+    return re.sub("|".join(re.escape(k) for k in sorted(values, key=len, reverse=True)), lambda m: values[m.group(0)], template)
 
 
 def code_folder_files(src: PlainSource, adapter: dict[str, bytes]) -> dict[str, bytes]:
@@ -306,6 +339,7 @@ def load_plain(
     token: str | None,
     cache_dir: str | Path | None,
     iso: IsolationOptions,
+    content_digest: str | None = None,
     stacklevel: int = 3,
 ) -> LoadedEnv:
     """Load a plain LeRobot EnvHub repo: resolve, fetch and hash (:func:`fetch_plain`), warn when unpinned, the trust
@@ -317,13 +351,15 @@ def load_plain(
         ref: the reference (:func:`parse_hub_path`).
         trust_remote_code, check, token, cache_dir: as :func:`hub_envs.load_env` takes them.
         iso: the isolation options.
+        content_digest: the digest of the files consent was given for (a Ray worker gets its driver's); other content
+            is refused before anything of it is imported.
         stacklevel: of the warnings.
 
     Returns:
         A :class:`LoadedEnv` whose ``missing_guarantees`` lists what it cannot give.
 
     Raises:
-        UntrustedCodeError: no consent for this commit and content.
+        UntrustedCodeError: no consent for this commit and content, or content other than ``content_digest``.
         MissingRequirementsError: a requirement of ``requirements.txt`` is not installed.
         EnvContractError: the entry file breaks LeRobot's EnvHub contract (no ``make_env``, another return type).
         EnvCodeError: the repo's code raised.
@@ -350,9 +386,18 @@ def load_plain(
         repo_id=ref.repo,
         requirements=src.requirements,
     )
+    _check_content_digest(content_digest, source_manifest, src.where)  # before consent: a binding it was given for
     try:
         report.trust = _trust_gate(ref.repo, src.sha, source_manifest, src.path, trust_remote_code, trusted)
     except UntrustedCodeError as e:  # its load line names the entry file too, and what changed since a trusted commit
+        if MANIFEST_FILE in src.files:  # a hub-envs repo by an entry file: its trust entry binds its manifest's digest
+            raise UntrustedCodeError(
+                f"{src.where} is a hub-envs repo (it has {MANIFEST_FILE}), loaded here as a plain EnvHub repo by an entry "
+                f"file ({safe_text(ref.entry)}); nothing was imported. Consent recorded for it (hub-envs trust) covers the "
+                f"files its manifest lists, checked against it, so it does not cover this load: load it as a hub-envs repo, "
+                f'load_env("{src.where}"), or pass trust_remote_code=True: load_env("{ref.text(src.sha)}", '
+                f"trust_remote_code=True)."
+            ) from None
         message = str(e).replace(f'load_env("{src.where}"', f'load_env("{ref.text(src.sha)}"')
         raise UntrustedCodeError(message + _changed_since_trusted(src, trusted)) from None
     report.requirements = list(src.requirements)

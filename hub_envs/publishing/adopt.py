@@ -12,19 +12,18 @@ Example:
 from __future__ import annotations
 
 import json
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from hub_envs._text import safe_text
-from hub_envs.errors import EnvContractError
+from hub_envs.errors import EnvContractError, IntegrityError
 from hub_envs.loading.audit import AuditCheck, AuditReport, audit
 from hub_envs.loading.plain import (
     CONFIG_ENTRY_POINT,
     DEFAULT_EPISODE_LENGTH,
     ENV_ENTRY_POINT,
-    SOURCE_DIR,
+    code_folder_files,
     fetch_plain,
     parse_hub_path,
     render_adapter,
@@ -88,13 +87,23 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
 
     Returns:
         ``folder``.
+
+    Raises:
+        IntegrityError: the commit now holds other files than the audit ran (and consent covered): the endpoint served
+            other content under the same commit id, or the cache changed.
     """
     ref = parse_hub_path(from_repo)
-    src = fetch_plain(ref, token=token)
+    src = fetch_plain(ref, token=token)  # fetched again: held to the digest of what the audit ran, with consent
+    if report.content_digest is None or src.digest != report.content_digest:
+        raise IntegrityError(
+            f"{src.where}: its files now have content digest {src.digest[:16]}…, not {str(report.content_digest)[:16]}… "
+            f"as when it was audited (and its code run, with consent): the endpoint serves other files under the same "
+            f"commit id, or the cache changed. Nothing was published; adopt again, and check what it holds."
+        )
     folder.mkdir(parents=True, exist_ok=True)
-    for rel in src.files:
-        (folder / SOURCE_DIR / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(src.path / rel, folder / SOURCE_DIR / rel)
+    for rel, data in code_folder_files(src, {}).items():  # each file's bytes checked against its hash as they are copied
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_bytes(data)
     features = {k: (t, tuple(s)) for k, (t, s) in report.features.items()}
     lengths = [t.episode_length or DEFAULT_EPISODE_LENGTH for t in report.tasks] or [
         report.episode_length or DEFAULT_EPISODE_LENGTH
@@ -117,15 +126,23 @@ def adopted_folder(from_repo: str, folder: Path, report: AuditReport, *, token: 
     tasks = ""
     if report.tasks:  # a suite: its name is the manifest's, which the adopted env.py gives LeRobot as the suite's
         name = str(report.tasks[0].suite)
-        tasks = f"tasks = [{', '.join(json.dumps(t.task) for t in report.tasks)}]\n"
-    deps = ", ".join(json.dumps(r) for r in src.requirements)
+        tasks = f"tasks = [{', '.join(_toml_string(t.task) for t in report.tasks)}]\n"
+    deps = ", ".join(_toml_string(r) for r in src.requirements)
+    description = f"Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/)."
     (folder / "pyproject.toml").write_text(
-        f'[project]\nname = {json.dumps(name)}\nversion = "0.0.0"\n'
-        f"description = {json.dumps(f'Adopted from the plain LeRobot EnvHub repo {ref.text(src.sha)} (its files unchanged in source/).')}\n"
+        f'[project]\nname = {_toml_string(name)}\nversion = "0.0.0"\n'
+        f"description = {_toml_string(description)}\n"
         f"dependencies = [{deps}]\n\n"
-        f"[tool.hub-envs]\nenv = {json.dumps(ENV_ENTRY_POINT)}\nconfig = {json.dumps(CONFIG_ENTRY_POINT)}\n{tasks}"
+        f"[tool.hub-envs]\nenv = {_toml_string(ENV_ENTRY_POINT)}\nconfig = {_toml_string(CONFIG_ENTRY_POINT)}\n{tasks}",
+        encoding="utf-8",
     )
     return folder
+
+
+def _toml_string(text: str) -> str:
+    """``text`` as a TOML basic string: JSON's escapes but not its ``\\uD83D\\uDE00`` surrogate pairs, which TOML refuses
+    (an entry file or a requirement marker outside the BMP made an unreadable pyproject.toml: red-team, session 29)."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 def adopt(
@@ -159,6 +176,7 @@ def adopt(
             requirements; a suite: any task's, features that differ between tasks, several suites, task ids other than
             ``0..N-1``); the message lists them.
         UntrustedCodeError: no consent to run the source's code.
+        IntegrityError: the source commit's files changed between the audit and the copy (:func:`adopted_folder`).
         HubEnvsError: what push_env raises (a check failed, no write access...).
     """
     check_repo_id(repo_id, what="--repo_id")

@@ -129,6 +129,58 @@ def _cell(value) -> str:
     return f"`{text}`" if text.strip() else "-"
 
 
+#: What an env's own text (its task, a task's instruction) may not bring into the card as Markdown: every character
+#: CommonMark or GFM gives a meaning inside a line (emphasis, code, links, images, HTML, table cells), backslash-escaped.
+_MARKDOWN_INLINE = re.compile(r"([\\`*_\[\]<>!&|~])")
+_ENV_TEXT_MAX = 200
+
+
+def _one_line(value: Any) -> str:
+    """``value`` as one line of printable text (control, bidi and line-break characters become spaces), at most 200
+    characters."""
+    text = " ".join("".join(c if c.isprintable() else " " for c in str(value)).split())
+    return text if len(text) <= _ENV_TEXT_MAX else text[: _ENV_TEXT_MAX - 1] + "…"
+
+
+def env_text(value: Any) -> str:
+    """Text an env's code chose (a task instruction) as inert Markdown on one line: what it says, nothing it could make
+    the card do (no heading, code block, link, HTML or extra table cell: adopt renders another author's env into your card).
+
+    Args:
+        value: the text.
+
+    Returns:
+        The escaped text (``-`` for none).
+
+    >>> env_text("reach the left target"), env_text("x |\\n\\n## Load it <img src=x>")
+    ('reach the left target', 'x \\\\| ## Load it \\\\<img src=x\\\\>')
+    """
+    text = _one_line(value) if value is not None else ""
+    return _MARKDOWN_INLINE.sub(r"\\\1", text) if text.strip() else "-"
+
+
+def env_span(value: Any, *, table: bool = True) -> str:
+    """An env's name for something (its task) as one inert code span: one line, fenced with more backticks than it holds,
+    ``|`` escaped in a table cell (GFM splits cells before code spans).
+
+    Args:
+        value: the text.
+        table: whether the span sits in a table cell.
+
+    Returns:
+        The code span (``-`` for none).
+
+    >>> env_span("reach-left"), env_span("a`b |\\n## x")
+    ('`reach-left`', '``a`b \\\\| ## x``')
+    """
+    text = _one_line(value) if value is not None else ""
+    if not text.strip():
+        return "-"
+    fence = "`" * (max((len(run) for run in re.findall(r"`+", text)), default=0) + 1)
+    pad = " " if text[0] == "`" or text[-1] == "`" else ""
+    return f"{fence}{pad}{text.replace('|', chr(92) + '|') if table else text}{pad}{fence}"
+
+
 def reproduced_table(entries) -> str:
     """The card's "Reproduced on" table: one row per merged attestation (:class:`hub_envs.repo.attestations.AttestationEntry`
     with a valid attestation), oldest first; "" without any.
@@ -295,6 +347,8 @@ def render_card(
         content_tag=content_tag,
         content_digest=manifest.content_digest,
         task=config.get("task"),
+        span=env_span,  # an env's own text goes into the card inert (adopt renders another author's env)
+        text=env_text,
         fps=config.get("fps"),
         episode_length=config.get("episode_length"),
         config_overrides=manifest.config_overrides,

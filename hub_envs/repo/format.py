@@ -612,6 +612,12 @@ def _check_tasks(data: dict, where: str) -> None:
         raise ManifestError(
             f"{where}: 'tasks' must name distinct tasks (non-empty strings), got {safe_text(repr(names))[:200]}. {_REPUBLISH}"
         )
+    bad = [n for n in names if not _TASK_RE.match(n) or n != n.strip()]  # the rule push_env holds pyproject's tasks to
+    if bad:  # a manifest written by hand must not bring escape sequences or line breaks to a terminal, a card or a report
+        raise ManifestError(
+            f"{where}: 'tasks' names {safe_text(repr(bad[0])[:80])}: a task name is one line of 1 to 200 printable "
+            f"characters, without commas or surrounding spaces (as [tool.hub-envs] tasks). {_REPUBLISH}"
+        )
     for i, t in enumerate(tasks):
         episodes, seeds = t.get("episodes"), t.get("seeds")
         if not (
