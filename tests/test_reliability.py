@@ -34,7 +34,7 @@ from huggingface_hub import snapshot_download
 from hub_envs import errors, load_env, push_env
 from hub_envs.envcode.registration import snapshot_registries
 from hub_envs.paths import hub_envs_home
-from hub_envs.repo.format import FORMAT_VERSION, MANIFEST_FILE, content_digest, hash_files, list_files
+from hub_envs.repo.format import FORMAT_VERSION, MANIFEST_FILE, SINGLE_TASK_FORMAT_VERSION, content_digest, hash_files, list_files
 from hub_envs.repo.requirements import installed_version
 from hub_envs.testing import hub_environment
 
@@ -342,7 +342,12 @@ CASES: list[Case] = [
     repo_case(
         "manifest-unknown-field",
         E.ManifestError,
-        ("hub_env.json", f"unknown field(s) ['surprise'] for format_version {FORMAT_VERSION}", "edited by hand", "push_env"),
+        (
+            "hub_env.json",
+            f"unknown field(s) ['surprise'] for format_version {SINGLE_TASK_FORMAT_VERSION}",
+            "edited by hand",
+            "push_env",
+        ),
         manifest=setitem("surprise", 1),
     ),
     repo_case(

@@ -30,6 +30,7 @@ from hub_envs.errors import (
     HubEnvsError,
     IntegrityError,
     InvalidRepoFormatError,
+    ManifestError,
     PlainRepoWarning,
     RegistrationConflictError,
     UnpinnedRevisionWarning,
@@ -367,6 +368,7 @@ def load_plain(
     report = LoadReport()
     trusted = trust_list.read_trust_list()  # before any download: nothing a download writes can change it
     src = fetch_plain(ref, token=token, cache_dir=cache_dir)
+    check_not_published_by_push_env(src)
     report.integrity = f"{len(src.files)} files hashed (no manifest to verify them against)"
     if src.ref.revision != src.sha:
         warnings.warn(
@@ -610,6 +612,30 @@ def check_contract(loaded: LoadedEnv, *, where: str) -> None:
             f"{where}: its make_env(n_envs=1, use_async_envs=False) raised {type(e).__name__}: {safe_text(e)}"
         ) from e
     env.close()
+
+
+def check_not_published_by_push_env(src: PlainSource) -> None:
+    """Refuse a repo push_env published whose ``hub_env.json`` is gone: its ``env.py`` is push_env's, which needs the
+    manifest, so loading it as a plain repo could only fail later with a less useful error.
+
+    Args:
+        src: the fetched repo.
+
+    Raises:
+        ManifestError: the entry file is push_env's ``env.py`` and the commit holds no manifest.
+    """
+    entry = src.path / src.ref.entry
+    template = (PACKAGE_DIR / "templates" / "env_entry.py").read_text(encoding="utf-8").partition("\n")[0]
+    try:
+        with open(entry, encoding="utf-8", errors="replace") as f:
+            first = f.readline().rstrip("\n")
+    except OSError:
+        return
+    if first == template:
+        raise ManifestError(
+            f"{src.where}: {MANIFEST_FILE} is missing, though its {src.ref.entry} was written by push_env: the commit lost "
+            f"its manifest, without which nothing of it can be verified. Re-publish the env with `push_env --env_dir=...`."
+        )
 
 
 def is_plain_snapshot_error(error: BaseException) -> bool:
