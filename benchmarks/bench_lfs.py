@@ -127,7 +127,9 @@ def _run(tmp: Path, push_mb: int, size_mb: int) -> dict:
     results: dict[str, float] = {}
     folder = tmp / "push"
     write_random_files(folder, push_mb)
-    with HubServer(tmp / "hub-data") as server, hub_environment(server.endpoint, tmp / "home"):
+    # the inline commit of ``size_mb`` is one base64 line: the server's default cap (16 MiB, a DoS limit) refuses it
+    line_cap = {"HUB_ENVS_SERVER_MAX_LINE_MB": str(size_mb * 4 // 3 + 1)}
+    with HubServer(tmp / "hub-data", env=line_cap) as server, hub_environment(server.endpoint, tmp / "home"):
         HfApi().create_repo("bench/big")
         results["server_idle_rss_mb"] = rss_mb(server.process.pid, "VmRSS")
         script = (
