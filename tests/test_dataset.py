@@ -389,7 +389,7 @@ def test_layout_is_the_installed_lerobots():
 def test_same_inputs_give_byte_identical_folders(tmp_path, image_rollouts):
     s1 = write(tmp_path / "a", image_rollouts, True, extra_info={"k": [1, 2]})
     again = run_episodes(lambda: DictPendulum(image=True), SEEDS, max_steps=100, workers=2, progress=False)
-    s2 = write(tmp_path / "b", again, True, extra_info={"k": [1, 2]}, encode_threads=0)
+    s2 = write(tmp_path / "b", again, True, extra_info={"k": [1, 2]}, encode_in_background=False)
     assert s1.fingerprint == s2.fingerprint
     files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
@@ -528,3 +528,52 @@ def test_features_from_lerobot_env_config():
 
 def test_hf_home_is_isolated(offline_hf_home):
     assert os.environ["HF_HOME"] == str(offline_hf_home) and os.environ["HF_HUB_OFFLINE"] == "1"
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4])
+def test_png_frames_decode_to_the_recorded_pixels_in_pil_and_opencv(channels):
+    """The PNG encoder makes standard PNGs: PIL (LeRobot's decoder) and OpenCV return the exact pixels,
+    for every channel count and odd sizes, and the same frames always give the same bytes."""
+    import io
+
+    import PIL.Image
+
+    from hub_envs.dataset.codec import decode_png, encode_png
+
+    rng = np.random.default_rng(channels)
+    for h, w in ((1, 1), (5, 7), (48, 64)):
+        noisy = rng.integers(0, 256, (3, h, w, channels), dtype=np.uint8)
+        flat = np.repeat(np.repeat(rng.integers(0, 4, (3, 1, 1, channels), dtype=np.uint8) * 60, h, axis=1), w, axis=2)
+        for frames in (noisy, flat):
+            pngs = encode_png(frames)
+            assert pngs == encode_png(frames.copy())
+            for png, frame in zip(pngs, frames, strict=True):
+                with PIL.Image.open(io.BytesIO(png)) as img:
+                    pil = np.asarray(img)
+                np.testing.assert_array_equal(pil.reshape(h, w, channels), frame)
+                np.testing.assert_array_equal(decode_png(png), frame)
+
+
+def test_scalar_columns_stats_computed_together_equal_each_computed_alone():
+    """An episode's scalar columns get their stats in one batch: the values are those of each column alone, bit for
+    bit (the same numpy summation order), in the dtypes the installed LeRobot writes."""
+    from hub_envs.dataset.stats import vector_stats, vector_stats_many
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 129, 200, 1001):
+        columns = [
+            np.arange(n) / 30.0,  # timestamp
+            rng.normal(size=(n, 1)).astype(np.float32),
+            rng.normal(size=n).astype(np.float32) * 1e4,
+            rng.random(n) < 0.2,
+            np.arange(n, dtype=np.int64) + 10**6,
+            np.full(n, 3, dtype=np.int64),
+            rng.normal(size=(n, 3)).astype(np.float32),  # a vector column: computed alone
+        ]
+        together = vector_stats_many(columns)
+        for col, got in zip(columns, together, strict=True):
+            alone = vector_stats(col)
+            assert got.keys() == alone.keys()
+            for stat in alone:
+                assert got[stat].dtype == alone[stat].dtype and got[stat].shape == alone[stat].shape, (n, stat)
+                assert np.array_equal(got[stat], alone[stat]), (n, stat, got[stat], alone[stat])

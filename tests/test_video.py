@@ -234,7 +234,7 @@ def test_video_dataset_matches_lerobot_own_writer(tmp_path, gop):
 
 def test_video_datasets_are_byte_deterministic(tmp_path, video_ds):
     root, summary = video_ds
-    again = _write(tmp_path / "again", encode_threads=0)
+    again = _write(tmp_path / "again", encode_in_background=False)
     assert again.fingerprint == summary.fingerprint == dataset_fingerprint(root)
 
 

@@ -27,6 +27,8 @@ __all__ = ["encode_png", "decode_png", "PNG_CHANNELS"]
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_IEND = struct.pack(">I", 0) + b"IEND" + struct.pack(">I", zlib.crc32(b"IEND"))
 _PNG_COLOR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}  # channels -> gray, gray+alpha, RGB, RGBA
+_IDAT_CRC = zlib.crc32(b"IDAT")
+_U32 = struct.Struct(">I").pack
 #: The channel counts a PNG frame can have.
 PNG_CHANNELS = frozenset(_PNG_COLOR_TYPE)
 
@@ -55,8 +57,12 @@ def encode_png(frames: np.ndarray, level: int = 1) -> list[bytes]:
     filtered[:, :, 0] = 2  # "Up": byte minus the byte above (mod 256)
     filtered[:, 0, 1:] = rows[:, 0]
     np.subtract(rows[:, 1:], rows[:, :-1], out=filtered[:, 1:, 1:])
-    compress = zlib.compress
-    return [header + _png_chunk(b"IDAT", compress(filtered[i], level)) + _PNG_IEND for i in range(t)]
+    compress, crc32, u32 = zlib.compress, zlib.crc32, _U32
+    out = []
+    for frame in filtered:  # one zlib stream per frame: each PNG stands alone
+        data = compress(frame, level)
+        out.append(b"".join((header, u32(len(data)), b"IDAT", data, u32(crc32(data, _IDAT_CRC)), _PNG_IEND)))
+    return out
 
 
 @functools.cache
@@ -78,6 +84,8 @@ def decode_png(data: bytes) -> np.ndarray:
         if img is not None and img.dtype == np.uint8:
             if img.ndim == 3 and img.shape[2] == 3:
                 img = _cv2.cvtColor(img, _cv2.COLOR_BGR2RGB)
+            elif img.ndim == 3 and img.shape[2] == 4 and len(data) > 25 and data[25] == 4:  # IHDR colour type 4
+                img = np.ascontiguousarray(img[..., [0, 3]])  # gray + alpha, which OpenCV expands to BGRA (B = G = R)
             elif img.ndim == 3 and img.shape[2] == 4:
                 img = _cv2.cvtColor(img, _cv2.COLOR_BGRA2RGBA)
         else:

@@ -14,6 +14,8 @@ stats with LeRobot's formula.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from hub_envs._compat import stats_extremes_as_float
@@ -23,7 +25,7 @@ try:  # LeRobot depends on opencv; used only for fast image histograms
 except ImportError:  # pragma: no cover
     _cv2 = None
 
-__all__ = ["QUANTILES", "QUANTILE_KEYS", "STATS_NOTE", "vector_stats", "image_stats", "aggregate_stats"]
+__all__ = ["QUANTILES", "QUANTILE_KEYS", "STATS_NOTE", "vector_stats", "vector_stats_many", "image_stats", "aggregate_stats"]
 
 STATS_EXTREMES_AS_FLOAT = stats_extremes_as_float()
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
@@ -37,13 +39,17 @@ STATS_NOTE = (
 # --- stats (same keys/shapes as lerobot.datasets.compute_stats) --------------------------------
 
 
+@functools.lru_cache(maxsize=64)
 def _sample_indices(n: int) -> np.ndarray:
-    """LeRobot's image frame sampling (compute_stats.sample_indices / estimate_num_samples)."""
+    """LeRobot's image frame sampling (compute_stats.sample_indices / estimate_num_samples); made once per episode
+    length (read-only)."""
     min_num, max_num, power = 100, 10_000, 0.75
     if n < min_num:
         min_num = n
     num = max(min_num, min(int(n**power), max_num))
-    return np.round(np.linspace(0, n - 1, num)).astype(int)
+    indices = np.round(np.linspace(0, n - 1, num)).astype(int)
+    indices.flags.writeable = False
+    return indices
 
 
 def _downsample(images: np.ndarray) -> np.ndarray:
@@ -87,6 +93,41 @@ def vector_stats(arr: np.ndarray) -> dict[str, np.ndarray]:
     return stats
 
 
+def vector_stats_many(columns: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
+    """:func:`vector_stats` of each column, the same values bit for bit, with the scalar columns ((T,) or (T, 1)) of one
+    length done together: one row each of a (K, T) float64 array, so a few numpy calls serve them all (an episode's
+    ``next.*``, ``timestamp`` and index columns would otherwise cost a dozen calls each)."""
+    out: list[dict[str, np.ndarray] | None] = [None] * len(columns)
+    scalar = [i for i, c in enumerate(columns) if c.ndim == 1 or (c.ndim == 2 and c.shape[1] == 1)]
+    by_length: dict[int, list[int]] = {}
+    for i in scalar:
+        by_length.setdefault(columns[i].shape[0], []).append(i)
+    for n, idx in by_length.items():
+        if len(idx) < 2 or n == 0:
+            continue
+        rows = np.empty((len(idx), n), dtype=np.float64)
+        for r, i in enumerate(idx):
+            rows[r] = columns[i].reshape(n)
+        mean = rows.mean(axis=1)  # each row contiguous: numpy's pairwise sum, as for a lone (T, 1) column
+        std = np.sqrt(np.maximum(0.0, ((rows - mean[:, None]) ** 2).mean(axis=1)))
+        quantiles = _quantiles(rows.T)  # (Q, K)
+        if STATS_EXTREMES_AS_FLOAT:
+            mins, maxs = rows.min(axis=1), rows.max(axis=1)
+        for r, i in enumerate(idx):
+            col = columns[i].reshape(n, 1)
+            stats = {
+                "min": mins[r : r + 1] if STATS_EXTREMES_AS_FLOAT else col.min(axis=0),
+                "max": maxs[r : r + 1] if STATS_EXTREMES_AS_FLOAT else col.max(axis=0),
+                "mean": mean[r : r + 1],
+                "std": std[r : r + 1],
+                "count": np.array([n], dtype=np.int64),
+            }
+            for q, key in enumerate(QUANTILE_KEYS):
+                stats[key] = quantiles[q, r : r + 1]
+            out[i] = stats
+    return [stats if stats is not None else vector_stats(col) for stats, col in zip(out, columns, strict=True)]
+
+
 def _channel_histograms(images: np.ndarray) -> np.ndarray:
     """(C, 256) int64 pixel counts per channel of (N, H, W, C) uint8 images."""
     n, h, w, c = images.shape
@@ -113,13 +154,12 @@ def image_stats(frames: np.ndarray) -> dict[str, np.ndarray]:
         "mean": mean,
         "std": np.sqrt(var),
     }
-    quantiles = []
-    for q in QUANTILES:  # np.quantile's "linear" method, from the histogram
-        pos = (total - 1) * q
-        lo, hi = np.floor(pos).astype(np.int64), np.ceil(pos).astype(np.int64)
-        v_lo = np.array([np.searchsorted(cum[i], lo[i], side="right") for i in range(c)], dtype=np.float64)
-        v_hi = np.array([np.searchsorted(cum[i], hi[i], side="right") for i in range(c)], dtype=np.float64)
-        quantiles.append(v_lo + (pos - lo) * (v_hi - v_lo))
+    # np.quantile's "linear" method from the histogram: the values at sorted positions floor(pos) and ceil(pos)
+    pos = (total[:, None] - 1) * np.asarray(QUANTILES)[None, :]  # (C, Q)
+    lo, hi = np.floor(pos).astype(np.int64), np.ceil(pos).astype(np.int64)
+    v_lo = (cum[:, None, :] <= lo[:, :, None]).sum(axis=2).astype(np.float64)  # searchsorted(cum[c], lo, "right")
+    v_hi = (cum[:, None, :] <= hi[:, :, None]).sum(axis=2).astype(np.float64)
+    quantiles = (v_lo + (pos - lo) * (v_hi - v_lo)).T  # (Q, C)
     out = {k: (v / 255.0).reshape(c, 1, 1) for k, v in stats.items()}
     out["count"] = np.array([n_img], dtype=np.int64)
     for key, qv in zip(QUANTILE_KEYS, quantiles, strict=True):

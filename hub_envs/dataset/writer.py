@@ -21,7 +21,7 @@ each episode's span in the episodes metadata (``videos/<key>/from_timestamp``...
 ``datasets.Image`` struct ``{bytes: PNG, path: "frame-000012.png"}``, exactly the layout LeRobot's
 ``embed_images`` produces, so LeRobot decodes them with PIL to the same tensors. PNGs are written
 by a small vectorised encoder (filter "Up" + zlib level 1) instead of PIL at level 6: same pixels,
-~6x faster. Differences from LeRobot's writer, none visible to its reader:
+~6x faster, in a helper process while the next episodes are made (:mod:`hub_envs.dataset.png_process`). Differences from LeRobot's writer, none visible to its reader:
 
 * Stats are exact (:mod:`hub_envs.dataset.stats`; ``meta/hub_envs.json["stats"]`` says how they differ).
   Global stats aggregate the episode stats with LeRobot's formula (1000 episodes at a time).
@@ -66,6 +66,7 @@ import numpy as np
 from huggingface_hub.utils import tqdm
 
 from hub_envs._compat import lerobot_video_info, tasks_index_name
+from hub_envs.dataset import png_process
 from hub_envs.dataset.codec import PNG_CHANNELS, encode_png
 from hub_envs.dataset.layout import (
     CODEBASE_VERSION,
@@ -84,7 +85,7 @@ from hub_envs.dataset.layout import (
     VIDEO_PATH,
 )
 from hub_envs.dataset.reader import dataset_fingerprint
-from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats
+from hub_envs.dataset.stats import STATS_NOTE, aggregate_stats, image_stats, vector_stats_many
 from hub_envs.dataset.video import DEFAULT_VIDEO_GOP, check_video_gop, encode_episode, frames_sha256, join_videos
 from hub_envs.errors import ConfigError, DatasetError, HubEnvsError
 
@@ -505,18 +506,26 @@ class _Writer:
             arr = (arr * 255).astype(np.uint8)  # LeRobot's image_array_to_pil_image conversion
         return np.ascontiguousarray(arr)
 
-    def encode(self, ep: _Episode) -> _Episode:
+    def encode(self, ep: _Episode, images: list[tuple[list[bytes], dict[str, np.ndarray]]] | None = None) -> _Episode:
         """PNG-encode images, video-encode video features (one MP4 per episode and key, joined into the
-        dataset's files by :meth:`write`) and compute episode stats (thread-safe, no shared state)."""
-        for key in self.image_keys:
-            ep.pngs[key] = encode_png(ep.columns[key])
+        dataset's files by :meth:`write`) and compute episode stats (thread-safe, no shared state). ``images``: the
+        image keys' PNGs and stats, made elsewhere (:mod:`hub_envs.dataset.png_process`), in ``image_keys`` order."""
+        for n, key in enumerate(self.image_keys):
+            if images is None:
+                ep.pngs[key] = encode_png(ep.columns[key])
+            else:
+                ep.pngs[key], ep.stats[key] = images[n]
         for key in self.video_keys:
             part = self.tmp / ".video-parts" / key / f"episode-{ep.index:06d}.mp4"
             ep.videos[key] = encode_episode(ep.columns[key], part, self.fps, self.video_gop)
             ep.digests[key] = frames_sha256(ep.columns[key])  # what replay checks the rendered frames against
-        for key, ft in self.features.items():
-            col = ep.columns[key]
-            ep.stats[key] = image_stats(col) if ft["dtype"] in ("image", "video") else vector_stats(col)
+        numeric = [key for key, ft in self.features.items() if ft["dtype"] not in ("image", "video")]
+        for key, stats in zip(numeric, vector_stats_many([ep.columns[key] for key in numeric]), strict=True):
+            ep.stats[key] = stats
+        for key in self.image_keys + self.video_keys:
+            if key not in ep.stats:  # made with the PNGs elsewhere
+                ep.stats[key] = image_stats(ep.columns[key])
+        ep.stats = {key: ep.stats[key] for key in self.features}  # in the features' order, as the metadata columns are
         ep.table = self._table(ep)
         return ep
 
@@ -782,7 +791,7 @@ def write_lerobot_dataset(
     chunks_size: int = DEFAULT_CHUNK_SIZE,
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
     video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
-    encode_threads: int | None = None,
+    encode_in_background: bool | None = None,
     video_gop: int | None = None,
 ) -> DatasetSummary:
     """Write ``episodes`` as a LeRobot v3.0 dataset folder at ``root`` and summarize it.
@@ -804,8 +813,9 @@ def write_lerobot_dataset(
         progress: show a progress bar.
         overwrite: replace an existing folder at ``root`` (only once the new one is complete).
         chunks_size, data_files_size_in_mb, video_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).
-        encode_threads: threads that PNG/video-encode and compute stats of camera episodes while the
-            next episode is produced; 0 does it inline. Default 1 (0 on a single core).
+        encode_in_background: encode camera frames (and compute their stats) while the next episodes are made: image
+            features in a helper process (:mod:`hub_envs.dataset.png_process`), video features on a thread. False:
+            inline. Default: when this machine has more than one CPU. The files are the same either way.
         video_gop: the keyframe interval of dtype ``"video"`` features (default
             :data:`hub_envs.dataset.video.DEFAULT_VIDEO_GOP`; 2 is LeRobot's own), recorded as ``video.g``.
 
@@ -844,8 +854,8 @@ def write_lerobot_dataset(
         total = None
     bar = _progress(total, f"writing {root.name}", progress)
     try:
-        n_threads = (1 if (os.cpu_count() or 1) > 1 else 0) if encode_threads is None else int(encode_threads)
-        _write_episodes(writer, episodes, n_threads, bar)
+        background = (os.cpu_count() or 1) > 1 if encode_in_background is None else bool(encode_in_background)
+        _write_episodes(writer, episodes, background, bar)
         if writer.n_episodes == 0:
             raise DatasetError(f"No episodes were given for {root}; a LeRobot dataset needs at least one.")
         writer.finish(robot_type=robot_type, extra_info=extra_info)
@@ -866,19 +876,24 @@ def write_lerobot_dataset(
     return _summary(writer, root, repo_id, int(fps), feats, fingerprint)
 
 
-def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], n_threads: int, bar: Any) -> None:
-    """Prepare, encode (PNG and stats, on ``n_threads`` threads when there are images) and write, in order."""
-    if not (writer.image_keys or writer.video_keys) or n_threads <= 0:
+def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], background: bool, bar: Any) -> None:
+    """Prepare, encode and write, in order: inline; or the camera frames encoded beside the episodes being made
+    (image features only: in a helper process; with video features: on a thread)."""
+    if not (writer.image_keys or writer.video_keys) or not background:
         for ep in episodes:
             writer.write(writer.encode(writer.prepare(ep)))
             bar.update(1)
         return
-    with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hub-envs-png") as pool:
+    encoder = png_process.acquire() if not writer.video_keys else None
+    if encoder is not None:
+        _write_encoded_elsewhere(writer, episodes, encoder, bar)
+        return
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hub-envs-encode") as pool:
         pending: deque = deque()
         try:
             for ep in episodes:
                 pending.append(pool.submit(writer.encode, writer.prepare(ep)))
-                while len(pending) > n_threads:
+                while len(pending) > 1:
                     writer.write(pending.popleft().result())
                     bar.update(1)
             while pending:
@@ -887,6 +902,32 @@ def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], n_thread
         finally:
             for fut in pending:
                 fut.cancel()
+
+
+def _write_encoded_elsewhere(
+    writer: _Writer, episodes: Iterable[EpisodeFrames], encoder: png_process.PngProcess, bar: Any
+) -> None:
+    """The image features' PNGs and stats made by ``encoder`` while the next episodes are made; the rest here."""
+    pending: deque[_Episode] = deque()
+
+    def write_oldest() -> None:
+        ep = pending.popleft()
+        writer.write(writer.encode(ep, images=encoder.result()))
+        bar.update(1)
+
+    finished = False
+    try:
+        for frames in episodes:
+            ep = writer.prepare(frames)
+            if encoder.full:
+                write_oldest()
+            encoder.submit([ep.columns[key] for key in writer.image_keys])
+            pending.append(ep)
+        while pending:
+            write_oldest()
+        finished = True
+    finally:
+        png_process.release(encoder, ok=finished)
 
 
 def _summary(writer: _Writer, root: Path, repo_id: str, fps: int, feats: dict, fingerprint: str) -> DatasetSummary:
