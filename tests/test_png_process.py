@@ -1,11 +1,15 @@
-"""The helper process that PNG-encodes camera episodes while the next ones are made: same files as encoding inline,
-nothing left behind when it fails or is stopped, a forked process never uses its parent's helper."""
+"""The helper process that PNG-encodes camera episodes while the next ones are made: the same files as encoding
+inline; nothing left behind however the dataset or either process ends; a forked process (a pool worker, a helper)
+neither uses nor ends its parent's helper."""
 
 from __future__ import annotations
 
-import glob
 import os
 import signal
+import subprocess
+import sys
+import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -17,28 +21,28 @@ from hub_envs.dataset.stats import image_stats
 from hub_envs.dataset.writer import EpisodeFrames, write_lerobot_dataset
 from hub_envs.errors import DatasetError
 
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FEATURES = {
     "observation.image": {"dtype": "image", "shape": [16, 24, 3], "names": ["height", "width", "channels"]},
     "action": {"dtype": "float32", "shape": [1], "names": ["u"]},
 }
 
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the helper needs fork and memfd (Linux)")
 
-def _episodes(n: int, length: int = 30, fail_at: int | None = None):
+
+def _episodes(n: int, length: int = 30, fail_at: int | None = None, on_episode=None):
     rng = np.random.default_rng(0)
     for i in range(n):
         if i == fail_at:
             raise RuntimeError("the env broke")
+        if on_episode is not None:
+            on_episode(i)
         frames = rng.integers(0, 256, (length + i, 16, 24, 3), dtype=np.uint8)
-        yield EpisodeFrames(
-            i, seed=i, frames={"observation.image": frames, "action": rng.normal(size=(length + i, 1)).astype(np.float32)}
-        )
+        actions = rng.normal(size=(length + i, 1)).astype(np.float32)
+        yield EpisodeFrames(i, seed=i, frames={"observation.image": frames, "action": actions})
 
 
-def _shm_files() -> list[str]:
-    return glob.glob(f"/dev/shm/hub-envs-png-{os.getpid()}-*")
-
-
-def _write(root, episodes, background: bool):
+def _write(root, episodes, background: bool = True):
     return write_lerobot_dataset(
         root,
         repo_id="t/png",
@@ -51,87 +55,171 @@ def _write(root, episodes, background: bool):
     )
 
 
-def _helper_runs_here() -> bool:
+def _alive(pid: int) -> bool:
+    try:
+        return os.waitpid(pid, os.WNOHANG)[0] == 0
+    except ChildProcessError:
+        return False
+
+
+def _idle_pid() -> int:
     helper = png_process.acquire()
-    if helper is not None:
+    png_process.release(helper, ok=True)
+    return helper.pid
+
+
+def test_the_files_are_those_of_encoding_inline_and_the_frames_decode_exactly(tmp_path):
+    inline = _write(tmp_path / "inline", _episodes(5), background=False)
+    helped = _write(tmp_path / "helped", _episodes(5))
+    again = _write(tmp_path / "again", _episodes(5))  # the idle helper, its slots reused
+    assert inline.fingerprint == helped.fingerprint == again.fingerprint
+    frames = read_episode_frames(tmp_path / "helped", 4)["observation.image"]
+    np.testing.assert_array_equal(frames, list(_episodes(5))[4].frames["observation.image"])
+    assert not [f for f in os.listdir("/dev/shm") if f.startswith(f"hub-envs-png-{os.getpid()}-")]  # memfds: no names
+
+
+def test_slots_grow_for_a_bigger_episode_and_are_reused_for_a_smaller_one():
+    helper = png_process.acquire()
+    try:
+        for length in (3, 50, 7, 120, 2):
+            frames = np.random.default_rng(length).integers(0, 256, (length, 8, 8, 4), dtype=np.uint8)
+            gray = np.ascontiguousarray(frames[..., :1])
+            helper.submit([frames, gray])
+            (pngs, stats), (gray_pngs, _) = helper.result()
+            assert pngs == encode_png(frames) and gray_pngs == encode_png(gray)
+            expected = image_stats(frames)
+            assert stats.keys() == expected.keys() and all(np.array_equal(stats[k], v) for k, v in expected.items())
+            np.testing.assert_array_equal(decode_png(pngs[-1]), frames[-1])
+    finally:
         png_process.release(helper, ok=True)
-    return helper is not None
 
 
-@pytest.mark.skipif(not _helper_runs_here(), reason="no fork or /dev/shm here: the writer encodes on a thread")
-class TestHelper:
-    def test_the_files_are_those_of_encoding_inline_and_the_frames_decode_exactly(self, tmp_path):
-        inline = _write(tmp_path / "inline", _episodes(5), background=False)
-        helped = _write(tmp_path / "helped", _episodes(5), background=True)
-        again = _write(tmp_path / "again", _episodes(5), background=True)  # the idle helper, its slots reused
-        assert inline.fingerprint == helped.fingerprint == again.fingerprint
-        frames = read_episode_frames(tmp_path / "helped", 4)["observation.image"]
-        np.testing.assert_array_equal(frames, list(_episodes(5))[4].frames["observation.image"])
+def test_a_failing_episode_source_leaves_no_dataset_and_ends_the_busy_helper(tmp_path):
+    pids = []
+    with pytest.raises(DatasetError, match="the env broke"):
+        _write(tmp_path / "ds", _episodes(6, fail_at=4, on_episode=lambda i: pids.append(_busy_pid())))
+    assert not list(tmp_path.iterdir())
+    assert not _alive(pids[-1]) and pids[-1] not in {h.pid for h in png_process._IDLE}
 
-    def test_an_episode_bigger_than_the_slots_grows_them_and_a_smaller_one_reuses_them(self):
-        helper = png_process.acquire()
-        try:
-            for length in (3, 50, 7, 120, 2):
-                frames = np.random.default_rng(length).integers(0, 256, (length, 8, 8, 4), dtype=np.uint8)
-                helper.submit([frames, frames[:, :, :, :1].copy()])
-                (pngs, stats), (gray, _) = helper.result()
-                assert pngs == encode_png(frames) and gray == encode_png(frames[:, :, :, :1].copy())
-                assert stats.keys() == image_stats(frames).keys()
-                assert all(np.array_equal(stats[k], v) for k, v in image_stats(frames).items())
-                np.testing.assert_array_equal(decode_png(pngs[-1]), frames[-1])
-        finally:
-            png_process.release(helper, ok=True)
 
-    def test_a_failing_episode_source_leaves_no_dataset_and_no_helper_or_files(self, tmp_path):
-        before = {h.process.pid for h in png_process._IDLE}
-        with pytest.raises(DatasetError, match="the env broke"):
-            _write(tmp_path / "ds", _episodes(6, fail_at=4), background=True)
-        assert not (tmp_path / "ds").exists() and not list(tmp_path.iterdir())
-        busy = [h for h in png_process._IDLE if h.process.pid not in before]
-        assert not busy  # the helper that held episodes was ended, not kept
-        assert len(_shm_files()) <= 2 * len(png_process._IDLE)  # only an idle helper's slots remain
+def test_a_helper_killed_mid_dataset_is_a_dataset_error_naming_it_and_the_next_dataset_is_written(tmp_path):
+    def kill_at_3(i):
+        if i == 3:
+            os.kill(_busy_pid(), signal.SIGKILL)
 
-    def test_a_helper_killed_mid_dataset_is_a_dataset_error_and_the_next_dataset_is_written(self, tmp_path):
-        def killing():
-            for ep in _episodes(6):
-                if ep.index == 3:
-                    os.kill(_busy_helper_pid(), signal.SIGKILL)
-                yield ep
+    with pytest.raises(DatasetError, match="PNG encoding process (stopped|is gone)"):
+        _write(tmp_path / "ds", _episodes(6, on_episode=kill_at_3))
+    assert not (tmp_path / "ds").exists()
+    assert _write(tmp_path / "next", _episodes(3)).episodes == 3
 
-        with pytest.raises(DatasetError, match="PNG encoding process stopped"):
-            _write(tmp_path / "ds", killing(), background=True)
-        assert not (tmp_path / "ds").exists()
-        summary = _write(tmp_path / "next", _episodes(3), background=True)
-        assert summary.episodes == 3
 
-    def test_a_forked_process_starts_its_own_helper_not_its_parents(self):
-        helper = png_process.acquire()
-        png_process.release(helper, ok=True)
-        read, write = os.pipe()
-        pid = os.fork()
-        if pid == 0:  # pragma: no cover - the child reports through the pipe
+def test_an_idle_helper_holds_no_slot_memory_after_a_big_dataset_and_no_inherited_files(tmp_path, monkeypatch):
+    import socket
+
+    listening = socket.create_server(("127.0.0.1", 0))  # a parent's socket: it must not stay open in the helper
+    try:
+        png_process._close_idle()  # the next helper is forked now, with the socket open
+        monkeypatch.setattr(png_process, "_KEEP_SLOTS_BYTES", 0)  # every dataset counts as big
+        _write(tmp_path / "ds", _episodes(3))
+        pid = _idle_pid()
+        maps = open(f"/proc/{pid}/maps").read()
+        assert "hub-envs-png-slot" not in maps
+        fds = {os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd")}
+        assert not any("socket" in fd for fd in fds - {_helper_socket(pid)}), fds
+    finally:
+        listening.close()
+
+
+def test_a_pool_worker_writes_a_dataset_with_a_helper_and_the_parents_helper_survives_forked_children(tmp_path):
+    """A daemonic multiprocessing worker can have a helper; a child forked from a process with an idle helper, exiting
+    normally (its atexit handlers run), leaves that helper alone; the parent then uses it again."""
+    script = textwrap.dedent(
+        f"""
+        import multiprocessing, os, sys
+        sys.path.insert(0, {REPO!r})
+        sys.path.insert(0, {os.path.dirname(__file__)!r})
+        from test_png_process import _write, _episodes, _idle_pid
+
+        def in_worker(root):
+            return _write(root, _episodes(3)).fingerprint
+
+        if __name__ == "__main__":
+            root = {str(tmp_path)!r}
+            ctx = multiprocessing.get_context("fork")
+            with ctx.Pool(1) as pool:
+                in_pool = pool.apply(in_worker, (root + "/pool",))
+            mine = _write(root + "/mine", _episodes(3)).fingerprint
+            helper = _idle_pid()
+            pid = os.fork()
+            if pid == 0:
+                sys.exit(0)  # a normal exit: interpreter shutdown and atexit handlers run
+            os.waitpid(pid, 0)
+            assert _idle_pid() == helper, "the forked child's exit ended the parent's helper"
+            assert _write(root + "/again", _episodes(3)).fingerprint == mine == in_pool
+            print("ok")
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-3000:]
+
+
+def test_a_helper_ends_when_its_parent_is_killed(tmp_path):
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        sys.path.insert(0, {REPO!r})
+        sys.path.insert(0, {os.path.dirname(__file__)!r})
+        from test_png_process import _write, _episodes, _idle_pid
+        _write({str(tmp_path / "ds")!r}, _episodes(2))
+        print(_idle_pid(), flush=True)
+        time.sleep(60)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    helper = int(proc.stdout.readline())
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 10
+    while os.path.exists(f"/proc/{helper}") and time.monotonic() < deadline:
+        with open(f"/proc/{helper}/stat") as f:  # reparented: a zombie until its new parent reaps it
+            if f.read().split(") ")[1].startswith("Z"):
+                break
+        time.sleep(0.1)
+    assert time.monotonic() < deadline, "the helper outlived its killed parent"
+
+
+def _busy_pid() -> int:
+    """The pid of this process's helper that is not idle (the one a dataset is being written with)."""
+    idle = {h.pid for h in png_process._IDLE}
+    mine = os.getpid()
+    children = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit() and int(pid) not in idle:
             try:
-                mine = png_process.acquire()
-                ok = mine is not helper and mine.owner == os.getpid()
-                frames = np.zeros((2, 4, 4, 3), np.uint8)
-                mine.submit([frames])
-                ok = ok and mine.result()[0][0] == encode_png(frames)
-                png_process.release(mine, ok=False)
-                os.write(write, b"1" if ok else b"0")
-            finally:
-                os._exit(0)
-        os.close(write)
-        os.waitpid(pid, 0)
-        assert os.read(read, 1) == b"1"
-        assert helper.process.is_alive() and png_process.acquire() is helper  # the parent's helper untouched
-        png_process.release(helper, ok=True)
+                with open(f"/proc/{pid}/stat") as f:
+                    fields = f.read().rsplit(") ", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == mine and fields[0] != "Z":
+                children.append(int(pid))
+    busy = [pid for pid in children if "hub-envs-png-slot" in open(f"/proc/{pid}/maps").read()]
+    assert len(busy) == 1, (children, busy)
+    return busy[0]
 
 
-def _busy_helper_pid() -> int:
-    """The pid of the helper a dataset is being written with: this process's child named hub-envs-png, not idle."""
-    import multiprocessing
+def _helper_socket(pid: int) -> str:
+    """The helper's end of its socket pair (the one socket it keeps)."""
+    return next(os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd") if fd not in ("0", "1", "2"))
 
-    idle = {h.process.pid for h in png_process._IDLE}
-    pids = [p.pid for p in multiprocessing.active_children() if p.name == "hub-envs-png" and p.pid not in idle]
-    assert len(pids) == 1, pids
-    return pids[0]
+
+def test_an_idle_helper_ends_itself_and_the_next_dataset_gets_a_new_one(tmp_path, monkeypatch):
+    """An idle helper holds a copy of this process's memory as it was when forked: it does not stay for ever."""
+    png_process._close_idle()
+    monkeypatch.setattr(png_process, "IDLE_SECONDS", 1.0)  # read by the helper forked next
+    _write(tmp_path / "a", _episodes(2))
+    old = png_process._IDLE[0]
+    deadline = time.monotonic() + 10
+    while old.alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not old.alive() and old.exitcode == 0
+    assert _write(tmp_path / "b", _episodes(2)).episodes == 2 and png_process._IDLE[0] is not old

@@ -3,11 +3,15 @@
 Why a process and not a thread: ``zlib.compress`` releases the GIL for each frame and needs it back after; while the
 main thread steps a Python env, a thread waits for the GIL at every frame (up to ``sys.getswitchinterval()``, 5 ms),
 so an encode thread overlapped nothing (``benchmarks/bench_datagen.py``, image variant: 67 us/frame with one thread,
-68 inline). A process has a GIL of its own. Frames go to it through reusable files in ``/dev/shm`` (memory), mapped
-by both sides; the PNG bytes and stats come back through a pipe. Where that cannot be had (no ``fork``, no
-``/dev/shm``), :func:`acquire` returns None and the writer encodes on a thread as before. A helper that finished its
-work stays for the next dataset of this process (:func:`release`): forking it and ending it cost more than encoding a
-small dataset's frames; it ends with the process, or on its own if the process dies.
+68 inline). A process has a GIL of its own.
+
+How: the helper is this process forked (``os.fork``: the code is already imported, nothing to pickle); frames go to it
+through reusable memory files (``memfd``: no name, so nothing is left behind however either side ends, and no
+``/dev/shm`` size limit), each handed over once on a socket; the PNG bytes and stats come back on the same socket. A
+helper that finished its work waits for the next dataset of this process (:func:`release`): forking it and ending it
+cost more than encoding a small dataset's frames. It ends when this process ends or forks, when it has had no work for
+:data:`IDLE_SECONDS` (it holds a copy of this process's memory as it was when forked), or when this process dies.
+Where it cannot run (not Linux), :func:`acquire` returns None and the writer encodes on a thread.
 
     >>> import numpy as np
     >>> from hub_envs.dataset.codec import decode_png
@@ -25,13 +29,15 @@ from __future__ import annotations
 import atexit
 import contextlib
 import mmap
-import multiprocessing
 import os
 import signal
 import sys
 import threading
-import uuid
+import time
+import traceback
 from collections import deque
+from multiprocessing.connection import Connection, Pipe
+from multiprocessing.reduction import recv_handle, send_handle
 from typing import Any
 
 import numpy as np
@@ -40,28 +46,30 @@ from hub_envs.dataset.codec import encode_png
 from hub_envs.dataset.stats import image_stats
 from hub_envs.errors import DatasetError
 
-__all__ = ["PngProcess", "acquire", "release"]
+__all__ = ["PngProcess", "acquire", "release", "IDLE_SECONDS"]
 
-_SHM = "/dev/shm"
+#: A helper with no work for this long ends itself (the next dataset forks a new one).
+IDLE_SECONDS = 30.0
 _SLOTS = 2  # episodes in flight: one being encoded, one being written into
-_PARENT_POLL_S = 1.0  # how often an idle helper checks that its parent is alive
+_POLL_S = 1.0  # how often a waiting side checks that the other is alive
 _KEEP_SLOTS_BYTES = 64 * 2**20  # an idle helper keeps its slots' memory up to this size (a small dataset's frames)
+_STALL_S = 120.0  # no answer for this long (plus 1 s per 10 MB of frames) from a live helper: it is stuck
 _IDLE: list[PngProcess] = []  # helpers of this process waiting for the next dataset (at most one)
 _IDLE_LOCK = threading.Lock()
+_ADVICE = "Nothing was written; run again (write_lerobot_dataset(..., encode_in_background=False) encodes in this process)."
 
 
 class PngProcess:
-    """The helper process and its frame slots. :meth:`submit` an episode's frame arrays, :meth:`result` takes the
-    oldest episode's ``[(pngs, image_stats), ...]`` (one pair per array), :meth:`close` ends it (the files go)."""
+    """One helper and its frame slots. :meth:`submit` an episode's frame arrays, :meth:`result` takes the oldest
+    episode's ``[(pngs, image_stats), ...]`` (one pair per array), :meth:`close` ends it."""
 
-    def __init__(self, process: Any, conn: Any, prefix: str):
-        self.process, self.conn, self.prefix = process, conn, prefix
+    def __init__(self, pid: int, conn: Connection):
+        self.pid, self.conn = pid, conn
         self.owner = os.getpid()  # a process forked from the owner inherits this object, not the helper
         self.maps: list[mmap.mmap | None] = [None] * _SLOTS
-        self.paths: list[str | None] = [None] * _SLOTS  # each slot's file: a new name for each new file
-        self.files_made = 0
-        self.in_flight: deque[int] = deque()  # slots, oldest first
+        self.in_flight: deque[tuple[int, int]] = deque()  # (slot, bytes), oldest first
         self.next_slot = 0
+        self.exitcode: int | None = None
 
     @property
     def full(self) -> bool:
@@ -72,90 +80,134 @@ class PngProcess:
         """Queue one episode: its ``(T, H, W, C)`` uint8 frame arrays (copied into a slot)."""
         if self.full:
             raise DatasetError("PngProcess.submit: every slot is in use; take a result first.")
-        slot = self.next_slot
-        self.next_slot = (slot + 1) % _SLOTS
         specs, size = [], 0
         for arr in arrays:
+            if arr.dtype != np.uint8 or arr.ndim != 4:
+                raise DatasetError(f"PngProcess.submit takes uint8 (T, H, W, C) frames, got {arr.dtype} {arr.shape}.")
             specs.append((size, tuple(arr.shape)))
             size += arr.nbytes
+        slot = self.next_slot
         view = self._slot(slot, size)
         for (offset, shape), arr in zip(specs, arrays):
             np.ndarray(shape, np.uint8, buffer=view, offset=offset)[...] = arr
-        self._send((slot, self.paths[slot], specs))
-        self.in_flight.append(slot)
+        self._send(("encode", slot, specs))
+        self.next_slot = (slot + 1) % _SLOTS
+        self.in_flight.append((slot, size))
 
     def result(self) -> list[tuple[list[bytes], dict[str, np.ndarray]]]:
         """The oldest submitted episode's ``(pngs, image_stats)`` per array, in the order given."""
         if not self.in_flight:
             raise DatasetError("PngProcess.result: no episode was submitted.")
+        stall = _STALL_S + self.in_flight[0][1] / 10e6
+        waited = 0.0
         try:
+            while not self.conn.poll(_POLL_S):  # a dead helper shows as EOF, or as not alive; a stuck one as silence
+                waited += _POLL_S
+                if not self.alive():
+                    raise EOFError
+                if waited >= stall:
+                    self.close(wait=False)
+                    raise DatasetError(f"The PNG encoding process gave no answer in {stall:.0f} s (it is stuck). {_ADVICE}")
             status, payload = self.conn.recv()
         except (EOFError, OSError) as exc:
-            self.process.join(timeout=1)
+            self.close(wait=False)
             raise DatasetError(
-                f"The PNG encoding process stopped (exit code {self.process.exitcode}) before returning an episode's "
-                "frames: it was killed or ran out of memory. Nothing was written; run again, or pass "
-                "encode_in_background=False to encode in this process."
+                f"The PNG encoding process stopped (exit status {self.exitcode}) before returning an episode's frames: "
+                f"it was killed or ran out of memory. {_ADVICE}"
             ) from exc
         self.in_flight.popleft()
         if status != "ok":
-            raise DatasetError(f"Encoding an episode's frames as PNG failed in the helper process: {payload}")
+            raise DatasetError(f"Encoding an episode's frames as PNG failed in the helper process: {payload}. {_ADVICE}")
         return payload
 
+    def alive(self) -> bool:
+        """The helper runs (it is reaped when it has ended; its exit status is then :attr:`exitcode`)."""
+        if self.exitcode is not None or self.owner != os.getpid():
+            return False
+        try:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+        except ChildProcessError:  # reaped by someone else (SIGCHLD ignored): ask the kernel instead
+            try:
+                os.kill(self.pid, 0)
+                return True
+            except ProcessLookupError:
+                self.exitcode = -1
+                return False
+        if pid == 0:
+            return True
+        self.exitcode = os.waitstatus_to_exitcode(status)
+        return False
+
     def close(self, *, wait: bool = True) -> None:
-        """End the process (``wait``: let it finish its last message; else kill it) and remove the slot files."""
-        with contextlib.suppress(OSError, ValueError):
-            if wait and self.process.is_alive():
-                self.conn.send(None)
-                self.process.join(timeout=5)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join(timeout=5)
+        """End the helper (``wait``: ask it and give it a few seconds; else kill it) and free the slots."""
+        if self.owner == os.getpid():
+            if wait and self.alive():
+                with contextlib.suppress(OSError):
+                    self.conn.send(None)
+                deadline = time.monotonic() + 5
+                while self.alive() and time.monotonic() < deadline:
+                    time.sleep(0.005)
+            if self.alive():
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.pid, signal.SIGKILL)
+                with contextlib.suppress(ChildProcessError):
+                    self.exitcode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
         with contextlib.suppress(OSError):
             self.conn.close()
-        self.drop_slots()
+        self._unmap()
 
     def drop_slots(self) -> None:
-        """Unmap and remove the slot files (the next :meth:`submit` makes them again)."""
-        for slot in range(_SLOTS):
-            self._drop_slot(slot)
+        """Free the slots' memory on both sides (the next :meth:`submit` makes them again)."""
+        self._send(("drop",))
+        self._unmap()
 
-    def _drop_slot(self, slot: int) -> None:
-        mm, path = self.maps[slot], self.paths[slot]
-        if mm is not None:
-            with contextlib.suppress(BufferError, ValueError):  # a view still held: the GC unmaps it
-                mm.close()
-        if path is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(path)
-        self.maps[slot], self.paths[slot] = None, None
+    def _unmap(self) -> None:
+        for slot, mm in enumerate(self.maps):
+            if mm is not None:
+                with contextlib.suppress(BufferError, ValueError):  # a view still held: the GC unmaps it
+                    mm.close()
+            self.maps[slot] = None
 
     def _slot(self, slot: int, size: int) -> mmap.mmap:
-        """The slot's mapping, grown to hold ``size`` bytes (its pages stay, so a reused slot costs a copy only)."""
+        """The slot's mapping, holding at least ``size`` bytes: reused (its pages stay: a copy costs no page faults), or
+        a new memory file, its pages reserved (no SIGBUS later when memory is short) and handed to the helper."""
         mm = self.maps[slot]
         if mm is not None and len(mm) >= size:
             return mm
         grown = max(size, int(len(mm) * 1.5) if mm is not None else 0, 1)
-        self._drop_slot(slot)
-        path = f"{self.prefix}{self.files_made}"
-        self.files_made += 1
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)  # this user only
+        fd = os.memfd_create("hub-envs-png-slot", os.MFD_CLOEXEC)
         try:
-            self.paths[slot] = path
             os.ftruncate(fd, grown)
-            self.maps[slot] = mmap.mmap(fd, grown)
+            try:
+                os.posix_fallocate(fd, 0, grown)
+            except OSError as exc:
+                raise DatasetError(
+                    f"No memory for {grown / 2**20:.0f} MiB of an episode's camera frames ({exc.strerror}). Free memory, "
+                    f"or write shorter episodes. {_ADVICE}"
+                ) from exc
+            new = mmap.mmap(fd, grown)
+            self._send(("slot", slot))
+            try:
+                send_handle(self.conn, fd, self.pid)
+            except OSError as exc:
+                new.close()
+                raise self._gone() from exc
         finally:
             os.close(fd)
-        return self.maps[slot]
+        if mm is not None:
+            mm.close()
+        self.maps[slot] = new
+        return new
 
     def _send(self, message: Any) -> None:
         try:
             self.conn.send(message)
         except OSError as exc:
-            raise DatasetError(
-                f"The PNG encoding process is gone (exit code {self.process.exitcode}). Nothing was written; run "
-                "again, or pass encode_in_background=False to encode in this process."
-            ) from exc
+            raise self._gone() from exc
+
+    def _gone(self) -> DatasetError:
+        self.alive()
+        return DatasetError(f"The PNG encoding process is gone (exit status {self.exitcode}). {_ADVICE}")
 
 
 def acquire() -> PngProcess | None:
@@ -164,86 +216,139 @@ def acquire() -> PngProcess | None:
     Returns:
         A :class:`PngProcess` with no episode in flight; give it back with :func:`release`.
     """
+    stale = []
     with _IDLE_LOCK:
-        while _IDLE:
+        found = None
+        while _IDLE and found is None:
             helper = _IDLE.pop()
-            if helper.owner == os.getpid() and helper.process.is_alive():
-                return helper
-            if helper.owner == os.getpid():  # died while idle (killed): its files are ours to remove
-                helper.close(wait=False)
-    return _start()
+            if helper.alive():
+                found = helper
+            else:  # ended itself after IDLE_SECONDS, or was killed
+                stale.append(helper)
+    for helper in stale:
+        helper.close(wait=False)
+    return found if found is not None else _start()
 
 
 def release(helper: PngProcess, *, ok: bool) -> None:
     """Give ``helper`` back: kept for the next dataset when its work ended well (``ok``) and none is kept yet, else
     ended (killed when not ``ok``: an episode may still be in it)."""
-    if ok and not helper.in_flight and helper.owner == os.getpid() and helper.process.is_alive():
-        if sum(len(mm) for mm in helper.maps if mm is not None) > _KEEP_SLOTS_BYTES:
-            helper.drop_slots()  # a big dataset's frames: not held in memory while idle
-        with _IDLE_LOCK:
-            if not _IDLE:
-                _IDLE.append(helper)
-                return
+    if ok and not helper.in_flight and helper.alive():
+        try:
+            if sum(len(mm) for mm in helper.maps if mm is not None) > _KEEP_SLOTS_BYTES:
+                helper.drop_slots()  # a big dataset's frames: not held in memory while idle
+            with _IDLE_LOCK:
+                if not _IDLE:
+                    _IDLE.append(helper)
+                    return
+        except DatasetError:  # it ended meanwhile
+            pass
     helper.close(wait=ok)
 
 
 @atexit.register
 def _close_idle() -> None:
-    """At exit: end this process's idle helpers and remove their files (multiprocessing would only kill them)."""
+    """At exit: end this process's idle helpers (they would end on their own, a second later)."""
     with _IDLE_LOCK:
-        idle = [h for h in _IDLE if h.owner == os.getpid()]
+        idle = _IDLE[:]
         _IDLE.clear()
     for helper in idle:
         helper.close()
 
 
+def _forget_idle() -> None:
+    """In a forked child (a helper too): the parent's idle helpers are the parent's to use and end; the child lets go
+    of its copies (their slots unmapped here, so a helper forked later does not hold another's memory)."""
+    _IDLE.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_idle)
+
+
 def _start() -> PngProcess | None:
-    """Fork a helper (Linux, with ``/dev/shm`` writable); None where it cannot run."""
-    if not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods():
+    """Fork a helper (Linux: ``memfd``); None where it cannot run, or no process can be made now."""
+    if not sys.platform.startswith("linux") or not hasattr(os, "memfd_create"):
         return None
-    if not (os.path.isdir(_SHM) and os.access(_SHM, os.W_OK)):
-        return None
-    ctx = multiprocessing.get_context("fork")  # the frames' code is already imported: nothing to pickle or import
-    parent_conn, child_conn = ctx.Pipe()
-    process = ctx.Process(target=_serve, args=(child_conn, os.getpid()), name="hub-envs-png", daemon=True)
+    parent_conn, child_conn = Pipe(duplex=True)  # a socket pair: memory files can be handed over it
     try:
-        process.start()
+        pid = os.fork()
     except OSError:  # no memory or process left to fork: encode in this process
         parent_conn.close()
         child_conn.close()
         return None
+    if pid == 0:  # the helper
+        code = 1
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it ends this process
+            parent_conn.close()
+            _serve(child_conn)
+            code = 0
+        finally:
+            os._exit(code)  # never the parent's atexit handlers, buffers or finalizers
     child_conn.close()
-    return PngProcess(process, parent_conn, f"{_SHM}/hub-envs-png-{os.getpid()}-{uuid.uuid4().hex[:12]}-")
+    return PngProcess(pid, parent_conn)
 
 
-def _serve(conn: Any, parent: int) -> None:
-    """The helper's loop: ``(slot, path, [(offset, shape), ...])`` in, ``("ok", [(pngs, stats), ...])`` out."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it closes this process
-    keep = conn.fileno()  # the parent's other files (sockets, pipes to its subprocesses) must not stay open in here
-    os.closerange(3, keep)
-    os.closerange(keep + 1, os.sysconf("SC_OPEN_MAX"))
-    maps: dict[int, tuple[str, mmap.mmap]] = {}  # slot -> its file's name and mapping
+def _close_inherited_files(keep: int) -> None:
+    """Close every file the helper inherited but ``keep`` and stdio: the parent's sockets and pipes (a listening
+    port, a subprocess's stdin) must not stay open in it for its whole life."""
+    try:
+        fds = [int(name) for name in os.listdir("/proc/self/fd")]
+    except OSError:
+        fds = range(3, os.sysconf("SC_OPEN_MAX"))
+    for fd in fds:
+        if fd > 2 and fd != keep:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def _encode(mm: mmap.mmap, specs: list[tuple[int, tuple[int, ...]]]) -> list[tuple[list[bytes], dict[str, np.ndarray]]]:
+    """Each array's PNGs and image stats (its views of the slot end with this call: a dropped slot can be unmapped)."""
+    out = []
+    for offset, shape in specs:
+        frames = np.ndarray(shape, np.uint8, buffer=mm, offset=offset)
+        out.append((encode_png(frames), image_stats(frames)))
+    return out
+
+
+def _serve(conn: Connection) -> None:
+    """The helper's loop: ``("slot", n)`` + a memory file, ``("encode", n, [(offset, shape), ...])`` (answered
+    ``("ok", [(pngs, stats), ...])`` or ``("error", text)``), ``("drop",)``; None, EOF, its parent's death or
+    :data:`IDLE_SECONDS` without a message end it."""
+    parent = os.getppid()
+    _close_inherited_files(conn.fileno())
+    maps: dict[int, mmap.mmap] = {}
+    idle = 0.0
     while True:
-        while not conn.poll(_PARENT_POLL_S):
-            if os.getppid() != parent:  # the parent died without closing: nobody will read
+        if not conn.poll(_POLL_S):
+            idle += _POLL_S
+            if os.getppid() != parent or idle >= IDLE_SECONDS:  # orphaned, or not needed any more
                 return
+            continue
+        idle = 0.0
         try:
             message = conn.recv()
         except (EOFError, OSError):
             return
         if message is None:
             return
-        slot, path, specs = message
+        if message[0] == "slot":
+            fd = recv_handle(conn)
+            try:
+                maps[message[1]] = mmap.mmap(fd, 0, access=mmap.ACCESS_READ)  # the old mapping goes with its last view
+            finally:
+                os.close(fd)
+            continue
+        if message[0] == "drop":
+            maps.clear()
+            continue
+        _, slot, specs = message
         try:
-            if slot not in maps or maps[slot][0] != path:  # a new file for the slot (grown, or made again)
-                with open(path, "rb") as f:
-                    maps[slot] = (path, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ))
-            mm = maps[slot][1]
-            out = []
-            for offset, shape in specs:
-                frames = np.ndarray(shape, np.uint8, buffer=mm, offset=offset)
-                out.append((encode_png(frames), image_stats(frames)))
-            reply: tuple[str, Any] = ("ok", out)
+            reply: tuple[str, Any] = ("ok", _encode(maps[slot], specs))
         except Exception as exc:  # noqa: BLE001  - reported to the parent, which raises it as a DatasetError
-            reply = ("error", f"{type(exc).__name__}: {exc}")
-        conn.send(reply)
+            reply = ("error", f"{type(exc).__name__}: {exc} ({traceback.extract_tb(exc.__traceback__)[-1].name})")
+        try:
+            conn.send(reply)
+        except OSError:  # the parent is gone
+            return

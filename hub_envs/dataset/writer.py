@@ -815,7 +815,7 @@ def write_lerobot_dataset(
         chunks_size, data_files_size_in_mb, video_files_size_in_mb: LeRobot's file layout limits (defaults as LeRobot's).
         encode_in_background: encode camera frames (and compute their stats) while the next episodes are made: image
             features in a helper process (:mod:`hub_envs.dataset.png_process`), video features on a thread. False:
-            inline. Default: when this machine has more than one CPU. The files are the same either way.
+            inline. Default: when this process may use more than one CPU. The files are the same either way.
         video_gop: the keyframe interval of dtype ``"video"`` features (default
             :data:`hub_envs.dataset.video.DEFAULT_VIDEO_GOP`; 2 is LeRobot's own), recorded as ``video.g``.
 
@@ -854,7 +854,7 @@ def write_lerobot_dataset(
         total = None
     bar = _progress(total, f"writing {root.name}", progress)
     try:
-        background = (os.cpu_count() or 1) > 1 if encode_in_background is None else bool(encode_in_background)
+        background = _usable_cpus() > 1 if encode_in_background is None else bool(encode_in_background)
         _write_episodes(writer, episodes, background, bar)
         if writer.n_episodes == 0:
             raise DatasetError(f"No episodes were given for {root}; a LeRobot dataset needs at least one.")
@@ -874,6 +874,14 @@ def write_lerobot_dataset(
     finally:
         bar.close()
     return _summary(writer, root, repo_id, int(fps), feats, fingerprint)
+
+
+def _usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity, e.g. a container's cpuset), not the machine's."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _write_episodes(writer: _Writer, episodes: Iterable[EpisodeFrames], background: bool, bar: Any) -> None:
