@@ -223,3 +223,11 @@ def test_an_idle_helper_ends_itself_and_the_next_dataset_gets_a_new_one(tmp_path
         time.sleep(0.1)
     assert not old.alive() and old.exitcode == 0
     assert _write(tmp_path / "b", _episodes(2)).episodes == 2 and png_process._IDLE[0] is not old
+
+
+def test_a_slow_env_between_episodes_does_not_end_the_helper_mid_dataset(tmp_path, monkeypatch):
+    """Only a released helper counts down: episodes slower than IDLE_SECONDS to make still get their frames encoded."""
+    png_process._close_idle()
+    monkeypatch.setattr(png_process, "IDLE_SECONDS", 1.0)
+    summary = _write(tmp_path / "slow", _episodes(4, on_episode=lambda i: time.sleep(2.5 if i == 2 else 0)))
+    assert summary.fingerprint == _write(tmp_path / "inline", _episodes(4), background=False).fingerprint

@@ -156,6 +156,18 @@ class PngProcess:
             self.conn.close()
         self._unmap()
 
+    def wake(self) -> bool:
+        """Take an idle helper back into use: True when it answered (it no longer counts down to ending itself)."""
+        try:
+            self.conn.send(("ping",))
+            return self.conn.poll(5) and self.conn.recv() == ("pong",)
+        except (EOFError, OSError):
+            return False
+
+    def sleep(self) -> None:
+        """Tell the helper it is idle: it ends itself after :data:`IDLE_SECONDS` without work."""
+        self._send(("idle",))
+
     def drop_slots(self) -> None:
         """Free the slots' memory on both sides (the next :meth:`submit` makes them again)."""
         self._send(("drop",))
@@ -221,9 +233,9 @@ def acquire() -> PngProcess | None:
         found = None
         while _IDLE and found is None:
             helper = _IDLE.pop()
-            if helper.alive():
+            if helper.alive() and helper.wake():
                 found = helper
-            else:  # ended itself after IDLE_SECONDS, or was killed
+            else:  # ended itself after IDLE_SECONDS (maybe just now), or was killed
                 stale.append(helper)
     for helper in stale:
         helper.close(wait=False)
@@ -237,6 +249,7 @@ def release(helper: PngProcess, *, ok: bool) -> None:
         try:
             if sum(len(mm) for mm in helper.maps if mm is not None) > _KEEP_SLOTS_BYTES:
                 helper.drop_slots()  # a big dataset's frames: not held in memory while idle
+            helper.sleep()
             with _IDLE_LOCK:
                 if not _IDLE:
                     _IDLE.append(helper)
@@ -314,19 +327,20 @@ def _encode(mm: mmap.mmap, specs: list[tuple[int, tuple[int, ...]]]) -> list[tup
 
 def _serve(conn: Connection) -> None:
     """The helper's loop: ``("slot", n)`` + a memory file, ``("encode", n, [(offset, shape), ...])`` (answered
-    ``("ok", [(pngs, stats), ...])`` or ``("error", text)``), ``("drop",)``; None, EOF, its parent's death or
-    :data:`IDLE_SECONDS` without a message end it."""
+    ``("ok", [(pngs, stats), ...])`` or ``("error", text)``), ``("drop",)``, ``("idle",)`` (released: count down),
+    ``("ping",)`` (taken back: answered ``("pong",)``); None, EOF, its parent's death or :data:`IDLE_SECONDS` idle
+    end it. A slow env between two episodes is not idleness: only a released helper counts down."""
     parent = os.getppid()
     _close_inherited_files(conn.fileno())
     maps: dict[int, mmap.mmap] = {}
-    idle = 0.0
+    idle: float | None = None  # seconds released without a message; None: in use
     while True:
         if not conn.poll(_POLL_S):
-            idle += _POLL_S
-            if os.getppid() != parent or idle >= IDLE_SECONDS:  # orphaned, or not needed any more
+            idle = None if idle is None else idle + _POLL_S
+            if os.getppid() != parent or (idle is not None and idle >= IDLE_SECONDS):  # orphaned, or not needed
                 return
             continue
-        idle = 0.0
+        idle = None
         try:
             message = conn.recv()
         except (EOFError, OSError):
@@ -342,6 +356,15 @@ def _serve(conn: Connection) -> None:
             continue
         if message[0] == "drop":
             maps.clear()
+            continue
+        if message[0] == "idle":
+            idle = 0.0
+            continue
+        if message[0] == "ping":
+            try:
+                conn.send(("pong",))
+            except OSError:
+                return
             continue
         _, slot, specs = message
         try:
