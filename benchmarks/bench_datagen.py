@@ -20,6 +20,11 @@ are side by side, so a change of the machine's load between repeats does not ent
 CPU-time ratio to raw stepping (its threads included) is recorded as ``datagen_w1_vs_raw_cpu``: on a busy host
 it shows what the code costs when the wall clock mostly shows the neighbours.
 
+Camera frames are PNG-encoded in a helper process (:mod:`hub_envs.dataset.png_process`) while the next episodes are
+made. Like the imports, it is started once per process: by the warm-up run here; a helper that finished stays for the
+next dataset of the process (up to ``IDLE_SECONDS``), so a process writing its first dataset pays one fork more
+(``png_helper_start_ms``, measured here in this process as it is after the runs: heavier after LeRobot's import).
+
 Run: ``python benchmarks/bench_datagen.py [--repeats 3] [--profile]``; ``run()`` returns the dict.
 """
 
@@ -213,11 +218,28 @@ def run(repeats: int = 3, episodes: dict[str, int] | None = None, verbose: bool 
             }
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    results["png_helper_start_ms"] = _png_helper_start_ms()
     results["datagen_vs_lerobot"] = min(results[v]["datagen_vs_lerobot"] for v in episodes)
     results["datagen_vs_raw"] = min(results[v]["datagen_vs_raw"] for v in episodes)
     if verbose:
         print_table(results, list(episodes))
     return results
+
+
+def _png_helper_start_ms(repeats: int = 5) -> float | None:
+    """Median ms to fork a PNG helper and end it, from this process (what a first dataset pays once)."""
+    from hub_envs.dataset import png_process
+
+    png_process._close_idle()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        helper = png_process.acquire()
+        if helper is None:
+            return None
+        helper.close()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return round(statistics.median(times), 1)
 
 
 def print_table(results: dict, variants: list[str]) -> None:
@@ -238,7 +260,8 @@ def print_table(results: dict, variants: list[str]) -> None:
             + " ".join(f"{x:.2f}" for x in r["datagen_vs_raw_each"])
         )
     print(
-        f"datagen_vs_lerobot = {results['datagen_vs_lerobot']:.2f} (goal >= 3), datagen_vs_raw = {results['datagen_vs_raw']:.2f} (goal >= 0.6)"
+        f"datagen_vs_lerobot = {results['datagen_vs_lerobot']:.2f} (goal >= 3), datagen_vs_raw = {results['datagen_vs_raw']:.2f} (goal >= 0.6); "
+        f"a PNG helper's start and end: {results['png_helper_start_ms']} ms (once per process)"
     )
 
 

@@ -66,6 +66,11 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
     "first_files_direct_vs_hf": ("bench_load", None, "a cold load's first files: one GET each ÷ hf_hub_download (worst env)"),
     "datagen_vs_lerobot": ("bench_datagen", (GE, 3.0), "dataset frames/s ÷ LeRobot add_frame/save_episode"),
     "datagen_vs_raw": ("bench_datagen", (GE, 0.6), "dataset frames/s ÷ raw env stepping (worst variant: state, image)"),
+    "png_helper_start_ms": (
+        "bench_datagen",
+        None,
+        "  ms a process's first camera dataset pays to fork the PNG helper (and end it)",
+    ),
     "replay_vs_raw": ("bench_replay", (GE, 0.8), "replay-verify steps/s ÷ raw env stepping"),
     "reproduce_parallel_efficiency": (
         "bench_replay",

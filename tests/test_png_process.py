@@ -231,3 +231,52 @@ def test_a_slow_env_between_episodes_does_not_end_the_helper_mid_dataset(tmp_pat
     monkeypatch.setattr(png_process, "IDLE_SECONDS", 1.0)
     summary = _write(tmp_path / "slow", _episodes(4, on_episode=lambda i: time.sleep(2.5 if i == 2 else 0)))
     assert summary.fingerprint == _write(tmp_path / "inline", _episodes(4), background=False).fingerprint
+
+
+def test_a_process_forked_mid_dataset_holds_none_of_the_helpers_slots(tmp_path):
+    """A pool or vector env started from the episode generator must not keep two episodes of frames mapped."""
+    seen = []
+
+    def fork_at_2(i):
+        if i == 2:
+            read, write = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # pragma: no cover - reports through the pipe
+                try:
+                    os.write(write, b"1" if "hub-envs-png-slot" in open("/proc/self/maps").read() else b"0")
+                finally:
+                    os._exit(0)
+            os.close(write)
+            os.waitpid(pid, 0)
+            seen.append(os.read(read, 1))
+            os.close(read)
+
+    _write(tmp_path / "ds", _episodes(4, on_episode=fork_at_2))
+    assert seen == [b"0"]
+
+
+def test_the_helper_does_not_run_the_parents_signal_handlers(tmp_path):
+    """A SIGTERM to the process group (Slurm, systemd, kill -- -PGID) runs the application's cleanup once, in it."""
+    log = tmp_path / "ran"
+    script = textwrap.dedent(
+        f"""
+        import os, signal, sys, time
+        sys.path.insert(0, {REPO!r})
+        sys.path.insert(0, {os.path.dirname(__file__)!r})
+        from test_png_process import _write, _episodes, _idle_pid
+
+        def cleanup(*_):
+            with open({str(log)!r}, "a") as f:
+                f.write(f"{{os.getpid()}}\\n")
+            os._exit(0)
+
+        signal.signal(signal.SIGTERM, cleanup)
+        _write({str(tmp_path / "ds")!r}, _episodes(2))
+        print(os.getpid(), _idle_pid(), flush=True)
+        os.killpg(os.getpgid(0), signal.SIGTERM)  # its own session (start_new_session): this process and the helper
+        time.sleep(5)
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, start_new_session=True)
+    parent, helper = proc.stdout.split()
+    assert log.read_text().split() == [parent], (log.read_text(), helper, proc.stderr[-2000:])

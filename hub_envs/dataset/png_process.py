@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
+import gc
 import mmap
 import os
 import signal
@@ -35,6 +37,7 @@ import sys
 import threading
 import time
 import traceback
+import weakref
 from collections import deque
 from multiprocessing.connection import Connection, Pipe
 from multiprocessing.reduction import recv_handle, send_handle
@@ -56,6 +59,7 @@ _KEEP_SLOTS_BYTES = 64 * 2**20  # an idle helper keeps its slots' memory up to t
 _STALL_S = 120.0  # no answer for this long (plus 1 s per 10 MB of frames) from a live helper: it is stuck
 _IDLE: list[PngProcess] = []  # helpers of this process waiting for the next dataset (at most one)
 _IDLE_LOCK = threading.Lock()
+_ALL: weakref.WeakSet[PngProcess] = weakref.WeakSet()  # every helper object of this process (a fork unmaps their slots)
 _ADVICE = "Nothing was written; run again (write_lerobot_dataset(..., encode_in_background=False) encodes in this process)."
 
 
@@ -70,6 +74,7 @@ class PngProcess:
         self.in_flight: deque[tuple[int, int]] = deque()  # (slot, bytes), oldest first
         self.next_slot = 0
         self.exitcode: int | None = None
+        _ALL.add(self)
 
     @property
     def full(self) -> bool:
@@ -126,13 +131,9 @@ class PngProcess:
             return False
         try:
             pid, status = os.waitpid(self.pid, os.WNOHANG)
-        except ChildProcessError:  # reaped by someone else (SIGCHLD ignored): ask the kernel instead
-            try:
-                os.kill(self.pid, 0)
-                return True
-            except ProcessLookupError:
-                self.exitcode = -1
-                return False
+        except ChildProcessError:  # reaped by someone else (SIGCHLD ignored): its pid may be another process's now
+            self.exitcode = -1
+            return False
         if pid == 0:
             return True
         self.exitcode = os.waitstatus_to_exitcode(status)
@@ -187,17 +188,25 @@ class PngProcess:
         if mm is not None and len(mm) >= size:
             return mm
         grown = max(size, int(len(mm) * 1.5) if mm is not None else 0, 1)
-        fd = os.memfd_create("hub-envs-png-slot", os.MFD_CLOEXEC)
         try:
-            os.ftruncate(fd, grown)
+            fd = os.memfd_create("hub-envs-png-slot", os.MFD_CLOEXEC)
+        except OSError as exc:  # out of file descriptors
+            raise DatasetError(f"Cannot make a memory file for an episode's camera frames: {exc}. {_ADVICE}") from exc
+        try:
             try:
-                os.posix_fallocate(fd, 0, grown)
+                os.ftruncate(fd, grown)
+                try:  # the pages now: out of memory is an error here, not a SIGBUS when the frames are copied in
+                    os.posix_fallocate(fd, 0, grown)
+                except OSError as exc:
+                    if exc.errno in (errno.ENOMEM, errno.ENOSPC):
+                        raise
+                    # not supported here: the pages come on first write
+                new = mmap.mmap(fd, grown)
             except OSError as exc:
                 raise DatasetError(
-                    f"No memory for {grown / 2**20:.0f} MiB of an episode's camera frames ({exc.strerror}). Free memory, "
-                    f"or write shorter episodes. {_ADVICE}"
+                    f"No memory for {grown / 2**20:.0f} MiB of an episode's camera frames ({exc.strerror or exc}). Free "
+                    f"memory, or write shorter episodes. {_ADVICE}"
                 ) from exc
-            new = mmap.mmap(fd, grown)
             self._send(("slot", slot))
             try:
                 send_handle(self.conn, fd, self.pid)
@@ -228,18 +237,17 @@ def acquire() -> PngProcess | None:
     Returns:
         A :class:`PngProcess` with no episode in flight; give it back with :func:`release`.
     """
-    stale = []
-    with _IDLE_LOCK:
-        found = None
-        while _IDLE and found is None:
-            helper = _IDLE.pop()
+    with _IDLE_LOCK:  # held briefly: a thread forking meanwhile gives its child a held lock (reset there, though)
+        helper = _IDLE.pop() if _IDLE else None
+    if helper is not None:
+        try:
             if helper.alive() and helper.wake():
-                found = helper
-            else:  # ended itself after IDLE_SECONDS (maybe just now), or was killed
-                stale.append(helper)
-    for helper in stale:
-        helper.close(wait=False)
-    return found if found is not None else _start()
+                return helper
+        except BaseException:  # Ctrl-C while waking it: it is in use now, so end it rather than lose it
+            helper.close(wait=False)
+            raise
+        helper.close(wait=False)  # ended itself after IDLE_SECONDS (maybe just now), or was killed
+    return _start()
 
 
 def release(helper: PngProcess, *, ok: bool) -> None:
@@ -269,21 +277,30 @@ def _close_idle() -> None:
         helper.close()
 
 
-def _forget_idle() -> None:
-    """In a forked child (a helper too): the parent's idle helpers are the parent's to use and end; the child lets go
-    of its copies (their slots unmapped here, so a helper forked later does not hold another's memory)."""
+def _forget_parents_helpers() -> None:
+    """In a forked child (a helper too): the parent's helpers, idle or in use, are the parent's to use and end; the
+    child unmaps its copies of their slots (so it does not hold their memory for its life) and gets a fresh lock (a
+    thread of the parent may have held it at the fork)."""
+    global _IDLE_LOCK
+    _IDLE_LOCK = threading.Lock()
     _IDLE.clear()
+    for helper in list(_ALL):
+        helper._unmap()
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_idle)
+    os.register_at_fork(after_in_child=_forget_parents_helpers)
 
 
 def _start() -> PngProcess | None:
     """Fork a helper (Linux: ``memfd``); None where it cannot run, or no process can be made now."""
     if not sys.platform.startswith("linux") or not hasattr(os, "memfd_create"):
         return None
-    parent_conn, child_conn = Pipe(duplex=True)  # a socket pair: memory files can be handed over it
+    try:
+        parent_conn, child_conn = Pipe(duplex=True)  # a socket pair: memory files can be handed over it
+    except OSError:  # no file descriptors left: encode in this process
+        return None
+    parent = os.getpid()
     try:
         pid = os.fork()
     except OSError:  # no memory or process left to fork: encode in this process
@@ -293,14 +310,25 @@ def _start() -> PngProcess | None:
     if pid == 0:  # the helper
         code = 1
         try:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it ends this process
+            gc.freeze()  # the parent's objects: never collected here (no finalizer of the parent's runs in the helper)
+            _reset_signals()
             parent_conn.close()
-            _serve(child_conn)
+            _serve(child_conn, parent)
             code = 0
         finally:
             os._exit(code)  # never the parent's atexit handlers, buffers or finalizers
     child_conn.close()
     return PngProcess(pid, parent_conn)
+
+
+def _reset_signals() -> None:
+    """The parent's Python signal handlers are not the helper's (a SIGTERM to the process group must not run the
+    parent's cleanup a second time, in here): the default for each; Ctrl-C ignored (the parent ends the helper)."""
+    for sig in signal.valid_signals():
+        with contextlib.suppress(OSError, ValueError, TypeError):
+            if callable(signal.getsignal(sig)):
+                signal.signal(sig, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _close_inherited_files(keep: int) -> None:
@@ -325,12 +353,11 @@ def _encode(mm: mmap.mmap, specs: list[tuple[int, tuple[int, ...]]]) -> list[tup
     return out
 
 
-def _serve(conn: Connection) -> None:
+def _serve(conn: Connection, parent: int) -> None:
     """The helper's loop: ``("slot", n)`` + a memory file, ``("encode", n, [(offset, shape), ...])`` (answered
     ``("ok", [(pngs, stats), ...])`` or ``("error", text)``), ``("drop",)``, ``("idle",)`` (released: count down),
     ``("ping",)`` (taken back: answered ``("pong",)``); None, EOF, its parent's death or :data:`IDLE_SECONDS` idle
     end it. A slow env between two episodes is not idleness: only a released helper counts down."""
-    parent = os.getppid()
     _close_inherited_files(conn.fileno())
     maps: dict[int, mmap.mmap] = {}
     idle: float | None = None  # seconds released without a message; None: in use
