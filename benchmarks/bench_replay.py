@@ -18,7 +18,11 @@ a change in the machine's load between repeats does not enter it):
 Figures: ``replay_vs_raw`` = min over variants of replay / raw (goal >= 0.8);
 ``reproduce_parallel_efficiency`` = the 2-worker speedup (reproduce_w1 time / reproduce_w2 time) ÷ what pure CPU
 work gets from 2 forked processes over 1 right after it (``machine_2process_ceiling``, the calibration): it judges
-the code, not the host (goal >= 0.95); ``reproduce_speedup_2workers`` (the raw speedup) is info. The replay's CPU
+the code, not the host (goal >= 0.95); ``reproduce_speedup_2workers`` (the raw speedup) is info; so is
+``reproduce_parallel_efficiency_vs_env``, the same speedup ÷ what the env itself, stepped raw, gets from 2 forked
+processes over 1 (``env_2process_ceiling``): pybullet scales worse than pure Python on this host, and a reproduce has
+serial parts (load, provenance, report: ~0.1 s of a 24-episode run's ~1.3 s, which alone bound the pure-CPU figure
+near 0.94). The replay's CPU
 time ratio (``replay_vs_raw_cpu``: the process's CPU time, background threads included) is recorded beside the wall
 time one: on a busy host it shows what the code costs when the wall clock mostly shows the neighbours.
 
@@ -100,6 +104,43 @@ def _pool_ceiling(n: int = 2_000_000, tasks: int = 4) -> float:
     return serial / parallel
 
 
+_ENV = None  # the env the forked processes of _env_ceiling step (inherited through the fork)
+
+
+def _step_raw(seeds: list[int], max_steps: int = 10_000) -> int:
+    env = _ENV.make()
+    steps = 0
+    for seed in seeds:
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        for _ in range(max_steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            steps += 1
+            if terminated or truncated:
+                break
+    env.close()
+    return steps
+
+
+def _env_ceiling(loaded, episodes: int) -> float:
+    """The env itself, stepped raw (random actions, no recording) on 2 forked processes (a plain ``Pool``, its start
+    included) vs 1, over as many episodes as the reproduce runs: what this env gets from 2 processes on this host now
+    (a physics engine scales worse than the pure-Python calibration: shared caches, memory bandwidth, SMT siblings)."""
+    import multiprocessing
+
+    global _ENV
+    _ENV = loaded
+    seeds = list(range(episodes))
+    t = time.perf_counter()
+    _step_raw(seeds)
+    serial = time.perf_counter() - t
+    t = time.perf_counter()
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        pool.map(_step_raw, [seeds[0::2], seeds[1::2]])
+    parallel = time.perf_counter() - t
+    return serial / parallel
+
+
 def _reproduce(repo: str, workers: int, out: Path) -> float:
     from hub_envs import reproduce
 
@@ -162,11 +203,16 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
             _reproduce(repo, 2, tmp / "warm")
             times: dict[int, list[float]] = {1: [], 2: []}
             ceiling, efficiency = [], []
+            env_ceiling, env_efficiency = [], []
+            reproduced_env = load_env(repo, trust_remote_code=True)
             for i in range(repeats):
                 for w in (1, 2):
                     times[w].append(_reproduce(repo, w, tmp / f"out-{w}-{i}"))
                 ceiling.append(_pool_ceiling())  # right after: the host as the reproduce found it
                 efficiency.append(times[1][-1] / times[2][-1] / ceiling[-1])
+                env_ceiling.append(_env_ceiling(reproduced_env, 2 * REPRODUCE_EPISODES))  # replay + benchmark episodes
+                env_efficiency.append(times[1][-1] / times[2][-1] / env_ceiling[-1])
+            reproduced_env.unregister()
             t1, t2 = statistics.median(times[1]), statistics.median(times[2])
             results["reproduce"] = {
                 "variant": REPRODUCE_VARIANT,
@@ -176,10 +222,14 @@ def run(repeats: int = 3, verbose: bool = True, profile: bool = False) -> dict:
                 "speedup_each": [round(a / b, 3) for a, b in zip(times[1], times[2])],
                 "machine_2process_ceiling": round(statistics.median(ceiling), 3),
                 "machine_2process_ceiling_each": [round(c, 3) for c in ceiling],
+                "env_2process_ceiling": round(statistics.median(env_ceiling), 3),
+                "env_2process_ceiling_each": [round(c, 3) for c in env_ceiling],
+                "env_efficiency_each": [round(e, 3) for e in env_efficiency],
                 "efficiency_each": [round(e, 3) for e in efficiency],
             }
             results["reproduce_speedup_2workers"] = round(t1 / t2, 3)
             results["reproduce_parallel_efficiency"] = round(statistics.median(efficiency), 3)
+            results["reproduce_parallel_efficiency_vs_env"] = round(statistics.median(env_efficiency), 3)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     results["replay_vs_raw"] = min(results[v]["replay_vs_raw"] for v in VARIANTS)
@@ -201,7 +251,8 @@ def print_table(results: dict) -> None:
     rp = results["reproduce"]
     print(
         f"reproduce {rp['variant']} ({rp['episodes']} episodes): {rp['seconds_w1']:.2f}s on 1 worker, {rp['seconds_w2']:.2f}s on 2; "
-        f"pure CPU work on 2 processes gets {rp['machine_2process_ceiling']:.2f}x on this machine right now"
+        f"pure CPU work on 2 processes gets {rp['machine_2process_ceiling']:.2f}x on this machine right now, the env "
+        f"stepped raw {rp['env_2process_ceiling']:.2f}x (efficiency against it: {results['reproduce_parallel_efficiency_vs_env']:.2f})"
     )
     la = results["load_average_before"]
     print(

@@ -78,6 +78,11 @@ FIGURES: dict[str, tuple[str, tuple | None, str]] = {
         "reproduce's 2-worker speedup ÷ pure CPU work's on 2 processes, measured right after it (the host's ceiling)",
     ),
     "reproduce_speedup_2workers": ("bench_replay", None, "  reproduce on 1 worker ÷ on 2 (time)"),
+    "reproduce_parallel_efficiency_vs_env": (
+        "bench_replay",
+        None,
+        "  the same speedup ÷ the env's own, stepped raw on 2 forked processes vs 1 right after it",
+    ),
     "eval_vs_lerobot_eval": (
         "bench_eval",
         (GE, 1.5),

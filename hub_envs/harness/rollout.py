@@ -357,8 +357,9 @@ class EpisodeRunner:
                     act_buf = _Buffer(action, max_steps)
                 act_buf.append(action)
             rewards.append(reward)
-            terms.append(bool(terminated))
-            truncs.append(bool(truncated))
+            terminated, truncated = bool(terminated), bool(truncated)  # once: kept and tested
+            terms.append(terminated)
+            truncs.append(truncated)
             succ.append(bool(info.get("is_success", False)) if info else False)
             if terminated or truncated:
                 break
