@@ -10,6 +10,7 @@ terminal escape sequences or bidi overrides that rewrite what a user reads in an
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 _NAMED_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t", "\\": "\\\\"}
@@ -49,3 +50,19 @@ def safe_lines(value: Any) -> str:
     """
     text = value if isinstance(value, str) else str(value)
     return "\n".join(safe_text(line) for line in text.split("\n"))
+
+
+def md_code(value: Any, *, table_cell: bool = True) -> str:
+    """``value`` as one Markdown inline code span, whatever backticks it holds (a fence one longer than its longest run
+    of them, padded when it starts or ends with one: CommonMark), on one line; in a table cell (``table_cell``) its
+    ``|`` escaped, so the row keeps its cells (GitHub's tables take ``\\|`` as a literal pipe, in code spans too).
+
+    >>> md_code("pick"), md_code("a`b"), md_code("`x|y`"), md_code("a|b", table_cell=False)
+    ('`pick`', '``a`b``', '`` `x\\\\|y` ``', '`a|b`')
+    """
+    text = " ".join(str(value).split())
+    fence = "`" * (max((len(run) for run in re.findall(r"`+", text)), default=0) + 1)
+    pad = " " if text.startswith("`") or text.endswith("`") else ""
+    if table_cell:
+        text = text.replace("|", "\\|")
+    return f"{fence}{pad}{text}{pad}{fence}"

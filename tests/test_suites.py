@@ -400,3 +400,22 @@ def test_a_hand_written_manifest_naming_a_task_push_env_would_refuse_is_refused_
     with pytest.raises(ManifestError, match="a task name is one line") as refused:
         Manifest.from_json(json.dumps(data), where="the suite")
     assert "\x1b" not in str(refused.value) and "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize("name", ["pick `red` cube", "``stack``", "a | b", "`x|y`", "plain"])
+def test_a_task_name_renders_as_itself_in_a_markdown_table_cell_and_heading(name):
+    """Task names are the publisher's text: backticks and pipes in one must not break report.md's task table (the row
+    keeps its cells, the name shows as written) nor compare's headings."""
+    from markdown_it import MarkdownIt
+
+    from hub_envs._text import md_code
+
+    md = MarkdownIt("commonmark").enable("table")
+    tokens = md.parse(f"| id | task | verdict |\n|---|---|---|\n| 0 | {md_code(name)} | ok |\n")
+    cells = [t for t in tokens if t.type == "td_open"]
+    codes = [c.content for t in tokens if t.type == "inline" for c in t.children or [] if c.type == "code_inline"]
+    assert len(cells) == 3 and codes == [name]
+    heading = [
+        c.content for t in md.parse(f"## Task {md_code(name, table_cell=False)}") if t.type == "inline" for c in t.children
+    ]
+    assert name in heading

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from hub_envs._text import md_code
 from hub_envs.harness.benchmark import BenchmarkResult
 from hub_envs.harness.provenance import DRIFT_KINDS, difference_text
 from hub_envs.harness.replay import ReplayResult
@@ -273,7 +274,7 @@ class ReproduceReport(ReportFiles):
                 replay = t.replay.summary() if t.replay is not None else "not run"
                 benches = "; ".join(b.summary() for b in t.benchmarks) or "none"
                 out.append(
-                    f"| {t.task_index} | `{t.task}` | **{t.verdict()}** | {replay} | {benches} | {t.fingerprint.get('status')} |"
+                    f"| {t.task_index} | {md_code(t.task)} | **{t.verdict()}** | {replay} | {benches} | {t.fingerprint.get('status')} |"
                 )
             out.append("")
         if self.replay is not None:

@@ -23,6 +23,7 @@ from typing import Any, Unpack
 
 import numpy as np
 
+from hub_envs._text import md_code
 from hub_envs.backends import make_backend
 from hub_envs.errors import ConfigError, ReproductionError
 from hub_envs.harness.benchmark import BenchmarkRun, bootstrap_ci
@@ -252,7 +253,13 @@ class CompareReport(ReportFiles):
                 f"{d.returns.text(sign='+').replace(' [', ' | [')} | {self._needed(d.episodes_for_5_points)} |"
             )
         for t in self.tasks:
-            out += ["", f"## Task `{t.task}`", "", "| policy or A - B | success rate | mean return |", "|---|---|---|"]
+            out += [
+                "",
+                f"## Task {md_code(t.task, table_cell=False)}",
+                "",
+                "| policy or A - B | success rate | mean return |",
+                "|---|---|---|",
+            ]
             out += [f"| {q.label} | {q.successes.text(scale=100, fmt='.1f')} | {q.returns.text()} |" for q in t.policies]
             out += [
                 f"| {d.a} - {d.b} | {d.successes.text(scale=100, sign='+', fmt='.1f')} | {d.returns.text(sign='+')} |"

@@ -22,6 +22,7 @@ from typing import Any, Unpack
 import gymnasium as gym
 import numpy as np
 
+from hub_envs._text import md_code
 from hub_envs._version import __version__
 from hub_envs.dataset.reader import read_episode_frames, read_episode_meta
 from hub_envs.errors import ConfigError
@@ -589,13 +590,19 @@ class DiffReport(ReportFiles):
         ]
         if self.manifest:
             out += ["| field | old | new |", "| --- | --- | --- |"]
-            out += [f"| `{c['field']}` | `{_short(c['old'], 60)}` | `{_short(c['new'], 60)}` |" for c in self.manifest]
+            out += [
+                f"| {md_code(c['field'])} | {md_code(_short(c['old'], 60))} | {md_code(_short(c['new'], 60))} |"
+                for c in self.manifest
+            ]
         else:
             out.append("none changed")
         out += ["", "## Spaces", ""]
         if self.spaces:
             out += ["| space | field | old | new |", "| --- | --- | --- | --- |"]
-            out += [f"| {s['space']} | `{s['field']}` | `{s['old']}` | `{s['new']}` |" for s in self.spaces]
+            out += [
+                f"| {_md_cell(s['space'])} | {md_code(s['field'])} | {md_code(s['old'])} | {md_code(s['new'])} |"
+                for s in self.spaces
+            ]
         else:
             out.append("unchanged")
         out += ["", "## Behaviour", "", f"Golden fingerprint: {self.fingerprint.get('status')}", ""]

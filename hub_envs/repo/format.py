@@ -9,6 +9,7 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import hashlib
 import json
 import os
@@ -830,12 +831,22 @@ class Manifest:
         Raises:
             ConfigError: not a task of this suite (the message lists them).
         """
-        for record in self.tasks:
-            if record["task"] == task:
-                return record
+        record = self._task_index().get(task)
+        if record is not None:
+            return record
+        names = self.task_names
+        listed = names[:10] + ([f"... {len(names) - 10} more"] if len(names) > 10 else [])
         raise ConfigError(
-            f"{self.repo_id or self.name}: {task!r} is not one of its tasks; it has {self.task_names or 'none (a one-task env)'}."
+            f"{self.repo_id or self.name}: {task!r} is not one of its tasks; it has {listed or 'none (a one-task env)'}."
         )
+
+    def _task_index(self) -> dict[str, dict[str, Any]]:
+        """The task records by task name, made once (a suite of thousands of tasks looks each up once per task)."""
+        index = self.__dict__.get("_task_records")
+        if index is None:
+            index = {str(record["task"]): record for record in self.tasks}
+            object.__setattr__(self, "_task_records", index)  # a frozen dataclass: a cache, not a field
+        return index
 
     @classmethod
     def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
@@ -1096,7 +1107,7 @@ def _suite_tasks(value: Any, project_path: Path) -> tuple[str, ...]:
             f"{project_path}: [tool.hub-envs] tasks has {[safe_text(b) for b in bad]}: a task name is one line of 1 to 200 "
             f"characters, without commas (LeRobot's --env.task=a,b lists tasks with them) or surrounding spaces."
         )
-    twice = sorted({t for t in value if value.count(t) > 1})
+    twice = sorted(t for t, n in collections.Counter(value).items() if n > 1)
     if twice:
         raise EnvFolderError(f"{project_path}: [tool.hub-envs] tasks names {twice} more than once; list each task once.")
     return tuple(value)
