@@ -19,7 +19,10 @@ Figures (medians):
 * ``first_step_lerobot_vs_gymnasium``: LeRobot's ``make_env`` seconds ÷ gymnasium's (info).
 * each child also reports whether torch or lerobot got imported (``heavy_imports``).
 
-Run: ``python -m benchmarks.bench_first_step [--repeats 7]``; ``run()`` returns the dict.
+``--env reach`` measures ``envs/reach`` instead (it declares an env processor, ``clip_action``, whose check's cached
+verdict spares the first step torch and LeRobot too); gymnasium's Pendulum-v1 stays the baseline (info).
+
+Run: ``python -m benchmarks.bench_first_step [--repeats 7] [--env reach]``; ``run()`` returns the dict.
 """
 
 from __future__ import annotations
@@ -72,7 +75,7 @@ def _child(which: str, ref: str, env: dict) -> dict:
     return json.loads(lines[-1].removeprefix("RESULT "))
 
 
-def run(repeats: int = 7, lerobot: bool = True) -> dict:
+def run(repeats: int = 7, lerobot: bool = True, env_name: str = "pendulum") -> dict:
     from hub_envs import push_env, trust
     from hub_envs.testing import HubServer, hub_environment
 
@@ -80,10 +83,10 @@ def run(repeats: int = 7, lerobot: bool = True) -> dict:
     with tempfile.TemporaryDirectory() as tmp, HubServer(Path(tmp) / "hub-data") as server:
         home = Path(tmp) / "hf"
         with hub_environment(server.endpoint, home):
-            sha = push_env(REPO / "envs" / "pendulum", "bench/pendulum", episodes=2, progress=False).sha
-            trust("bench/pendulum", sha)
+            sha = push_env(REPO / "envs" / env_name, f"bench/{env_name}", episodes=2, progress=False).sha
+            trust(f"bench/{env_name}", sha)
             env = {k: v for k, v in os.environ.items() if k != "PYTHONSTARTUP"}  # what hub_environment set, as a user has it
-        ref = f"bench/pendulum@{sha}"
+        ref = f"bench/{env_name}@{sha}"
         first = _child("hub_envs", ref, env)  # downloads, imports, runs the checks and caches their verdict
         samples: dict[str, list[dict]] = {w: [] for w in which}
         for _ in range(repeats):  # interleaved: every process sees the same machine load
@@ -114,5 +117,6 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-lerobot", action="store_true", help="leave LeRobot's make_env out (it takes seconds a sample)")
+    parser.add_argument("--env", default="pendulum", choices=["pendulum", "reach"], help="the example env (envs/<name>)")
     args = parser.parse_args()
-    print(json.dumps(run(args.repeats, lerobot=not args.no_lerobot), indent=2))
+    print(json.dumps(run(args.repeats, lerobot=not args.no_lerobot, env_name=args.env), indent=2))

@@ -10,13 +10,17 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from hub_envs import push_env, trust
+from hub_envs import load_env, push_env, trust
+from hub_envs.errors import IsolationUnavailableError, ProcessorError
+from hub_envs.loading import check_cache
+from hub_envs.paths import hub_envs_home
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -32,6 +36,16 @@ env.step(env.action_space.sample())
 out = {"heavy": sorted({m.split(".")[0] for m in sys.modules} & {"torch", "lerobot"}), "checks": loaded.report.fingerprint}
 scenario = sys.argv[2]
 if scenario == "load only":
+    print("RESULT " + json.dumps(out))
+    sys.exit(0)
+
+if scenario == "processors on use":  # the env's declared processors, built when asked for (LeRobot's eval loop does)
+    import torch
+
+    pre, post = loaded.processors()
+    clipped = post(post.to_transition({"action": torch.full((1, env.action_space.shape[0]), 5.0)}))["action"]
+    out["processors"] = [[type(s).__name__ for s in pre.steps], [type(s).__name__ for s in post.steps]]
+    out["clipped"] = sorted(set(clipped.flatten().tolist()))
     print("RESULT " + json.dumps(out))
     sys.exit(0)
 
@@ -60,6 +74,21 @@ out["made_from_parsed"] = loaded.make(ev.env).spec.max_episode_steps
 cfg = loaded.config
 out["config"] = [isinstance(cfg, EnvConfig), type(cfg) is loaded.config_class, encode_config(cfg) == loaded.manifest.config]
 print("RESULT " + json.dumps(out))
+"""
+
+#: A processor step of the env's own code (an identity on observations).
+OWN_STEP = """from dataclasses import dataclass
+
+from lerobot.processor.pipeline import ObservationProcessorStep
+
+
+@dataclass
+class Same(ObservationProcessorStep):
+    def observation(self, observation):
+        return observation
+
+    def transform_features(self, features):
+        return features
 """
 
 
@@ -111,6 +140,61 @@ def test_a_verdict_an_isolated_load_cached_does_not_spare_an_in_process_load_its
     assert "cached" in first["checks"] and first["heavy"] == ["lerobot", "torch"]  # the config checked here
     second = _run(ref, "load only")
     assert "cached" in second["checks"] and second["heavy"] == []
+
+
+@pytest.fixture(scope="module")
+def cached_reach(hub_module) -> str:
+    """envs/reach (declares a LeRobot env processor, ``clip_action``) pushed, trusted, and loaded once in a process of
+    its own (which runs its checks, the processors' dry run included, and caches their verdict)."""
+    sha = push_env(ROOT / "envs" / "reach", "alice/reach-first-step", episodes=1, progress=False).sha
+    ref = f"alice/reach-first-step@{sha}"
+    trust("alice/reach-first-step", sha)
+    first = _run(ref, "load only")
+    assert "cached" not in first["checks"] and first["heavy"] == ["lerobot", "torch"]  # the processors built and dry-run
+    return ref
+
+
+def test_a_cached_env_with_processors_steps_without_torch_or_lerobot_and_builds_them_on_use(cached_reach):
+    """The processors' check passed before for this commit with these packages: the verdict says so, and the first
+    step needs neither torch nor LeRobot; the processors are built (with both) the moment something asks for them."""
+    out = _run(cached_reach, "load only")
+    assert "cached" in out["checks"] and out["heavy"] == [], out["checks"]
+    used = _run(cached_reach, "processors on use")
+    assert used["heavy"] == []
+    assert used["processors"] == [[], ["ClipActionProcessorStep"]] and used["clipped"] == [1.0]  # reach's [-1, 1] bounds
+
+
+def test_a_processors_check_that_failed_fails_again_though_the_other_checks_verdict_is_cached(hub_module, tmp_path):
+    """A dry run that fails leaves a verdict of the feature and fingerprint checks (they passed), which does not say the
+    processors passed: the next load runs them again and fails as loudly."""
+    folder = tmp_path / "pendulum-bad-steps"
+    shutil.copytree(ROOT / "envs" / "pendulum", folder, ignore=shutil.ignore_patterns("__pycache__"))
+    with (folder / "pyproject.toml").open("a") as f:
+        f.write('\n[[tool.hub-envs.processors]]\nname = "flat"\nentry_point = "flatten_state"\nstage = "pre"\n')
+        f.write('kwargs = { keys = ["observation.nope"] }\n')
+    sha = push_env(folder, "alice/pendulum-bad-steps", episodes=1, progress=False).sha  # push_env does no dry run
+    verdicts = hub_envs_home() / check_cache.CACHE_DIR
+    before = set(verdicts.glob("*.json"))
+    for attempt in ("first", "second"):
+        with pytest.raises(ProcessorError, match=r"processors\[0\] \('flat', stage pre\) failed on a live observation"):
+            load_env(f"alice/pendulum-bad-steps@{sha}", trust_remote_code=True)
+        assert len(set(verdicts.glob("*.json")) - before) == 1, attempt  # the feature and fingerprint checks' verdict
+
+
+def test_an_isolated_load_refuses_processors_from_the_envs_own_code_though_they_passed_in_process(hub_module, tmp_path):
+    """Processors from the env's own code would run in this process: an isolated load refuses them, also when an
+    in-process load cached a verdict that they passed."""
+    folder = tmp_path / "pendulum-own-steps"
+    shutil.copytree(ROOT / "envs" / "pendulum", folder, ignore=shutil.ignore_patterns("__pycache__"))
+    (folder / "own_steps.py").write_text(OWN_STEP)
+    with (folder / "pyproject.toml").open("a") as f:
+        f.write('\n[[tool.hub-envs.processors]]\nname = "same"\nentry_point = "own_steps:Same"\nstage = "pre"\n')
+    sha = push_env(folder, "alice/pendulum-own-steps", episodes=1, progress=False).sha
+    ref = f"alice/pendulum-own-steps@{sha}"
+    assert [type(s).__name__ for s in load_env(ref, trust_remote_code=True).processors()[0].steps] == ["Same"]
+    assert "cached" in load_env(ref, trust_remote_code=True).report.fingerprint
+    with pytest.raises(IsolationUnavailableError, match=r"declares env processors from its own code \(same\)"):
+        load_env(ref, trust_remote_code=True, isolation="process")
 
 
 #: Repo ids on either side of huggingface_hub's rules (lengths, edges, '--', '..', '.git', characters).

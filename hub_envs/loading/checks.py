@@ -3,6 +3,8 @@ the env processors), the key their cached verdict is stored under, and the requi
 
 from __future__ import annotations
 
+import hashlib
+import json
 import warnings
 from collections.abc import Mapping
 from concurrent.futures import Future
@@ -24,6 +26,7 @@ from hub_envs.isolation.options import IsolationOptions
 from hub_envs.loading import check_cache
 from hub_envs.loading.isolated import worker_versions
 from hub_envs.loading.loaded import LoadedEnv
+from hub_envs.loading.processor_specs import declarations_source, parse_declarations
 from hub_envs.loading.source import Source
 from hub_envs.repo.format import DATASET_DIR, Manifest
 
@@ -33,6 +36,11 @@ FingerprintPolicy = Literal["error", "warn", "off"]
 #: manifest's values (:func:`checked_config`) and those give the env exactly what the config does
 #: (:func:`manifest_reproduces`), so a later load with the same key may take them from the manifest.
 CONFIG_CHECKED = ("config", "the code's config matches the manifest")
+
+#: The field of a cached verdict saying the env processors' check (:func:`check_processors`, its dry run included)
+#: passed, for the declarations whose digest it holds (:func:`declarations_digest`): a later load with the same key and
+#: the same declarations neither builds nor runs them, so it imports neither torch nor LeRobot for them.
+PROCESSORS_CHECKED = "processors"
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -177,29 +185,67 @@ def checked_config(config_class: type, manifest: Manifest, set_fields: Mapping[s
     return config
 
 
-def check_processors(loaded: LoadedEnv, *, dry: bool, where: str) -> None:
-    """The env processors the repo declares: well formed, buildable, and (``dry``) run once on a live observation.
+def declarations_digest(manifest: Manifest) -> str:
+    """The identity of the env processors a manifest declares (what :data:`PROCESSORS_CHECKED` records).
+
+    Args:
+        manifest: the verified manifest.
+
+    Returns:
+        64 hex digits: sha256 of its ``processors`` as canonical JSON.
+    """
+    return hashlib.sha256(json.dumps(list(manifest.processors), sort_keys=True).encode()).hexdigest()
+
+
+def processors_check_cached(plan: CheckPlan, manifest: Manifest) -> bool:
+    """Whether ``plan``'s cached verdict says the env processors ``manifest`` declares passed their check, dry run
+    included (a verdict stored before that check passed, or by a load that failed it, does not)."""
+    return plan.cached is not None and plan.cached.get(PROCESSORS_CHECKED) == declarations_digest(manifest)
+
+
+def record_processors_check(plan: CheckPlan, manifest: Manifest) -> None:
+    """Add to the verdict stored under ``plan``'s key (by this load's checks, or cached before) that the env processors
+    ``manifest`` declares passed their check; no verdict there (the other checks drifted under ``fingerprint="warn"``,
+    a read-only home), nothing is recorded: the next load checks them again."""
+    entry = check_cache.lookup(plan.key) if plan.key else None
+    digest = declarations_digest(manifest)
+    if entry is not None and entry.get(PROCESSORS_CHECKED) != digest:
+        result = {k: v for k, v in entry.items() if k not in ("key", "checked_at", "digest")}
+        check_cache.store(plan.key, {**result, PROCESSORS_CHECKED: digest})
+
+
+def check_processors(loaded: LoadedEnv, *, dry: bool, where: str, plan: CheckPlan | None = None) -> None:
+    """The env processors the repo declares: well formed, buildable, and (``dry``) run once on a live observation;
+    skipped (torch and LeRobot's processors left unimported) when ``plan``'s cached verdict says they passed, their
+    declarations refused by an isolated load whatever it says.
 
     Args:
         loaded: the registered env.
         dry: also run every step once.
         where: names the load in messages.
+        plan: the load's :class:`CheckPlan` (None: no verdict is looked at or recorded); a pass with ``dry`` is
+            recorded in the verdict stored under its key (:func:`record_processors_check`).
 
     Raises:
         ProcessorError: naming the malformed declaration or the failing step.
         IsolationUnavailableError: an isolated load whose repo declares processors from its own code.
     """
-    from hub_envs.loading.processors import specs_for, validate_for  # heavy: torch, lerobot's processors
-
     if loaded.isolation is not None and loaded.isolation.isolated:
-        own = [sp.name for sp in specs_for(loaded) if ":" in sp.entry_point]
+        specs = parse_declarations(list(loaded.manifest.processors), where=declarations_source(loaded))
+        own = [sp.name for sp in specs if ":" in sp.entry_point]
         if own:
             raise IsolationUnavailableError(
                 f"{where} declares env processors from its own code ({', '.join(own)}), which would run in this "
                 f"process; isolation does not support those yet (built-in and LeRobot-registry steps work). "
                 f"Load it with isolation='none'."
             )
+    if dry and plan is not None and processors_check_cached(plan, loaded.manifest):
+        return  # built when used: loaded.processors(), LeRobot's make_env_pre_post_processors
+    from hub_envs.loading.processors import validate_for  # heavy: torch, lerobot's processors
+
     validate_for(loaded, dry=dry)  # ProcessorError names the malformed field
+    if dry and plan is not None:
+        record_processors_check(plan, loaded.manifest)
 
 
 def checks_key(where: str, manifest: Manifest, *, steps: int, fingerprint: FingerprintPolicy, machine: dict | None = None) -> str:

@@ -332,7 +332,7 @@ def _register_and_check(src: Source, iso: IsolationOptions, plan: CheckPlan, run
                 )
                 run.timings["checks"] = time.perf_counter() - t
             if src.manifest.processors:
-                check_processors(loaded, dry=run.check, where=src.where)
+                check_processors(loaded, dry=run.check, where=src.where, plan=plan if run.check else None)
             t = time.perf_counter()
             finish_fetch(src, token=run.token, cache_dir=run.cache_dir)  # the card and meta/, downloaded meanwhile
             run.timings["fetch_rest"] = time.perf_counter() - t
