@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.metadata
 import importlib.util
 import json
 import os
@@ -159,10 +160,8 @@ def _check_route(address: str, timeout: float = 5.0) -> None:
 
 def _ray_version() -> str:
     try:
-        from importlib.metadata import version  # (light)
-
-        return f"Ray {version('ray')}"
-    except Exception:  # noqa: BLE001
+        return f"Ray {importlib.metadata.version('ray')}"
+    except importlib.metadata.PackageNotFoundError:
         return "Ray's version"
 
 
@@ -438,8 +437,10 @@ class RayBackend(Backend):
         return f"RayBackend(address={self.address!r}, workers={self.workers!r})"
 
     def preflight(self) -> None:
-        """Raise the typed error now if nothing answers at :attr:`address` (:class:`ClusterUnreachableError`) or the
-        cluster refuses this process (:class:`ClusterAuthError`, saying what to set); nothing is started."""
+        """Raise the typed error now if nothing answers at :attr:`address`, or Ray in this process would connect to
+        another address where nothing answers (a cluster started with ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, this
+        process without it: :class:`ClusterUnreachableError`), or the cluster refuses this process
+        (:class:`ClusterAuthError`, saying what to set); nothing is started."""
         _probe(self.address)
         _check_route(self.address)
         _check_auth(self.address)
