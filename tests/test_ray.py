@@ -170,7 +170,7 @@ def loopback_head():
 def test_a_driver_without_the_clusters_loopback_setting_fails_with_a_typed_error_instead_of_hanging(loopback_head, hub, tmp_path):
     """A cluster started with ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` listens on 127.0.0.1 only; a driver without that
     setting (Linux's default) is given 127.0.0.1:PORT, and Ray's ``ray.init`` replaces it by this machine's outward
-    address, where nothing listens, and retries "Failed to connect to GCS" for a quarter of an hour (no error, no exit).
+    address, where nothing listens, and retries "Failed to connect to GCS" for about 14 minutes (no error, no exit).
     ``hub-envs push --backend=ray`` must instead exit with ``ClusterUnreachableError``, naming the address and the
     setting, before any work: a hang past 180 s (the subprocess' timeout) fails the test."""
     env_dir = tmp_path / "tiny"

@@ -136,7 +136,7 @@ def _check_route(address: str, timeout: float = 5.0) -> None:
     A cluster started with ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` has 127.0.0.1 as its node address and its GCS
     listens there only; a driver without that setting (Linux's default) turns ``127.0.0.1:PORT`` into
     ``<this machine's address>:PORT``, where nothing listens, and ``ray.init`` retries "Failed to connect to GCS" there
-    for about a quarter of an hour (20 attempts of about 40 s) with no error. One TCP connection tells it at once.
+    for about 14 minutes (20 attempts of about 40 s each) before its first error. One TCP connection tells it at once.
     """
     target = _ray_connects_to(address)
     if target == address:
