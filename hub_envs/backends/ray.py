@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.metadata
 import importlib.util
 import json
 import os
@@ -44,6 +45,12 @@ PIP_LINE = "pip install 'hub-envs[ray]'"
 HUB_SETTINGS = ("HF_HUB_DISABLE_TELEMETRY", "HF_HUB_DISABLE_XET", "HF_HUB_ETAG_TIMEOUT", "HF_HUB_DOWNLOAD_TIMEOUT")
 #: ``0``: do not send the driver's Hub token to the workers (they use their node's own, e.g. ``HF_TOKEN`` set there)
 SEND_TOKEN_VAR = "HUB_ENVS_RAY_SEND_TOKEN"
+#: Ray's setting (read when ``ray`` is imported) that keeps a loopback address on loopback; see :func:`_check_route`
+LOOPBACK_SETTING = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+#: Ray's bound on ``ray.init``'s attempts to reach a cluster's GCS (``ray/_private/node.py`` ``_init_gcs_client``), set
+#: for the connection unless set here: Ray's own 20 (each attempt up to about 40 s) wait for a GCS that is restarting,
+#: and the preflight has just had the GCS answer
+GCS_ATTEMPTS_VAR, GCS_ATTEMPTS = "RAY_gcs_server_port_wait_time_s", 2
 #: retries of a shard whose worker process died
 MAX_RESTARTS = 3
 MAX_SHARD_SIZE = 32
@@ -101,6 +108,61 @@ def _probe(address: str, timeout: float = 5.0) -> None:
             f"No Ray cluster answers at {address} ({exc.strerror or exc}). Start one there (ray start --head), "
             "fix --ray_address / RAY_ADDRESS, or leave both unset to start a local Ray for the run."
         ) from None
+
+
+def _ray_connects_to(address: str) -> str:
+    """The ``host:port`` that ``ray.init(address=address)`` connects to from this process.
+
+    Ray replaces a loopback host (``127.0.0.1``, ``localhost``) by this machine's outward address
+    (``ray/_private/services.py``: ``canonicalize_bootstrap_address`` -> ``resolve_ip_for_localhost``) unless
+    ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` was set when ``ray`` was imported (``ray_constants.ENABLE_RAY_CLUSTER``).
+    """
+    if "://" in address or address in ("auto", "local"):
+        return address
+    try:
+        from ray._private.services import canonicalize_bootstrap_address  # heavy: ray
+    except ImportError:
+        return address
+    try:
+        return canonicalize_bootstrap_address(address) or address
+    except Exception:  # noqa: BLE001 - ray.init reports a malformed address itself
+        return address
+
+
+def _check_route(address: str, timeout: float = 5.0) -> None:
+    """Raise :class:`ClusterUnreachableError` when the cluster answers at ``address`` but not at the address this
+    process's Ray would connect to instead (:func:`_ray_connects_to`).
+
+    A cluster started with ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` has 127.0.0.1 as its node address and its GCS
+    listens there only; a driver without that setting (Linux's default) turns ``127.0.0.1:PORT`` into
+    ``<this machine's address>:PORT``, where nothing listens, and ``ray.init`` retries "Failed to connect to GCS" there
+    for about 14 minutes (20 attempts of about 40 s each) before its first error. One TCP connection tells it at once.
+    """
+    target = _ray_connects_to(address)
+    if target == address:
+        return
+    host, _, port = target.rpartition(":")
+    t = time.monotonic()
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            return
+    except (OSError, ValueError) as exc:
+        said = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise ClusterUnreachableError(
+            f"The Ray cluster at {address} answers there, but Ray in this process connects to {target} instead (Ray replaces "
+            f"a loopback address by this machine's address unless {LOOPBACK_SETTING}=0 is set), and nothing answers there: "
+            f"a TCP connection to {target} failed after {time.monotonic() - t:.1f} s ({said}). The cluster was most likely "
+            f"started with {LOOPBACK_SETTING}=0 (its processes then listen on 127.0.0.1 only) and this process runs "
+            f"without it: run this command with {LOOPBACK_SETTING}=0 too, with the cluster's Ray version ({_ray_version()} "
+            f"here), or restart the cluster without the setting (its GCS then listens on every address of its machine)."
+        ) from None
+
+
+def _ray_version() -> str:
+    try:
+        return f"Ray {importlib.metadata.version('ray')}"
+    except importlib.metadata.PackageNotFoundError:
+        return "Ray's version"
 
 
 def _token_found_here(loader: Any) -> bool:
@@ -375,9 +437,12 @@ class RayBackend(Backend):
         return f"RayBackend(address={self.address!r}, workers={self.workers!r})"
 
     def preflight(self) -> None:
-        """Raise the typed error now if nothing answers at :attr:`address` (:class:`ClusterUnreachableError`) or the
-        cluster refuses this process (:class:`ClusterAuthError`, saying what to set); nothing is started."""
+        """Raise the typed error now if nothing answers at :attr:`address`, or Ray in this process would connect to
+        another address where nothing answers (a cluster started with ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, this
+        process without it: :class:`ClusterUnreachableError`), or the cluster refuses this process
+        (:class:`ClusterAuthError`, saying what to set); nothing is started."""
         _probe(self.address)
+        _check_route(self.address)
         _check_auth(self.address)
 
     def worker_token(self, token: str | None) -> str | None:
@@ -409,11 +474,9 @@ class RayBackend(Backend):
             t = time.perf_counter()
             os.environ.setdefault("RAY_DEDUP_LOGS", "0")
             if self.address:
-                _check_auth(self.address)  # (again: the cluster may have changed since the backend was made)
-                try:
-                    ray.init(address=self.address, log_to_driver=False, logging_level="warning")
-                except ConnectionError as exc:
-                    raise ClusterUnreachableError(f"Ray at {self.address} refused the connection: {exc}") from None
+                _check_route(self.address)  # (again: the cluster may have changed since the backend was made)
+                _check_auth(self.address)
+                self._connect(ray)
             else:
                 ray.init(
                     address="local",  # a new Ray for this run, never a cluster some earlier ray.init left behind
@@ -434,6 +497,31 @@ class RayBackend(Backend):
             self.startup_seconds = time.perf_counter() - t
         self._depth += 1
         return self
+
+    def _connect(self, ray: Any) -> None:
+        """``ray.init`` to :attr:`address`, in a bounded time: Ray's own bound on its attempts to reach the GCS
+        (:data:`GCS_ATTEMPTS`, unless ``RAY_gcs_server_port_wait_time_s`` is set here), a typed error saying what was
+        tried, and nothing of Ray left half-initialised on the way out."""
+        ours = GCS_ATTEMPTS_VAR not in os.environ
+        if ours:
+            os.environ[GCS_ATTEMPTS_VAR] = str(GCS_ATTEMPTS)  # read when ray.init connects (node.py, _init_gcs_client)
+        t = time.monotonic()
+        try:
+            ray.init(address=self.address, log_to_driver=False, logging_level="warning")
+        except ConnectionError as exc:
+            ray.shutdown()  # a no-op unless Ray kept part of the connection
+            target = _ray_connects_to(self.address)
+            via = f" (which Ray in this process turned into {target})" if target != self.address else ""
+            raise ClusterUnreachableError(
+                f"Ray at {self.address}{via} did not let this process connect: ray.init tried for "
+                f"{time.monotonic() - t:.0f} s ({os.environ.get(GCS_ATTEMPTS_VAR)} attempts to reach its GCS, "
+                f"{GCS_ATTEMPTS_VAR}) and said: {exc}. Check that the cluster is up (`ray status` on the head), that this "
+                f"process runs the cluster's Ray version ({_ray_version()} here) and its {LOOPBACK_SETTING} setting; "
+                f"Ray's log lines above say what failed."
+            ) from None
+        finally:
+            if ours:
+                os.environ.pop(GCS_ATTEMPTS_VAR, None)
 
     def __exit__(self, *exc: Any) -> None:
         first: BaseException | None = None
