@@ -649,6 +649,22 @@ def _newer_format_message(data: dict, version: int, where: str) -> str:
     )
 
 
+_TASK_INDEXES: dict[int, tuple[tuple, dict[str, dict[str, Any]]]] = {}  # id(tasks) -> (tasks, index), the last few
+
+
+def _task_index(tasks: tuple[dict[str, Any], ...]) -> dict[str, dict[str, Any]]:
+    """A suite's task records by task name, made once per ``tasks`` tuple (a suite of thousands of tasks looks each one
+    up once per task); kept outside the manifest, which stays a plain frozen dataclass of its fields."""
+    hit = _TASK_INDEXES.get(id(tasks))
+    if hit is not None and hit[0] is tasks:  # the same tuple, not a new one at a reused address
+        return hit[1]
+    index = {str(record["task"]): record for record in tasks}
+    if len(_TASK_INDEXES) >= 8:
+        _TASK_INDEXES.clear()  # one call: safe beside another thread's lookup
+    _TASK_INDEXES[id(tasks)] = (tasks, index)
+    return index
+
+
 @dataclass(frozen=True)
 class Manifest:
     """What ``hub_env.json`` holds. Frozen: load, check, never mutate.
@@ -831,7 +847,7 @@ class Manifest:
         Raises:
             ConfigError: not a task of this suite (the message lists them).
         """
-        record = self._task_index().get(task)
+        record = _task_index(self.tasks).get(task)
         if record is not None:
             return record
         names = self.task_names
@@ -839,14 +855,6 @@ class Manifest:
         raise ConfigError(
             f"{self.repo_id or self.name}: {task!r} is not one of its tasks; it has {listed or 'none (a one-task env)'}."
         )
-
-    def _task_index(self) -> dict[str, dict[str, Any]]:
-        """The task records by task name, made once (a suite of thousands of tasks looks each up once per task)."""
-        index = self.__dict__.get("_task_records")
-        if index is None:
-            index = {str(record["task"]): record for record in self.tasks}
-            object.__setattr__(self, "_task_records", index)  # a frozen dataclass: a cache, not a field
-        return index
 
     @classmethod
     def from_json(cls, text: str, *, where: str = MANIFEST_FILE) -> Manifest:
