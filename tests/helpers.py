@@ -6,9 +6,11 @@ fixes up the manifest's hashes so integrity passes, the way only a hand-made rep
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import shutil
+import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -122,3 +124,14 @@ def install_wheels(wheels: Path, target: Path, *requirements: str) -> Path:
     )
     assert done.returncode == 0, done.stdout + done.stderr
     return target
+
+
+RAY = shutil.which("ray", path=str(Path(sys.executable).parent))  # this venv's `ray` command
+
+
+def ray_installed() -> bool:
+    """Ray importable in this Python and its ``ray`` command beside it (what the tests that run ``ray start`` need)."""
+    try:
+        return importlib.util.find_spec("ray") is not None and RAY is not None
+    except (ImportError, ValueError):  # (a blocked import: sys.modules["ray"] = None)
+        return False

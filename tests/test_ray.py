@@ -10,7 +10,6 @@ real Ray cluster on 127.0.0.1): whatever else Ray leaves in a process stays out 
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import secrets
 import shutil
@@ -22,20 +21,13 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import RAY, ray_installed
 
 HERE = Path(__file__).resolve().parent
-RAY = shutil.which("ray", path=str(Path(sys.executable).parent))  # this venv's `ray` command
-
-
-def _ray_installed() -> bool:
-    try:
-        return importlib.util.find_spec("ray") is not None and RAY is not None
-    except (ImportError, ValueError):  # (a blocked import: sys.modules["ray"] = None)
-        return False
 
 
 needs_ray = pytest.mark.skipif(
-    not _ray_installed(),
+    not ray_installed(),
     reason="ray is not installed in this Python (pip install 'hub-envs[ray]'): starts a real `ray start` head",
 )
 

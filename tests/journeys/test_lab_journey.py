@@ -14,7 +14,6 @@ teardown whatever the test did: their process groups, then any process still usi
 from __future__ import annotations
 
 import atexit
-import importlib.util
 import json
 import os
 import secrets
@@ -27,23 +26,13 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import TINY
+from helpers import RAY, TINY, ray_installed
 
 from hub_envs import push_env, reproduce
 from hub_envs.testing import HubServer, hub_environment
 
-RAY = shutil.which("ray", path=str(Path(sys.executable).parent))  # this venv's `ray` command
-
-
-def _ray_installed() -> bool:
-    try:
-        return importlib.util.find_spec("ray") is not None and RAY is not None
-    except (ImportError, ValueError):  # (a blocked import: sys.modules["ray"] = None)
-        return False
-
-
 pytestmark = pytest.mark.skipif(
-    not _ray_installed(),
+    not ray_installed(),
     reason="ray is not installed in this Python (pip install 'hub-envs[ray]'): the lab journey starts real `ray start` nodes",
 )
 HUB_TOKEN = "hf_lab_journey_token"
